@@ -1,0 +1,143 @@
+"""Least-squares adjustment: Gauss-Newton on the sparse normal equations (F80 eq. 1-3, 8).
+
+Model E(l) = f(x), D(l) = σ0² Q = C, P = C⁻¹. At each iteration the observation equations are
+linearised at x, A = ∂f/∂x over the estimated parameters, and
+
+    N Δx = −Aᵀ P (f(x) − l),   N = AᵀPA,
+
+is solved with a sparse Cholesky factor (:mod:`baarda.linalg`). A datum defect is removed by
+holding d parameters at their values (a minimum constraint, :mod:`baarda.datum`) and then
+S-transforming the increment so that the S-base points keep the minimum sum of squared shifts
+from their input coordinates (Gama's free-network convention).
+
+Convergence criterion: every increment is below ``tol`` times the conditional standard deviation
+of its parameter, |Δx_i| < tol / √N_ii (unit-free, so metres, radians and pixels can share it),
+with tol = 1e-6 by default, at most ``max_iter`` iterations.
+
+Residuals are v = f(x̂) − l (adjusted minus observed). With P = C⁻¹ the quadratic form vᵀPv is
+Ω/σ0² of F80, the statistic of the global test.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from . import datum as datum_mod
+from .errors import DatumDefectError, SingularError
+from .linalg import SPDFactor
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of the adjustment and of the tests.
+
+    alpha: size α0 of the one-dimensional tests (data snooping). beta: power β0.
+    b_method: derive α of multi-dimensional tests from α0 and β0 (Baarda's B-method).
+    tol, max_iter: Gauss-Newton convergence (see the module docstring).
+    """
+
+    alpha: float = 0.001
+    beta: float = 0.80
+    b_method: bool = False
+    tol: float = 1e-6
+    max_iter: int = 50
+
+
+def _regularised(A, P, free, plan):
+    keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
+    Ar = A[:, keep]
+    return keep, Ar
+
+
+def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None,
+           progress=None):
+    """Adjust ``problem`` by Gauss-Newton and return an :class:`baarda.result.Adjustment`.
+
+    progress: optional callable(iteration, max_increment_ratio) for progress display.
+    Raises DatumDefectError (defect not resolved by the datum, or parameters the observations do
+    not determine) — never returns a result from a singular system.
+    """
+    from .result import Adjustment
+
+    options = options or Options()
+    t0 = time.perf_counter()
+    params = problem.params
+    free = params.free
+    x = (params.x0 if x0 is None else x0).astype(float).copy()
+    x_ref = x.copy()
+    P = problem.cov.weight()
+    labels = np.asarray(params.labels)[free]
+    f, J = problem.evaluate(x)
+    A = J[:, free].tocsr()
+    plan = datum_mod.plan(problem, x, A, P, free)
+    converged = False
+    history = []
+    it = 0
+    for it in range(1, options.max_iter + 1):
+        v = problem.misclosure(f)
+        keep, Ar = _regularised(A, P, free, plan)
+        N = (Ar.T @ P @ Ar).tocsr()
+        factor = _factor_or_diagnose(N, Ar, P, labels[keep], problem, plan)
+        dx = np.zeros(free.size)
+        dx[keep] = factor.solve(-(Ar.T @ (P @ v)))
+        if plan.defect:
+            # S-transform the total shift from the input coordinates to the S-base (M84 §2)
+            total = x[free] + dx - x_ref[free]
+            dx = plan.transform(total) - (x[free] - x_ref[free])
+        ratio = np.abs(dx[keep]) * np.sqrt(N.diagonal())
+        history.append(float(ratio.max(initial=0.0)))
+        x[free] += dx
+        f, J = problem.evaluate(x)
+        A = J[:, free].tocsr()
+        if progress is not None:
+            progress(it, history[-1])
+        if not np.isfinite(x).all():
+            raise SingularError("the adjustment diverged (non-finite parameters)")
+        if history[-1] < options.tol:
+            converged = True
+            break
+    if plan.defect:
+        plan = datum_mod.plan(problem, x, A, P, free)
+    t_solve = time.perf_counter() - t0
+    return Adjustment(problem=problem, options=options, x=x, f=f, A=A, P=P, plan=plan,
+                      converged=converged, iterations=it, history=tuple(history),
+                      timings={"solve": t_solve})
+
+
+def _factor_or_diagnose(N, Ar, P, labels, problem, plan):
+    try:
+        return SPDFactor(N, labels=labels)
+    except SingularError as err:
+        undetermined = diagnose(N, labels)
+        if not undetermined:
+            undetermined = [str(err).split(": ", 1)[-1].split(" is not")[0]]
+        raise DatumDefectError(
+            len(undetermined) if len(undetermined) < 8 else 1, undetermined,
+            "the observations do not determine " + ", ".join(undetermined[:20])
+            + (" ..." if len(undetermined) > 20 else "")
+            + " (a local datum defect: too few observations to these unknowns)") from None
+
+
+def diagnose(N, labels, max_dense: int = 6000) -> list[str]:
+    """Names of the unknowns that take part in the null space of N (dense eigen-analysis).
+
+    Only for systems of up to ``max_dense`` unknowns; larger ones are named by the pivot at
+    which the factorisation broke down.
+    """
+    m = N.shape[0]
+    if m > max_dense:
+        return []
+    Nd = N.toarray()
+    d = np.sqrt(np.maximum(Nd.diagonal(), 1e-300))
+    Ns = Nd / d[:, None] / d[None, :]
+    lam, V = np.linalg.eigh(Ns)
+    null = lam < 1e-10 * max(lam.max(), 1.0)
+    if not null.any():
+        return []
+    weight = np.sqrt((V[:, null] ** 2).sum(axis=1))
+    idx = np.flatnonzero(weight > 0.05)
+    return [str(labels[i]) for i in idx[np.argsort(-weight[idx])]]

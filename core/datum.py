@@ -1,0 +1,224 @@
+"""Datum: defect analysis, minimum constraints and S-transformations (Molenaar 1984, §2).
+
+A network or block without enough fixed or weighted points has a datum defect d: the
+observations do not change under a d-parameter family of similarity transformations. The null
+space of the design matrix is spanned by the columns of G (u × d):
+
+- levelling: a common height shift (d = 1);
+- planimetric: translations in x and y, a rotation, a scale (d ≤ 4: whatever the observations
+  leave free — distances fix the scale, azimuths the rotation);
+- spatial: three translations, three rotations, a scale (d ≤ 7).
+
+Nuisance parameters follow the transformation of the points (an orientation unknown turns with
+the network); their share of each null vector is found by least squares,
+g_t = −(A_tᵀPA_t)⁻¹ A_tᵀPA_k g_k, so that any model type can be analysed without a formula of
+its own.
+
+The datum is explicit (:class:`Datum`): fixed points, weighted points (observations of
+coordinates) or a free network whose datum is an *S-base* — points whose squared shifts from
+their approximate coordinates are minimised (inner constraints over the S-base). Baarda's
+S-transformation S = I − G (EᵀG)⁻¹ Eᵀ (M84 §2, E the S-base rows of G) maps any solution and
+its covariance to that base: x_S = S x, Σ_S = S Σ Sᵀ. Redundancy numbers, w-tests and λ̄ do not
+depend on the base; coordinate covariances and deformation fields do.
+
+A defect the user did not resolve raises :class:`baarda.errors.DatumDefectError` naming the
+free transformations and the points they move; a parameter that no observation determines
+(a local defect) is named by the factorisation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse as sp
+
+from .errors import DatumDefectError
+from .linalg import SPDFactor
+
+TRANSFORMS = {
+    1: ("translation z",),
+    2: ("translation x", "translation y", "rotation", "scale"),
+    3: ("translation x", "translation y", "translation z",
+        "rotation about x", "rotation about y", "rotation about z", "scale xy", "scale z"),
+}
+
+NULL_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class Datum:
+    """How the datum is defined.
+
+    kind: ``"fixed"`` — fixed and weighted points define it; a remaining defect is an error.
+    ``"free"`` — a free network: the S-base (point ids, or parameter labels such as ``"A.x"``;
+    empty = every estimated coordinate) takes the minimum sum of squared shifts from its
+    approximate coordinates (inner constraints over the S-base).
+    """
+
+    kind: str = "fixed"
+    sbase: tuple[str, ...] = ()
+
+    def describe(self) -> str:
+        if self.kind == "fixed":
+            return "fixed and weighted points"
+        base = ", ".join(self.sbase) if self.sbase else "all points"
+        return f"free network, minimum-norm S-base: {base}"
+
+
+def similarity_candidates(problem, x: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Columns of infinitesimal similarity transformations of all point coordinates (u_all × c).
+
+    Rotation and scale columns are divided by the extent of the points so that all columns have
+    comparable size. Nuisance rows are zero here (filled in by :func:`null_space`).
+    """
+    pts = problem.points
+    dim = pts.dim
+    u = problem.params.size
+    idx = pts.index
+    has = idx >= 0
+    X = np.zeros(idx.shape)
+    X[has] = x[idx[has]]
+    used = has.any(axis=1)
+    centre = np.array([X[has[:, a], a].mean() if has[:, a].any() else 0.0 for a in range(3)])
+    Xc = np.where(has, X - centre, 0.0)
+    ext = np.abs(Xc[used]).max() if used.any() else 1.0
+    ext = ext if ext > 0 else 1.0
+    Xc = Xc / ext
+    names = TRANSFORMS[dim]
+    cols = []
+    if dim == 1:
+        cols.append(np.array([[0, 0, 1.0]]).repeat(len(idx), 0))
+    elif dim == 2:
+        ones = np.ones(len(idx))
+        zeros = np.zeros(len(idx))
+        cols.append(np.stack([ones, zeros, zeros], 1))
+        cols.append(np.stack([zeros, ones, zeros], 1))
+        cols.append(np.stack([-Xc[:, 1], Xc[:, 0], zeros], 1))
+        cols.append(np.stack([Xc[:, 0], Xc[:, 1], zeros], 1))
+    else:
+        ones = np.ones(len(idx))
+        zeros = np.zeros(len(idx))
+        cols.append(np.stack([ones, zeros, zeros], 1))
+        cols.append(np.stack([zeros, ones, zeros], 1))
+        cols.append(np.stack([zeros, zeros, ones], 1))
+        cols.append(np.stack([zeros, -Xc[:, 2], Xc[:, 1]], 1))
+        cols.append(np.stack([Xc[:, 2], zeros, -Xc[:, 0]], 1))
+        cols.append(np.stack([-Xc[:, 1], Xc[:, 0], zeros], 1))
+        cols.append(np.stack([Xc[:, 0], Xc[:, 1], zeros], 1))
+        cols.append(np.stack([zeros, zeros, Xc[:, 2]], 1))
+    G = np.zeros((u, len(cols)))
+    for c, disp in enumerate(cols):
+        G[idx[has], c] = disp[has]
+    return G, names
+
+
+@dataclass(frozen=True, eq=False)
+class DatumPlan:
+    """The outcome of the datum analysis at a linearisation point.
+
+    G: null-space basis over the free parameters (u_free × d; d = 0 when there is no defect).
+    names: a description of each null direction. eliminate: positions (in the free-parameter
+    vector) held fixed in the regularised solve (d of them). E: the S-base rows of G
+    (u_free × d, zero outside the S-base).
+    """
+
+    G: np.ndarray
+    names: tuple[str, ...]
+    eliminate: np.ndarray
+    E: np.ndarray
+
+    @property
+    def defect(self) -> int:
+        return self.G.shape[1]
+
+    def transform(self, dx: np.ndarray) -> np.ndarray:
+        """S-transformation of a solution vector (or matrix of columns) to the S-base (M84 §2)."""
+        if self.defect == 0:
+            return dx
+        M = la.solve(self.E.T @ self.G, self.E.T @ dx)
+        return dx - self.G @ M
+
+
+def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray):
+    """Null directions of the design matrix among similarity transformations.
+
+    Returns (G, names) over the free parameters; G spans {g : A g = 0} ∩ span(similarities).
+    """
+    Gall, names = similarity_candidates(problem, x)
+    G = Gall[free]
+    kind = problem.params.kind[free]
+    t = np.flatnonzero(kind == "t")
+    k = np.flatnonzero(kind != "t")
+    Ak = A[:, k]
+    R = Ak @ G[k]
+    if t.size:
+        At = A[:, t]
+        Ntt = (At.T @ P @ At).tocsr()
+        try:
+            Gt = -SPDFactor(Ntt).solve(At.T @ (P @ R))
+        except Exception:
+            Gt = -np.linalg.lstsq(Ntt.toarray(), At.T @ (P @ R), rcond=None)[0]
+        G = G.copy()
+        G[t] = Gt.reshape(t.size, -1)
+        R = A @ G
+    diagN = np.asarray((A.multiply(P @ A)).sum(axis=0)).ravel()
+    num = R.T @ (P @ R)
+    den = G.T @ (G * diagN[:, None])
+    s, U = la.eigh(den)
+    keep = s > 1e-12 * max(s.max(initial=0.0), 1e-300)
+    if not keep.any():
+        return np.zeros((free.size, 0)), ()
+    Bm = U[:, keep] / np.sqrt(s[keep])            # den-orthonormal combinations of candidates
+    lam, V = la.eigh(Bm.T @ num @ Bm)
+    null = lam < NULL_TOL
+    if not null.any():
+        return np.zeros((free.size, 0)), ()
+    coef = Bm @ V[:, null]                          # candidate coefficients of each null vector
+    Gn = G @ coef
+    desc = []
+    for c in range(coef.shape[1]):
+        w = np.abs(coef[:, c]) * np.sqrt(np.maximum(np.diag(den), 0.0))
+        w = w / w.max()
+        desc.append(" + ".join(n for n, wi in zip(names, w) if wi > 0.05))
+    return Gn, tuple(desc)
+
+
+def plan(problem, x, A, P, free) -> DatumPlan:
+    """Analyse the datum at ``x`` and decide how to regularise the normal equations.
+
+    Raises DatumDefectError for a defect that the problem's datum does not resolve.
+    """
+    G, names = null_space(problem, x, A, P, free)
+    d = G.shape[1]
+    u = free.size
+    if d == 0:
+        return DatumPlan(np.zeros((u, 0)), (), np.zeros(0, dtype=np.int64), np.zeros((u, 0)))
+    datum = problem.datum
+    labels = np.asarray(problem.params.labels)[free]
+    point_of = problem.params.point[free]
+    ids = problem.points.ids
+    moved = sorted({ids[p] for p in point_of[np.abs(G).max(axis=1) > 1e-9] if p >= 0})
+    if datum.kind != "free":
+        raise DatumDefectError(
+            d, list(names),
+            f"datum defect {d}: the observations leave {'; '.join(names)} undetermined "
+            f"(points {', '.join(moved[:12])}{' ...' if len(moved) > 12 else ''}); "
+            "fix or weight enough points, or declare a free network with an S-base")
+    if datum.sbase:
+        wanted = set(datum.sbase)
+        in_base = np.array([(p >= 0 and (ids[p] in wanted or lab in wanted))
+                            for p, lab in zip(point_of, labels)])
+    else:
+        in_base = (point_of >= 0) & (problem.params.kind[free] == "k")
+    E = np.where(in_base[:, None], G, 0.0)
+    if np.linalg.matrix_rank(E.T @ G, tol=1e-9 * max(1.0, np.abs(E.T @ G).max())) < d:
+        raise DatumDefectError(
+            d, list(names),
+            f"datum defect {d} ({'; '.join(names)}): the S-base points "
+            f"{', '.join(sorted(ids[p] for p in set(point_of[in_base])))} do not fix it")
+    cand = np.flatnonzero(in_base)
+    _, _, piv = la.qr(G[cand].T, pivoting=True, mode="economic")
+    eliminate = np.sort(cand[piv[:d]])
+    return DatumPlan(G, names, eliminate, E)

@@ -1,0 +1,54 @@
+"""Exceptions raised by baarda.
+
+All of them derive from :class:`BaardaError`, so a caller can catch everything baarda raises
+on purpose with one ``except`` clause.
+"""
+
+from __future__ import annotations
+
+
+class BaardaError(Exception):
+    """Base class of all errors raised by baarda on purpose."""
+
+
+class InputError(BaardaError):
+    """Bad input file: ``str(err)`` is ``"{path}:{line}: {message}"``.
+
+    ``line`` is 1-based (0 when the position is unknown); ``field`` optionally names the
+    offending attribute or element.
+    """
+
+    def __init__(self, path, line: int, message: str, field: str | None = None):
+        self.path = str(path)
+        self.line = int(line or 0)
+        self.message = message
+        self.field = field
+        super().__init__(f"{self.path}:{self.line}: {message}")
+
+    def __reduce__(self):
+        return (type(self), (self.path, self.line, self.message, self.field))
+
+
+class DatumDefectError(BaardaError):
+    """The normal equations have a rank defect that the datum does not remove.
+
+    ``defect`` is the number of missing datum conditions; ``undetermined`` lists the unknowns
+    (e.g. ``"P7.x"`` or orientation names) that the data cannot determine.
+    """
+
+    def __init__(self, defect: int, undetermined: list[str] | None = None, message: str = ""):
+        self.defect = int(defect)
+        self.undetermined = list(undetermined or [])
+        if not message:
+            message = f"datum defect {self.defect}"
+            if self.undetermined:
+                message += ": undetermined " + ", ".join(self.undetermined)
+        self.message = message
+        super().__init__(message)
+
+    def __reduce__(self):
+        return (type(self), (self.defect, self.undetermined, self.message))
+
+
+class SingularError(BaardaError):
+    """A matrix that must be regular (or positive definite) is singular."""

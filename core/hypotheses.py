@@ -1,0 +1,160 @@
+"""Alternative hypotheses and their multi-dimensional tests (Förstner 1980, eq. 10-15).
+
+A hypothesis is a matrix H (n × q): E(l | Hₐ) = A x + H ∇s. For an adjusted model with
+P = C⁻¹ (σ0 absorbed, so that quadratic forms are already divided by σ0²):
+
+    W_s  = Hᵀ P C_vv P H = HᵀPH − (AᵀPH)ᵀ Σ (AᵀPH)            (q × q)
+    ∇ŝ  = −W_s⁻¹ HᵀPv                                          (F80 eq. 10; v = Ax̂ − l)
+    T    = vᵀPH W_s⁻¹ HᵀPv  ~ χ'²(q, δ²)                         (F80 eq. 12)
+    R    = (T/q) / ((vᵀPv − T)/(r − q)) ~ F'(q, r − q, δ²)       (σ0 not trusted)
+    δ²   = ∇sᵀ W_s ∇s                                            (F80 eq. 11)
+
+The lower bound of detectable errors is the ellipse/ellipsoid ∇0sᵀ W_s ∇0s = δ0²
+(F80 eq. 13) with semi-axes δ0/√eig(W_s); the standardised sensitivity
+δ0'(s) = δ0 √(sᵀHᵀPHs / sᵀW_s s) (F80 eq. 14) is largest, δ0 √λmax, in the weakest direction of
+the pencil (HᵀPH, W_s) (F80 §7.3). Computing W_s takes q solves with the cached factor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse as sp
+
+from . import stats
+
+
+def selection(n: int, members, weights=None) -> sp.csc_matrix:
+    """H that adds an independent error to each listed observation (columns e_i)."""
+    members = np.asarray(members, dtype=np.int64)
+    q = members.size
+    data = np.ones(q) if weights is None else np.asarray(weights, dtype=float)
+    return sp.csc_matrix((data, (members, np.arange(q))), shape=(n, q))
+
+
+def common_error(n: int, rows_per_component: list[np.ndarray]) -> sp.csc_matrix:
+    """H for one error vector common to several observations (F80 §2.2, point transfer).
+
+    ``rows_per_component[c]`` lists the observations that the c-th component of ∇s enters,
+    e.g. for a point-transfer error in images i..j: the x rows and the y rows of that point in
+    those images, H = (0 … I₂ … I₂ … I₂ … 0)ᵀ.
+    """
+    rows, cols = [], []
+    for c, rr in enumerate(rows_per_component):
+        rr = np.asarray(rr, dtype=np.int64)
+        rows.append(rr)
+        cols.append(np.full(rr.size, c))
+    r = np.concatenate(rows)
+    return sp.csc_matrix((np.ones(r.size), (r, np.concatenate(cols))), shape=(n, len(rows_per_component)))
+
+
+@dataclass(frozen=True, eq=False)
+class HypothesisTest:
+    """A tested hypothesis. Units of ∇ŝ are those of the observations (SI)."""
+
+    label: str
+    H: object
+    q: int
+    W: np.ndarray
+    T: float
+    R: float
+    dof: int
+    alpha: float
+    critical_T: float
+    critical_R: float
+    nabla: np.ndarray
+    nabla_cov: np.ndarray
+    delta0: float
+    ellipse_axes: np.ndarray
+    ellipse_dirs: np.ndarray
+    delta0_prime_max: float
+    weakest: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def rejected_T(self) -> bool:
+        return bool(self.T > self.critical_T)
+
+    @property
+    def rejected_R(self) -> bool:
+        return bool(self.R > self.critical_R)
+
+    @property
+    def nabla_sigma(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.nabla_cov), 0.0))
+
+    def lower_bound(self, direction) -> np.ndarray:
+        """∇0s in a direction s: s δ0 / √(sᵀW s) (F80 eq. 13)."""
+        s = np.asarray(direction, dtype=float)
+        s = s / np.linalg.norm(s)
+        return s * self.delta0 / np.sqrt(s @ self.W @ s)
+
+    def ellipse(self, n: int = 73) -> np.ndarray:
+        """Points of the lower-bound ellipse ∇0sᵀ W ∇0s = δ0² (q = 2), n × 2."""
+        t = np.linspace(0, 2 * np.pi, n)
+        return (self.ellipse_dirs @ (self.ellipse_axes[:, None] * np.vstack([np.cos(t), np.sin(t)]))).T
+
+    def as_dict(self) -> dict:
+        return {"label": self.label, "dimension": self.q, "T": self.T, "R": self.R,
+                "critical_T": self.critical_T, "critical_R": self.critical_R, "alpha": self.alpha,
+                "rejected": self.rejected_T, "nabla": self.nabla.tolist(),
+                "nabla_sigma": self.nabla_sigma.tolist(), "delta0": self.delta0,
+                "ellipse_axes": self.ellipse_axes.tolist(),
+                "delta0_prime_max": self.delta0_prime_max}
+
+
+def test(adj, H, label: str = "") -> HypothesisTest:
+    """Test hypothesis H against the adjustment ``adj`` (F80 eq. 10-15; see module docstring)."""
+    H = sp.csc_matrix(H) if not sp.issparse(H) else H.tocsc()
+    n, q_cols = H.shape
+    if n != adj.n:
+        raise ValueError(f"H has {n} rows for {adj.n} observations")
+    PH = (adj.P @ H).toarray() if sp.issparse(adj.P @ H) else np.asarray(adj.P @ H)
+    AtPH = adj.Ar.T @ PH
+    Y = adj.factor.solve(AtPH)
+    HPH = np.asarray(H.T @ PH)
+    W = HPH - AtPH.T @ Y.reshape(AtPH.shape)
+    W = 0.5 * (W + W.T)
+    lam, V = la.eigh(W)
+    tol = 1e-10 * max(lam.max(initial=0.0), np.abs(np.diag(HPH)).max(initial=0.0), 1e-300)
+    pos = lam > tol
+    q = int(pos.sum())
+    Winv = (V[:, pos] / lam[pos]) @ V[:, pos].T
+    g = np.asarray(H.T @ adj.Pv).ravel()
+    nabla = -Winv @ g
+    T = float(g @ Winv @ g)
+    dof = adj.dof
+    vPv = adj.vPv
+    R = float((T / q) / ((vPv - T) / (dof - q))) if (q and dof > q and vPv > T) else float("nan")
+    o = adj.options
+    alpha = stats.alpha_b_method(o.alpha, o.beta, q) if (o.b_method and q) else o.alpha
+    d0 = stats.delta0(alpha, o.beta, max(q, 1)) if not o.b_method else stats.delta0(o.alpha, o.beta, 1)
+    crit_T = stats.critical_chi2(alpha, q) if q else float("inf")
+    crit_R = stats.critical_f(alpha, q, dof - q) if q and dof > q else float("inf")
+    axes = np.where(pos, d0 / np.sqrt(np.where(pos, lam, 1.0)), np.inf)
+    # weakest direction: largest generalized eigenvalue of (HᵀPH, W) (F80 §7.3)
+    if q == q_cols:
+        mu, U = la.eigh(HPH, W)
+        dmax = float(d0 * np.sqrt(max(mu.max(), 0.0)))
+        weakest = U[:, -1] / np.linalg.norm(U[:, -1])
+    else:
+        dmax, weakest = float("inf"), V[:, 0]
+    return HypothesisTest(label=label, H=H, q=q, W=W, T=T, R=R, dof=dof, alpha=alpha,
+                          critical_T=crit_T, critical_R=crit_R, nabla=nabla, nabla_cov=Winv,
+                          delta0=d0, ellipse_axes=axes, ellipse_dirs=V, delta0_prime_max=dmax,
+                          weakest=weakest)
+
+
+def deformation(adj, h: HypothesisTest, nabla_s=None) -> np.ndarray:
+    """∇0x = Σ AᵀP H ∇0s over the free parameters (F80 §6, eq. 16 for the k-part).
+
+    ``nabla_s`` defaults to the lower bound in the direction of the smallest eigenvalue of W_s
+    (the largest error the test cannot see at power β0).
+    """
+    if nabla_s is None:
+        s = h.ellipse_dirs[:, 0]
+        nabla_s = h.lower_bound(s)
+    err = np.asarray(h.H @ np.asarray(nabla_s, dtype=float)).ravel()
+    return adj.deformation(err)

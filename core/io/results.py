@@ -1,0 +1,180 @@
+"""The machine-readable results of an analysis: JSON (the contract, docs/json-schema.md) and CSV.
+
+Non-finite numbers never reach the JSON as NaN: a statistic that does not exist (w of an
+uncontrolled observation, σ̂0 with r = 0) is ``null`` and an infinite MDB is ``null`` with
+``"uncontrolled": true``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+SCHEMA_VERSION = "1.0"
+
+
+def _num(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def summary(adj) -> dict:
+    p = adj.problem
+    g = adj.global_test
+    return {
+        "source": p.source,
+        "title": p.title,
+        "n_observations": int(adj.n),
+        "n_unknowns": int(adj.n_unknowns),
+        "datum_defect": int(adj.defect),
+        "datum": p.datum.describe(),
+        "dof": int(adj.dof),
+        "sigma0_apriori": _num(adj.sigma0),
+        "sigma0_aposteriori": _num(adj.sigma0_post),
+        "sigma0_used": getattr(p, "sigma_act", "apriori"),
+        "omega": _num(adj.omega),
+        "alpha0": adj.options.alpha,
+        "beta0": adj.options.beta,
+        "b_method": bool(adj.options.b_method),
+        "delta0": _num(adj.delta0),
+        "critical_w": _num(adj.critical_w),
+        "critical_tau": _num(adj.critical_tau),
+        "converged": bool(adj.converged),
+        "iterations": int(adj.iterations),
+        "n_rejected": int(adj.rejected.sum()),
+        "global_test": {
+            "statistic": _num(g["statistic"]), "dof": g["dof"], "lower": _num(g["lower"]),
+            "upper": _num(g["upper"]), "conf_pr": g["conf_pr"], "passed": g["passed"],
+        },
+        "timings": {k: round(float(v), 6) for k, v in adj.timings.items()},
+    }
+
+
+def observations(adj) -> list[dict]:
+    info = adj.problem.info
+    sig = adj.problem.cov.sigma()
+    out = []
+    r, w, tau, mdb, ext = adj.r, adj.w, adj.tau, adj.mdb, adj.external
+    v, rej, unc = adj.v, adj.rejected, adj.uncontrolled
+    for i in range(adj.n):
+        d = {"index": i, "kind": info.kind[i]}
+        d.update(info.ids[i])
+        d.update({
+            "value": _num(info.value_file[i]), "unit": info.unit[i],
+            "sigma": _num(info.sigma_file[i]), "sigma_unit": info.sigma_unit[i],
+            "sigma_si": _num(sig[i]),
+            "line": int(info.line[i]),
+            "residual": _num(v[i]), "redundancy": _num(r[i]), "w": _num(w[i]), "tau": _num(tau[i]),
+            "mdb": _num(mdb[i]), "external": _num(ext[i]), "rejected": bool(rej[i]),
+            "uncontrolled": bool(unc[i]),
+        })
+        if info.group[i] >= 0:
+            d["group"] = int(info.group[i])
+        out.append(d)
+    return out
+
+
+def points(adj) -> list[dict]:
+    pts = adj.problem.points
+    xyz = adj.coordinates
+    sig = adj.point_sigma
+    out = []
+    for i, pid in enumerate(pts.ids):
+        d = {"id": pid, "status": pts.status[i]}
+        for a, name in enumerate("xyz"):
+            if pts.index[i, a] >= 0:
+                d[name] = float(xyz[i, a])
+                d["s" + name] = float(sig[i, a])
+        out.append(d)
+    return out
+
+
+def groups(adj) -> list[dict]:
+    return [{"group": g["group"], "members": [int(m) for m in g["members"]], "T": _num(g["T"]),
+             "dimension": int(g["dimension"]), "redundancy": _num(g["redundancy"]),
+             "critical": _num(g["critical"]), "alpha": g["alpha"], "rejected": bool(g["rejected"])}
+            for g in adj.groups]
+
+
+def to_dict(adj) -> dict:
+    """The whole result document (schema version ``SCHEMA_VERSION``)."""
+    return {"schema": f"baarda-analysis/{SCHEMA_VERSION}", "summary": summary(adj),
+            "observations": observations(adj), "points": points(adj), "groups": groups(adj)}
+
+
+def write_json(adj, path, doc=None) -> None:
+    doc = doc if doc is not None else to_dict(adj)
+    Path(path).write_text(json.dumps(doc, indent=1, allow_nan=False))
+
+
+def write_csv(adj, directory, doc=None) -> list[Path]:
+    """observations.csv, points.csv and groups.csv in ``directory`` (created if needed)."""
+    doc = doc if doc is not None else to_dict(adj)
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name in ("observations", "points", "groups"):
+        rows = doc[name]
+        path = d / f"{name}.csv"
+        keys = []
+        for row in rows:
+            for k in row:
+                if k not in keys:
+                    keys.append(k)
+        with path.open("w", newline="") as fh:
+            wr = csv.DictWriter(fh, fieldnames=keys or ["empty"])
+            wr.writeheader()
+            for row in rows:
+                wr.writerow({k: (";".join(map(str, v)) if isinstance(v, list) else v) for k, v in row.items()})
+        written.append(path)
+    return written
+
+
+def text_summary(adj, top: int = 8) -> str:
+    """A readable summary: global test, worst w-tests, weakest r_i, largest δ̄0."""
+    s = summary(adj)
+    g = s["global_test"]
+    info = adj.problem.info
+    lines = []
+    title = s["title"] or Path(s["source"]).name
+    lines.append(f"baarda analysis of {title}")
+    lines.append(f"  observations {s['n_observations']}, unknowns {s['n_unknowns']}, datum defect "
+                 f"{s['datum_defect']} ({s['datum']}), redundancy {s['dof']}")
+    conv = "converged" if s["converged"] else "NOT converged"
+    lines.append(f"  Gauss-Newton {conv} in {s['iterations']} iterations")
+    if g["passed"] is None:
+        lines.append("  global test: not applicable (no redundancy)")
+    else:
+        verdict = "passed" if g["passed"] else "FAILED"
+        lines.append(f"  global test: vᵀPv = {g['statistic']:.4g} in [{g['lower']:.4g}, {g['upper']:.4g}] "
+                     f"at {g['conf_pr']:.3g} → {verdict};  σ0 a priori {s['sigma0_apriori']:.4g}, "
+                     f"a posteriori {s['sigma0_aposteriori'] if s['sigma0_aposteriori'] is None else format(s['sigma0_aposteriori'], '.4g')}")
+    lines.append(f"  α0 = {s['alpha0']}, β0 = {s['beta0']}: δ0 = {s['delta0']:.3f}, critical |w| = "
+                 f"{s['critical_w']:.3f}; {s['n_rejected']} observation(s) rejected")
+
+    def label(i):
+        ids = " ".join(f"{k}={v}" for k, v in info.ids[i].items())
+        return f"#{i:<5d} {info.kind[i]:<15s} {ids}"
+
+    w = np.nan_to_num(np.abs(adj.w), nan=-1.0)
+    lines.append("  largest |w| (data snooping):")
+    for i in np.argsort(-w)[:top]:
+        flag = "  REJECTED" if adj.rejected[i] else ""
+        lines.append(f"    {label(i):<48s} w = {adj.w[i]:+8.3f}  r = {adj.r[i]:.3f}{flag}")
+    lines.append("  weakest redundancy numbers:")
+    for i in np.argsort(adj.r)[:top]:
+        lines.append(f"    {label(i):<48s} r = {adj.r[i]:.3f}  MDB = {adj.mdb[i]:.4g}")
+    ext = np.where(np.isfinite(adj.external), adj.external, np.inf)
+    lines.append("  largest external reliability δ̄0:")
+    for i in np.argsort(-ext)[:top]:
+        lines.append(f"    {label(i):<48s} δ̄0 = {adj.external[i]:.3f}  r = {adj.r[i]:.3f}")
+    if adj.groups:
+        rej = [g for g in adj.groups if g["rejected"]]
+        lines.append(f"  group tests: {len(adj.groups)} groups, {len(rej)} rejected")
+    return "\n".join(lines)

@@ -1,0 +1,247 @@
+"""The generic adjustment problem: parameters in blocks, observations in sets and clusters.
+
+Every model baarda adjusts — a levelling line, a 3D network, a bundle block — is turned into one
+:class:`Problem`:
+
+- a parameter vector ``x`` (all parameters, the fixed ones included, so that observation
+  equations never need to know the datum); each parameter has a label, a kind (``"k"`` for
+  coordinates, ``"t"`` for nuisance parameters such as orientations, F80 eq. 1) and, for
+  coordinates, the point and axis it belongs to;
+- observation sets, each a vectorised observation equation ``f(x)`` with its sparse Jacobian,
+  writing into given rows of the global observation vector ``l``;
+- a block-diagonal covariance matrix σ0² Q of the observations made of *clusters*
+  (1 × 1 for an uncorrelated observation, 2 × 2 for an image point, 3 × 3 for a GNSS vector...);
+- test *groups* (multi-dimensional observations tested together: image points, vectors);
+- a :class:`baarda.datum.Datum`.
+
+Residuals are ``v = f(x̂) − l`` (adjusted minus observed, F80 §1), wrapped to (−π, π] for
+angular observations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import scipy.sparse as sp
+
+
+class ObservationSet(Protocol):
+    """A vectorised observation equation.
+
+    ``rows`` are the global row indices the set writes to (length ``n``). ``evaluate(x)``
+    returns ``(f, jrows, jcols, jvals)``: the predicted values (n,) and the Jacobian ∂f/∂x in
+    COO form with *local* row indices (0..n-1) and global parameter indices.
+    """
+
+    rows: np.ndarray
+    angular: np.ndarray
+
+    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        ...
+
+
+@dataclass(frozen=True, eq=False)
+class Parameters:
+    """All parameters of a problem, fixed ones included.
+
+    x0: initial values (u_all,). labels: a readable name per parameter ("P1.x", "ori 3").
+    kind: "k" (coordinate) or "t" (nuisance) per parameter. fixed: True where the parameter is
+    held at its value (fixed points). point: index of the point a coordinate belongs to (-1
+    for other parameters); axis: 0, 1, 2 for x, y, z (-1 for others).
+    """
+
+    x0: np.ndarray
+    labels: tuple[str, ...]
+    kind: np.ndarray
+    fixed: np.ndarray
+    point: np.ndarray
+    axis: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return self.x0.size
+
+    @property
+    def free(self) -> np.ndarray:
+        """Indices of the estimated parameters."""
+        return np.flatnonzero(~self.fixed)
+
+
+@dataclass(frozen=True, eq=False)
+class Covariance:
+    """Block-diagonal a priori covariance σ0²Q of the observations, by clusters.
+
+    cluster: cluster id per observation (n,), clusters numbered 0..m-1.
+    blocks: per cluster, the observation indices (sorted) and the covariance matrix (SI units²).
+    """
+
+    cluster: np.ndarray
+    members: tuple[np.ndarray, ...]
+    blocks: tuple[np.ndarray, ...]
+
+    @classmethod
+    def from_blocks(cls, n: int, members, blocks) -> "Covariance":
+        cluster = np.full(n, -1, dtype=np.int64)
+        ms, bs = [], []
+        for c, (idx, cov) in enumerate(zip(members, blocks)):
+            idx = np.asarray(idx, dtype=np.int64)
+            cov = np.atleast_2d(np.asarray(cov, dtype=float))
+            if cov.shape != (idx.size, idx.size):
+                raise ValueError(f"cluster {c}: covariance of shape {cov.shape} for {idx.size} observations")
+            cluster[idx] = c
+            ms.append(idx)
+            bs.append(cov)
+        if (cluster < 0).any():
+            raise ValueError(f"observations without covariance: {np.flatnonzero(cluster < 0)[:10]}")
+        return cls(cluster, tuple(ms), tuple(bs))
+
+    @classmethod
+    def diagonal(cls, sigma: np.ndarray) -> "Covariance":
+        sigma = np.asarray(sigma, dtype=float)
+        n = sigma.size
+        return cls(np.arange(n), tuple(np.array([i]) for i in range(n)),
+                   tuple(np.array([[s * s]]) for s in sigma))
+
+    def matrix(self) -> sp.csr_matrix:
+        """The sparse block-diagonal covariance matrix (n × n)."""
+        return _block_diag(self.members, self.blocks, self.cluster.size)
+
+    def weight(self, scale: np.ndarray | None = None) -> sp.csr_matrix:
+        """P = (σ0²Q)⁻¹ times σ0², here simply the inverse of the given covariance blocks.
+
+        ``scale`` (per cluster) divides each block's weight (variance-component factors).
+        """
+        inv = []
+        for c, b in enumerate(self.blocks):
+            if b.shape[0] == 1:
+                w = np.array([[1.0 / b[0, 0]]])
+            else:
+                w = np.linalg.inv(b)
+                w = 0.5 * (w + w.T)
+            if scale is not None:
+                w = w / scale[c]
+            inv.append(w)
+        return _block_diag(self.members, inv, self.cluster.size)
+
+    def sigma(self) -> np.ndarray:
+        """Standard deviation of each observation (SI units)."""
+        out = np.empty(self.cluster.size)
+        for idx, b in zip(self.members, self.blocks):
+            out[idx] = np.sqrt(np.diag(b))
+        return out
+
+    def scaled(self, factors: np.ndarray) -> "Covariance":
+        """The covariance with each cluster multiplied by ``factors[cluster]``."""
+        return Covariance(self.cluster, self.members, tuple(b * f for b, f in zip(self.blocks, factors)))
+
+    def subset(self, keep: np.ndarray) -> "Covariance":
+        """The covariance of the observations ``keep`` (sorted indices), renumbered."""
+        n = self.cluster.size
+        new_index = np.full(n, -1, dtype=np.int64)
+        new_index[keep] = np.arange(keep.size)
+        members, blocks = [], []
+        for idx, b in zip(self.members, self.blocks):
+            m = new_index[idx] >= 0
+            if m.any():
+                members.append(new_index[idx[m]])
+                blocks.append(b[np.ix_(m, m)])
+        return Covariance.from_blocks(keep.size, members, blocks)
+
+
+def _block_diag(members, blocks, n) -> sp.csr_matrix:
+    rows, cols, vals = [], [], []
+    for idx, b in zip(members, blocks):
+        r, c = np.meshgrid(idx, idx, indexing="ij")
+        rows.append(r.ravel())
+        cols.append(c.ravel())
+        vals.append(np.asarray(b).ravel())
+    if not rows:
+        return sp.csr_matrix((n, n))
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+
+
+@dataclass(frozen=True, eq=False)
+class ObservationInfo:
+    """What the reports need to know of each scalar observation (n entries each).
+
+    kind: e.g. "distance", "image-x". ids: per observation a dict of role → id (``from``,
+    ``to``, ``image``, ``point``...). value_file/unit, sigma_file/sigma_unit: as the source
+    file has them. line: source line (0 if unknown). group: test-group id (-1 for none).
+    """
+
+    kind: tuple[str, ...]
+    ids: tuple[dict, ...]
+    value_file: np.ndarray
+    unit: tuple[str, ...]
+    sigma_file: np.ndarray
+    sigma_unit: tuple[str, ...]
+    line: np.ndarray
+    group: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class PointInfo:
+    """The points of a problem: ids, parameter index per axis (-1 where none), status."""
+
+    ids: tuple[str, ...]
+    index: np.ndarray          # (m, 3) parameter index of x, y, z or -1
+    status: tuple[str, ...]    # "fixed", "adjusted", "constrained", "control", "check", ...
+    dim: int                   # 1 (levelling), 2 (planimetric) or 3
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """An adjustment problem (see the module docstring)."""
+
+    params: Parameters
+    sets: tuple
+    l: np.ndarray
+    cov: Covariance
+    info: ObservationInfo
+    points: PointInfo
+    datum: "object"
+    sigma0: float = 1.0
+    sigma_act: str = "apriori"
+    conf_pr: float = 0.95
+    source: str = ""
+    title: str = ""
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return self.l.size
+
+    @property
+    def angular(self) -> np.ndarray:
+        a = np.zeros(self.n, dtype=bool)
+        for s in self.sets:
+            a[s.rows] = s.angular
+        return a
+
+    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        """f(x) (n,) and the Jacobian over all parameters (n × u_all, CSR)."""
+        f = np.empty(self.n)
+        R, C, V = [], [], []
+        for s in self.sets:
+            fs, jr, jc, jv = s.evaluate(x)
+            f[s.rows] = fs
+            R.append(s.rows[jr])
+            C.append(jc)
+            V.append(jv)
+        J = sp.csr_matrix((np.concatenate(V), (np.concatenate(R), np.concatenate(C))),
+                          shape=(self.n, self.params.size))
+        return f, J
+
+    def misclosure(self, f: np.ndarray) -> np.ndarray:
+        """v = f − l, angular observations wrapped to (−π, π]."""
+        d = f - self.l
+        a = self.angular
+        d[a] = wrap_angle(d[a])
+        return d
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Wrap angles (radians) to (−π, π]."""
+    return -((-np.asarray(a) + np.pi) % (2 * np.pi) - np.pi)

@@ -1,0 +1,414 @@
+"""The adjustment result: residuals, tests and reliability measures, computed lazily.
+
+Notation (THEORY.md; Förstner 1980): C = σ0²Q the a priori covariance of the observations,
+P = C⁻¹, A the design matrix at the solution, Σ = N⁻¹ = (AᵀPA)⁻¹ (a generalised inverse for a
+free network), H = AΣAᵀ, C_vv = C − H (F80 eq. 8). Per observation i:
+
+- redundancy number r_i = (C_vv P)_ii (F80 §5), Σ r_i = r;
+- Baarda's w_i = (Pv)_i / √(P C_vv P)_ii (σ0 a priori), Pope's τ_i = w_i σ0 / σ̂0;
+- MDB ∇0l_i = δ0 / √(P C_vv P)_ii (F80 §5, THEORY.md §4), σ_i δ0 / √r_i when uncorrelated;
+- contribution to the coordinates u_k,i and to the nuisance parameters u_t,i = (B Σ_t Bᵀ P)_ii
+  (F80 eq. 16), u_k,i = 1 − r_i − u_t,i;
+- external reliability δ̄0,i = δ0 √((P H_k P)_ii / (P C_vv P)_ii), which is F80's
+  δ0 √(u_k,i / r_i) for an uncorrelated observation (F80 eq. 18); ``external_all`` counts all
+  unknowns, δ0 √((1 − r_i)/r_i).
+
+Everything per observation needs only a_i Σ a_jᵀ for observations i, j of one covariance
+cluster, i.e. entries of Σ on the pattern of N: the selected inverse of :mod:`baarda.linalg`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse as sp
+
+from . import stats
+from .linalg import SPDFactor
+
+R_EPS = 1e-10
+
+
+def _padded_rows(A: sp.csr_matrix):
+    """Columns and values of each row of a CSR matrix, zero-padded to the longest row."""
+    A = sp.csr_matrix(A)
+    A.sum_duplicates()
+    counts = np.diff(A.indptr)
+    K = int(counts.max(initial=0))
+    n = A.shape[0]
+    cols = np.zeros((n, max(K, 1)), dtype=np.int64)
+    vals = np.zeros((n, max(K, 1)))
+    pos = np.arange(A.nnz) - np.repeat(A.indptr[:-1], counts)
+    rows = np.repeat(np.arange(n), counts)
+    cols[rows, pos] = A.indices
+    vals[rows, pos] = A.data
+    return cols, vals
+
+
+def pair_products(A: sp.csr_matrix, factor: SPDFactor, I: np.ndarray, J: np.ndarray,
+                  chunk: int = 200_000) -> np.ndarray:
+    """a_i Σ a_jᵀ for row pairs (I[k], J[k]) with Σ = N⁻¹ from ``factor`` (selected entries)."""
+    cols, vals = _padded_rows(A)
+    out = np.empty(len(I))
+    for s in range(0, len(I), chunk):
+        i, j = I[s:s + chunk], J[s:s + chunk]
+        ci, cj = cols[i], cols[j]
+        S = factor.entries(ci[:, :, None] + 0 * cj[:, None, :], cj[:, None, :] + 0 * ci[:, :, None])
+        out[s:s + chunk] = np.einsum("pa,pab,pb->p", vals[i], S, vals[j])
+    return out
+
+
+def cluster_pairs(cov) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All ordered pairs (i, j) of observations within each covariance cluster, and the cluster."""
+    I, J, Cl = [], [], []
+    for c, idx in enumerate(cov.members):
+        a, b = np.meshgrid(idx, idx, indexing="ij")
+        I.append(a.ravel())
+        J.append(b.ravel())
+        Cl.append(np.full(a.size, c))
+    return np.concatenate(I), np.concatenate(J), np.concatenate(Cl)
+
+
+@dataclass(frozen=True, eq=False)
+class Adjustment:
+    """Result of :func:`baarda.adjust.adjust`; every derived quantity is a cached property."""
+
+    problem: object
+    options: object
+    x: np.ndarray
+    f: np.ndarray
+    A: sp.csr_matrix          # n × u_free design matrix at the solution
+    P: sp.csr_matrix          # weight matrix C⁻¹
+    plan: object              # datum plan
+    converged: bool
+    iterations: int
+    history: tuple = ()
+    timings: dict = field(default_factory=dict)
+
+    # -- basic quantities -------------------------------------------------------------------
+    @cached_property
+    def v(self) -> np.ndarray:
+        """Residuals v = f(x̂) − l (adjusted minus observed), SI units."""
+        return self.problem.misclosure(self.f)
+
+    @cached_property
+    def keep(self) -> np.ndarray:
+        return np.setdiff1d(np.arange(self.A.shape[1]), self.plan.eliminate)
+
+    @cached_property
+    def Ar(self) -> sp.csr_matrix:
+        return self.A[:, self.keep].tocsr()
+
+    @cached_property
+    def factor(self) -> SPDFactor:
+        N = (self.Ar.T @ self.P @ self.Ar).tocsr()
+        labels = np.asarray(self.problem.params.labels)[self.problem.params.free][self.keep]
+        return SPDFactor(N, labels=labels)
+
+    @property
+    def n(self) -> int:
+        return self.problem.n
+
+    @property
+    def n_unknowns(self) -> int:
+        return int(self.A.shape[1])
+
+    @property
+    def defect(self) -> int:
+        return self.plan.defect
+
+    @cached_property
+    def dof(self) -> int:
+        """Redundancy r = n − rank(A) (F80 §1)."""
+        return int(self.n - self.keep.size)
+
+    @cached_property
+    def Pv(self) -> np.ndarray:
+        return self.P @ self.v
+
+    @cached_property
+    def vPv(self) -> float:
+        """vᵀPv = Ω/σ0², the global test statistic (χ²(r) under H0)."""
+        return float(self.v @ self.Pv)
+
+    @property
+    def sigma0(self) -> float:
+        return float(self.problem.sigma0)
+
+    @cached_property
+    def omega(self) -> float:
+        """Ω = vᵀ P_F v with the weights p = σ0²/σ² of F80 (Gama's [pvv])."""
+        return self.vPv * self.sigma0 ** 2
+
+    @cached_property
+    def sigma0_post(self) -> float:
+        """σ̂0 = √(Ω / r); NaN when r = 0."""
+        return float(np.sqrt(self.omega / self.dof)) if self.dof > 0 else float("nan")
+
+    @cached_property
+    def delta0(self) -> float:
+        return stats.delta0(self.options.alpha, self.options.beta, 1)
+
+    @cached_property
+    def global_test(self) -> dict:
+        return stats.global_test(self.vPv, self.dof, getattr(self.problem, "conf_pr", 0.95))
+
+    # -- per-observation reliability ----------------------------------------------------------
+    @cached_property
+    def _cluster_stats(self):
+        cov = self.problem.cov
+        I, J, Cl = cluster_pairs(cov)
+        H = pair_products(self.Ar, self.factor, I, J)
+        Ht = self._nuisance_products(I, J)
+        n = self.n
+        r = np.empty(n)
+        pcp = np.empty(n)
+        php = np.empty(n)
+        phkp = np.empty(n)
+        pos = 0
+        for c, idx in enumerate(cov.members):
+            m = idx.size
+            Hc = H[pos:pos + m * m].reshape(m, m)
+            Htc = Ht[pos:pos + m * m].reshape(m, m)
+            pos += m * m
+            C = cov.blocks[c]
+            Pc = np.linalg.inv(C) if m > 1 else 1.0 / C
+            Cvv = C - Hc
+            r[idx] = np.diag(Cvv @ Pc)
+            pcp[idx] = np.diag(Pc @ Cvv @ Pc)
+            php[idx] = np.diag(Pc @ Hc @ Pc)
+            phkp[idx] = np.diag(Pc @ (Hc - Htc) @ Pc)
+        return r, pcp, php, phkp, H, Ht
+
+    def _nuisance_products(self, I, J):
+        kind = self.problem.params.kind[self.problem.params.free][self.keep]
+        t = np.flatnonzero(kind == "t")
+        if t.size == 0:
+            return np.zeros(len(I))
+        B = self.Ar[:, t].tocsr()
+        Ntt = (B.T @ self.P @ B).tocsr()
+        return pair_products(B, SPDFactor(Ntt), I, J)
+
+    @cached_property
+    def r(self) -> np.ndarray:
+        """Redundancy numbers r_i = (C_vv P)_ii (F80 §5), clipped to [0, 1] against round-off."""
+        return np.clip(self._cluster_stats[0], 0.0, 1.0)
+
+    @cached_property
+    def uncontrolled(self) -> np.ndarray:
+        """Observations with r_i ≈ 0: an error in them cannot be detected at all."""
+        return self._cluster_stats[0] <= R_EPS
+
+    @cached_property
+    def qvv_pp(self) -> np.ndarray:
+        """(P C_vv P)_ii, the variance of (Pv)_i."""
+        return np.maximum(self._cluster_stats[1], 0.0)
+
+    @cached_property
+    def sigma_v(self) -> np.ndarray:
+        """Standard deviation of each residual √(C_vv)_ii for uncorrelated ones (a priori σ0)."""
+        sig = self.problem.cov.sigma()
+        return sig * np.sqrt(self.r)
+
+    @cached_property
+    def w(self) -> np.ndarray:
+        """Baarda's w-test statistics (σ0 a priori, F80 §4); NaN where r_i = 0 (uncontrolled)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w = self.Pv / np.sqrt(self.qvv_pp)
+        w[self.uncontrolled] = np.nan
+        return w
+
+    @cached_property
+    def tau(self) -> np.ndarray:
+        """Pope's τ statistics (σ0 a posteriori): τ_i = w_i σ0 / σ̂0."""
+        if self.dof <= 0 or self.sigma0_post == 0:
+            return np.full(self.n, np.nan)
+        return self.w * self.sigma0 / self.sigma0_post
+
+    @cached_property
+    def critical_w(self) -> float:
+        return stats.critical_normal(self.options.alpha)
+
+    @cached_property
+    def critical_tau(self) -> float:
+        return stats.critical_tau(self.options.alpha, self.dof)
+
+    @cached_property
+    def rejected(self) -> np.ndarray:
+        """|w_i| above the critical value of the normal distribution at α0."""
+        return np.nan_to_num(np.abs(self.w)) > self.critical_w
+
+    @cached_property
+    def mdb(self) -> np.ndarray:
+        """Minimal detectable bias ∇0l_i = δ0 / √(P C_vv P)_ii (SI units); inf where r_i = 0."""
+        with np.errstate(divide="ignore"):
+            m = self.delta0 / np.sqrt(self.qvv_pp)
+        m[self.uncontrolled] = np.inf
+        return m
+
+    @cached_property
+    def u_t(self) -> np.ndarray:
+        """Contribution of each observation to the nuisance parameters (F80 eq. 16)."""
+        r, pcp, php, phkp, H, Ht = self._cluster_stats
+        return np.clip(1.0 - r - self.u_k, 0.0, 1.0)
+
+    @cached_property
+    def u_k(self) -> np.ndarray:
+        """Contribution of each observation to the coordinates u_k,i (F80 eq. 16)."""
+        cov = self.problem.cov
+        _, _, _, _, H, Ht = self._cluster_stats
+        out = np.empty(self.n)
+        pos = 0
+        for c, idx in enumerate(cov.members):
+            m = idx.size
+            Hk = (H[pos:pos + m * m] - Ht[pos:pos + m * m]).reshape(m, m)
+            pos += m * m
+            Pc = np.linalg.inv(cov.blocks[c])
+            out[idx] = np.diag(Hk @ Pc)
+        return np.clip(out, 0.0, 1.0)
+
+    @cached_property
+    def external(self) -> np.ndarray:
+        """δ̄0,i: the effect of an undetectable error on the coordinates (F80 eq. 18)."""
+        phkp = np.maximum(self._cluster_stats[3], 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = self.delta0 * np.sqrt(phkp / self.qvv_pp)
+        e[self.uncontrolled] = np.inf
+        return e
+
+    @cached_property
+    def external_all(self) -> np.ndarray:
+        """δ0 √((1 − r_i)/r_i) generalised: the effect on all unknowns (F80 after eq. 18)."""
+        php = np.maximum(self._cluster_stats[2], 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = self.delta0 * np.sqrt(php / self.qvv_pp)
+        e[self.uncontrolled] = np.inf
+        return e
+
+    # -- groups -------------------------------------------------------------------------------
+    @cached_property
+    def groups(self) -> list[dict]:
+        """Multi-dimensional tests of the problem's observation groups (vectors, image points)."""
+        from .hypotheses import selection, test
+
+        gid = self.problem.info.group
+        out = []
+        if (gid < 0).all():
+            return out
+        order = np.argsort(gid, kind="stable")
+        g_sorted = gid[order]
+        starts = np.flatnonzero(np.r_[True, g_sorted[1:] != g_sorted[:-1]])
+        ends = np.r_[starts[1:], g_sorted.size]
+        for s, e in zip(starts, ends):
+            if g_sorted[s] < 0:
+                continue
+            members = np.sort(order[s:e])
+            h = test(self, selection(self.n, members), label=f"group {g_sorted[s]}")
+            out.append({"group": int(g_sorted[s]), "members": members, "T": h.T,
+                        "dimension": h.q, "redundancy": float(self.r[members].sum()),
+                        "critical": h.critical_T, "rejected": h.rejected_T,
+                        "alpha": h.alpha, "nabla": h.nabla})
+        return out
+
+    # -- covariance of the unknowns -----------------------------------------------------------
+    def _full(self, vec_keep: np.ndarray) -> np.ndarray:
+        out = np.zeros((self.A.shape[1],) + vec_keep.shape[1:])
+        out[self.keep] = vec_keep
+        return out
+
+    def solve_normal(self, b: np.ndarray) -> np.ndarray:
+        """Σ b over the free parameters (with the datum's S-transformation applied)."""
+        b = np.asarray(b, dtype=float)
+        y = self._full(self.factor.solve(b[self.keep]))
+        return self.plan.transform(y)
+
+    @cached_property
+    def _sbase_Z(self):
+        if self.plan.defect == 0:
+            return None
+        E = self.plan.E
+        K = la.solve(E.T @ self.plan.G, E.T)            # d × u
+        Z = self._full(self.factor.solve(K.T[self.keep]))  # Σ Kᵀ, u × d
+        return K, Z, K @ Z
+
+    def cov_entries(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """Entries of the a priori covariance σ0²Q_x̂x̂ (free-parameter positions), in the datum.
+
+        For a free network the S-transformation Σ_S = S Σ Sᵀ (M84 §2) is applied entrywise.
+        """
+        i = np.asarray(i, dtype=np.int64)
+        j = np.asarray(j, dtype=np.int64)
+        pos = np.full(self.A.shape[1], -1)
+        pos[self.keep] = np.arange(self.keep.size)
+        pi, pj = pos[i], pos[j]
+        ok = (pi >= 0) & (pj >= 0)
+        out = np.zeros(np.broadcast(i, j).shape)
+        out[ok] = self.factor.entries(pi[ok], pj[ok])
+        if self._sbase_Z is not None:
+            K, Z, KZ = self._sbase_Z
+            G = self.plan.G
+            out = (out - np.einsum("...d,...d->...", G[i], Z[j]) - np.einsum("...d,...d->...", Z[i], G[j])
+                   + np.einsum("...d,de,...e->...", G[i], KZ, G[j]))
+        return out
+
+    @cached_property
+    def variance_factor(self) -> float:
+        """(σ0 used / σ0)²: 1 with σ0 a priori, (σ̂0/σ0)² when the problem asks for a posteriori."""
+        if getattr(self.problem, "sigma_act", "apriori") == "aposteriori" and self.dof > 0:
+            return (self.sigma0_post / self.sigma0) ** 2
+        return 1.0
+
+    @cached_property
+    def point_cov(self) -> np.ndarray:
+        """Covariance blocks of the points (m × 3 × 3, metres², σ0 as the problem asks; 0 for fixed)."""
+        idx = self.problem.points.index
+        fpos = np.full(self.problem.params.size, -1)
+        fpos[self.problem.params.free] = np.arange(self.problem.params.free.size)
+        loc = np.where(idx >= 0, fpos[np.maximum(idx, 0)], -1)
+        m = len(idx)
+        out = np.zeros((m, 3, 3))
+        a, b = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+        li = loc[:, a]
+        lj = loc[:, b]
+        both = (li >= 0) & (lj >= 0)
+        out[both] = self.cov_entries(li[both], lj[both])
+        return out * self.variance_factor
+
+    @cached_property
+    def point_sigma(self) -> np.ndarray:
+        """Standard deviations of the point coordinates (m × 3, metres; 0 where fixed/absent)."""
+        return np.sqrt(np.maximum(np.diagonal(self.point_cov, axis1=1, axis2=2), 0.0))
+
+    @cached_property
+    def coordinates(self) -> np.ndarray:
+        """Adjusted coordinates of the points (m × 3, NaN for absent axes)."""
+        idx = self.problem.points.index
+        out = np.full(idx.shape, np.nan)
+        out[idx >= 0] = self.x[idx[idx >= 0]]
+        return out
+
+    # -- hypotheses and deformations -----------------------------------------------------------
+    def test(self, H, label: str = ""):
+        """Multi-dimensional test of an arbitrary hypothesis matrix H (n × q), F80 eq. 10-15."""
+        from .hypotheses import test
+        return test(self, H, label=label)
+
+    def deformation(self, error: np.ndarray) -> np.ndarray:
+        """Effect ∇x = Σ AᵀP ∇l of an observation error vector ∇l on all free parameters (F80 §6).
+
+        One solve with the cached factor; S-transformed to the problem's datum.
+        """
+        b = self.A.T @ (self.P @ np.asarray(error, dtype=float))
+        return self.solve_normal(b)
+
+    def point_shifts(self, dx_free: np.ndarray) -> np.ndarray:
+        """A free-parameter vector as point displacements (m × 3, 0 where absent)."""
+        full = np.zeros(self.problem.params.size)
+        full[self.problem.params.free] = dx_free
+        idx = self.problem.points.index
+        out = np.zeros(idx.shape)
+        out[idx >= 0] = full[idx[idx >= 0]]
+        return out

@@ -1,0 +1,100 @@
+"""Test distributions: critical values, the non-centrality δ0, Baarda's B-method.
+
+Förstner (1980) §4-§5; Molenaar (1984) §3.1-§3.2; THEORY.md §3-§4.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from scipy import optimize, stats
+
+
+def critical_normal(alpha: float) -> float:
+    """Two-sided critical value of a standard normal test statistic, Φ⁻¹(1 − α/2)."""
+    return float(stats.norm.isf(alpha / 2.0))
+
+
+def critical_chi2(alpha: float, q: int) -> float:
+    """Critical value χ²_{1−α}(q) of a q-dimensional test statistic T (F80 eq. 12)."""
+    return float(stats.chi2.isf(alpha, q))
+
+
+def critical_f(alpha: float, q: int, dof: float) -> float:
+    """Critical value F_{1−α}(q, dof) of R (F80 eq. 12, σ0 estimated)."""
+    return float(stats.f.isf(alpha, q, dof)) if dof > 0 else float("inf")
+
+
+def critical_tau(alpha: float, dof: int) -> float:
+    """Critical value of Pope's τ (THEORY.md §3): τ²/r ~ Beta(1/2, (r−1)/2).
+
+    Through t = τ √(r−1) / √(r − τ²) ~ t(r−1): τ_c = √(r t_c² / (r − 1 + t_c²)).
+    """
+    if dof <= 1:
+        return float("inf")
+    t = stats.t.isf(alpha / 2.0, dof - 1)
+    return float(np.sqrt(dof * t * t / (dof - 1 + t * t)))
+
+
+@lru_cache(maxsize=256)
+def delta0(alpha: float, beta: float, q: int = 1) -> float:
+    """Non-centrality δ0 at which a q-dimensional χ² test of size α has power β (F80 §5).
+
+    Solves P(χ'²(q, δ0²) > χ²_{1−α}(q)) = β with scipy's non-central χ². For q = 1 this is
+    the two-sided normal test; its value differs from the approximation
+    Φ⁻¹(1 − α/2) + Φ⁻¹(β) only by the far tail (THEORY.md §4: 4.13 for α = 0.1 %, β = 80 %).
+    """
+    if not (0 < alpha < 1 and 0 < beta < 1) or q < 1:
+        raise ValueError(f"need 0 < alpha, beta < 1 and q ≥ 1 (alpha={alpha}, beta={beta}, q={q})")
+    c = stats.chi2.isf(alpha, q)
+
+    def power_gap(lam):
+        return stats.ncx2.sf(c, q, lam) - beta
+
+    hi = (np.sqrt(c) + stats.norm.isf(1 - beta) + 10.0) ** 2
+    lam = optimize.brentq(power_gap, 1e-12, hi, xtol=1e-14, rtol=1e-14)
+    return float(np.sqrt(lam))
+
+
+def delta0_normal(alpha: float, beta: float) -> float:
+    """The normal approximation δ0 = Φ⁻¹(1 − α/2) + Φ⁻¹(β) (THEORY.md §4)."""
+    return float(stats.norm.isf(alpha / 2.0) + stats.norm.ppf(beta))
+
+
+def power(alpha: float, q: int, delta: float) -> float:
+    """Power of a q-dimensional test of size α against non-centrality δ (F80 eq. 11)."""
+    return float(stats.ncx2.sf(stats.chi2.isf(alpha, q), q, delta * delta))
+
+
+@lru_cache(maxsize=256)
+def alpha_b_method(alpha1: float, beta: float, q: int) -> float:
+    """Baarda's B-method: the size α_q of a q-dimensional test with the δ0 of the 1D test.
+
+    Tests of any dimension get the same δ0 and β0 (F80 §7.2); α_q solves
+    P(χ'²(q, δ0(α1, β, 1)²) > χ²_{1−α_q}(q)) = β.
+    """
+    if q == 1:
+        return alpha1
+    lam = delta0(alpha1, beta, 1) ** 2
+
+    def gap(log_a):
+        return stats.ncx2.sf(stats.chi2.isf(np.exp(log_a), q), q, lam) - beta
+
+    return float(np.exp(optimize.brentq(gap, np.log(1e-15), np.log(0.999999), xtol=1e-13)))
+
+
+def global_test(statistic: float, dof: int, conf_pr: float) -> dict:
+    """Two-sided global test of Ω/σ0² ~ χ²(r) at confidence level ``conf_pr`` (F80 §4).
+
+    Returns the statistic, the acceptance interval and whether it passed; with r = 0 the test
+    is not applicable (passed is None).
+    """
+    if dof <= 0:
+        return {"statistic": float(statistic), "dof": int(dof), "lower": None, "upper": None,
+                "passed": None, "conf_pr": conf_pr}
+    a = 1.0 - conf_pr
+    lower = float(stats.chi2.ppf(a / 2.0, dof))
+    upper = float(stats.chi2.isf(a / 2.0, dof))
+    return {"statistic": float(statistic), "dof": int(dof), "lower": lower, "upper": upper,
+            "passed": bool(lower <= statistic <= upper), "conf_pr": conf_pr}
