@@ -151,6 +151,7 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
     kind = problem.params.kind[free]
     t = np.flatnonzero(kind == "t")
     k = np.flatnonzero(kind != "t")
+    G[t] = 0.0
     Ak = A[:, k]
     R = Ak @ G[k]
     if t.size:
@@ -165,9 +166,10 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
         R = A @ G
     diagN = np.asarray((A.multiply(P @ A)).sum(axis=0)).ravel()
     num = R.T @ (P @ R)
-    den = G.T @ (G * diagN[:, None])
+    Gk = G[k]
+    den = Gk.T @ (Gk * diagN[k, None])      # size of each combination by the point motion alone
     s, U = la.eigh(den)
-    keep = s > 1e-12 * max(s.max(initial=0.0), 1e-300)
+    keep = s > 1e-10 * max(s.max(initial=0.0), 1e-300)
     if not keep.any():
         return np.zeros((free.size, 0)), ()
     Bm = U[:, keep] / np.sqrt(s[keep])            # den-orthonormal combinations of candidates
@@ -177,6 +179,7 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
         return np.zeros((free.size, 0)), ()
     coef = Bm @ V[:, null]                          # candidate coefficients of each null vector
     Gn = G @ coef
+    Gn = Gn / np.abs(Gn).max(axis=0)              # unit size: the scale of N is irrelevant here
     desc = []
     for c in range(coef.shape[1]):
         w = np.abs(coef[:, c]) * np.sqrt(np.maximum(np.diag(den), 0.0))
@@ -213,7 +216,7 @@ def plan(problem, x, A, P, free) -> DatumPlan:
     else:
         in_base = (point_of >= 0) & (problem.params.kind[free] == "k")
     E = np.where(in_base[:, None], G, 0.0)
-    if np.linalg.matrix_rank(E.T @ G, tol=1e-9 * max(1.0, np.abs(E.T @ G).max())) < d:
+    if np.linalg.matrix_rank(E.T @ G, tol=1e-9 * np.abs(E.T @ G).max(initial=1e-300)) < d:
         raise DatumDefectError(
             d, list(names),
             f"datum defect {d} ({'; '.join(names)}): the S-base points "

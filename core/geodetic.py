@@ -101,16 +101,24 @@ class SpatialSet:
     idx: np.ndarray       # (n, 2, 3): parameter index of (from, to) × (x, y, z)
     hf: np.ndarray
     ht: np.ndarray
+    jacobian_at_marks: bool = False
 
     @property
     def angular(self):
         return np.full(self.rows.size, self.kind == "zenith-angle")
 
     def evaluate(self, x):
+        f, r, c, v = self._evaluate(x, self.hf, self.ht)
+        if self.jacobian_at_marks and (self.hf.any() or self.ht.any()):
+            # gama-local's linearisation: derivatives at the marks, heights left out
+            _, r, c, v = self._evaluate(x, 0.0 * self.hf, 0.0 * self.ht)
+        return f, r, c, v
+
+    def _evaluate(self, x, hf, ht):
         n = self.rows.size
         dx = x[self.idx[:, 1, 0]] - x[self.idx[:, 0, 0]]
         dy = x[self.idx[:, 1, 1]] - x[self.idx[:, 0, 1]]
-        dz = x[self.idx[:, 1, 2]] + self.ht - x[self.idx[:, 0, 2]] - self.hf
+        dz = x[self.idx[:, 1, 2]] + ht - x[self.idx[:, 0, 2]] - hf
         cols = [self.idx[:, 1, 0], self.idx[:, 1, 1], self.idx[:, 1, 2],
                 self.idx[:, 0, 0], self.idx[:, 0, 1], self.idx[:, 0, 2]]
         if self.kind == "slope-distance":
@@ -155,8 +163,12 @@ def _point_axes(net: Network) -> list[str]:
     return ["".join(a for a in AXES if a in s) for s in need]
 
 
-def build_problem(net: Network) -> Problem:
+def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
     """Turn a network into an adjustment problem (parameters, observation sets, datum).
+
+    ``jacobian_at_marks`` reproduces gama-local's linearisation of slope distances and zenith
+    angles, whose design matrix leaves out the instrument and target heights (the observation
+    equations keep them); baarda's default is the rigorous derivative.
 
     Coordinates of points with ``fixed`` axes are parameters held fixed; axes that are neither
     fixed, adjusted nor constrained but have a coordinate are held fixed too (known points).
@@ -224,7 +236,7 @@ def build_problem(net: Network) -> Problem:
         elif kd in ("slope-distance", "zenith-angle"):
             idx = np.array([[[pidx(obs[r].points[j], a) for a in AXES] for j in range(2)] for r in rows])
             sets.append(SpatialSet(kd, rows, idx, np.array([obs[r].from_dh for r in rows]),
-                                   np.array([obs[r].to_dh for r in rows])))
+                                   np.array([obs[r].to_dh for r in rows]), jacobian_at_marks))
         else:
             a = {"height-diff": "z", "dx": "x", "dy": "y", "dz": "z"}.get(kd, kd[-1])
             if kd.startswith("coordinate"):

@@ -245,3 +245,56 @@ class Problem:
 def wrap_angle(a: np.ndarray) -> np.ndarray:
     """Wrap angles (radians) to (−π, π]."""
     return -((-np.asarray(a) + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _subset_set(s, keep_mask: np.ndarray, new_index: np.ndarray):
+    """A copy of an observation set with only the rows where ``keep_mask`` (global) is True."""
+    import dataclasses
+
+    local = keep_mask[s.rows]
+    changes = {}
+    for f in dataclasses.fields(s):
+        val = getattr(s, f.name)
+        if f.name == "rows":
+            changes["rows"] = new_index[val[local]]
+        elif isinstance(val, np.ndarray) and val.ndim >= 1 and val.shape[0] == s.rows.size:
+            changes[f.name] = val[local]
+    return dataclasses.replace(s, **changes) if local.any() else None
+
+
+def subset(problem: Problem, keep) -> Problem:
+    """The problem with only the observations ``keep`` (indices or a boolean mask).
+
+    Used to exclude observations (data snooping, the dashboard's exclude/re-include); the
+    parameters and the datum stay as they are.
+    """
+    import dataclasses
+
+    mask = np.zeros(problem.n, dtype=bool)
+    mask[np.asarray(keep)] = True
+    idx = np.flatnonzero(mask)
+    new_index = np.full(problem.n, -1, dtype=np.int64)
+    new_index[idx] = np.arange(idx.size)
+    sets = tuple(s2 for s2 in (_subset_set(s, mask, new_index) for s in problem.sets) if s2 is not None)
+    info = problem.info
+    info2 = ObservationInfo(
+        kind=tuple(info.kind[i] for i in idx), ids=tuple(info.ids[i] for i in idx),
+        value_file=info.value_file[idx], unit=tuple(info.unit[i] for i in idx),
+        sigma_file=info.sigma_file[idx], sigma_unit=tuple(info.sigma_unit[i] for i in idx),
+        line=info.line[idx], group=info.group[idx])
+    # nuisance parameters left without any observation (e.g. the orientation of a direction set
+    # whose directions were all excluded) are held at their values; coordinates are not, so that
+    # an undetermined point is diagnosed rather than silently fixed
+    params = problem.params
+    observed = np.zeros(params.size, dtype=bool)
+    x = params.x0
+    for s2 in sets:
+        _, _, jc, jv = s2.evaluate(x)
+        observed[jc[jv != 0]] = True
+    orphan = (params.kind == "t") & ~params.fixed & ~observed
+    if orphan.any():
+        params = dataclasses.replace(params, fixed=params.fixed | orphan)
+    extra = dict(problem.extra)
+    extra["kept_rows"] = idx if "kept_rows" not in problem.extra else problem.extra["kept_rows"][idx]
+    return dataclasses.replace(problem, params=params, sets=sets, l=problem.l[idx], cov=problem.cov.subset(idx),
+                               info=info2, extra=extra)

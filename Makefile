@@ -1,0 +1,34 @@
+# baarda — the two commands of the README: `make demo` and `make test`.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+
+.PHONY: install demo serve test test-fast bench clean
+
+$(BIN)/python:
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+
+install: $(BIN)/python
+	$(BIN)/pip install -q -e ".[dashboard,test,browser]"
+
+# Analyse the bundled demo block and write a report to out/
+demo: install
+	mkdir -p out
+	$(BIN)/baarda analyze data/demo-block.json --json out/demo-block.json --csv out/demo-block
+	@echo "serve the dashboard with:  $(BIN)/baarda serve data/demo-block.json"
+
+serve: install
+	$(BIN)/baarda serve
+
+test: install
+	$(BIN)/python -m pytest -q
+
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not slow and not browser"
+
+bench: install
+	$(BIN)/python bench/bench_network.py
+
+clean:
+	rm -rf $(VENV) out build *.egg-info

@@ -1,0 +1,468 @@
+"""Approximate coordinates for the points of a :class:`~baarda.network.Network` lacking them.
+
+gama-local computes missing approximate coordinates itself before adjusting; baarda does the
+same here so that Gauss-Newton starts close enough to converge. The methods are the classical
+ones of surveying computations (e.g. Ghilani, *Adjustment Computations*, ch. 11-15; GNU Gama's
+``acord`` module follows the same ideas):
+
+- heights: from observed coordinates, height differences, vector components, and from zenith
+  angles with a horizontal distance (reduced with the instrument/target heights);
+- plan: from observed coordinates and vectors; *bearings* are propagated through oriented
+  direction sets (orientation from any known bearing of the set), azimuths, angles
+  (bearing(from→right) = bearing(from→left) + angle) and back-bearings (+π); a point is then
+  located by the polar method (bearing + distance), forward intersection of rays from two or
+  more known stations, or a small least-squares fit of every constraint touching it
+  (trilateration, resection with an unknown orientation, angles at the point), solved from
+  several starting points and accepted only when its solution is unique;
+- everything is iterated until no further point can be determined.
+
+Coordinates already given in the network are never changed. Bearings follow the network's
+convention ``bearing = angle_sign·atan2(Δy, Δx) + azimuth_offset`` (see
+:mod:`baarda.network`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from baarda.errors import InputError
+from baarda.network import Network
+
+__all__ = ["approximate_coordinates"]
+
+TWO_PI = 2.0 * math.pi
+
+
+def _wrap(a: float) -> float:
+    """Angle reduced to (−π, π]."""
+    return math.remainder(a, TWO_PI)
+
+
+def _circular_mean(angles) -> float:
+    angles = list(angles)
+    return math.atan2(sum(math.sin(a) for a in angles), sum(math.cos(a) for a in angles))
+
+
+def _median_point(cands):
+    arr = np.asarray(cands, dtype=float)
+    return tuple(np.median(arr, axis=0))
+
+
+class _Approx:
+    """Working state: known coordinates and the observations in convenient tables."""
+
+    def __init__(self, net: Network):
+        self.net = net
+        self.sign, self.offset = net.angle_sign, net.azimuth_offset
+        self.xy: dict[str, tuple[float, float]] = {}
+        self.z: dict[str, float] = {}
+        for p in net.points:
+            if p.x is not None and p.y is not None:
+                self.xy[p.id] = (p.x, p.y)
+            if p.z is not None:
+                self.z[p.id] = p.z
+        self.given_xy, self.given_z = set(self.xy), set(self.z)
+        self.tables()
+
+    # -- observation tables -----------------------------------------------------------
+    def tables(self):
+        self.sets = defaultdict(list)  # set_id -> [(station, target, direction)]
+        self.azimuths, self.angles, self.hdist = [], [], []
+        self.sdist, self.zenith, self.dh = [], [], []
+        self.vec = defaultdict(dict)  # group key -> {"from", "to", "dx", ...}
+        self.cobs = defaultdict(lambda: defaultdict(list))  # id -> axis -> [values]
+        for k, o in enumerate(self.net.observations):
+            p = o.points
+            if o.kind == "direction":
+                self.sets[o.set_id].append((p[0], p[1], o.value))
+            elif o.kind == "azimuth":
+                self.azimuths.append((p[0], p[1], o.value))
+            elif o.kind == "angle":
+                self.angles.append((p[0], p[1], p[2], o.value))
+            elif o.kind == "distance":
+                self.hdist.append((p[0], p[1], o.value))
+            elif o.kind == "slope-distance":
+                self.sdist.append((p[0], p[1], o.value, o.from_dh, o.to_dh))
+            elif o.kind == "zenith-angle":
+                self.zenith.append((p[0], p[1], o.value, o.from_dh, o.to_dh))
+            elif o.kind == "height-diff":
+                self.dh.append((p[0], p[1], o.value))
+            elif o.kind in ("dx", "dy", "dz"):
+                v = self.vec[o.group_key or f"#{k}"]
+                v["from"], v["to"] = p
+                v[o.kind[1]] = o.value
+            elif o.kind.startswith("coordinate-"):
+                self.cobs[p[0]][o.kind[-1]].append(o.value)
+
+    # -- geometry helpers ---------------------------------------------------------------
+    def bearing_xy(self, a, b) -> float:
+        (xa, ya), (xb, yb) = self.xy[a], self.xy[b]
+        return self.sign * math.atan2(yb - ya, xb - xa) + self.offset
+
+    def polar(self, a, beta, d):
+        """Point at horizontal distance ``d`` and bearing ``beta`` from known point ``a``."""
+        phi = self.sign * (beta - self.offset)
+        xa, ya = self.xy[a]
+        return xa + d * math.cos(phi), ya + d * math.sin(phi)
+
+    def horizontal_distances(self) -> dict:
+        """Horizontal distances between point pairs (frozenset) from all distance-like data."""
+        out = defaultdict(list)
+        for a, b, d in self.hdist:
+            out[frozenset((a, b))].append(d)
+        zen = defaultdict(list)
+        for a, b, zz, _, _ in self.zenith:
+            zen[frozenset((a, b))].append(zz)
+        for a, b, s, fdh, tdh in self.sdist:
+            key = frozenset((a, b))
+            if zen.get(key):
+                out[key].append(s * abs(math.sin(zen[key][0])))
+            elif a in self.z and b in self.z:
+                dz = self.z[b] + tdh - self.z[a] - fdh
+                out[key].append(math.sqrt(max(s * s - dz * dz, 0.0)))
+            elif key not in out:
+                out[key].append(s)  # crude: better than nothing for flat networks
+        return {k: float(np.median(v)) for k, v in out.items()}
+
+    # -- heights ---------------------------------------------------------------------------
+    def heights_sweep(self) -> bool:
+        cand = defaultdict(list)
+        for pid, axes in self.cobs.items():
+            if "z" in axes and pid not in self.z:
+                cand[pid].extend(axes["z"])
+        for a, b, d in self.dh:
+            self._pair(cand, a, b, d)
+        for v in self.vec.values():
+            if "z" in v:
+                self._pair(cand, v["from"], v["to"], v["z"])
+        hd = self.horizontal_distances()
+        for a, b, zz, fdh, tdh in self.zenith:
+            key = frozenset((a, b))
+            if a in self.xy and b in self.xy:
+                h = math.dist(self.xy[a], self.xy[b])
+            elif key in hd:
+                h = hd[key]
+            else:
+                continue
+            if abs(math.sin(zz)) < 1e-9:
+                continue
+            self._pair(cand, a, b, h * math.cos(zz) / math.sin(zz) + fdh - tdh)
+        for pid, vals in cand.items():
+            self.z[pid] = float(np.median(vals))
+        return bool(cand)
+
+    def _pair(self, cand, a, b, diff):
+        """Candidate heights from ``z_b − z_a = diff``."""
+        if a in self.z and b not in self.z:
+            cand[b].append(self.z[a] + diff)
+        elif b in self.z and a not in self.z:
+            cand[a].append(self.z[b] - diff)
+
+    # -- bearings ------------------------------------------------------------------------
+    def bearings(self):
+        """Close the bearings known from coordinates, azimuths, oriented sets and angles.
+
+        Returns ``(B, orient)``: ``B[(a, b)] = (bearing a→b, depth, source set or -1)`` and
+        ``orient[set_id] = (orientation, depth)``. Bearings are added breadth-first: depth 0
+        from coordinates and azimuths, and each orientation or angle transfer adds one, so a
+        set is oriented on the shallowest (most direct) bearings available and a bearing
+        carried along a long traverse never replaces a direct one.
+        """
+        B: dict = {}
+        orient: dict = {}
+
+        def put(a, b, beta, depth, src=-1):
+            if (a, b) not in B:
+                B[(a, b)] = (beta, depth, src)
+                B[(b, a)] = (beta + math.pi, depth, src)
+                return True
+            return False
+
+        for a, b, beta in self.azimuths:
+            put(a, b, beta, 0)
+        pairs = {(a, b) for st in self.sets.values() for a, b, _ in st}
+        pairs |= {(f, t) for f, l, r, _ in self.angles for t in (l, r)}
+        pairs |= {(a, b) for a, b, _ in self.hdist}
+        for a, b in pairs:
+            if a in self.xy and b in self.xy and (a, b) not in B:
+                put(a, b, self.bearing_xy(a, b), 0)
+        depth = 0
+        while True:
+            new = []
+            for sid, dirs in self.sets.items():
+                if sid in orient:
+                    continue
+                known = [B[(a, b)][0] - d for a, b, d in dirs
+                         if (a, b) in B and B[(a, b)][1] == depth]
+                if known:
+                    orient[sid] = (_circular_mean(known), depth)
+                    new.extend((a, b, orient[sid][0] + d, sid) for a, b, d in dirs)
+            for f, l, r, alpha in self.angles:
+                if (f, l) in B and B[(f, l)][1] == depth:
+                    new.append((f, r, B[(f, l)][0] + alpha, -1))
+                if (f, r) in B and B[(f, r)][1] == depth:
+                    new.append((f, l, B[(f, r)][0] - alpha, -1))
+            added = False
+            for a, b, beta, src in new:
+                added |= put(a, b, beta, depth + 1, src)
+            if not added:
+                break
+            depth += 1
+        return B, orient
+
+    # -- plan ------------------------------------------------------------------------------
+    def plan_sweep(self, wanted: set) -> tuple[bool, dict]:
+        """Try to locate every wanted point once; returns (progress, ambiguous reasons)."""
+        B, orient = self.bearings()
+        hd = self.horizontal_distances()
+        progress, ambiguous = False, {}
+        for pid in sorted(wanted - set(self.xy)):
+            pos = self.direct(pid, B, hd)
+            if pos is None:
+                pos, why = self.fit(pid, B, orient, hd)
+                if pos is None:
+                    if why:
+                        ambiguous[pid] = why
+                    continue
+            self.xy[pid] = pos
+            progress = True
+            B, orient = self.bearings()  # new point: new bearings for the next ones
+            hd = self.horizontal_distances()
+        return progress, ambiguous
+
+    def direct(self, pid, B, hd):
+        """Coordinates observed, vectors, or polar from known stations (median of all)."""
+        axes = self.cobs.get(pid, {})
+        if "x" in axes and "y" in axes:
+            return float(np.median(axes["x"])), float(np.median(axes["y"]))
+        cands = []
+        for v in self.vec.values():
+            if "x" in v and "y" in v:
+                if v["to"] == pid and v["from"] in self.xy:
+                    xa, ya = self.xy[v["from"]]
+                    cands.append((xa + v["x"], ya + v["y"]))
+                elif v["from"] == pid and v["to"] in self.xy:
+                    xb, yb = self.xy[v["to"]]
+                    cands.append((xb - v["x"], yb - v["y"]))
+        if cands:
+            return _median_point(cands)
+        polar = [(B[(s, pid)][1], s) for s in self.xy
+                 if (s, pid) in B and frozenset((s, pid)) in hd]
+        if polar:
+            dmin = min(d for d, _ in polar)
+            cands = [self.polar(s, B[(s, pid)][0], hd[frozenset((s, pid))])
+                     for d, s in polar if d == dmin]
+        return _median_point(cands) if cands else None
+
+    def constraints(self, pid, B, orient, hd):
+        """Equations touching ``pid`` whose other points are known (for :meth:`fit`)."""
+        resect = []  # (set index, target, direction) of sets at pid, orientation unknown
+        for sid, dirs in self.sets.items():
+            known = [(b, d) for a, b, d in dirs if a == pid and b in self.xy]
+            if len(known) >= 2 or (known and sid not in orient):
+                resect.extend((sid, b, d) for b, d in known)
+        rsets = {sid for sid, _, _ in resect}
+        # rays from known stations, except those that came from a set at pid itself (that set
+        # is solved as a resection instead of trusting an orientation carried from afar)
+        rays = [(s, B[(s, pid)][0]) for s in self.xy
+                if (s, pid) in B and B[(s, pid)][2] not in rsets]
+        dists = [(s, hd[frozenset((s, pid))]) for s in self.xy if frozenset((s, pid)) in hd]
+        angles = [(l, r, al) for f, l, r, al in self.angles
+                  if f == pid and l in self.xy and r in self.xy]
+        return rays, dists, resect, angles
+
+    def fit(self, pid, B, orient, hd):
+        """Least-squares location from all constraints, from several starts; unique or None."""
+        rays, dists, resect, angles = self.constraints(pid, B, orient, hd)
+        sids = sorted({sid for sid, _, _ in resect})
+        n_eq = len(rays) + len(dists) + len(resect) + len(angles)
+        if n_eq < 2 + len(sids) or (not rays and not dists and not resect and not angles):
+            return None, ""
+        involved = {s for s, _ in rays} | {s for s, _ in dists} | {b for _, b, _ in resect}
+        involved |= {p for l, r, _ in angles for p in (l, r)}
+        pts = np.array([self.xy[s] for s in involved])
+        centre = pts.mean(axis=0)
+        scale = max(float(np.max(np.linalg.norm(pts - centre, axis=1))), 1.0)
+        for _, d in dists:
+            scale = max(scale, d)
+        L = scale
+
+        def brg(x, y, s, reverse=False):
+            xs, ys = self.xy[s]
+            dx, dy = (xs - x, ys - y) if reverse else (x - xs, y - ys)
+            return self.sign * math.atan2(dy, dx) + self.offset
+
+        def resid(u):
+            x, y = u[0], u[1]
+            r = [L * _wrap(brg(x, y, s) - beta) for s, beta in rays]
+            r += [math.hypot(x - self.xy[s][0], y - self.xy[s][1]) - d for s, d in dists]
+            r += [L * _wrap(brg(x, y, b, True) - d - u[2 + sids.index(sid)])
+                  for sid, b, d in resect]
+            r += [L * _wrap(brg(x, y, rr, True) - brg(x, y, ll, True) - al)
+                  for ll, rr, al in angles]
+            return np.array(r)
+
+        sols = []
+        starts = [centre] + [centre + L * np.array([math.cos(t), math.sin(t)])
+                             for t in np.linspace(0, TWO_PI, 12, endpoint=False)]
+        for st in starts:
+            u0 = [st[0], st[1]]
+            for sid in sids:  # initial orientation from the start point
+                b, d = next((b, d) for s2, b, d in resect if s2 == sid)
+                u0.append(brg(st[0], st[1], b, True) - d)
+            try:
+                res = least_squares(resid, np.array(u0), method="lm", xtol=1e-12, ftol=1e-12)
+            except Exception:  # noqa: BLE001 - a failed start is just skipped
+                continue
+            rms = math.sqrt(2 * res.cost / max(n_eq, 1))
+            sols.append((rms, res.x[:2]))
+        if not sols:
+            return None, ""
+        best = min(s[0] for s in sols)
+        tol = max(1e-3 * L, 0.05)
+        good = sorted((s for s in sols if s[0] <= max(best * 3, tol)), key=lambda s: s[0])
+        distinct = []
+        for _, xy in good:
+            if all(np.linalg.norm(xy - d) > max(1e-3 * L, 0.1) for d in distinct):
+                distinct.append(xy)
+        redundancy = n_eq - 2 - len(sids)
+        if best > 0.05 * L:  # no consistent solution
+            return None, f"constraints inconsistent (rms {best:.3g} m)"
+        if len(distinct) > 1:
+            return None, f"{len(distinct)} solutions (e.g. mirror images), redundancy {redundancy}"
+        return (float(distinct[0][0]), float(distinct[0][1])), ""
+
+    # -- local frame -----------------------------------------------------------------------
+    def seeds(self):
+        """Pairs (a, b, distance or None) to start a local frame with, distances first."""
+        out, seen = [], set()
+        for a, b, d in self.hdist:
+            if frozenset((a, b)) not in seen:
+                seen.add(frozenset((a, b)))
+                out.append((a, b, d))
+        hd = self.horizontal_distances()
+        for key, d in hd.items():
+            if key not in seen:
+                seen.add(key)
+                out.append((*sorted(key), d))
+        if not out:  # shape only (angles, directions): the scale comes from the fit
+            for dirs in self.sets.values():
+                for a, b, _ in dirs:
+                    if frozenset((a, b)) not in seen:
+                        seen.add(frozenset((a, b)))
+                        out.append((a, b, None))
+            for f, l, r, _ in self.angles:
+                for t in (l, r):
+                    if frozenset((f, t)) not in seen:
+                        seen.add(frozenset((f, t)))
+                        out.append((f, t, None))
+        return out
+
+    def local_frame(self, wanted: set, max_seeds: int = 12) -> bool:
+        """Solve the plan in a free local frame and fit it onto the known points.
+
+        Used when no point can be located directly, e.g. a triangulation whose fixed points
+        are not observed from each other (``bug/krasovsky-1926.gkf``): starting from a seed
+        pair of points, the shape is propagated with the usual methods, then a 2D similarity
+        transformation fitted on ≥ 2 points of known position maps the new points in.
+        """
+        known = set(self.xy)
+        if not known:
+            return False
+        seeds = self.seeds()
+        # prefer seeds touching the unknown part of the network
+        seeds.sort(key=lambda s: (s[0] in known) + (s[1] in known))
+        best = None
+        for a, b, d in seeds[:max_seeds]:
+            sub = object.__new__(_Approx)
+            sub.__dict__.update(self.__dict__)
+            sub.xy = {a: (0.0, 0.0)}
+            sub.xy[b] = sub.polar(a, 0.0, d if d else 1000.0)
+            for _ in range(10 * len(self.net.points) + 10):
+                if not sub.plan_sweep(wanted | known)[0]:
+                    break
+            common = sorted(known & set(sub.xy))
+            new = set(sub.xy) - known
+            if len(common) >= 2 and new and (best is None or len(new) > best[0]):
+                best = (len(new), sub.xy, common)
+        if best is None:
+            return False
+        _, lxy, common = best
+        loc = np.array([complex(*lxy[c]) for c in common])
+        glo = np.array([complex(*self.xy[c]) for c in common])
+        lm, gm = loc.mean(), glo.mean()
+        c = np.vdot(loc - lm, glo - gm) / np.vdot(loc - lm, loc - lm).real
+        for pid, (x, y) in lxy.items():
+            if pid not in known:
+                w = c * (complex(x, y) - lm) + gm
+                self.xy[pid] = (float(w.real), float(w.imag))
+        return True
+
+    # -- driver ----------------------------------------------------------------------------
+    def run(self):
+        need_xy = {p.id for p in self.net.points
+                   if set("xy") & set(p.fixed + p.adjusted) and p.id not in self.xy}
+        need_z = {p.id for p in self.net.points
+                  if "z" in p.fixed + p.adjusted and p.id not in self.z}
+        # points without coordinates that observations connect: locating them helps chains
+        plan_obs = set()
+        for s in self.sets.values():
+            plan_obs |= {q for a, b, _ in s for q in (a, b)}
+        for tup in (self.azimuths, self.hdist, self.sdist, self.angles):
+            for t in tup:
+                plan_obs |= {q for q in t if isinstance(q, str)}
+        wanted_xy = need_xy | (plan_obs - set(self.xy))
+        ambiguous = {}
+        for _ in range(10 * len(self.net.points) + 10):
+            p1 = self.heights_sweep()
+            p2, ambiguous = self.plan_sweep(wanted_xy)
+            if not (p1 or p2) and wanted_xy - set(self.xy):
+                p2 = self.local_frame(wanted_xy)
+            if not (p1 or p2):
+                break
+        return need_xy, need_z, ambiguous
+
+
+def approximate_coordinates(net: Network) -> Network:
+    """A copy of ``net`` where every fixed/adjusted coordinate has an approximate value.
+
+    Given coordinates are kept unchanged; missing ones are computed from the observations
+    (see the module docstring). Raises :class:`~baarda.errors.InputError` naming every point
+    that cannot be determined (at the line of the first of them).
+    """
+    st = _Approx(net)
+    need_xy, need_z, ambiguous = st.run()
+    missing = []
+    for p in net.points:
+        axes = [a for a in "xyz" if a in p.fixed + p.adjusted and getattr(p, a) is None
+                and (p.id not in (st.xy if a != "z" else st.z))]
+        if axes:
+            missing.append((p, axes))
+    if missing:
+        parts = []
+        for p, axes in missing:
+            why = ambiguous.get(p.id, "not connected to points of known position by enough "
+                                "observations")
+            if axes == ["z"]:
+                why = "no height difference, zenith angle, vector or observed height links it"
+            parts.append(f"{p.id} ({''.join(axes)}): {why}")
+        first = missing[0][0]
+        ids = ", ".join(p.id for p, _ in missing)
+        raise InputError(net.source, first.line, f"no approximate coordinates for point "
+                         f"{ids}: " + "; ".join(parts))
+    points = []
+    for p in net.points:
+        upd = {}
+        if p.x is None and "x" in p.fixed + p.adjusted:
+            upd["x"] = st.xy[p.id][0]
+        if p.y is None and "y" in p.fixed + p.adjusted:
+            upd["y"] = st.xy[p.id][1]
+        if p.z is None and "z" in p.fixed + p.adjusted:
+            upd["z"] = st.z[p.id]
+        points.append(replace(p, **upd) if upd else p)
+    return replace(net, points=tuple(points))
