@@ -1,0 +1,230 @@
+"""Reliability measures against independent references: statsmodels' regression diagnostics, a
+dense implementation of F80's formulas, closed forms, and identities (THEORY.md §2-§5, §10)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg as la
+from hypothesis import given, settings, strategies as st
+from scipy import stats as sps
+
+from baarda import stats
+from baarda.adjust import Options, adjust
+from baarda.hypotheses import selection
+
+from networks import grid_network, levelling_loop, problem, vector_network, with_values
+
+
+def dense_reference(adj):
+    """F80 eq. 8 with dense matrices: C_vv = C − A N⁻ Aᵀ, N⁻ from a pseudo-inverse."""
+    A = adj.A.toarray()
+    C = adj.problem.cov.matrix().toarray()
+    P = np.linalg.inv(C)
+    N = A.T @ P @ A
+    Ninv = np.linalg.pinv(N, rcond=1e-12, hermitian=True)
+    Cvv = C - A @ Ninv @ A.T
+    v = adj.v
+    r = np.diag(Cvv @ P)
+    pcp = np.diag(P @ Cvv @ P)
+    w = (P @ v) / np.sqrt(pcp)
+    return {"r": r, "w": w, "Cvv": Cvv, "P": P, "A": A, "Ninv": Ninv}
+
+
+# -- test distributions (THEORY.md §4, §10) ----------------------------------------------------
+
+def test_delta0_one_dimensional_matches_normal_formula():
+    assert abs(stats.critical_normal(0.001) - 3.2905) < 1e-4
+    d = stats.delta0(0.001, 0.80, 1)
+    assert abs(d - stats.delta0_normal(0.001, 0.80)) < 1e-6
+    assert round(d, 2) == 4.13 and abs(d * d - 17.07) < 0.01
+
+
+@pytest.mark.parametrize("q", [1, 2, 3, 6])
+def test_delta0_has_the_asked_power(q):
+    d = stats.delta0(0.01, 0.9, q)
+    c = sps.chi2.isf(0.01, q)
+    assert abs(sps.ncx2.sf(c, q, d * d) - 0.9) < 1e-9
+
+
+@pytest.mark.parametrize("q", [2, 3, 7])
+def test_b_method_gives_the_one_dimensional_delta0(q):
+    a_q = stats.alpha_b_method(0.001, 0.80, q)
+    assert a_q > 0.001
+    assert abs(stats.delta0(a_q, 0.80, q) - stats.delta0(0.001, 0.80, 1)) < 1e-6
+
+
+def test_tau_critical_value_matches_beta_distribution():
+    r, alpha = 12, 0.01
+    c = stats.critical_tau(alpha, r)
+    # τ²/r ~ Beta(1/2, (r−1)/2): P(|τ| > c) = α
+    assert abs(sps.beta.sf(c * c / r, 0.5, (r - 1) / 2) - alpha) < 1e-10
+
+
+# -- closed forms --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("m", [3, 4, 7])
+def test_levelling_loop(m):
+    """One condition among m equal-weight height differences: r_i = 1/m, Σ r_i = 1.
+
+    (THEORY.md §10 prints (m − 1)/m; with Σ r_i = 1 the value per observation is 1/m.)"""
+    adj = adjust(problem(levelling_loop(m)))
+    assert adj.dof == 1
+    np.testing.assert_allclose(adj.r, 1.0 / m, atol=1e-12)
+
+
+# -- statsmodels oracle ------------------------------------------------------------------------
+
+def test_statsmodels_hat_matrix_and_studentized_residuals():
+    sm = pytest.importorskip("statsmodels.api")
+    from statsmodels.stats.outliers_influence import OLSInfluence
+
+    adj = adjust(problem(grid_network(4, 3, noise_seed=3)))
+    sq = np.sqrt(adj.P.diagonal())
+    Aw = adj.Ar.toarray() * sq[:, None]
+    # at the solution the linearised model has zero correction: y = l − f(x̂) = −v
+    res = sm.OLS(-adj.v * sq, Aw).fit()
+    infl = OLSInfluence(res)
+    np.testing.assert_allclose(adj.r, 1.0 - infl.hat_matrix_diag, atol=1e-10)
+    np.testing.assert_allclose(adj.tau, -infl.resid_studentized_internal, atol=1e-8)
+    s = np.sqrt(res.scale)
+    np.testing.assert_allclose(adj.w, -infl.resid_studentized_internal * s / adj.sigma0, atol=1e-8)
+
+
+# -- dense reference, correlated clusters ------------------------------------------------------
+
+def test_correlated_clusters_against_dense_formulas():
+    net = vector_network()
+    rng = np.random.default_rng(5)
+    vals = [o.value for o in net.observations]
+    for c in net.clusters:
+        e = np.linalg.cholesky(c.cov) @ rng.normal(size=3)
+        for i, ei in zip(c.indices, e):
+            vals[i] += ei
+    adj = adjust(problem(with_values(net, vals)))
+    ref = dense_reference(adj)
+    np.testing.assert_allclose(adj.r, ref["r"], atol=1e-10)
+    np.testing.assert_allclose(adj.w, ref["w"], atol=1e-8)
+    assert abs(adj.r.sum() - adj.dof) < 1e-9
+    # the 3D group test of every vector: T = (Pv)_gᵀ (P C_vv P)_gg⁻¹ (Pv)_g
+    P, Cvv = ref["P"], ref["Cvv"]
+    Pv = P @ adj.v
+    for g in adj.groups:
+        m = g["members"]
+        W = (P @ Cvv @ P)[np.ix_(m, m)]
+        assert abs(g["T"] - Pv[m] @ np.linalg.solve(W, Pv[m])) < 1e-8 * max(1, g["T"])
+        assert g["dimension"] == 3
+
+
+# -- identities ---------------------------------------------------------------------------------
+
+def test_error_of_mdb_size_gives_w_equal_delta0():
+    net = grid_network(3, 3)
+    base = adjust(problem(net))
+    assert np.abs(base.w).max() < 1e-6
+    for i in (0, 5, 11):
+        vals = [o.value for o in net.observations]
+        vals[i] += base.mdb[i]
+        adj = adjust(problem(with_values(net, vals)))
+        assert abs(abs(adj.w[i]) - base.delta0) < 1e-4 * base.delta0
+
+
+def test_T_of_one_observation_is_w_squared_and_nabla_is_the_error():
+    adj = adjust(problem(grid_network(3, 3, noise_seed=11)))
+    for i in (1, 7, 20):
+        h = adj.test(selection(adj.n, [i]))
+        assert abs(h.T - adj.w[i] ** 2) < 1e-8 * max(1, h.T)
+        # ∇ŝ = −v_i / r_i for an uncorrelated observation (Gama's err-obs up to sign)
+        assert abs(h.nabla[0] + adj.v[i] / adj.r[i]) < 1e-8 * abs(adj.v[i] / adj.r[i]) + 1e-15
+
+
+def test_external_reliability_equals_deformation_quadratic_form():
+    """δ̄0,i² (all unknowns) = ∇0xᵀ N ∇0x / σ0² for ∇0l = MDB_i e_i (F80 eq. 18)."""
+    adj = adjust(problem(grid_network(3, 4, noise_seed=2)))
+    A, P = adj.A, adj.P
+    for i in (0, 9, 17):
+        err = np.zeros(adj.n)
+        err[i] = adj.mdb[i]
+        dx = adj.deformation(err)
+        lam = dx @ (A.T @ (P @ (A @ dx)))
+        assert abs(np.sqrt(lam) - adj.external_all[i]) < 1e-6 * adj.external_all[i]
+
+
+def test_u_t_and_u_k_split_the_leverage():
+    adj = adjust(problem(grid_network(3, 3, noise_seed=1)))
+    np.testing.assert_allclose(adj.r + adj.u_k + adj.u_t, 1.0, atol=1e-9)
+    # directions feed the orientation unknowns, distances do not
+    kinds = np.array(adj.problem.info.kind)
+    assert (adj.u_t[kinds == "distance"] < 1e-9).all() and (adj.u_t[kinds == "direction"] > 1e-3).all()
+    assert (adj.external <= adj.external_all + 1e-9).all()
+
+
+@settings(max_examples=25, deadline=None)
+@given(nx=st.integers(2, 4), ny=st.integers(2, 4), seed=st.integers(0, 10_000))
+def test_redundancy_invariants_and_datum_invariance(nx, ny, seed):
+    fixed = adjust(problem(grid_network(nx, ny, noise_seed=seed, seed=seed, jitter=0.05)))
+    free = adjust(problem(grid_network(nx, ny, noise_seed=seed, seed=seed, datum="free", jitter=0.05)))
+    assert fixed.dof == free.dof
+    assert abs(fixed.r.sum() - fixed.dof) < 1e-8
+    assert (fixed.r >= 0).all() and (fixed.r <= 1).all()
+    np.testing.assert_allclose(fixed.r, free.r, atol=1e-9)
+    np.testing.assert_allclose(fixed.w, free.w, atol=1e-6)
+    np.testing.assert_allclose(fixed.external, free.external, rtol=1e-6)
+
+
+def test_free_network_covariance_is_the_s_transformed_one():
+    """Σ_S = S Σ Sᵀ (M84 §2) from the selected inverse equals the dense pseudo-inverse route,
+    and the trace over the S-base is minimal (inner constraints: Σ_S = N⁺ when all points are
+    in the base)."""
+    adj = adjust(problem(grid_network(3, 3, noise_seed=4, datum="free")))
+    ref = dense_reference(adj)
+    u = adj.A.shape[1]
+    i, j = np.meshgrid(np.arange(u), np.arange(u), indexing="ij")
+    S = adj.cov_entries(i, j)
+    k = np.flatnonzero(adj.problem.params.kind[adj.problem.params.free] == "k")
+    # N⁺ restricted to coordinates after eliminating orientations equals the inner solution
+    A = ref["A"]
+    P = ref["P"]
+    t = np.setdiff1d(np.arange(u), k)
+    B, Cm = A[:, t], A[:, k]
+    Cbar = Cm - B @ np.linalg.solve(B.T @ P @ B, B.T @ P @ Cm)
+    Qkk = np.linalg.pinv(Cbar.T @ P @ Cbar, rcond=1e-12, hermitian=True)
+    np.testing.assert_allclose(S[np.ix_(k, k)], Qkk, atol=1e-12 + 1e-7 * np.abs(Qkk).max())
+
+
+# -- Monte Carlo of the tests' size and power (THEORY.md §10) ----------------------------------
+
+@pytest.mark.slow
+def test_monte_carlo_size_and_power_of_w_and_2d_tests():
+    adj = adjust(problem(grid_network(3, 3)))
+    ref = dense_reference(adj)
+    P, Cvv = ref["P"], ref["Cvv"]
+    R = P @ Cvv @ P            # Pv = −R e for an error vector e (linear model, v = Ax̂ − l)
+    sd = np.sqrt(np.diag(R))
+    L = np.linalg.cholesky(adj.problem.cov.matrix().toarray())
+    rng = np.random.default_rng(2026)
+    n_sim = 100_000
+    E = L @ rng.normal(size=(adj.n, n_sim))
+    W = -(R @ E) / sd[:, None]
+    crit = adj.critical_w
+    i = 4
+    size = np.mean(np.abs(W[i]) > crit)
+    se = np.sqrt(0.001 * 0.999 / n_sim)
+    assert abs(size - 0.001) < 3 * se
+    # an error of exactly MDB size on observation i: rejected at rate β0
+    Wb = W[i] - (R[i, i] * adj.mdb[i]) / sd[i]
+    power = np.mean(np.abs(Wb) > crit)
+    assert abs(power - 0.80) < 3 * np.sqrt(0.8 * 0.2 / n_sim)
+    # a 2D test (two observations together) with δ0 from the non-central χ²
+    m = np.array([0, 1])
+    Wg = R[np.ix_(m, m)]
+    d0 = stats.delta0(0.001, 0.80, 2)
+    lam, V = la.eigh(Wg)
+    nab = V[:, 0] * d0 / np.sqrt(lam[0])      # lower bound in the weakest direction
+    G = -(R[m] @ E)
+    G_err = G - (R[np.ix_(m, m)] @ nab)[:, None]
+    T0 = np.einsum("in,ij,jn->n", G, np.linalg.inv(Wg), G)
+    T1 = np.einsum("in,ij,jn->n", G_err, np.linalg.inv(Wg), G_err)
+    c2 = stats.critical_chi2(0.001, 2)
+    assert abs(np.mean(T0 > c2) - 0.001) < 3 * se
+    assert abs(np.mean(T1 > c2) - 0.80) < 3 * np.sqrt(0.8 * 0.2 / n_sim)
