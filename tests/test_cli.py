@@ -1,0 +1,114 @@
+"""The `baarda analyze` command: JSON contract, exit codes, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from importlib import resources
+
+import jsonschema
+import pytest
+
+from baarda.cli import main
+
+from extdata import GAMA, gama_cases, require_extdata
+
+SCHEMA = json.loads(resources.files("baarda").joinpath("schema/analysis.schema.json").read_text())
+ALL_GKF = sorted(GAMA.rglob("*.gkf")) if GAMA.exists() else []
+LEVELLING = """<?xml version="1.0"?>
+<gama-local xmlns="http://www.gnu.org/software/gama/gama-local">
+<network><parameters sigma-apr="1" sigma-act="apriori"/>
+<points-observations>
+<point id="A" z="100" fix="z"/><point id="B" z="101" adj="z"/><point id="C" z="102" adj="z"/>
+<height-differences>
+<dh from="A" to="B" val="1.002" stdev="1"/>
+<dh from="B" to="C" val="0.999" stdev="1"/>
+<dh from="C" to="A" val="-2.003" stdev="1"/>
+</height-differences>
+</points-observations></network></gama-local>
+"""
+
+
+def test_every_gama_network_analyses_and_validates(tmp_path, capsys):
+    require_extdata(GAMA)
+    ok = errors = 0
+    for path in ALL_GKF:
+        out = tmp_path / (path.stem + ".json")
+        code = main(["analyze", str(path), "--json", str(out), "--quiet"])
+        err = capsys.readouterr().err
+        if code == 0:
+            doc = json.loads(out.read_text())
+            jsonschema.validate(doc, SCHEMA)
+            assert doc["summary"]["n_observations"] == len(doc["observations"])
+            ok += 1
+        else:
+            # the only networks baarda refuses are those with errors gama-local glosses over
+            assert code == 2 and err.startswith("baarda: error: ") and err.count("\n") == 1, err
+            assert "Traceback" not in err
+            errors += 1
+    assert ok >= len(ALL_GKF) - 3, f"{errors} networks refused"
+
+
+def test_json_contract_fields(tmp_path):
+    src = tmp_path / "loop.gkf"
+    src.write_text(LEVELLING)
+    out = tmp_path / "loop.json"
+    assert main(["analyze", str(src), "--json", str(out), "--quiet", "--csv", str(tmp_path / "csv")]) == 0
+    doc = json.loads(out.read_text())
+    jsonschema.validate(doc, SCHEMA)
+    s = doc["summary"]
+    assert s["dof"] == 1 and s["n_observations"] == 3 and s["n_unknowns"] == 2
+    obs = doc["observations"][0]
+    assert obs["kind"] == "height-diff" and obs["from"] == "A" and obs["to"] == "B"
+    assert abs(obs["redundancy"] - 1 / 3) < 1e-12
+    # the loop closes at −2 mm; spread over three equal height differences: v = +2/3 mm each
+    # (adjusted − observed), w = v / (σ √r)
+    assert abs(obs["residual"] - 0.002 / 3) < 1e-12
+    assert abs(obs["w"] - (0.002 / 3) / (0.001 * (1 / 3) ** 0.5)) < 1e-9
+    assert {p["id"] for p in doc["points"]} == {"A", "B", "C"}
+    assert (tmp_path / "csv" / "observations.csv").read_text().count("\n") == 4
+    assert set(s["timings"]) >= {"read", "solve", "reliability"}
+
+
+@pytest.mark.parametrize("text,line,needle", [
+    ("<gama-local><network><points-observations><point id='A' z='x' fix='z'/>", 1, ""),
+    (LEVELLING.replace('stdev="1"/>\n<dh from="B"', 'stdev="0"/>\n<dh from="B"'), 7, "stdev"),
+    (LEVELLING.replace('to="C" val="0.999"', 'to="Q" val="0.999"'), 8, "Q"),
+    (LEVELLING.replace('val="-2.003"', 'val="nan"'), 9, ""),
+])
+def test_bad_input_one_line_error(tmp_path, capsys, text, line, needle):
+    src = tmp_path / "bad.gkf"
+    src.write_text(text)
+    before = src.read_bytes()
+    code = main(["analyze", str(src)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.startswith(f"baarda: error: {src}:{line}: ") and err.count("\n") == 1, err
+    assert needle in err
+    assert src.read_bytes() == before
+
+
+def test_datum_defect_is_diagnosed(tmp_path, capsys):
+    src = tmp_path / "free.gkf"
+    src.write_text(LEVELLING.replace('fix="z"', 'adj="z"'))
+    assert main(["analyze", str(src)]) == 2
+    err = capsys.readouterr().err
+    assert "datum defect 1" in err and "translation z" in err
+
+
+def test_missing_file_and_unknown_format(tmp_path, capsys):
+    assert main(["analyze", str(tmp_path / "nope.gkf")]) == 2
+    (tmp_path / "x.txt").write_text("hello")
+    assert main(["analyze", str(tmp_path / "x.txt")]) == 2
+    err = capsys.readouterr().err
+    assert "no such file" in err and "unknown file format" in err
+
+
+def test_console_script_runs(tmp_path):
+    src = tmp_path / "loop.gkf"
+    src.write_text(LEVELLING)
+    res = subprocess.run([sys.executable, "-m", "baarda.cli", "analyze", str(src)],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert "global test" in res.stdout and "largest |w|" in res.stdout
