@@ -12,7 +12,10 @@ from their input coordinates (Gama's free-network convention).
 
 Convergence criterion: every increment is below ``tol`` times the conditional standard deviation
 of its parameter, |Δx_i| < tol / √N_ii (unit-free, so metres, radians and pixels can share it),
-with tol = 1e-6 by default, at most ``max_iter`` iterations.
+with tol = 1e-9 by default; or the increments have reached round-off (below 1e-6 and no longer
+shrinking by half per iteration); at most ``max_iter`` iterations. A loose tolerance biases tests
+of strongly correlated parameters (additional parameters): their T grows with the leftover
+increments.
 
 Residuals are v = f(x̂) − l (adjusted minus observed). With P = C⁻¹ the quadratic form vᵀPv is
 Ω/σ0² of F80, the statistic of the global test.
@@ -43,7 +46,7 @@ class Options:
     alpha: float = 0.001
     beta: float = 0.80
     b_method: bool = False
-    tol: float = 1e-6
+    tol: float = 1e-9
     max_iter: int = 50
 
 
@@ -97,7 +100,8 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             progress(it, history[-1])
         if not np.isfinite(x).all():
             raise SingularError("the adjustment diverged (non-finite parameters)")
-        if history[-1] < options.tol:
+        if history[-1] < options.tol or (len(history) > 1 and history[-1] < 1e-6
+                                          and history[-1] > 0.5 * history[-2]):
             converged = True
             break
     if plan.defect:

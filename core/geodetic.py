@@ -203,12 +203,15 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
         else:
             status.append("fixed")
     # orientation unknowns, one per direction set, started at the mean misclosure
-    set_ids = sorted({o.set_id for o in net.observations if o.kind == "direction"})
+    station = {}
+    for o in net.observations:
+        if o.kind == "direction":
+            station.setdefault(o.set_id, o.points[0])
+    set_ids = sorted(station)
     ori_index = {}
     for s in set_ids:
         ori_index[s] = len(x0)
-        first = next(o for o in net.observations if o.kind == "direction" and o.set_id == s)
-        labels.append(f"orientation {s} ({first.points[0]})")
+        labels.append(f"orientation {s} ({station[s]})")
         x0.append(0.0)
         kind.append("t")
         fixed.append(False)
@@ -281,11 +284,11 @@ def _init_orientations(sets, params, l, ori_index):
         if getattr(s, "kind", "") != "direction":
             continue
         f, *_ = s.evaluate(x)  # bearing − 0
-        diff = l[s.rows] - f
-        for sid, k in ori_index.items():
-            m = s.ori == k
-            if m.any():
-                x[k] = -np.angle(np.exp(1j * diff[m]).mean())
+        z = np.exp(1j * (l[s.rows] - f))
+        mean = np.zeros(x.size, dtype=complex)
+        np.add.at(mean, s.ori, z)
+        used = np.unique(s.ori)
+        x[used] = -np.angle(mean[used])
 
 
 def _groups(net: Network) -> np.ndarray:

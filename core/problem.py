@@ -109,27 +109,33 @@ class Covariance:
         return _block_diag(self.members, self.blocks, self.cluster.size)
 
     def weight(self, scale: np.ndarray | None = None) -> sp.csr_matrix:
-        """P = (σ0²Q)⁻¹ times σ0², here simply the inverse of the given covariance blocks.
+        """P = C⁻¹, the inverse of each covariance block.
 
         ``scale`` (per cluster) divides each block's weight (variance-component factors).
         """
-        inv = []
-        for c, b in enumerate(self.blocks):
-            if b.shape[0] == 1:
-                w = np.array([[1.0 / b[0, 0]]])
-            else:
-                w = np.linalg.inv(b)
-                w = 0.5 * (w + w.T)
+        inv = [None] * len(self.blocks)
+        for m, clusters, _ in self._by_size():
+            C = np.array([self.blocks[c] for c in clusters]).reshape(clusters.size, m, m)
+            W = np.linalg.inv(C)
+            W = 0.5 * (W + np.swapaxes(W, 1, 2))
             if scale is not None:
-                w = w / scale[c]
-            inv.append(w)
+                W = W / np.asarray(scale)[clusters][:, None, None]
+            for k, c in enumerate(clusters):
+                inv[c] = W[k]
         return _block_diag(self.members, inv, self.cluster.size)
+
+    def _by_size(self):
+        sizes = np.array([idx.size for idx in self.members])
+        for m in np.unique(sizes):
+            cl = np.flatnonzero(sizes == m)
+            yield int(m), cl, np.array([self.members[c] for c in cl]).reshape(cl.size, m)
 
     def sigma(self) -> np.ndarray:
         """Standard deviation of each observation (SI units)."""
         out = np.empty(self.cluster.size)
-        for idx, b in zip(self.members, self.blocks):
-            out[idx] = np.sqrt(np.diag(b))
+        for m, clusters, members in self._by_size():
+            C = np.array([self.blocks[c] for c in clusters]).reshape(clusters.size, m, m)
+            out[members] = np.sqrt(np.diagonal(C, axis1=1, axis2=2))
         return out
 
     def scaled(self, factors: np.ndarray) -> "Covariance":
@@ -151,14 +157,17 @@ class Covariance:
 
 
 def _block_diag(members, blocks, n) -> sp.csr_matrix:
-    rows, cols, vals = [], [], []
-    for idx, b in zip(members, blocks):
-        r, c = np.meshgrid(idx, idx, indexing="ij")
-        rows.append(r.ravel())
-        cols.append(c.ravel())
-        vals.append(np.asarray(b).ravel())
-    if not rows:
+    if not len(members):
         return sp.csr_matrix((n, n))
+    sizes = np.array([idx.size for idx in members])
+    rows, cols, vals = [], [], []
+    for m in np.unique(sizes):
+        cl = np.flatnonzero(sizes == m)
+        M = np.array([members[c] for c in cl]).reshape(cl.size, m)
+        B = np.array([blocks[c] for c in cl]).reshape(cl.size, m, m)
+        rows.append(np.repeat(M, m, axis=1).ravel())
+        cols.append(np.tile(M, (1, m)).ravel())
+        vals.append(B.ravel())
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
 
 

@@ -33,14 +33,19 @@ R_EPS = 1e-10
 
 
 def _padded_rows(A: sp.csr_matrix):
-    """Columns and values of each row of a CSR matrix, zero-padded to the longest row."""
+    """Columns and values of each row of a CSR matrix, padded to the longest row.
+
+    Padding repeats the row's first column with value 0, so that every (padded) pair of columns
+    of one row stays inside the pattern of N and of the selected inverse.
+    """
     A = sp.csr_matrix(A)
     A.sum_duplicates()
     counts = np.diff(A.indptr)
-    K = int(counts.max(initial=0))
+    K = max(int(counts.max(initial=0)), 1)
     n = A.shape[0]
-    cols = np.zeros((n, max(K, 1)), dtype=np.int64)
-    vals = np.zeros((n, max(K, 1)))
+    first = np.where(counts > 0, A.indices[np.minimum(A.indptr[:-1], max(A.nnz - 1, 0))] if A.nnz else 0, 0)
+    cols = np.repeat(first[:, None], K, axis=1).astype(np.int64)
+    vals = np.zeros((n, K))
     pos = np.arange(A.nnz) - np.repeat(A.indptr[:-1], counts)
     rows = np.repeat(np.arange(n), counts)
     cols[rows, pos] = A.indices
@@ -62,14 +67,38 @@ def pair_products(A: sp.csr_matrix, factor: SPDFactor, I: np.ndarray, J: np.ndar
 
 
 def cluster_pairs(cov) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """All ordered pairs (i, j) of observations within each covariance cluster, and the cluster."""
+    """All ordered pairs (i, j) of observations within each covariance cluster, and the cluster.
+
+    Pairs are laid out cluster by cluster, m² consecutive entries for a cluster of m members
+    (row-major), so that ``values[start:start + m*m].reshape(m, m)`` is the cluster's block.
+    """
     I, J, Cl = [], [], []
-    for c, idx in enumerate(cov.members):
-        a, b = np.meshgrid(idx, idx, indexing="ij")
+    for m, clusters, members in _by_size(cov):
+        a = np.repeat(members, m, axis=1)            # (k, m*m): i index
+        b = np.tile(members, (1, m))                 # (k, m*m): j index
         I.append(a.ravel())
         J.append(b.ravel())
-        Cl.append(np.full(a.size, c))
+        Cl.append(np.repeat(clusters, m * m))
     return np.concatenate(I), np.concatenate(J), np.concatenate(Cl)
+
+
+def _by_size(cov):
+    """Clusters grouped by their size: yields (m, cluster ids (k,), members (k, m))."""
+    sizes = np.array([idx.size for idx in cov.members])
+    for m in np.unique(sizes):
+        cl = np.flatnonzero(sizes == m)
+        yield int(m), cl, np.array([cov.members[c] for c in cl]).reshape(cl.size, m)
+
+
+def _cluster_blocks(cov, values):
+    """Split pair values laid out by :func:`cluster_pairs` into stacks (k, m, m) per size."""
+    pos = 0
+    for m, clusters, members in _by_size(cov):
+        k = clusters.size
+        block = values[pos:pos + k * m * m].reshape(k, m, m)
+        pos += k * m * m
+        C = np.array([cov.blocks[c] for c in clusters]).reshape(k, m, m)
+        yield m, members, C, block
 
 
 @dataclass(frozen=True, eq=False)
@@ -159,29 +188,25 @@ class Adjustment:
     # -- per-observation reliability ----------------------------------------------------------
     @cached_property
     def _cluster_stats(self):
+        """Per observation: (C_vv P)_ii, (P C_vv P)_ii, (P H P)_ii, (P H_k P)_ii (see module doc)."""
         cov = self.problem.cov
-        I, J, Cl = cluster_pairs(cov)
+        I, J, _ = cluster_pairs(cov)
         H = pair_products(self.Ar, self.factor, I, J)
         Ht = self._nuisance_products(I, J)
         n = self.n
-        r = np.empty(n)
-        pcp = np.empty(n)
-        php = np.empty(n)
-        phkp = np.empty(n)
-        pos = 0
-        for c, idx in enumerate(cov.members):
-            m = idx.size
-            Hc = H[pos:pos + m * m].reshape(m, m)
-            Htc = Ht[pos:pos + m * m].reshape(m, m)
-            pos += m * m
-            C = cov.blocks[c]
-            Pc = np.linalg.inv(C) if m > 1 else 1.0 / C
+        r, pcp, php, phkp, uk = (np.empty(n) for _ in range(5))
+        for (m, members, C, Hc), (_, _, _, Htc) in zip(_cluster_blocks(cov, H), _cluster_blocks(cov, Ht)):
+            Pc = np.linalg.inv(C)
+            Pc = 0.5 * (Pc + np.swapaxes(Pc, 1, 2))
             Cvv = C - Hc
-            r[idx] = np.diag(Cvv @ Pc)
-            pcp[idx] = np.diag(Pc @ Cvv @ Pc)
-            php[idx] = np.diag(Pc @ Hc @ Pc)
-            phkp[idx] = np.diag(Pc @ (Hc - Htc) @ Pc)
-        return r, pcp, php, phkp, H, Ht
+            Hk = Hc - Htc
+            diag = lambda X: np.diagonal(X, axis1=1, axis2=2)  # noqa: E731
+            r[members] = diag(Cvv @ Pc)
+            pcp[members] = diag(Pc @ Cvv @ Pc)
+            php[members] = diag(Pc @ Hc @ Pc)
+            phkp[members] = diag(Pc @ Hk @ Pc)
+            uk[members] = diag(Hk @ Pc)
+        return r, pcp, php, phkp, uk
 
     def _nuisance_products(self, I, J):
         kind = self.problem.params.kind[self.problem.params.free][self.keep]
@@ -194,8 +219,17 @@ class Adjustment:
 
     @cached_property
     def r(self) -> np.ndarray:
-        """Redundancy numbers r_i = (C_vv P)_ii (F80 §5), clipped to [0, 1] against round-off."""
-        return np.clip(self._cluster_stats[0], 0.0, 1.0)
+        """Redundancy numbers r_i = (C_vv P)_ii (F80 §5), Σ r_i = r.
+
+        For an uncorrelated observation 0 ≤ r_i ≤ 1 (round-off is clipped); a single component of a
+        correlated cluster may fall outside [0, 1] — only the cluster's trace is bounded — and is
+        reported as computed.
+        """
+        raw = self._cluster_stats[0].copy()
+        sizes = np.array([m.size for m in self.problem.cov.members])
+        single = sizes[self.problem.cov.cluster] == 1
+        raw[single] = np.clip(raw[single], 0.0, 1.0)
+        return raw
 
     @cached_property
     def uncontrolled(self) -> np.ndarray:
@@ -252,23 +286,12 @@ class Adjustment:
     @cached_property
     def u_t(self) -> np.ndarray:
         """Contribution of each observation to the nuisance parameters (F80 eq. 16)."""
-        r, pcp, php, phkp, H, Ht = self._cluster_stats
-        return np.clip(1.0 - r - self.u_k, 0.0, 1.0)
+        return 1.0 - self._cluster_stats[0] - self.u_k
 
     @cached_property
     def u_k(self) -> np.ndarray:
-        """Contribution of each observation to the coordinates u_k,i (F80 eq. 16)."""
-        cov = self.problem.cov
-        _, _, _, _, H, Ht = self._cluster_stats
-        out = np.empty(self.n)
-        pos = 0
-        for c, idx in enumerate(cov.members):
-            m = idx.size
-            Hk = (H[pos:pos + m * m] - Ht[pos:pos + m * m]).reshape(m, m)
-            pos += m * m
-            Pc = np.linalg.inv(cov.blocks[c])
-            out[idx] = np.diag(Hk @ Pc)
-        return np.clip(out, 0.0, 1.0)
+        """Contribution of each observation to the coordinates u_k,i = (C̄ Q_kk C̄ᵀ P)_ii (F80 eq. 16)."""
+        return self._cluster_stats[4]
 
     @cached_property
     def external(self) -> np.ndarray:

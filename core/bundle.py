@@ -1,0 +1,827 @@
+"""Bundle blocks: collinearity equations, additional parameters, block hypotheses, AP tests.
+
+The file-level model is a frozen :class:`Block` (cameras, images with exterior orientation,
+object points, image measurements, control); :func:`build_block_problem` turns it into the
+generic :class:`baarda.problem.Problem` that :func:`baarda.adjust.adjust` works on.
+
+Collinearity (sign convention)
+------------------------------
+With R = R_ω R_φ R_κ (:mod:`baarda.rotation`, R turns image vectors into object space) and the
+object-to-image vector (U, V, W)ᵀ = Rᵀ (X − X0, Y − Y0, Z − Z0)ᵀ,
+
+.. math::
+
+    \\bar x = -c\\,U/W = -c\\,\\frac{r_{11}ΔX + r_{21}ΔY + r_{31}ΔZ}{r_{13}ΔX + r_{23}ΔY + r_{33}ΔZ},
+    \\qquad \\bar y = -c\\,V/W = -c\\,\\frac{r_{12}ΔX + r_{22}ΔY + r_{32}ΔZ}{r_{13}ΔX + r_{23}ΔY + r_{33}ΔZ},
+
+    x = x_0 + \\bar x + Δx(\\bar x, \\bar y), \\qquad y = y_0 + \\bar y + Δy(\\bar x, \\bar y).
+
+A nadir image (ω = φ = κ = 0) looks down (W < 0): image x points along object X, image y along
+object Y, c > 0. The distortion Δ is *added* to the ideal point (the measured point is where
+the distorted ray meets the image plane) and is evaluated at the ideal coordinates.
+
+Δ is the sum of the camera's calibrated distortion (Brown's form, fixed, standard units:
+k1 in unit⁻², k2 in unit⁻⁴, k3 in unit⁻⁶, p1, p2 in unit⁻¹, r² = x̄² + ȳ²)
+
+    Δx = x̄ (k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2x̄²) + 2 p2 x̄ȳ,
+    Δy = ȳ (k1 r² + k2 r⁴ + k3 r⁶) + p2 (r² + 2ȳ²) + 2 p1 x̄ȳ,
+
+and of the estimated *additional parameters* (APs, kind ``"t"``), in normalised coordinates
+u = x̄/s, v = ȳ/s with the camera's reference length s (``Camera.scale``), so that every AP is
+in image units (mm or px) — the size of its correction at u or v = 1:
+
+- ``"io"``: corrections of the interior orientation Δc, Δx0, Δy0 (c + Δc, x0 + Δx0, y0 + Δy0);
+- ``"brown"``: Brown's physical set (Brown 1971; affinity and shear as in Fraser 1997)
+  Δx = u (a1 ρ² + a2 ρ⁴ + a3 ρ⁶) + a4 (ρ² + 2u²) + 2 a5 uv + a6 u + a7 v,
+  Δy = v (a1 ρ² + a2 ρ⁴ + a3 ρ⁶) + a5 (ρ² + 2v²) + 2 a4 uv, ρ² = u² + v²
+  (so k1 = a1/s³, p1 = a4/s², ...);
+- ``"ebner"``: Ebner's (1976) 12 orthogonal parameters for the 3 × 3 von Gruber pattern with
+  base s (x = s u); e = 2/3,
+  Δx = a1 u + a2 v − a3 (2u² − 4/3) + a4 uv + a5 (v² − e) + a7 u (v² − e) + a9 v (u² − e)
+  + a11 (u² − e)(v² − e),
+  Δy = −a1 v + a2 u + a3 uv − a4 (2v² − 4/3) + a6 (u² − e) + a8 v (u² − e) + a10 u (v² − e)
+  + a12 (u² − e)(v² − e).
+
+Units: object coordinates and X0 in metres, angles in radians, image coordinates, c, x0, y0,
+their σ and the APs in the camera's unit (``"mm"`` or ``"px"``).
+
+Problem layout: parameters are, in this order, per image X0, Y0, Z0, ω, φ, κ (kind ``"t"``),
+per camera its AP groups (kind ``"t"``), per point X, Y, Z (kind ``"k"``; F80 eq. 16 splits
+by kind). Observations are, in this order, x and y of every image measurement (rows 2i and
+2i + 1 for measurement i: one 2 × 2 covariance cluster and one test group each), then the
+control coordinates point by point (one cluster and one test group per control point).
+
+Datum: ``Block.datum == "control"`` — the weighted control points (:class:`Datum` ``"fixed"``);
+``"free"`` — a free block whose 7-parameter defect is removed by inner constraints over the
+S-base (``Block.sbase``, empty = all points); control coordinates are then not used.
+
+References: Förstner (1980) (F80) and THEORY.md; Brown, D. C. (1971), Close-range camera
+calibration, PE 37(8); Ebner, H. (1976), Self calibrating block adjustment, BuL 44;
+Fraser, C. S. (1997), Digital camera self-calibration, ISPRS J. 52.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse as sp
+
+from . import stats
+from .datum import Datum
+from .geodetic import LinearSet
+from .hypotheses import common_error, selection
+from .linalg import SPDFactor
+from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
+from .rotation import R_opk, R_opk_derivatives
+
+EO_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+AP_GROUPS = {
+    "io": ("dc", "dx0", "dy0"),
+    "brown": ("a1", "a2", "a3", "a4", "a5", "a6", "a7"),
+    "ebner": tuple(f"b{i}" for i in range(1, 13)),
+}
+POINT_STATUS = ("tie", "control", "check")
+
+
+# --------------------------------------------------------------------------------------------
+# file-level model
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Camera:
+    """A camera (interior orientation). Lengths in ``unit`` ("mm" or "px").
+
+    c: principal distance; x0, y0: principal point; width, height: image format;
+    pixel_size: mm per pixel (information only); k1, k2, k3, p1, p2: calibrated distortion
+    (fixed, see the module docstring); ap: the AP groups to estimate ("io", "brown", "ebner");
+    ap_scale: reference length s of the APs (0 → 0.4 · max(width, height), the von Gruber base
+    of a 60 % overlap).
+    """
+
+    id: str
+    c: float
+    x0: float = 0.0
+    y0: float = 0.0
+    unit: str = "mm"
+    width: float = 230.0
+    height: float = 230.0
+    pixel_size: float | None = None
+    k1: float = 0.0
+    k2: float = 0.0
+    k3: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    ap: tuple[str, ...] = ()
+    ap_scale: float = 0.0
+    line: int = 0
+
+    @property
+    def scale(self) -> float:
+        return self.ap_scale if self.ap_scale > 0 else 0.4 * max(self.width, self.height)
+
+
+@dataclass(frozen=True)
+class Image:
+    """An image: camera id, projection centre X0, Y0, Z0 (m), ω, φ, κ (rad), strip label.
+
+    The orientation values are the approximations (or, in design mode, the truth).
+    """
+
+    id: str
+    camera: str
+    X0: float
+    Y0: float
+    Z0: float
+    omega: float
+    phi: float
+    kappa: float
+    strip: str = ""
+    line: int = 0
+
+
+@dataclass(frozen=True)
+class ObjectPoint:
+    """An object point: X, Y, Z approximate coordinates (m), status tie/control/check.
+
+    ref: the known coordinates of control and check points (m). Control points enter the
+    adjustment as observations of ``axes`` with σ ``sigma_h`` (X, Y) and ``sigma_v`` (Z) in m;
+    check points only through their image measurements, ``ref`` is compared afterwards.
+    """
+
+    id: str
+    X: float
+    Y: float
+    Z: float
+    status: str = "tie"
+    ref: tuple[float, float, float] | None = None
+    sigma_h: float = 0.0
+    sigma_v: float = 0.0
+    axes: str = "xyz"
+    line: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class ImageObservations:
+    """Image measurements, m of them: image and point indices into the block's tuples,
+    ``xy`` (m × 2, camera unit), covariance ``cov`` (m × 2 × 2, unit²), source ``line``."""
+
+    image: np.ndarray
+    point: np.ndarray
+    xy: np.ndarray
+    cov: np.ndarray
+    line: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return int(self.image.size)
+
+
+@dataclass(frozen=True, eq=False)
+class Block:
+    """A photogrammetric bundle block as read from a file (see the module docstring).
+
+    datum: "control" (weighted control points) or "free" (inner constraints over ``sbase``,
+    point ids, empty = all points). sigma0: a priori σ0 (dimensionless).
+    """
+
+    cameras: tuple[Camera, ...]
+    images: tuple[Image, ...]
+    points: tuple[ObjectPoint, ...]
+    obs: ImageObservations
+    datum: str = "control"
+    sbase: tuple[str, ...] = ()
+    sigma0: float = 1.0
+    title: str = ""
+    source: str = ""
+    extra: dict = field(default_factory=dict)
+
+    def camera_of(self, image: Image) -> Camera:
+        return next(c for c in self.cameras if c.id == image.camera)
+
+    def replace(self, **changes) -> "Block":
+        from dataclasses import replace
+        return replace(self, **changes)
+
+
+# --------------------------------------------------------------------------------------------
+# camera model: distortion bases and the collinearity observation set
+# --------------------------------------------------------------------------------------------
+def brown_basis(u, v):
+    """Brown's physical set at (u, v): Fx, Fy and their derivatives ∂/∂u, ∂/∂v (each m × 7).
+
+    Columns a1..a7 as in the module docstring (radial a1-a3, decentring a4, a5, affinity a6,
+    shear a7).
+    """
+    u = np.asarray(u, dtype=float)
+    v = np.asarray(v, dtype=float)
+    r2 = u * u + v * v
+    r4, r6 = r2 * r2, r2 * r2 * r2
+    z, o = np.zeros_like(u), np.ones_like(u)
+    Fx = np.stack([u * r2, u * r4, u * r6, r2 + 2 * u * u, 2 * u * v, u, v], -1)
+    Fy = np.stack([v * r2, v * r4, v * r6, 2 * u * v, r2 + 2 * v * v, z, z], -1)
+    Fxu = np.stack([r2 + 2 * u * u, r4 + 4 * u * u * r2, r6 + 6 * u * u * r4, 6 * u, 2 * v, o, z], -1)
+    Fxv = np.stack([2 * u * v, 4 * u * v * r2, 6 * u * v * r4, 2 * v, 2 * u, z, o], -1)
+    Fyu = np.stack([2 * u * v, 4 * u * v * r2, 6 * u * v * r4, 2 * v, 2 * u, z, z], -1)
+    Fyv = np.stack([r2 + 2 * v * v, r4 + 4 * v * v * r2, r6 + 6 * v * v * r4, 2 * u, 6 * v, z, z], -1)
+    return Fx, Fy, Fxu, Fxv, Fyu, Fyv
+
+
+def ebner_basis(u, v):
+    """Ebner's (1976) 12 parameters at (u, v) = (x, y)/b: Fx, Fy and ∂/∂u, ∂/∂v (each m × 12)."""
+    u = np.asarray(u, dtype=float)
+    v = np.asarray(v, dtype=float)
+    e = 2.0 / 3.0
+    z, o = np.zeros_like(u), np.ones_like(u)
+    U, V = u * u - e, v * v - e
+    Fx = np.stack([u, v, -(2 * u * u - 2 * e), u * v, V, z, u * V, z, v * U, z, U * V, z], -1)
+    Fy = np.stack([-v, u, u * v, -(2 * v * v - 2 * e), z, U, z, v * U, z, u * V, z, U * V], -1)
+    Fxu = np.stack([o, z, -4 * u, v, z, z, V, z, 2 * u * v, z, 2 * u * V, z], -1)
+    Fxv = np.stack([z, o, z, u, 2 * v, z, 2 * u * v, z, U, z, 2 * v * U, z], -1)
+    Fyu = np.stack([z, o, v, z, z, 2 * u, z, 2 * u * v, z, V, z, 2 * u * V], -1)
+    Fyv = np.stack([-o, z, u, -4 * v, z, z, z, U, z, 2 * u * v, z, 2 * v * U], -1)
+    return Fx, Fy, Fxu, Fxv, Fyu, Fyv
+
+
+BASES = {"brown": brown_basis, "ebner": ebner_basis}
+
+
+@dataclass(frozen=True, eq=False)
+class CollinearitySet:
+    """Image measurements of one camera (vectorised collinearity, module docstring).
+
+    rows: global rows, x of measurement k at local row 2k, y at 2k + 1. ipt (m × 3), ieo
+    (m × 6): parameter indices of the point and of the image orientation. ap: per AP group of
+    the camera (name, parameter indices (q,)). cal: (k1, k2, k3, p1, p2) of the camera.
+    """
+
+    rows: np.ndarray
+    ipt: np.ndarray
+    ieo: np.ndarray
+    c: float
+    x0: float
+    y0: float
+    scale: float
+    cal: tuple[float, ...]
+    ap: tuple[tuple[str, np.ndarray], ...]
+
+    @property
+    def angular(self) -> np.ndarray:
+        return np.zeros(self.rows.size, dtype=bool)
+
+    def _interior(self, x):
+        c, x0, y0 = self.c, self.x0, self.y0
+        for name, idx in self.ap:
+            if name == "io":
+                c, x0, y0 = c + x[idx[0]], x0 + x[idx[1]], y0 + x[idx[2]]
+        return c, x0, y0
+
+    def ideal(self, x):
+        """Ideal image coordinates x̄, ȳ (m,), the image vector (U, V, W) and the rotation."""
+        P = x[self.ipt]
+        X0 = x[self.ieo[:, :3]]
+        a = x[self.ieo[:, 3:]]
+        R, Rw, Rp, Rk = R_opk_derivatives(a[:, 0], a[:, 1], a[:, 2])
+        d = P - X0
+        UVW = np.einsum("mji,mj->mi", R, d)
+        c, _, _ = self._interior(x)
+        xb = -c * UVW[:, 0] / UVW[:, 2]
+        yb = -c * UVW[:, 1] / UVW[:, 2]
+        return xb, yb, UVW, d, (R, Rw, Rp, Rk)
+
+    def distortion(self, x, xb, yb):
+        """Δx, Δy (m,) and the Jacobian ∂(x, y)/∂(x̄, ȳ) = I + ∂Δ/∂(x̄, ȳ) (m × 2 × 2)."""
+        k1, k2, k3, p1, p2 = self.cal
+        cal = np.array([k1, k2, k3, p1, p2, 0.0, 0.0])
+        Fx, Fy, Fxu, Fxv, Fyu, Fyv = brown_basis(xb, yb)
+        dx, dy = Fx @ cal, Fy @ cal
+        J = np.empty(xb.shape + (2, 2))
+        J[:, 0, 0] = 1.0 + Fxu @ cal
+        J[:, 0, 1] = Fxv @ cal
+        J[:, 1, 0] = Fyu @ cal
+        J[:, 1, 1] = 1.0 + Fyv @ cal
+        s = self.scale
+        for name, idx in self.ap:
+            if name == "io":
+                continue
+            a = x[idx]
+            Fx, Fy, Fxu, Fxv, Fyu, Fyv = BASES[name](xb / s, yb / s)
+            dx = dx + Fx @ a
+            dy = dy + Fy @ a
+            J[:, 0, 0] += Fxu @ a / s
+            J[:, 0, 1] += Fxv @ a / s
+            J[:, 1, 0] += Fyu @ a / s
+            J[:, 1, 1] += Fyv @ a / s
+        return dx, dy, J
+
+    def ap_columns(self, xb, yb, name):
+        """∂(x, y)/∂a of one basis group at the ideal coordinates: (m × q, m × q)."""
+        Fx, Fy, *_ = BASES[name](xb / self.scale, yb / self.scale)
+        return Fx, Fy
+
+    def evaluate(self, x):
+        m = self.ipt.shape[0]
+        xb, yb, UVW, d, (R, Rw, Rp, Rk) = self.ideal(x)
+        c, x0, y0 = self._interior(x)
+        U, V, W = UVW[:, 0], UVW[:, 1], UVW[:, 2]
+        dx, dy, J = self.distortion(x, xb, yb)
+        f = np.empty(2 * m)
+        f[0::2] = x0 + xb + dx
+        f[1::2] = y0 + yb + dy
+        # ∂(U,V,W)/∂(X,Y,Z) = Rᵀ, ∂/∂X0 = −Rᵀ, ∂/∂angle = (∂R/∂angle)ᵀ d
+        dUVW = [np.transpose(R, (0, 2, 1))[:, :, j] for j in range(3)]
+        dang = [np.einsum("mji,mj->mi", D, d) for D in (Rw, Rp, Rk)]
+
+        def ideal_derivative(g):
+            """∂(x̄, ȳ)/∂θ for ∂(U, V, W)/∂θ = g (m × 3)."""
+            gx = (-c * g[:, 0] - xb * g[:, 2]) / W
+            gy = (-c * g[:, 1] - yb * g[:, 2]) / W
+            return gx, gy
+
+        cols, gxs, gys = [], [], []
+        for j in range(3):
+            gx, gy = ideal_derivative(dUVW[j])
+            cols += [self.ipt[:, j], self.ieo[:, j]]
+            gxs += [gx, -gx]
+            gys += [gy, -gy]
+        for j in range(3):
+            gx, gy = ideal_derivative(dang[j])
+            cols.append(self.ieo[:, 3 + j])
+            gxs.append(gx)
+            gys.append(gy)
+        for name, idx in self.ap:
+            if name == "io":
+                # c: ∂(x̄, ȳ)/∂c = (x̄, ȳ)/c; x0, y0: direct shifts
+                cols.append(np.full(m, idx[0]))
+                gxs.append(xb / c)
+                gys.append(yb / c)
+        # chain through the distortion: ∂(x, y)/∂θ = J ∂(x̄, ȳ)/∂θ
+        GX = np.stack(gxs, 1)
+        GY = np.stack(gys, 1)
+        vx = J[:, 0, 0, None] * GX + J[:, 0, 1, None] * GY
+        vy = J[:, 1, 0, None] * GX + J[:, 1, 1, None] * GY
+        C = np.stack(cols, 1)
+        extra_c, extra_x, extra_y = [], [], []
+        for name, idx in self.ap:
+            if name == "io":
+                extra_c += [np.full(m, idx[1]), np.full(m, idx[2])]
+                extra_x += [np.ones(m), np.zeros(m)]
+                extra_y += [np.zeros(m), np.ones(m)]
+            else:
+                Fx, Fy = self.ap_columns(xb, yb, name)
+                for k, i in enumerate(idx):
+                    extra_c.append(np.full(m, i))
+                    extra_x.append(Fx[:, k])
+                    extra_y.append(Fy[:, k])
+        if extra_c:
+            C = np.hstack([C, np.stack(extra_c, 1)])
+            vx = np.hstack([vx, np.stack(extra_x, 1)])
+            vy = np.hstack([vy, np.stack(extra_y, 1)])
+        ncol = C.shape[1]
+        lr = np.arange(m)
+        jrows = np.concatenate([np.repeat(2 * lr, ncol), np.repeat(2 * lr + 1, ncol)])
+        jcols = np.concatenate([C.ravel(), C.ravel()])
+        jvals = np.concatenate([vx.ravel(), vy.ravel()])
+        return f, jrows, jcols, jvals
+
+
+def project(camera: Camera, images, P, ap: dict | None = None) -> np.ndarray:
+    """Image coordinates (m × 2, camera unit) of object points P (m × 3, m) in ``images``.
+
+    ``images`` is a sequence of m :class:`Image` (one per point). Applies the collinearity
+    equations, the camera's calibrated distortion and, optionally, AP values
+    ``ap = {group: values}`` (module docstring). Used by the simulator and the tests.
+    """
+    P = np.atleast_2d(np.asarray(P, dtype=float))
+    m = P.shape[0]
+    eo = np.array([[getattr(im, nm) for nm in EO_NAMES] for im in images], dtype=float).reshape(m, 6)
+    ap = ap or {}
+    groups = tuple(g for g in ap)
+    x = np.concatenate([eo.ravel(), P.ravel()] + [np.asarray(ap[g], dtype=float) for g in groups])
+    ieo = np.arange(6 * m).reshape(m, 6)
+    ipt = 6 * m + np.arange(3 * m).reshape(m, 3)
+    pos = 9 * m
+    ap_idx = []
+    for g in groups:
+        q = len(AP_GROUPS[g])
+        ap_idx.append((g, np.arange(pos, pos + q)))
+        pos += q
+    s = CollinearitySet(rows=np.arange(2 * m), ipt=ipt, ieo=ieo, c=camera.c, x0=camera.x0,
+                        y0=camera.y0, scale=camera.scale,
+                        cal=(camera.k1, camera.k2, camera.k3, camera.p1, camera.p2), ap=tuple(ap_idx))
+    f, *_ = s.evaluate(x)
+    return f.reshape(m, 2)
+
+
+# --------------------------------------------------------------------------------------------
+# Problem
+# --------------------------------------------------------------------------------------------
+def footprint(image: Image, camera: Camera, Z: float) -> list[list[float]]:
+    """Ground polygon (4 × [X, Y], m) of the image format projected to the plane Z (m).
+
+    Rays X − X0 = λ R (x − x0, y − y0, −c)ᵀ through the format corners (distortion ignored).
+    """
+    R = R_opk(image.omega, image.phi, image.kappa)
+    w, h = camera.width / 2, camera.height / 2
+    out = []
+    for cx, cy in ((-w, -h), (w, -h), (w, h), (-w, h)):
+        d = R @ np.array([cx, cy, -camera.c])
+        lam = (Z - image.Z0) / d[2]
+        out.append([float(image.X0 + lam * d[0]), float(image.Y0 + lam * d[1])])
+    return out
+
+
+def build_block_problem(block: Block) -> Problem:
+    """Turn a :class:`Block` into an adjustment :class:`~baarda.problem.Problem`.
+
+    Layout of parameters and observations, datum and units: see the module docstring.
+    ``Problem.extra`` holds ``"block"`` (geometry for the dashboard: images with strip, EO and
+    ground footprint at the mean terrain height, camera, image size, flying height) and
+    ``"ap_groups"`` ({"camera:group": [parameter labels]}).
+    """
+    cams = {c.id: c for c in block.cameras}
+    labels, x0, kind, point, axis = [], [], [], [], []
+
+    def add(label, value, k, p=-1, a=-1):
+        labels.append(label)
+        x0.append(float(value))
+        kind.append(k)
+        point.append(p)
+        axis.append(a)
+        return len(x0) - 1
+
+    ieo_img = np.array([[add(f"{im.id}.{nm}", getattr(im, nm), "t") for nm in EO_NAMES]
+                        for im in block.images], dtype=np.int64).reshape(-1, 6)
+    ap_idx: dict[str, tuple] = {}
+    ap_groups = {}
+    for cam in block.cameras:
+        groups = []
+        for g in cam.ap:
+            if g not in AP_GROUPS:
+                raise ValueError(f"camera {cam.id}: unknown AP group '{g}' (known: {', '.join(AP_GROUPS)})")
+            idx = np.array([add(f"{cam.id}.{g}.{nm}", 0.0, "t") for nm in AP_GROUPS[g]], dtype=np.int64)
+            groups.append((g, idx))
+            ap_groups[f"{cam.id}:{g}"] = [labels[i] for i in idx]
+        ap_idx[cam.id] = tuple(groups)
+    index = np.full((len(block.points), 3), -1, dtype=np.int64)
+    for i, p in enumerate(block.points):
+        for a, (nm, val) in enumerate(zip("xyz", (p.X, p.Y, p.Z))):
+            index[i, a] = add(f"{p.id}.{nm}", val, "k", i, a)
+    u = len(x0)
+    params = Parameters(np.asarray(x0), tuple(labels), np.array(kind), np.zeros(u, dtype=bool),
+                        np.array(point, dtype=np.int64), np.array(axis, dtype=np.int64))
+
+    obs = block.obs
+    m = obs.size
+    cam_of_image = np.array([list(cams).index(im.camera) for im in block.images], dtype=np.int64)
+    obs_cam = cam_of_image[obs.image] if m else np.zeros(0, dtype=np.int64)
+    sets = []
+    for ci, cam in enumerate(block.cameras):
+        k = np.flatnonzero(obs_cam == ci)
+        if k.size == 0:
+            continue
+        rows = np.empty(2 * k.size, dtype=np.int64)
+        rows[0::2] = 2 * k
+        rows[1::2] = 2 * k + 1
+        sets.append(CollinearitySet(rows=rows, ipt=index[obs.point[k]], ieo=ieo_img[obs.image[k]],
+                                    c=cam.c, x0=cam.x0, y0=cam.y0, scale=cam.scale,
+                                    cal=(cam.k1, cam.k2, cam.k3, cam.p1, cam.p2), ap=ap_idx[cam.id]))
+    l = [obs.xy.ravel()]
+    members = [np.array([2 * k, 2 * k + 1]) for k in range(m)]
+    blocks = [obs.cov[k] for k in range(m)]
+    unit = [cams[block.images[i].camera].unit for i in obs.image]
+    kinds, ids, vfile, units, sfile, lines, group = [], [], [], [], [], [], []
+    for k in range(m):
+        im, pt = block.images[obs.image[k]].id, block.points[obs.point[k]].id
+        for comp in (0, 1):
+            kinds.append("image-" + "xy"[comp])
+            ids.append({"image": im, "point": pt, "component": "xy"[comp]})
+            vfile.append(obs.xy[k, comp])
+            units.append(unit[k])
+            sfile.append(np.sqrt(obs.cov[k, comp, comp]))
+            lines.append(obs.line[k])
+            group.append(k)
+    # control observations
+    use_control = block.datum != "free"
+    n_img = 2 * m
+    row = n_img
+    ctrl_rows, ctrl_idx = [], []
+    g = m
+    for i, p in enumerate(block.points):
+        if not (use_control and p.status == "control"):
+            continue
+        rr = []
+        sig = []
+        for a, nm in enumerate("xyz"):
+            if nm not in p.axes:
+                continue
+            s = p.sigma_v if a == 2 else p.sigma_h
+            rr.append(row)
+            sig.append(s)
+            ctrl_rows.append(row)
+            ctrl_idx.append(index[i, a])
+            l.append(np.array([p.ref[a]]))
+            kinds.append(f"control-{nm}")
+            ids.append({"id": p.id})
+            vfile.append(p.ref[a])
+            units.append("m")
+            sfile.append(s)
+            lines.append(p.line)
+            group.append(g)
+            row += 1
+        members.append(np.array(rr))
+        blocks.append(np.diag(np.square(sig)))
+        g += 1
+    if ctrl_rows:
+        sets.append(LinearSet("coordinate", np.array(ctrl_rows, dtype=np.int64),
+                              np.full(len(ctrl_rows), -1, dtype=np.int64), np.array(ctrl_idx, dtype=np.int64)))
+    n = row
+    cov = Covariance.from_blocks(n, members, blocks)
+    info = ObservationInfo(kind=tuple(kinds), ids=tuple(ids), value_file=np.array(vfile, dtype=float),
+                           unit=tuple(units), sigma_file=np.array(sfile, dtype=float),
+                           sigma_unit=tuple(units), line=np.array(lines, dtype=np.int64),
+                           group=np.array(group, dtype=np.int64))
+    status = tuple(p.status for p in block.points)
+    pts = PointInfo(tuple(p.id for p in block.points), index, status, 3)
+    datum = Datum("free", tuple(block.sbase)) if block.datum == "free" else Datum("fixed")
+    return Problem(params=params, sets=tuple(sets), l=np.concatenate(l) if l else np.zeros(0),
+                   cov=cov, info=info, points=pts, datum=datum, sigma0=block.sigma0,
+                   sigma_act="apriori", source=block.source, title=block.title,
+                   extra={"block": block_geometry(block), "ap_groups": ap_groups})
+
+
+def block_geometry(block: Block) -> dict:
+    """Geometry for the dashboard (JSON-able): images with footprints, camera, sizes (m, rad)."""
+    Z = np.array([p.Z for p in block.points]) if block.points else np.zeros(1)
+    Zm = float(Z.mean())
+    cams = {c.id: c for c in block.cameras}
+    images = []
+    for im in block.images:
+        cam = cams[im.camera]
+        images.append({"id": im.id, "strip": im.strip, "camera": im.camera,
+                       "X0": im.X0, "Y0": im.Y0, "Z0": im.Z0,
+                       "omega": im.omega, "phi": im.phi, "kappa": im.kappa,
+                       "footprint": footprint(im, cam, Zm)})
+    cam = block.cameras[0] if block.cameras else None
+    z0 = np.array([im.Z0 for im in block.images]) if block.images else np.zeros(1)
+    return {"images": images,
+            "camera": _camera_dict(cam) if cam else {},
+            "cameras": [_camera_dict(c) for c in block.cameras],
+            "image_size": [cam.width, cam.height] if cam else [0, 0],
+            "image_unit": cam.unit if cam else "mm",
+            "flying_height": float(z0.mean() - Zm),
+            "terrain_height": Zm}
+
+
+def _camera_dict(cam: Camera) -> dict:
+    return {"id": cam.id, "c": cam.c, "x0": cam.x0, "y0": cam.y0, "unit": cam.unit,
+            "width": cam.width, "height": cam.height, "pixel_size": cam.pixel_size,
+            "k1": cam.k1, "k2": cam.k2, "k3": cam.k3, "p1": cam.p1, "p2": cam.p2,
+            "ap": list(cam.ap), "ap_scale": cam.scale}
+
+
+# --------------------------------------------------------------------------------------------
+# hypotheses for blocks (F80 §2.2, THEORY.md §3)
+# --------------------------------------------------------------------------------------------
+def _problem(obj):
+    return getattr(obj, "problem", obj)
+
+
+def image_rows(problem, image: str, point: str) -> np.ndarray:
+    """Rows (x, y) of the measurement of ``point`` in ``image``; KeyError if there is none."""
+    problem = _problem(problem)
+    rows = [None, None]
+    for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids)):
+        if k.startswith("image-") and ids["image"] == image and ids["point"] == point:
+            rows["xy".index(ids["component"])] = i
+    if rows[0] is None or rows[1] is None:
+        raise KeyError(f"no measurement of point {point} in image {image}")
+    return np.array(rows, dtype=np.int64)
+
+
+def control_rows(problem, point: str) -> np.ndarray:
+    """Rows of the control observations of ``point`` (x, y, z order)."""
+    problem = _problem(problem)
+    rows = [i for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids))
+            if k.startswith("control-") and ids["id"] == point]
+    if not rows:
+        raise KeyError(f"no control observations of point {point}")
+    return np.array(rows, dtype=np.int64)
+
+
+def h_image_coordinate(problem, image: str, point: str, component: str):
+    """H (n × 1) of a gross error in one image coordinate (``component`` "x" or "y")."""
+    problem = _problem(problem)
+    r = image_rows(problem, image, point)["xy".index(component)]
+    return selection(problem.n, [r])
+
+
+def h_image_point(problem, image: str, point: str):
+    """H (n × 2) of a 2D error in one image point (F80 §2.2, q = 2)."""
+    problem = _problem(problem)
+    return selection(problem.n, image_rows(problem, image, point))
+
+
+def h_control_point(problem, point: str):
+    """H (n × q) of an error in a control point's observed coordinates (q = 2 or 3)."""
+    problem = _problem(problem)
+    return selection(problem.n, control_rows(problem, point))
+
+
+def h_point_transfer(problem, point: str, images) -> sp.csc_matrix:
+    """H (n × 2) of a point-transfer error: one 2D error common to the measurements of
+    ``point`` in every image of ``images`` (F80 §2.2; H = (0 … I₂ … I₂ … 0)ᵀ via
+    :func:`baarda.hypotheses.common_error`). ∇s is in image units (x, y)."""
+    problem = _problem(problem)
+    rows = np.array([image_rows(problem, im, point) for im in images])
+    return common_error(problem.n, [rows[:, 0], rows[:, 1]])
+
+
+def h_exchanged(adj, image: str, point_a: str, point_b: str, both: bool = True) -> sp.csc_matrix:
+    """H (n × 1) of a misidentification in one image.
+
+    Model: point a was measured where point b is imaged, e_a = p_b − p_a, with p the predicted
+    (adjusted) image positions ``adj.f``; if ``both`` (an *exchange*), b was measured at a as
+    well, e_b = p_a − p_b. One column, so ∇ŝ ≈ 1 means the full exchange and ∇ŝ ≈ 0 none.
+    The column depends on the solution (linearised about x̂); the test is F80 eq. 12 with q = 1.
+    """
+    ra = image_rows(adj.problem, image, point_a)
+    rb = image_rows(adj.problem, image, point_b)
+    d = adj.f[rb] - adj.f[ra]
+    rows = np.r_[ra, rb] if both else ra
+    vals = np.r_[d, -d] if both else d
+    return sp.csc_matrix((vals, (rows, np.zeros(rows.size, dtype=np.int64))), shape=(adj.n, 1))
+
+
+def h_ap_group(adj, camera: str, group: str) -> sp.csc_matrix:
+    """H (n × q) of an AP group *not* in the model: ∂f/∂a at the solution (F80 eq. 6-7).
+
+    Columns are the basis functions of ``group`` ("brown" or "ebner", module docstring) at the
+    adjusted ideal image coordinates of every measurement of ``camera``.
+    """
+    problem = adj.problem
+    block = problem.extra["block"]
+    cam = next(c for c in block["cameras"] if c["id"] == camera)
+    q = len(AP_GROUPS[group])
+    rows, cols, vals = [], [], []
+    full = adj.x
+    cam_images = {im["id"] for im in block["images"] if im["camera"] == camera}
+    for s in problem.sets:
+        if not isinstance(s, CollinearitySet):
+            continue
+        xr = s.rows[0::2]
+        if problem.info.ids[xr[0]]["image"] not in cam_images:
+            continue
+        xb, yb, *_ = s.ideal(full)
+        Fx, Fy, *_ = BASES[group](xb / cam["ap_scale"], yb / cam["ap_scale"])
+        for k in range(q):
+            rows += [xr, s.rows[1::2]]
+            cols += [np.full(xr.size, k)] * 2
+            vals += [Fx[:, k], Fy[:, k]]
+    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(adj.n, q))
+
+
+# --------------------------------------------------------------------------------------------
+# additional parameters: significance, determinability, reliability (F80 §7.2, §7.3)
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class APTest:
+    """Tests of a group of estimated additional parameters (F80 §7.2). Units: image units.
+
+    estimate ŝ, sigma σ_ŝ, cov Σ_ŝŝ (a priori σ0). T = ŝᵀΣ_ŝŝ⁻¹ŝ ~ χ²(q) under H0 (σ0 known),
+    critical the χ² critical value at size ``alpha``. determinability ∇0s_j = δ0 σ_ŝj (F80
+    eq. 15a, one parameter); ellipsoid_axes δ0(q) √eig(Σ_ŝŝ) (eq. 15a for the group).
+    reliability δ̄0,j of each single parameter and reliability_max of the group (F80 eq. 17):
+    the largest effect, in multiples of σ_f, of an undetectable AP error on any function f of
+    the coordinates. weakest: direction s of largest δ'0(s) (eq. 14, F80 §7.3);
+    most_influential: direction of largest δ̄0(s) (eq. 17).
+    """
+
+    labels: tuple[str, ...]
+    estimate: np.ndarray
+    cov: np.ndarray
+    T: float
+    q: int
+    alpha: float
+    critical: float
+    delta0_1: float
+    delta0_q: float
+    determinability: np.ndarray
+    ellipsoid_axes: np.ndarray
+    reliability: np.ndarray
+    reliability_max: float
+    delta0_prime_max: float
+    weakest: np.ndarray
+    most_influential: np.ndarray
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.cov))
+
+    @property
+    def significant(self) -> bool:
+        return bool(self.T > self.critical)
+
+    def as_dict(self) -> dict:
+        return {"labels": list(self.labels), "estimate": self.estimate.tolist(),
+                "sigma": self.sigma.tolist(), "T": self.T, "q": self.q, "alpha": self.alpha,
+                "critical": self.critical, "significant": self.significant,
+                "determinability": self.determinability.tolist(),
+                "reliability": self.reliability.tolist(), "reliability_max": self.reliability_max,
+                "delta0_prime_max": self.delta0_prime_max}
+
+
+def _coordinate_norm(adj, D: np.ndarray, exclude: np.ndarray) -> np.ndarray:
+    """Dᵀ (C̄ᵀPC̄) D for displacements D of the coordinates (k_free × q), F80 eq. 16.
+
+    C̄ = (I − B(BᵀPB)⁻¹BᵀP)C with B the nuisance columns except ``exclude`` (free positions).
+    The form is datum invariant (C̄ annihilates the coordinate part of the null space).
+    """
+    kind = adj.problem.params.kind[adj.problem.params.free]
+    k = np.flatnonzero(kind == "k")
+    t = np.setdiff1d(np.flatnonzero(kind == "t"), exclude)
+    E = adj.A[:, k] @ D
+    PE = adj.P @ E
+    M = E.T @ PE
+    if t.size:
+        B = adj.A[:, t].tocsr()
+        F = B.T @ PE
+        M = M - F.T @ SPDFactor((B.T @ adj.P @ B).tocsr()).solve(F).reshape(F.shape)
+    return 0.5 * (M + M.T)
+
+
+def ap_test(adj, camera: str, group: str) -> APTest:
+    """Significance, determinability and reliability of one camera's AP group (F80 §7.2).
+
+    Uses ``adj.solve_normal`` for the q columns Σ e_j (so Σ_ŝŝ and Σ_kŝ), then
+    ∇k = Σ_kŝ Σ_ŝŝ⁻¹ ∇s is the effect on the coordinates of leaving an error ∇s of the APs
+    unmodelled, and δ̄0²(s) = δ0² ∇kᵀ(C̄ᵀPC̄)∇k / ∇sᵀΣ_ŝŝ⁻¹∇s (F80 eq. 17; the denominator
+    is sᵀHᵀPQ_vvPHs of the model without the APs, H = ∂f/∂s).
+    """
+    problem = adj.problem
+    labels = problem.extra["ap_groups"][f"{camera}:{group}"]
+    free_labels = np.asarray(problem.params.labels)[problem.params.free]
+    where = {lab: i for i, lab in enumerate(free_labels)}
+    idx = np.array([where[lab] for lab in labels], dtype=np.int64)
+    q = idx.size
+    u = adj.A.shape[1]
+    Eq = np.zeros((u, q))
+    Eq[idx, np.arange(q)] = 1.0
+    S = adj.solve_normal(Eq)
+    Sss = 0.5 * (S[idx] + S[idx].T)
+    s_hat = adj.x[problem.params.free][idx]
+    W = la.inv(Sss)
+    W = 0.5 * (W + W.T)
+    T = float(s_hat @ W @ s_hat)
+    o = adj.options
+    alpha = stats.alpha_b_method(o.alpha, o.beta, q) if o.b_method else o.alpha
+    d1 = stats.delta0(o.alpha, o.beta, 1)
+    dq = stats.delta0(o.alpha, o.beta, 1) if o.b_method else stats.delta0(alpha, o.beta, q)
+    kind = problem.params.kind[problem.params.free]
+    k = np.flatnonzero(kind == "k")
+    # group: effect on k of unit AP errors, ∇k = Σ_kŝ Σ_ŝŝ⁻¹ ∇s
+    Dk = S[k] @ W
+    M = _coordinate_norm(adj, Dk, idx)
+    mu, Ur = la.eigh(M, W)
+    rel_max = float(dq * np.sqrt(max(mu[-1], 0.0)))
+    most = Ur[:, -1] / np.linalg.norm(Ur[:, -1])
+    # determinability in direction s (F80 eq. 14): HᵀPH = A_sᵀ P A_s
+    As = adj.A[:, idx]
+    HPH = np.asarray((As.T @ adj.P @ As).todense())
+    nu, Vd = la.eigh(HPH, W)
+    dprime = float(dq * np.sqrt(max(nu[-1], 0.0)))
+    weakest = Vd[:, -1] / np.linalg.norm(Vd[:, -1])
+    # single parameters: s_j alone excluded, the others of the group kept
+    rel = np.empty(q)
+    for j in range(q):
+        Dj = S[k][:, [j]] / Sss[j, j]
+        Mj = _coordinate_norm(adj, Dj, idx[[j]])[0, 0]
+        rel[j] = d1 * np.sqrt(max(Mj, 0.0) * Sss[j, j])
+    lam = np.maximum(la.eigvalsh(Sss), 0.0)
+    return APTest(labels=tuple(labels), estimate=s_hat, cov=Sss, T=T, q=q, alpha=alpha,
+                  critical=stats.critical_chi2(alpha, q), delta0_1=d1, delta0_q=dq,
+                  determinability=d1 * np.sqrt(np.diag(Sss)), ellipsoid_axes=dq * np.sqrt(lam),
+                  reliability=rel, reliability_max=rel_max, delta0_prime_max=dprime,
+                  weakest=weakest, most_influential=most)
+
+
+# --------------------------------------------------------------------------------------------
+# check points
+# --------------------------------------------------------------------------------------------
+def check_points(adj, block: Block) -> dict:
+    """Differences adjusted − reference at the check points (m) and their RMS per axis.
+
+    Check points take part only through their image measurements (module docstring).
+    """
+    coords = adj.coordinates
+    rows = []
+    for i, p in enumerate(block.points):
+        if p.status != "check" or p.ref is None:
+            continue
+        d = coords[i] - np.asarray(p.ref)
+        rows.append({"id": p.id, "ref": list(p.ref), "adjusted": coords[i].tolist(), "diff": d.tolist(),
+                     "sigma": adj.point_sigma[i].tolist()})
+    diffs = np.array([r["diff"] for r in rows]).reshape(-1, 3)
+    rms = np.sqrt((diffs ** 2).mean(axis=0)).tolist() if rows else [float("nan")] * 3
+    return {"points": rows, "rms": rms}

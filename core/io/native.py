@@ -1,0 +1,502 @@
+"""baarda's native block format: versioned JSON (``docs/native-format.md``).
+
+One document ``{"format": "baarda-block", "version": 1, "kind": ..., ...}`` holds a bundle
+block (``"bundle"``), a planimetric independent-model block (``"imodel"``) or a levelling
+network (``"levelling"``). :func:`read_native` validates everything and raises
+:class:`baarda.errors.InputError` with the 1-based line of the offending entry: JSON syntax
+errors carry the decoder's line; for a bad entry of a top-level list the reader knows where
+each element starts, because it walks the top-level object with ``json.JSONDecoder.raw_decode``
+(the writer puts one entry per line, but any layout works).
+"""
+
+from __future__ import annotations
+
+import bisect
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+FORMAT = "baarda-block"
+VERSIONS = (1,)
+KINDS = ("bundle", "imodel", "levelling")
+
+
+# --------------------------------------------------------------------------------------------
+# locating entries
+# --------------------------------------------------------------------------------------------
+class _Locator:
+    """Line numbers of the top-level keys and of the elements of top-level lists."""
+
+    def __init__(self, text: str):
+        self.newlines = [i for i, ch in enumerate(text) if ch == "\n"]
+        self.keys: dict[str, int] = {}
+        self.elements: dict[str, list[int]] = {}
+        dec = json.JSONDecoder()
+        ws = " \t\r\n"
+        pos = 0
+
+        def skip(p):
+            while p < len(text) and text[p] in ws:
+                p += 1
+            return p
+
+        pos = skip(pos)
+        if pos >= len(text) or text[pos] != "{":
+            return
+        pos = skip(pos + 1)
+        while pos < len(text) and text[pos] != "}":
+            key, pos = dec.raw_decode(text, pos)
+            pos = skip(pos)
+            pos = skip(pos + 1)        # ':'
+            self.keys[key] = self.line(pos)
+            if text[pos] == "[":
+                starts = []
+                pos = skip(pos + 1)
+                while text[pos] != "]":
+                    starts.append(self.line(pos))
+                    _, pos = dec.raw_decode(text, pos)
+                    pos = skip(pos)
+                    if text[pos] == ",":
+                        pos = skip(pos + 1)
+                pos += 1
+                self.elements[key] = starts
+            else:
+                _, pos = dec.raw_decode(text, pos)
+            pos = skip(pos)
+            if pos < len(text) and text[pos] == ",":
+                pos = skip(pos + 1)
+
+    def line(self, offset: int) -> int:
+        return bisect.bisect_left(self.newlines, offset) + 1
+
+    def of(self, key: str, index: int | None = None) -> int:
+        if index is not None and key in self.elements and index < len(self.elements[key]):
+            return self.elements[key][index]
+        return self.keys.get(key, 1)
+
+
+class _Reader:
+    def __init__(self, path, text: str, doc: dict):
+        self.path = str(path)
+        self.doc = doc
+        self.loc = _Locator(text)
+
+    def fail(self, key, index, message, field=None):
+        raise InputError(self.path, self.loc.of(key, index), message, field=field)
+
+    def entries(self, key, required=True) -> list:
+        val = self.doc.get(key)
+        if val is None:
+            if required:
+                self.fail(key, None, f"missing '{key}' list", field=key)
+            return []
+        if not isinstance(val, list):
+            self.fail(key, None, f"'{key}' must be a list", field=key)
+        for i, e in enumerate(val):
+            if not isinstance(e, dict):
+                self.fail(key, i, f"{key}[{i}] must be an object", field=key)
+        return val
+
+    def number(self, e, name, key, i, default=None, positive=False, nonneg=False):
+        if name not in e:
+            if default is None:
+                self.fail(key, i, f"{key}[{i}]: missing '{name}'", field=name)
+            return float(default)
+        v = e[name]
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(key, i, f"{key}[{i}]: '{name}' is not a number ({v!r})", field=name)
+        v = float(v)
+        if not math.isfinite(v):
+            self.fail(key, i, f"{key}[{i}]: '{name}' is not finite ({v})", field=name)
+        if positive and v <= 0:
+            self.fail(key, i, f"{key}[{i}]: '{name}' must be > 0 (got {v})", field=name)
+        if nonneg and v < 0:
+            self.fail(key, i, f"{key}[{i}]: '{name}' must be ≥ 0 (got {v})", field=name)
+        return v
+
+    def vector(self, e, name, key, i, size, positive=False):
+        v = e.get(name)
+        if not isinstance(v, list) or len(v) != size:
+            self.fail(key, i, f"{key}[{i}]: '{name}' must be a list of {size} numbers", field=name)
+        return [self.number({name: x}, name, key, i, positive=positive) for x in v]
+
+    def ident(self, e, name, key, i):
+        v = e.get(name)
+        if isinstance(v, bool) or not isinstance(v, (str, int)) or str(v) == "":
+            self.fail(key, i, f"{key}[{i}]: missing or empty '{name}'", field=name)
+        return str(v)
+
+    def unique(self, key, items) -> dict:
+        seen = {}
+        for i, e in enumerate(items):
+            pid = self.ident(e, "id", key, i)
+            if pid in seen:
+                self.fail(key, i, f"duplicate id '{pid}' in {key} (first at entry {seen[pid]})", field="id")
+            seen[pid] = i
+        return seen
+
+    def covariance(self, e, key, i, size=2):
+        if "cov" in e:
+            c = e["cov"]
+            if not (isinstance(c, list) and len(c) == size and all(isinstance(r, list) and len(r) == size for r in c)):
+                self.fail(key, i, f"{key}[{i}]: 'cov' must be a {size} × {size} list of lists", field="cov")
+            C = np.array([[self.number({"cov": x}, "cov", key, i) for x in r] for r in c])
+            if not np.allclose(C, C.T) or np.linalg.eigvalsh(C).min() <= 0:
+                self.fail(key, i, f"{key}[{i}]: 'cov' is not symmetric positive definite", field="cov")
+            return C
+        s = e.get("sigma")
+        if isinstance(s, list):
+            sig = self.vector(e, "sigma", key, i, size, positive=True)
+        else:
+            sig = [self.number(e, "sigma", key, i, positive=True)] * size
+        return np.diag(np.square(sig))
+
+
+# --------------------------------------------------------------------------------------------
+# reading
+# --------------------------------------------------------------------------------------------
+def read_native(path):
+    """Read a native file: a :class:`baarda.bundle.Block`, :class:`baarda.imodel.IModelBlock`
+    or (``kind: "levelling"``) a :class:`baarda.network.Network`. Raises InputError."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as err:
+        raise InputError(path, 0, f"cannot read: {err.strerror}") from None
+    except UnicodeDecodeError as err:
+        raise InputError(path, 0, f"not UTF-8 text ({err.reason})") from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise InputError(path, err.lineno, f"JSON syntax error: {err.msg} (column {err.colno})") from None
+    if not isinstance(doc, dict):
+        raise InputError(path, 1, "the document must be a JSON object")
+    rd = _Reader(p, text, doc)
+    if doc.get("format") != FORMAT:
+        rd.fail("format", None, f"not a {FORMAT} file (format = {doc.get('format')!r})", field="format")
+    if doc.get("version") not in VERSIONS:
+        rd.fail("version", None, f"unsupported version {doc.get('version')!r} (supported: "
+                f"{', '.join(map(str, VERSIONS))})", field="version")
+    kind = doc.get("kind", "bundle")
+    if kind not in KINDS:
+        rd.fail("kind", None, f"unknown kind {kind!r} (known: {', '.join(KINDS)})", field="kind")
+    sigma0 = rd.number(doc, "sigma0", "sigma0", None, default=1.0, positive=True) if "sigma0" in doc else 1.0
+    if kind == "bundle":
+        return _read_bundle(rd, sigma0)
+    if kind == "imodel":
+        return _read_imodel(rd, sigma0)
+    return _read_levelling(rd, sigma0)
+
+
+def _datum(rd, point_ids):
+    d = rd.doc.get("datum", {"kind": "control"})
+    if not isinstance(d, dict) or d.get("kind", "control") not in ("control", "free"):
+        rd.fail("datum", None, "datum must be {\"kind\": \"control\"} or {\"kind\": \"free\", \"sbase\": [...]}",
+                field="datum")
+    sbase = d.get("sbase", [])
+    if not isinstance(sbase, list):
+        rd.fail("datum", None, "datum.sbase must be a list of point ids", field="sbase")
+    for s in sbase:
+        if str(s) not in point_ids:
+            rd.fail("datum", None, f"S-base point '{s}' is not a point of the block", field="sbase")
+    return d.get("kind", "control"), tuple(str(s) for s in sbase)
+
+
+def _track_check(rd, key, counts, points, what):
+    for i, c in enumerate(counts):
+        if c < 2:
+            rd.fail(key, i, f"point '{points[i]}' is seen by {c} {what}; at least 2 are needed", field="id")
+
+
+def _read_bundle(rd, sigma0):
+    from ..bundle import AP_GROUPS, Block, Camera, Image, ImageObservations, ObjectPoint
+
+    cams_in = rd.entries("cameras")
+    if not cams_in:
+        rd.fail("cameras", None, "empty block: no cameras")
+    cam_ids = rd.unique("cameras", cams_in)
+    cameras = []
+    for i, e in enumerate(cams_in):
+        unit = e.get("unit", "mm")
+        if unit not in ("mm", "px"):
+            rd.fail("cameras", i, f"cameras[{i}]: unit must be 'mm' or 'px' (got {unit!r})", field="unit")
+        ap = e.get("ap", [])
+        if not isinstance(ap, list) or any(g not in AP_GROUPS for g in ap):
+            rd.fail("cameras", i, f"cameras[{i}]: 'ap' must list groups of {', '.join(AP_GROUPS)}", field="ap")
+        ps = e.get("pixel_size")
+        cameras.append(Camera(
+            id=str(e["id"]), c=rd.number(e, "c", "cameras", i, positive=True),
+            x0=rd.number(e, "x0", "cameras", i, 0.0), y0=rd.number(e, "y0", "cameras", i, 0.0), unit=unit,
+            width=rd.number(e, "width", "cameras", i, positive=True),
+            height=rd.number(e, "height", "cameras", i, positive=True),
+            pixel_size=None if ps is None else rd.number(e, "pixel_size", "cameras", i, positive=True),
+            **{k: rd.number(e, k, "cameras", i, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")},
+            ap=tuple(ap), ap_scale=rd.number(e, "ap_scale", "cameras", i, 0.0, nonneg=True),
+            line=rd.loc.of("cameras", i)))
+    imgs_in = rd.entries("images")
+    if not imgs_in:
+        rd.fail("images", None, "empty block: no images")
+    img_ids = rd.unique("images", imgs_in)
+    images = []
+    for i, e in enumerate(imgs_in):
+        cam = rd.ident(e, "camera", "images", i)
+        if cam not in cam_ids:
+            rd.fail("images", i, f"images[{i}]: unknown camera '{cam}'", field="camera")
+        vals = {k: rd.number(e, k, "images", i) for k in ("X0", "Y0", "Z0", "omega", "phi", "kappa")}
+        images.append(Image(id=str(e["id"]), camera=cam, strip=str(e.get("strip", "")),
+                            line=rd.loc.of("images", i), **vals))
+    pts_in = rd.entries("points")
+    if not pts_in:
+        rd.fail("points", None, "empty block: no points")
+    pt_ids = rd.unique("points", pts_in)
+    points = []
+    for i, e in enumerate(pts_in):
+        st = e.get("status", "tie")
+        if st not in ("tie", "control", "check"):
+            rd.fail("points", i, f"points[{i}]: status must be tie, control or check (got {st!r})", field="status")
+        X, Y, Z = (rd.number(e, k, "points", i) for k in ("X", "Y", "Z"))
+        ref, sh, sv, axes = None, 0.0, 0.0, "xyz"
+        if st != "tie":
+            ref = tuple(rd.vector(e, "ref", "points", i, 3)) if "ref" in e else (X, Y, Z)
+        if st == "control":
+            axes = e.get("axes", "xyz")
+            if not isinstance(axes, str) or not axes or any(a not in "xyz" for a in axes) or len(set(axes)) != len(axes):
+                rd.fail("points", i, f"points[{i}]: 'axes' must be letters of 'xyz'", field="axes")
+            axes = "".join(a for a in "xyz" if a in axes)
+            if "x" in axes or "y" in axes:
+                sh = rd.number(e, "sigma_h", "points", i, positive=True)
+            if "z" in axes:
+                sv = rd.number(e, "sigma_v", "points", i, positive=True)
+        points.append(ObjectPoint(id=str(e["id"]), X=X, Y=Y, Z=Z, status=st, ref=ref, sigma_h=sh, sigma_v=sv,
+                                  axes=axes, line=rd.loc.of("points", i)))
+    obs_in = rd.entries("observations")
+    if not obs_in:
+        rd.fail("observations", None, "empty block: no image observations")
+    m = len(obs_in)
+    oi, op = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    xy, cov, line = np.empty((m, 2)), np.empty((m, 2, 2)), np.empty(m, dtype=np.int64)
+    seen = {}
+    for k, e in enumerate(obs_in):
+        im = rd.ident(e, "image", "observations", k)
+        pt = rd.ident(e, "point", "observations", k)
+        if im not in img_ids:
+            rd.fail("observations", k, f"observations[{k}]: unknown image '{im}'", field="image")
+        if pt not in pt_ids:
+            rd.fail("observations", k, f"observations[{k}]: unknown point '{pt}'", field="point")
+        if (im, pt) in seen:
+            rd.fail("observations", k, f"observations[{k}]: point '{pt}' measured twice in image '{im}'",
+                    field="point")
+        seen[(im, pt)] = k
+        oi[k], op[k] = img_ids[im], pt_ids[pt]
+        xy[k] = (rd.number(e, "x", "observations", k), rd.number(e, "y", "observations", k))
+        cov[k] = rd.covariance(e, "observations", k)
+        line[k] = rd.loc.of("observations", k)
+    _track_check(rd, "points", np.bincount(op, minlength=len(points)), [p.id for p in points], "images")
+    datum, sbase = _datum(rd, pt_ids)
+    extra = rd.doc.get("extra", {})
+    return Block(cameras=tuple(cameras), images=tuple(images), points=tuple(points),
+                 obs=ImageObservations(oi, op, xy, cov, line), datum=datum, sbase=sbase, sigma0=sigma0,
+                 title=str(rd.doc.get("title", "")), source=rd.path, extra=extra if isinstance(extra, dict) else {})
+
+
+def _read_imodel(rd, sigma0):
+    from ..imodel import IModelBlock, Model, ModelObservations, PlanPoint
+
+    mods_in = rd.entries("models")
+    if not mods_in:
+        rd.fail("models", None, "empty block: no models")
+    mod_ids = rd.unique("models", mods_in)
+    models = [Model(id=str(e["id"]), strip=str(e.get("strip", "")), line=rd.loc.of("models", i),
+                    **{k: rd.number(e, k, "models", i, d) for k, d in (("a", 1.0), ("b", 0.0), ("c", 0.0), ("d", 0.0))})
+              for i, e in enumerate(mods_in)]
+    pts_in = rd.entries("points")
+    if not pts_in:
+        rd.fail("points", None, "empty block: no points")
+    pt_ids = rd.unique("points", pts_in)
+    points = []
+    for i, e in enumerate(pts_in):
+        st = e.get("status", "tie")
+        if st not in ("tie", "control", "check"):
+            rd.fail("points", i, f"points[{i}]: status must be tie, control or check (got {st!r})", field="status")
+        X, Y = rd.number(e, "X", "points", i), rd.number(e, "Y", "points", i)
+        ref = tuple(rd.vector(e, "ref", "points", i, 2)) if (st != "tie" and "ref" in e) else ((X, Y) if st != "tie" else None)
+        sig = rd.number(e, "sigma", "points", i, positive=True) if st == "control" else 0.0
+        points.append(PlanPoint(str(e["id"]), X, Y, st, ref, sig, line=rd.loc.of("points", i)))
+    obs_in = rd.entries("observations")
+    if not obs_in:
+        rd.fail("observations", None, "empty block: no model observations")
+    m = len(obs_in)
+    mi, mp = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    xy, cov, line = np.empty((m, 2)), np.empty((m, 2, 2)), np.empty(m, dtype=np.int64)
+    seen = set()
+    for k, e in enumerate(obs_in):
+        mo = rd.ident(e, "model", "observations", k)
+        pt = rd.ident(e, "point", "observations", k)
+        if mo not in mod_ids:
+            rd.fail("observations", k, f"observations[{k}]: unknown model '{mo}'", field="model")
+        if pt not in pt_ids:
+            rd.fail("observations", k, f"observations[{k}]: unknown point '{pt}'", field="point")
+        if (mo, pt) in seen:
+            rd.fail("observations", k, f"observations[{k}]: point '{pt}' twice in model '{mo}'", field="point")
+        seen.add((mo, pt))
+        mi[k], mp[k] = mod_ids[mo], pt_ids[pt]
+        xy[k] = (rd.number(e, "x", "observations", k), rd.number(e, "y", "observations", k))
+        cov[k] = rd.covariance(e, "observations", k)
+        line[k] = rd.loc.of("observations", k)
+    counts = np.bincount(mp, minlength=len(points))
+    for i, p in enumerate(points):
+        if counts[i] < 1 and p.status != "control":
+            rd.fail("points", i, f"point '{p.id}' is in no model", field="id")
+    datum, sbase = _datum(rd, pt_ids)
+    return IModelBlock(tuple(models), tuple(points), ModelObservations(mi, mp, xy, cov, line),
+                       unit=str(rd.doc.get("unit", "mm")), datum=datum, sbase=sbase, sigma0=sigma0,
+                       title=str(rd.doc.get("title", "")), source=rd.path)
+
+
+def _read_levelling(rd, sigma0):
+    from ..network import Cluster, NetObservation, NetPoint, Network
+
+    pts_in = rd.entries("points")
+    if not pts_in:
+        rd.fail("points", None, "empty network: no points")
+    pt_ids = rd.unique("points", pts_in)
+    points = []
+    for i, e in enumerate(pts_in):
+        st = e.get("status", "adjusted")
+        if st not in ("fixed", "adjusted"):
+            rd.fail("points", i, f"points[{i}]: status must be fixed or adjusted (got {st!r})", field="status")
+        H = rd.number(e, "H", "points", i)
+        points.append(NetPoint(id=str(e["id"]), z=H, fixed="z" if st == "fixed" else "",
+                               adjusted="z" if st == "adjusted" else "", line=rd.loc.of("points", i)))
+    obs_in = rd.entries("observations")
+    if not obs_in:
+        rd.fail("observations", None, "empty network: no height differences")
+    obs, clusters = [], []
+    for k, e in enumerate(obs_in):
+        a, b = rd.ident(e, "from", "observations", k), rd.ident(e, "to", "observations", k)
+        for nm, pid in (("from", a), ("to", b)):
+            if pid not in pt_ids:
+                rd.fail("observations", k, f"observations[{k}]: unknown point '{pid}'", field=nm)
+        if a == b:
+            rd.fail("observations", k, f"observations[{k}]: from and to are the same point", field="to")
+        dh = rd.number(e, "dh", "observations", k)
+        s = rd.number(e, "sigma", "observations", k, positive=True)
+        obs.append(NetObservation(kind="height-diff", points=(a, b), value=dh, line=rd.loc.of("observations", k),
+                                  value_file=dh, unit="m", sigma_file=s, sigma_unit="m"))
+        clusters.append(Cluster(indices=(k,), cov=np.array([[s * s]]), line=rd.loc.of("observations", k)))
+    return Network(points=tuple(points), observations=tuple(obs), clusters=tuple(clusters), sigma0=sigma0,
+                   sigma_act="apriori", description=str(rd.doc.get("title", "")), source=rd.path)
+
+
+# --------------------------------------------------------------------------------------------
+# writing
+# --------------------------------------------------------------------------------------------
+def _dump(doc: dict, lists: tuple[str, ...]) -> str:
+    """JSON with one entry of each top-level list per line (exact float round trip)."""
+    parts = []
+    for key, val in doc.items():
+        if key in lists:
+            body = ",\n".join("  " + json.dumps(e, ensure_ascii=False, allow_nan=False) for e in val)
+            parts.append(f" {json.dumps(key)}: [\n{body}\n ]")
+        else:
+            parts.append(f" {json.dumps(key)}: {json.dumps(val, ensure_ascii=False, allow_nan=False)}")
+    return "{\n" + ",\n".join(parts) + "\n}\n"
+
+
+def _cov_entry(C) -> dict:
+    C = np.asarray(C, dtype=float)
+    if C[0, 1] == 0 and C[1, 0] == 0:
+        sx, sy = float(np.sqrt(C[0, 0])), float(np.sqrt(C[1, 1]))
+        return {"sigma": sx if sx == sy else [sx, sy]}
+    return {"cov": C.tolist()}
+
+
+def _f(v) -> float:
+    return float(v)
+
+
+def write_native(block, path) -> None:
+    """Write a Block, IModelBlock or levelling Network in the native format (version 1)."""
+    from ..bundle import Block
+    from ..imodel import IModelBlock
+
+    if isinstance(block, Block):
+        doc = _bundle_doc(block)
+        lists = ("cameras", "images", "points", "observations")
+    elif isinstance(block, IModelBlock):
+        doc = _imodel_doc(block)
+        lists = ("models", "points", "observations")
+    else:
+        doc = _levelling_doc(block)
+        lists = ("points", "observations")
+    Path(path).write_text(_dump(doc, lists), encoding="utf-8")
+
+
+def _bundle_doc(b) -> dict:
+    cams = []
+    for c in b.cameras:
+        d = {"id": c.id, "c": c.c, "x0": c.x0, "y0": c.y0, "unit": c.unit, "width": c.width, "height": c.height}
+        if c.pixel_size is not None:
+            d["pixel_size"] = c.pixel_size
+        d.update({k: getattr(c, k) for k in ("k1", "k2", "k3", "p1", "p2")})
+        d["ap"] = list(c.ap)
+        d["ap_scale"] = c.scale
+        cams.append(d)
+    imgs = [{"id": im.id, "camera": im.camera, "strip": im.strip,
+             **{k: _f(getattr(im, k)) for k in ("X0", "Y0", "Z0", "omega", "phi", "kappa")}} for im in b.images]
+    pts = []
+    for p in b.points:
+        d = {"id": p.id, "status": p.status, "X": _f(p.X), "Y": _f(p.Y), "Z": _f(p.Z)}
+        if p.ref is not None:
+            d["ref"] = [_f(v) for v in p.ref]
+        if p.status == "control":
+            d["axes"] = p.axes
+            if p.sigma_h > 0:
+                d["sigma_h"] = p.sigma_h
+            if p.sigma_v > 0:
+                d["sigma_v"] = p.sigma_v
+        pts.append(d)
+    o = b.obs
+    obs = [{"image": b.images[o.image[k]].id, "point": b.points[o.point[k]].id,
+            "x": _f(o.xy[k, 0]), "y": _f(o.xy[k, 1]), **_cov_entry(o.cov[k])} for k in range(o.size)]
+    datum = {"kind": b.datum}
+    if b.datum == "free":
+        datum["sbase"] = list(b.sbase)
+    doc = {"format": FORMAT, "version": 1, "kind": "bundle", "title": b.title, "sigma0": b.sigma0,
+           "units": {"object": "m", "angles": "rad", "image": "camera unit"}, "datum": datum,
+           "cameras": cams, "images": imgs, "points": pts, "observations": obs}
+    if b.extra:
+        doc["extra"] = json.loads(json.dumps(b.extra, default=float))
+    return doc
+
+
+def _imodel_doc(b) -> dict:
+    mods = [{"id": m.id, "strip": m.strip, "a": m.a, "b": m.b, "c": m.c, "d": m.d} for m in b.models]
+    pts = []
+    for p in b.points:
+        d = {"id": p.id, "status": p.status, "X": _f(p.X), "Y": _f(p.Y)}
+        if p.ref is not None:
+            d["ref"] = [_f(v) for v in p.ref]
+        if p.status == "control":
+            d["sigma"] = p.sigma
+        pts.append(d)
+    o = b.obs
+    obs = [{"model": b.models[o.model[k]].id, "point": b.points[o.point[k]].id,
+            "x": _f(o.xy[k, 0]), "y": _f(o.xy[k, 1]), **_cov_entry(o.cov[k])} for k in range(o.size)]
+    datum = {"kind": b.datum}
+    if b.datum == "free":
+        datum["sbase"] = list(b.sbase)
+    return {"format": FORMAT, "version": 1, "kind": "imodel", "title": b.title, "sigma0": b.sigma0,
+            "unit": b.unit, "datum": datum, "models": mods, "points": pts, "observations": obs}
+
+
+def _levelling_doc(net) -> dict:
+    pts = [{"id": p.id, "status": "fixed" if "z" in p.fixed.lower() else "adjusted", "H": p.z} for p in net.points]
+    obs = [{"from": o.points[0], "to": o.points[1], "dh": o.value, "sigma": float(np.sqrt(c.cov[0, 0]))}
+           for o, c in zip(net.observations, net.clusters)]
+    return {"format": FORMAT, "version": 1, "kind": "levelling", "title": net.description, "sigma0": net.sigma0,
+            "units": {"height": "m", "sigma": "m"}, "points": pts, "observations": obs}

@@ -1,0 +1,364 @@
+"""Bundle blocks: collinearity Jacobians, reliability against an OLS oracle, datum invariance,
+block hypotheses (point transfer), AP tests (F80 §7.2) and the native file format."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import statsmodels.api as sm
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from statsmodels.stats.outliers_influence import OLSInfluence
+
+from baarda import InputError, Options, adjust
+from baarda import rotation as rot
+from baarda.bundle import (Camera, ap_test, build_block_problem, check_points, h_ap_group, h_control_point,
+                           h_exchanged, h_image_coordinate, h_image_point, h_point_transfer, image_rows)
+from baarda.io.native import read_native, write_native
+from baarda.simulate import simulate_block
+
+# ------------------------------------------------------------------------------------------
+# rotations
+# ------------------------------------------------------------------------------------------
+angles = st.floats(-1.4, 1.4)
+
+
+@settings(max_examples=30, deadline=None)
+@given(angles, angles, angles)
+def test_rotation_round_trips(w, p, k):
+    R = rot.R_opk(w, p, k)
+    assert np.allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.isclose(np.linalg.det(R), 1.0)
+    assert np.allclose(rot.opk_from_R(R), (w, p, k), atol=1e-9)
+    assert np.allclose(rot.R_from_rodrigues(rot.rodrigues_from_R(R)), R, atol=1e-9)
+    assert np.allclose(rot.R_from_quaternion(rot.quaternion_from_R(R)), R, atol=1e-9)
+
+
+def test_rotation_convention_and_derivatives():
+    # R = R_ω R_φ R_κ: a pure κ turns the image x axis towards object +Y
+    R = rot.R_opk(0.0, 0.0, np.pi / 2)
+    assert np.allclose(R @ [1, 0, 0], [0, 1, 0], atol=1e-15)
+    assert np.allclose(rot.R_from_rodrigues([0, 0, np.pi / 2]), R, atol=1e-12)
+    assert np.allclose(rot.R_from_quaternion([np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)]), R, atol=1e-12)
+    a = np.array([0.1, -0.2, 0.3])
+    _, *D = rot.R_opk_derivatives(*a)
+    for j in range(3):
+        h = np.zeros(3)
+        h[j] = 1e-6
+        fd = (rot.R_opk(*(a + h)) - rot.R_opk(*(a - h))) / 2e-6
+        assert np.abs(fd - D[j]).max() < 1e-9
+
+
+# ------------------------------------------------------------------------------------------
+# collinearity Jacobian
+# ------------------------------------------------------------------------------------------
+def test_jacobian_matches_finite_differences():
+    cam = {"id": "C", "c": 153.0, "width": 230.0, "height": 230.0, "unit": "mm",
+           "k1": 2e-8, "k2": -1e-12, "p1": 1e-6, "p2": -2e-6}
+    block, _ = simulate_block(seed=2, strips=2, images_per_strip=4, camera=cam,
+                              ap=["io", "brown", "ebner"])
+    pr = build_block_problem(block)
+    rng = np.random.default_rng(1)
+    x = pr.params.x0.copy()
+    is_ap = np.array([lab.count(".") == 2 for lab in pr.params.labels])
+    x[is_ap] = rng.normal(0, 0.01, is_ap.sum())
+    _, J = pr.evaluate(x)
+    J = J.toarray()
+    for j in range(pr.params.size):
+        h = 1e-6 if (pr.params.kind[j] == "t" and not is_ap[j] and pr.params.labels[j].split(".")[-1]
+                     in ("omega", "phi", "kappa")) else 1e-4
+        xp, xm = x.copy(), x.copy()
+        xp[j] += h
+        xm[j] -= h
+        fd = (pr.evaluate(xp)[0] - pr.evaluate(xm)[0]) / (2 * h)
+        assert np.abs(fd - J[:, j]).max() <= 1e-6 * max(1.0, np.abs(J[:, j]).max()), pr.params.labels[j]
+
+
+# ------------------------------------------------------------------------------------------
+# reliability against an independent oracle
+# ------------------------------------------------------------------------------------------
+def _whitened_hat(adj):
+    """1 − h_ii of the whitened design matrix (statsmodels OLSInfluence), each 2×2 cluster
+    whitened with its Cholesky factor."""
+    A = adj.A.toarray()
+    Aw = np.empty_like(A)
+    for idx, C in zip(adj.problem.cov.members, adj.problem.cov.blocks):
+        Aw[idx] = np.linalg.solve(np.linalg.cholesky(C), A[idx])
+    res = sm.OLS(np.zeros(A.shape[0]) + np.arange(A.shape[0]) % 3, Aw).fit()
+    return 1.0 - OLSInfluence(res).hat_matrix_diag
+
+
+@pytest.fixture(scope="module")
+def block_adj():
+    block, truth = simulate_block(seed=11, strips=2, images_per_strip=5)
+    return block, truth, adjust(build_block_problem(block))
+
+
+def test_redundancy_numbers_equal_ols_leverage(block_adj):
+    _, _, adj = block_adj
+    assert adj.converged
+    assert np.abs(adj.r - _whitened_hat(adj)).max() <= 1e-8
+    assert abs(adj.r.sum() - adj.dof) < 1e-8
+
+
+def test_redundancy_of_correlated_image_points():
+    """With correlated 2×2 clusters (C_vv P)_ii and the whitened leverage differ per
+    component (they are similar matrices, not equal); their trace per cluster agrees.
+
+    The unclipped values are used: a component of (C_vv P)_ii can be negative for correlated
+    observations, and ``Adjustment.r`` clips to [0, 1]."""
+    block, _ = simulate_block(seed=12, strips=2, images_per_strip=4, rho=0.4)
+    adj = adjust(build_block_problem(block))
+    one_minus_h = _whitened_hat(adj)
+    r_raw = adj._cluster_stats[0]
+    for idx in adj.problem.cov.members:
+        assert abs(r_raw[idx].sum() - one_minus_h[idx].sum()) <= 1e-8
+    assert abs(r_raw.sum() - adj.dof) < 1e-8
+
+
+def test_redundancy_is_datum_invariant():
+    block, _ = simulate_block(seed=5, control="minimal")
+    tight = Options(tol=1e-8)           # all three linearised at the same geometry
+    a_ctrl = adjust(build_block_problem(block), tight)
+    a_free = adjust(build_block_problem(block.replace(datum="free")), tight)
+    base = tuple(p.id for p in block.points[::5])      # an S-base spread over the block
+    a_base = adjust(build_block_problem(block.replace(datum="free", sbase=base)), tight)
+    m = 2 * block.obs.size
+    assert a_free.defect == 7 and a_ctrl.defect == 0
+    assert a_ctrl.dof == a_free.dof == a_base.dof
+    assert np.abs(a_ctrl.r[:m] - a_free.r).max() <= 1e-9
+    assert np.abs(a_base.r - a_free.r).max() <= 1e-9
+    assert np.abs(a_ctrl.r[m:]).max() <= 1e-9          # a minimum datum has no redundancy
+    ok = a_free.r > 0.01                # w of nearly uncontrolled observations is round-off
+    assert np.abs(a_base.w[ok] - a_free.w[ok]).max() <= 1e-6
+    # coordinate precision depends on the S-base, reliability not (M84 §2)
+    assert np.abs(a_base.point_sigma - a_free.point_sigma).max() > 1e-3
+
+
+# ------------------------------------------------------------------------------------------
+# hypotheses
+# ------------------------------------------------------------------------------------------
+def test_single_hypotheses_agree_with_data_snooping(block_adj):
+    block, _, adj = block_adj
+    pr = adj.problem
+    track = np.bincount(block.obs.point)
+    k = int(np.flatnonzero(track[block.obs.point] >= 4)[0])    # both coordinates controlled
+    im, pt = block.images[block.obs.image[k]].id, block.points[block.obs.point[k]].id
+    rows = image_rows(pr, im, pt)
+    h = adj.test(h_image_coordinate(pr, im, pt, "y"))
+    assert np.isclose(h.T, adj.w[rows[1]] ** 2)
+    h2 = adj.test(h_image_point(pr, im, pt))
+    g = next(g for g in adj.groups if g["group"] == k)
+    assert h2.q == 2 and np.isclose(h2.T, g["T"])
+    ctrl = next(p.id for p in block.points if p.status == "control")
+    hc = adj.test(h_control_point(pr, ctrl))
+    assert hc.q == 3 and hc.H.shape == (pr.n, 3)
+
+
+def test_point_transfer_error_is_found_by_its_own_hypothesis():
+    block, truth = simulate_block(seed=0, errors=[{"kind": "transfer", "size": 10, "images": 3}])
+    adj = adjust(build_block_problem(block))
+    e = truth["errors"][0]
+    assert len(e["ids"]["images"]) == 3 and e["class"] == "small"
+    h = adj.test(h_point_transfer(adj.problem, e["ids"]["point"], e["ids"]["images"]))
+    single = [g["T"] for g in adj.groups if g["dimension"] == 2]
+    assert h.rejected_T
+    assert h.T > max(single)
+    assert np.all(np.abs(h.nabla - e["vector"]) < h.nabla_sigma)
+    H = h.H.toarray()
+    assert set(np.flatnonzero(H.any(axis=1))) == set(e["rows"])
+
+
+def test_exchange_hypothesis_column(block_adj):
+    block, _, adj = block_adj
+    im = block.images[3].id
+    k = np.flatnonzero(block.obs.image == 3)[:2]
+    a, b = (block.points[block.obs.point[i]].id for i in k)
+    H = h_exchanged(adj, im, a, b).toarray().ravel()
+    ra, rb = image_rows(adj.problem, im, a), image_rows(adj.problem, im, b)
+    assert np.allclose(H[ra], adj.f[rb] - adj.f[ra]) and np.allclose(H[rb], -H[ra])
+    h = adj.test(sp.csc_matrix(H[:, None]))
+    assert h.q == 1 and abs(h.nabla[0]) < 0.05          # no exchange planted
+
+
+# ------------------------------------------------------------------------------------------
+# additional parameters (F80 §7.2)
+# ------------------------------------------------------------------------------------------
+def test_ap_group_significant_only_with_radial_distortion():
+    with_rad, _ = simulate_block(seed=4, ap=["brown"], radial=0.010)
+    without, _ = simulate_block(seed=4, ap=["brown"])
+    t1 = ap_test(adjust(build_block_problem(with_rad)), "RC30", "brown")
+    t0 = ap_test(adjust(build_block_problem(without)), "RC30", "brown")
+    assert t1.significant and t1.T > 2 * t1.critical
+    assert not t0.significant
+    assert np.allclose(t0.determinability, t0.delta0_1 * t0.sigma)
+    assert np.all(t0.reliability > 0) and t0.reliability_max > 0
+
+
+def test_ap_reliability_matches_dense_oracle():
+    """δ̄0(s) of the AP group (F80 eq. 17) against the hypothesis H = ∂f/∂a in the model
+    without APs, with Q_kk⁻¹ = C̄ᵀPC̄ formed densely (design mode: both linearised at the truth)."""
+    blk, _ = simulate_block(seed=6, strips=2, images_per_strip=4, ap=["ebner"], design=True)
+    adj = adjust(build_block_problem(blk))
+    t = ap_test(adj, "RC30", "ebner")
+    adj0 = adjust(build_block_problem(blk.replace(cameras=(Camera(**{**blk.cameras[0].__dict__, "ap": ()}),))))
+    H = h_ap_group(adj0, "RC30", "ebner")
+    h = adj0.test(H)
+    assert np.allclose(la_inv(h.W), t.cov, rtol=1e-6, atol=1e-12)
+    kind = adj0.problem.params.kind[adj0.problem.params.free]
+    k, tt = kind == "k", kind == "t"
+    A, P = adj0.A.toarray(), adj0.P.toarray()
+    B, C = A[:, tt], A[:, k]
+    Cbar = C - B @ np.linalg.solve(B.T @ P @ B, B.T @ P @ C)
+    dK = np.column_stack([adj0.deformation(H[:, [j]].toarray().ravel())[k] for j in range(H.shape[1])])
+    M = dK.T @ Cbar.T @ P @ Cbar @ dK
+    lam = np.linalg.eigvals(np.linalg.solve(h.W, M)).real.max()
+    assert np.isclose(t.reliability_max, t.delta0_q * np.sqrt(lam), rtol=1e-5)
+
+
+def la_inv(W):
+    return np.linalg.inv(W)
+
+
+@pytest.mark.slow
+def test_ap_test_rejection_rate_is_alpha():
+    """Monte Carlo: without systematic errors the AP group test rejects at rate ≈ α."""
+    alpha, n = 0.05, 300
+    rejected = 0
+    for seed in range(n):
+        blk, _ = simulate_block(seed=1000 + seed, strips=2, images_per_strip=4, ap=["brown"])
+        t = ap_test(adjust(build_block_problem(blk), Options(alpha=alpha, tol=1e-10)), "RC30", "brown")
+        rejected += t.significant
+    se = np.sqrt(alpha * (1 - alpha) / n)
+    assert abs(rejected / n - alpha) < 3 * se
+
+
+def test_check_points_are_reported_not_adjusted():
+    blk, truth = simulate_block(seed=8, check=3)
+    adj = adjust(build_block_problem(blk))
+    rep = check_points(adj, blk)
+    assert len(rep["points"]) == 3
+    assert not any(k.startswith("control") and ids["id"] in {p["id"] for p in rep["points"]}
+                   for k, ids in zip(adj.problem.info.kind, adj.problem.info.ids))
+    assert max(rep["rms"]) < 1.0
+
+
+def test_problem_layout_and_geometry(block_adj):
+    block, _, adj = block_adj
+    pr = adj.problem
+    m = block.obs.size
+    assert pr.info.kind[0] == "image-x" and pr.info.kind[1] == "image-y"
+    assert all(len(pr.cov.members[k]) == 2 for k in range(m))
+    assert set(pr.info.group[:2 * m]) == set(range(m))
+    geo = pr.extra["block"]
+    assert len(geo["images"]) == len(block.images) and len(geo["images"][0]["footprint"]) == 4
+    assert 1400 < geo["flying_height"] < 1600
+    fp = np.array(geo["images"][0]["footprint"])
+    side = np.linalg.norm(fp[1] - fp[0])
+    assert abs(side - 230 * geo["flying_height"] / 153) < 0.1 * side
+    assert set(pr.points.status) == {"tie", "control"}
+    json.dumps(geo)
+
+
+# ------------------------------------------------------------------------------------------
+# native format
+# ------------------------------------------------------------------------------------------
+def test_native_round_trip(tmp_path):
+    blk, _ = simulate_block(seed=9, strips=2, images_per_strip=3, ap=["brown"], rho=0.2, check=1)
+    path = tmp_path / "b.json"
+    write_native(blk, path)
+    back = read_native(path)
+    assert np.array_equal(back.obs.xy, blk.obs.xy) and np.allclose(back.obs.cov, blk.obs.cov, rtol=1e-15)
+    assert [p.__dict__ | {"line": 0} for p in back.points] == [p.__dict__ | {"line": 0} for p in blk.points]
+    assert [i.__dict__ | {"line": 0} for i in back.images] == [i.__dict__ | {"line": 0} for i in blk.images]
+    assert back.cameras[0].ap == ("brown",)
+    text = path.read_text().splitlines()
+    k = 5
+    assert f'"point": "{back.points[back.obs.point[k]].id}"' in text[back.obs.line[k] - 1]
+    write_native(back, tmp_path / "c.json")
+    assert (tmp_path / "c.json").read_text() == path.read_text()
+
+
+def _small_text(tmp_path):
+    blk, _ = simulate_block(seed=9, strips=2, images_per_strip=3)
+    path = tmp_path / "ok.json"
+    write_native(blk, path)
+    return path.read_text()
+
+
+def _line_of(text, needle, nth=0):
+    hits = [i + 1 for i, line in enumerate(text.splitlines()) if needle in line]
+    return hits[nth]
+
+
+MALFORMED = [
+    # (name, transform(text) -> text, needle locating the expected line or an int)
+    ("syntax", lambda t: t.replace('"c": 153.0,', '"c": 153.0,,', 1), '"c": 153.0'),
+    ("format", lambda t: t.replace('"baarda-block"', '"other"', 1), '"format"'),
+    ("version", lambda t: t.replace('"version": 1', '"version": 7', 1), '"version"'),
+    ("c <= 0", lambda t: t.replace('"c": 153.0', '"c": -153.0', 1), '"c": -153.0'),
+    ("not a number", lambda t: t.replace('"X0": ', '"X0": "abc", "x": ', 1), '"X0": "abc"'),
+    ("nan", lambda t: t.replace('"Z0": ', '"Z0": NaN, "z": ', 1), '"Z0": NaN'),
+    ("infinity", lambda t: _nth_obs(t, 4, '"x": ', '"x": Infinity, "q": '), '"x": Infinity'),
+    ("sigma <= 0", lambda t: _nth_obs(t, 6, '"sigma": 0.005', '"sigma": 0.0'), '"sigma": 0.0}'),
+    ("duplicate image", lambda t: t.replace('"id": "102"', '"id": "101"', 1), ('"id": "101"', 1)),
+    ("unknown image", lambda t: _nth_obs(t, 3, '"image": "', '"image": "9'), '"image": "9'),
+    ("unknown camera", lambda t: t.replace('"camera": "RC30"', '"camera": "XX"', 1), '"camera": "XX"'),
+    ("cov shape", lambda t: _nth_obs(t, 2, '"sigma": 0.005', '"cov": [[1e-5, 0], [0, 1e-5, 0]]'), '"cov"'),
+    ("ref count", lambda t: _first_control(t), '"ref": [1.0, 2.0]'),
+    ("bad status", lambda t: t.replace('"status": "tie"', '"status": "bridge"', 1), '"status": "bridge"'),
+    ("empty block", lambda t: _empty_observations(t), '"observations"'),
+]
+
+
+def _nth_obs(text, n, old, new):
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(' "observations"'))
+    lines[start + 1 + n] = lines[start + 1 + n].replace(old, new, 1)
+    return "\n".join(lines) + "\n"
+
+
+def _first_control(text):
+    lines = text.splitlines()
+    i = next(i for i, line in enumerate(lines) if '"status": "control"' in line)
+    j0 = lines[i].index('"ref": [')
+    j1 = lines[i].index("]", j0)
+    lines[i] = lines[i][:j0] + '"ref": [1.0, 2.0]' + lines[i][j1 + 1:]
+    return "\n".join(lines) + "\n"
+
+
+def _empty_observations(text):
+    doc = json.loads(text)
+    doc["observations"] = []
+    return json.dumps(doc, indent=1)
+
+
+@pytest.mark.parametrize("name,transform,where", MALFORMED, ids=[m[0] for m in MALFORMED])
+def test_malformed_native_files(tmp_path, name, transform, where):
+    bad = transform(_small_text(tmp_path))
+    path = tmp_path / "bad.json"
+    path.write_text(bad)
+    with pytest.raises(InputError) as info:
+        read_native(path)
+    needle, nth = where if isinstance(where, tuple) else (where, 0)
+    assert info.value.line == _line_of(bad, needle, nth), str(info.value)
+    assert info.value.path == str(path)
+
+
+def test_point_seen_by_one_image_is_an_error(tmp_path):
+    blk, _ = simulate_block(seed=9, strips=2, images_per_strip=3)
+    path = tmp_path / "b.json"
+    write_native(blk, path)
+    doc = json.loads(path.read_text())
+    pid = doc["points"][0]["id"]
+    seen = [i for i, o in enumerate(doc["observations"]) if o["point"] == pid]
+    doc["observations"] = [o for i, o in enumerate(doc["observations"]) if i not in seen[1:]]
+    write_text = json.dumps(doc, indent=1)
+    path.write_text(write_text)
+    with pytest.raises(InputError, match="seen by 1 images") as info:
+        read_native(path)
+    # the line where the point's entry starts (its "{" in this indented layout)
+    assert info.value.line == _line_of(write_text, f'"id": "{pid}"') - 1
