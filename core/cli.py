@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
 from . import __version__
 from .errors import BaardaError
@@ -36,13 +37,53 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Adjust INPUT, run the global test and data snooping, and "
                                     "compute redundancy numbers, MDBs and external reliability.")
     an.add_argument("input", help="the network or block file (GNU Gama .gkf ...)")
-    an.add_argument("--format", default="auto", help="input format: auto (default), gama")
+    an.add_argument("--format", default="auto", help="input format: auto (default), gama, native")
     _add_test_options(an)
     an.add_argument("--json", metavar="OUT", help="write the full results as JSON (docs/json-schema.md)")
     an.add_argument("--csv", metavar="DIR", help="write observations.csv, points.csv, groups.csv into DIR")
+    an.add_argument("--truth", metavar="FILE",
+                    help="truth file of a simulated block: report which planted errors the tests find "
+                         "(default: NAME.truth.json beside INPUT, if present)")
     an.add_argument("--top", type=int, default=8, help="how many entries each summary list shows")
     an.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
     an.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+
+    sim = sub.add_parser("simulate", help="simulate an aerial block with planted errors",
+                         description="Simulate an aerial bundle block (s strips × m images) and write "
+                                     "it in baarda's native format, with a truth file of what was planted.")
+    sim.add_argument("out", help="the block file to write (.json)")
+    sim.add_argument("--truth", metavar="FILE", help="truth file (default: OUT with .truth.json)")
+    sim.add_argument("--strips", type=int, default=3, help="number of strips (default 3)")
+    sim.add_argument("--images", type=int, default=8, help="images per strip (default 8)")
+    sim.add_argument("--camera", default="aerial", help="aerial (153 mm, 230 mm format) or drone")
+    sim.add_argument("--flying-height", type=float, default=1500.0, help="metres above ground (default 1500)")
+    sim.add_argument("--forward-overlap", type=float, default=0.6, help="default 0.6")
+    sim.add_argument("--side-overlap", type=float, default=0.25, help="default 0.25")
+    sim.add_argument("--pattern", type=int, nargs=2, default=[3, 3], metavar=("NX", "NY"),
+                     help="tie points per image (default 3 3, von Gruber)")
+    sim.add_argument("--control", default="perimeter",
+                     help="control configuration: corners, perimeter, dense, minimal, none (free block)")
+    sim.add_argument("--control-spacing", type=int, default=2, help="perimeter control every k base lengths")
+    sim.add_argument("--check", type=int, default=0, help="number of check points")
+    sim.add_argument("--sigma-image", type=float, default=None, help="σ of image coordinates, mm (default 0.005)")
+    sim.add_argument("--radial", type=float, default=0.0, help="planted radial distortion at the image corner, mm")
+    sim.add_argument("--error", action="append", default=[], metavar="KIND:SIZE[:K=V...]",
+                     help="plant an error, e.g. image:20, transfer:10:images=3, control:20:axis=z, "
+                          "image-point:6, misidentification:1, exchange:1 (size in σ; repeatable)")
+    sim.add_argument("--design", action="store_true", help="design mode: exact observations (no noise)")
+    sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    sim.add_argument("--title", default="", help="a title stored in the block")
+    sim.add_argument("--quiet", "-q", action="store_true")
+    sim.add_argument("--debug", action="store_true")
+
+    sv = sub.add_parser("serve", help="serve the dashboard in the browser",
+                        description="Serve the Panel dashboard for FILE (default: the demo block).")
+    sv.add_argument("input", nargs="?", help="the network or block file (default: data/demo-block.json)")
+    sv.add_argument("--port", type=int, default=5006, help="port (default 5006)")
+    sv.add_argument("--address", default="127.0.0.1",
+                    help="address to listen on (default 127.0.0.1; 0.0.0.0 exposes it to the network)")
+    sv.add_argument("--show", action="store_true", help="open a browser (only where there is a display)")
+    sv.add_argument("--debug", action="store_true")
     return ap
 
 
@@ -76,8 +117,70 @@ def cmd_analyze(args) -> int:
         results.write_json(adj, args.json, doc)
     if args.csv:
         results.write_csv(adj, args.csv, doc)
+    truth_path = args.truth
+    if truth_path is None:
+        guess = Path(args.input).with_suffix(".truth.json")
+        truth_path = guess if guess.exists() else None
+    findings = None
+    if truth_path is not None:
+        from . import truth
+        from .io import read_truth
+        findings = truth.compare(adj, read_truth(truth_path))
+        doc["planted"] = findings
+    if args.json:
+        results.write_json(adj, args.json, doc)
     if not args.quiet:
         print(results.text_summary(adj, top=args.top))
+        if findings is not None:
+            from . import truth
+            print(truth.text(findings))
+    return 0
+
+
+def _parse_error(spec: str) -> dict:
+    parts = spec.split(":")
+    d = {"kind": parts[0]}
+    if len(parts) > 1 and parts[1]:
+        d["size"] = float(parts[1])
+    for kv in parts[2:]:
+        k, _, v = kv.partition("=")
+        try:
+            d[k] = int(v)
+        except ValueError:
+            try:
+                d[k] = float(v)
+            except ValueError:
+                d[k] = v
+    return d
+
+
+def cmd_simulate(args) -> int:
+    from .simulate import simulate_to_files
+
+    recipe = {"strips": args.strips, "images_per_strip": args.images, "camera": args.camera,
+              "flying_height": args.flying_height, "forward_overlap": args.forward_overlap,
+              "side_overlap": args.side_overlap, "pattern": list(args.pattern), "control": args.control,
+              "control_spacing": args.control_spacing, "check": args.check,
+              "sigma_image": args.sigma_image, "radial": args.radial,
+              "errors": [_parse_error(e) for e in args.error], "design": args.design,
+              "seed": args.seed, "title": args.title,
+              "datum": "free" if args.control == "none" else "control"}
+    out = Path(args.out)
+    truth = Path(args.truth) if args.truth else out.with_suffix(".truth.json")
+    try:
+        block, t = simulate_to_files(recipe, out, truth)
+    except (ValueError, KeyError, TypeError) as err:
+        raise BaardaError(f"simulate: {err}") from None
+    if not args.quiet:
+        print(f"wrote {out} ({len(block.images)} images, {len(block.points)} points, "
+              f"{len(t.get('errors', []))} planted errors) and {truth}")
+    return 0
+
+
+def cmd_serve(args) -> int:
+    from .dashboard.app import serve
+
+    serve(args.input, port=args.port, address=args.address, show=args.show)
     return 0
 
 
@@ -91,6 +194,10 @@ def main(argv=None) -> int:
     try:
         if args.command == "analyze":
             return cmd_analyze(args)
+        if args.command == "simulate":
+            return cmd_simulate(args)
+        if args.command == "serve":
+            return cmd_serve(args)
     except BaardaError as err:
         if getattr(args, "debug", False):
             raise

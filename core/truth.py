@@ -1,0 +1,68 @@
+"""Planted errors of a simulated block against what the tests find.
+
+For each error listed in a ``baarda-truth`` file (:mod:`baarda.simulate`), the observations it
+touched are looked up and tested: data snooping (the largest |w| among them) and the
+multi-dimensional test of the hypothesis that matches the error's kind (F80 eq. 12):
+a point-transfer error across its images, a 2D image point, a control point.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import bundle
+
+
+def _hypothesis(adj, e):
+    ids = e.get("ids", {})
+    kind = e.get("kind")
+    try:
+        if kind == "transfer":
+            return "point transfer", bundle.h_point_transfer(adj.problem, ids["point"], ids["images"])
+        if kind == "control":
+            return "control point", bundle.h_control_point(adj.problem, ids.get("point", ids.get("id")))
+        if "image" in ids and "point" in ids:
+            return "image point", bundle.h_image_point(adj.problem, ids["image"], ids["point"])
+    except (KeyError, ValueError, IndexError):
+        return None, None
+    return None, None
+
+
+def compare(adj, truth: dict) -> list[dict]:
+    """One entry per planted error: kind, ids, class, max |w| of its observations, whether data
+    snooping rejects one of them, and T/critical/decision of the matching hypothesis."""
+    kept = adj.problem.extra.get("kept_rows")
+    out = []
+    for e in truth.get("errors", []):
+        rows = np.asarray(e.get("rows", []), dtype=np.int64)
+        if kept is not None:
+            pos = {int(r): i for i, r in enumerate(kept)}
+            rows = np.array([pos[int(r)] for r in rows if int(r) in pos], dtype=np.int64)
+        d = {"kind": e.get("kind"), "ids": e.get("ids", {}), "class": e.get("class"),
+             "size_sigma": e.get("size_sigma")}
+        if rows.size:
+            w = np.abs(np.nan_to_num(adj.w[rows]))
+            d["max_w"] = float(w.max())
+            d["snooping_rejects"] = bool(adj.rejected[rows].any())
+        name, H = _hypothesis(adj, e)
+        if H is not None:
+            h = adj.test(H, label=name)
+            d.update({"hypothesis": name, "T": h.T, "critical": h.critical_T, "rejected": h.rejected_T,
+                      "nabla": h.nabla.tolist(), "nabla_sigma": h.nabla_sigma.tolist()})
+        d["found"] = bool(d.get("snooping_rejects") or d.get("rejected"))
+        out.append(d)
+    return out
+
+
+def text(findings: list[dict]) -> str:
+    lines = ["  planted errors (truth file):"]
+    for f in findings:
+        ids = " ".join(f"{k}={v if not isinstance(v, list) else ','.join(map(str, v))}" for k, v in f["ids"].items())
+        s = f"    {f['kind']:<17s} {ids:<40s} {f.get('class') or '':<7s}"
+        if "max_w" in f:
+            s += f" max|w| = {f['max_w']:6.2f}"
+        if "T" in f:
+            s += f"  {f['hypothesis']} T = {f['T']:.1f} (crit {f['critical']:.1f})"
+        s += "  → FOUND" if f["found"] else "  → not found"
+        lines.append(s)
+    return "\n".join(lines)
