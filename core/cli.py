@@ -44,6 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--truth", metavar="FILE",
                     help="truth file of a simulated block: report which planted errors the tests find "
                          "(default: NAME.truth.json beside INPUT, if present)")
+    an.add_argument("--variance-components", action="store_true",
+                    help="estimate a variance factor per observation family (F80 eq. 9, iterated) and "
+                         "print them; the tests use the a priori model as given")
     an.add_argument("--top", type=int, default=8, help="how many entries each summary list shows")
     an.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
     an.add_argument("--debug", action="store_true", help="show tracebacks of errors")
@@ -127,10 +130,21 @@ def cmd_analyze(args) -> int:
         from .io import read_truth
         findings = truth.compare(adj, read_truth(truth_path))
         doc["planted"] = findings
+    vc = None
+    if args.variance_components:
+        from . import variance
+        vc = variance.estimate(problem, options=options)
+        doc["variance_components"] = vc.as_dict()
     if args.json:
         results.write_json(adj, args.json, doc)
     if not args.quiet:
         print(results.text_summary(adj, top=args.top))
+        if vc is not None:
+            print(f"  variance components (F80 eq. 9, {vc.iterations} iterations"
+                  f"{'' if vc.converged else ', NOT converged'}):")
+            for d in vc.as_dict():
+                print(f"    {d['group']:<20s} σ̂²/σ² = {d['factor']:8.4f} ± {d['std_error']:.4f}   "
+                      f"redundancy {d['redundancy']:.2f}")
         if findings is not None:
             from . import truth
             print(truth.text(findings))
