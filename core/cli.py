@@ -44,6 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--truth", metavar="FILE",
                     help="truth file of a simulated block: report which planted errors the tests find "
                          "(default: NAME.truth.json beside INPUT, if present)")
+    an.add_argument("--snoop", action="store_true",
+                    help="iterative data snooping: remove the worst rejected observation, readjust, repeat; "
+                         "prints the log of decisions")
     an.add_argument("--variance-components", action="store_true",
                     help="estimate a variance factor per observation family (F80 eq. 9, iterated) and "
                          "print them; the tests use the a priori model as given")
@@ -130,6 +133,11 @@ def cmd_analyze(args) -> int:
         from .io import read_truth
         findings = truth.compare(adj, read_truth(truth_path))
         doc["planted"] = findings
+    snoop = None
+    if args.snoop:
+        from . import snooping
+        snoop = snooping.iterate(problem, options)
+        doc["snooping"] = [s.__dict__ for s in snoop.steps]
     vc = None
     if args.variance_components:
         from . import variance
@@ -139,6 +147,14 @@ def cmd_analyze(args) -> int:
         results.write_json(adj, args.json, doc)
     if not args.quiet:
         print(results.text_summary(adj, top=args.top))
+        if snoop is not None:
+            info = problem.info
+            print(f"  iterative data snooping: {len(snoop.steps)} observation(s) removed, σ̂0 "
+                  f"{adj.sigma0_post:.4g} → {snoop.adjustment.sigma0_post:.4g}")
+            for k, st in enumerate(snoop.steps, 1):
+                ids = " ".join(f"{a}={b}" for a, b in info.ids[st.removed].items())
+                print(f"    {k:>2d}. #{st.removed:<5d} {info.kind[st.removed]:<15s} {ids:<40s} "
+                      f"|w| = {st.statistic:7.2f} > {st.critical:.2f}  ∇̂ = {st.nabla:+.4g}")
         if vc is not None:
             print(f"  variance components (F80 eq. 9, {vc.iterations} iterations"
                   f"{'' if vc.converged else ', NOT converged'}):")

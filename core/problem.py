@@ -256,19 +256,46 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     return -((-np.asarray(a) + np.pi) % (2 * np.pi) - np.pi)
 
 
-def _subset_set(s, keep_mask: np.ndarray, new_index: np.ndarray):
-    """A copy of an observation set with only the rows where ``keep_mask`` (global) is True."""
-    import dataclasses
+@dataclass(frozen=True, eq=False)
+class FilteredSet:
+    """An observation set with some of its rows left out (excluded observations).
 
-    local = keep_mask[s.rows]
-    changes = {}
-    for f in dataclasses.fields(s):
-        val = getattr(s, f.name)
-        if f.name == "rows":
-            changes["rows"] = new_index[val[local]]
-        elif isinstance(val, np.ndarray) and val.ndim >= 1 and val.shape[0] == s.rows.size:
-            changes[f.name] = val[local]
-    return dataclasses.replace(s, **changes) if local.any() else None
+    Works for any set, whatever its internal layout (an image-point set may keep x and drop y):
+    the inner set is evaluated whole and the kept rows are passed on, renumbered.
+    """
+
+    inner: object
+    local_keep: np.ndarray    # positions (within the inner set's rows) that are kept
+    rows: np.ndarray          # their new global rows
+
+    @property
+    def angular(self):
+        return np.asarray(self.inner.angular)[self.local_keep]
+
+    @property
+    def kind(self):
+        return getattr(self.inner, "kind", "")
+
+    def evaluate(self, x):
+        f, jr, jc, jv = self.inner.evaluate(x)
+        pos = np.full(np.asarray(self.inner.rows).size, -1, dtype=np.int64)
+        pos[self.local_keep] = np.arange(self.local_keep.size)
+        m = pos[jr] >= 0
+        return f[self.local_keep], pos[jr[m]], jc[m], jv[m]
+
+
+def _subset_set(s, keep_mask: np.ndarray, new_index: np.ndarray):
+    """The set with only the rows where ``keep_mask`` (global) is True (None if none is left)."""
+    local = np.flatnonzero(keep_mask[s.rows])
+    if local.size == 0:
+        return None
+    if local.size == s.rows.size:
+        import dataclasses
+        return dataclasses.replace(s, rows=new_index[s.rows]) if not isinstance(s, FilteredSet) else \
+            FilteredSet(s.inner, s.local_keep, new_index[s.rows])
+    if isinstance(s, FilteredSet):
+        return FilteredSet(s.inner, s.local_keep[local], new_index[s.rows[local]])
+    return FilteredSet(s, local, new_index[s.rows[local]])
 
 
 def subset(problem: Problem, keep) -> Problem:
