@@ -79,6 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--design", action="store_true", help="design mode: exact observations (no noise)")
     sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     sim.add_argument("--title", default="", help="a title stored in the block")
+    sim.add_argument("--recipe", metavar="FILE",
+                     help="take the whole recipe from a JSON file (a recipe object, or a truth file, whose "
+                          "recipe is reused: reproduces that block exactly); other options are ignored")
     sim.add_argument("--quiet", "-q", action="store_true")
     sim.add_argument("--debug", action="store_true")
 
@@ -195,6 +198,15 @@ def cmd_simulate(args) -> int:
               "errors": [_parse_error(e) for e in args.error], "design": args.design,
               "seed": args.seed, "title": args.title,
               "datum": "free" if args.control == "none" else "control"}
+    if args.recipe:
+        import json
+        try:
+            doc = json.loads(Path(args.recipe).read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise BaardaError(f"{args.recipe}:0: cannot read the recipe: {err}") from None
+        recipe = doc.get("recipe", doc) if isinstance(doc, dict) else None
+        if not isinstance(recipe, dict):
+            raise BaardaError(f"{args.recipe}:1: a recipe must be a JSON object")
     out = Path(args.out)
     truth = Path(args.truth) if args.truth else out.with_suffix(".truth.json")
     try:
