@@ -47,6 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--snoop", action="store_true",
                     help="iterative data snooping: remove the worst rejected observation, readjust, repeat; "
                          "prints the log of decisions")
+    an.add_argument("--robust", choices=["huber", "danish", "r84"],
+                    help="robust estimation (IRLS) with this weight function; its suspects are listed with "
+                         "their R84 class beside data snooping")
     an.add_argument("--variance-components", action="store_true",
                     help="estimate a variance factor per observation family (F80 eq. 9, iterated) and "
                          "print them; the tests use the a priori model as given")
@@ -141,6 +144,11 @@ def cmd_analyze(args) -> int:
         from . import snooping
         snoop = snooping.iterate(problem, options)
         doc["snooping"] = [s.__dict__ for s in snoop.steps]
+    rob = None
+    if args.robust:
+        from . import robust
+        rob = robust.estimate(problem, args.robust, options)
+        doc["robust"] = rob.as_dict()
     vc = None
     if args.variance_components:
         from . import variance
@@ -158,6 +166,17 @@ def cmd_analyze(args) -> int:
                 ids = " ".join(f"{a}={b}" for a, b in info.ids[st.removed].items())
                 print(f"    {k:>2d}. #{st.removed:<5d} {info.kind[st.removed]:<15s} {ids:<40s} "
                       f"|w| = {st.statistic:7.2f} > {st.critical:.2f}  ∇̂ = {st.nabla:+.4g}")
+        if rob is not None:
+            info = problem.info
+            print(f"  robust estimation ({rob.method}, {rob.iterations} iterations"
+                  f"{'' if rob.converged else ', NOT converged'}): {len(rob.suspects)} suspect(s)")
+            for sp in rob.suspects:
+                ids = " ".join(f"{a}={b}" for a, b in sp["ids"].items())
+                print(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {sp['size_sigma']:6.1f}σ "
+                      f"({sp['class']}), weight {sp['weight']:.3f}")
+            if rob.final is not None:
+                print(f"    least squares without them: {int(rob.final.rejected.sum())} rejected by data snooping, "
+                      f"σ̂0 = {rob.final.sigma0_post:.4g}")
         if vc is not None:
             print(f"  variance components (F80 eq. 9, {vc.iterations} iterations"
                   f"{'' if vc.converged else ', NOT converged'}):")

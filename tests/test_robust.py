@@ -1,0 +1,116 @@
+"""Robust estimation (M84 §3.1, R84) and iterative snooping on a block with planted errors."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from baarda import robust, snooping
+from baarda.adjust import adjust
+from baarda.bundle import build_block_problem
+from baarda.simulate import simulate_block
+
+
+@pytest.fixture(scope="module")
+def design():
+    block, _ = simulate_block(strips=3, images_per_strip=8, design=True, seed=11, control="perimeter",
+                              approx_sigma=0.0)
+    p = build_block_problem(block)
+    truth = adjust(p)
+    return p, truth
+
+
+def _noisy(p, seed):
+    rng = np.random.default_rng(seed)
+    e = np.zeros(p.n)
+    for idx, C in zip(p.cov.members, p.cov.blocks):
+        e[idx] = np.linalg.cholesky(C) @ rng.normal(size=idx.size)
+    return e
+
+
+def _plant(p, truth, sizes, seed):
+    """Errors of the given sizes (σ) on image coordinates of distinct tie points seen in at least
+    four images (with fewer rays the w-tests of a point's coordinates are strongly correlated and
+    an error cannot be told from its neighbours'); the smallest error goes to the best-controlled
+    coordinate, so that every planted error is above its MDB."""
+    rng = np.random.default_rng(seed)
+    kinds = np.array(p.info.kind).astype(str)
+    point = np.array([d.get("point", "") for d in p.info.ids])
+    rays = {}
+    for d in p.info.ids:
+        if d.get("component") == "x":
+            rays[d["point"]] = rays.get(d["point"], 0) + 1
+    ok = np.flatnonzero(np.char.startswith(kinds, "image") & np.array([rays.get(q, 0) >= 4 for q in point])
+                        & (truth.r > 0.2))
+    ok = ok[np.argsort(-truth.r[ok] + 1e-3 * rng.random(ok.size))]
+    rows, used = [], set()
+    for i in ok:
+        if point[i] in used:
+            continue
+        used.add(point[i])
+        rows.append(int(i))
+        if len(rows) == len(sizes):
+            break
+    assert len(rows) == len(sizes), "not enough well-controlled observations to plant errors on"
+    e = _noisy(p, seed)
+    sigma = p.cov.sigma()
+    for i, s in zip(rows, sorted(sizes)):
+        assert s * sigma[i] > truth.mdb[i]
+        e[i] += s * sigma[i] * rng.choice([-1, 1])
+    return dataclasses.replace(p, l=p.l + e), rows
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_five_small_errors_found_by_snooping_and_every_robust_method(design, seed):
+    p, truth = design
+    # 8σ on the best-controlled coordinate (r ≈ 0.5) is ≈ 1.35 MDB: found with power ≈ 99 %;
+    # a 6σ error there would be ≈ MDB, found at β0 = 80 % only, by any method
+    bad, rows = _plant(p, truth, [8, 12, 18, 24, 30], seed)
+    snoop = snooping.iterate(bad)
+    assert set(rows) <= set(snoop.removed)
+    for method in robust.METHODS:
+        res = robust.estimate(bad, method)
+        assert res.converged, method
+        flagged = {j for s in res.suspects for j in s["members"]}
+        assert set(rows) <= flagged, (method, rows, res.suspects)
+        classes = {s["class"] for s in res.suspects if set(s["members"]) & set(rows)}
+        assert classes == {"small"}
+        # a few false suspects: observations of the same images whose residuals the weighted
+        # fit inflates (the least-squares check below keeps them honest)
+        assert len(res.suspects) <= len(rows) + 4
+        # the least-squares adjustment without the suspects passes data snooping (M84 §3.2)
+        assert res.final is not None and res.final.rejected.sum() <= 1
+
+
+def test_medium_error_robust_recovers_where_least_squares_misfits(design):
+    p, truth = design
+    bad, rows = _plant(p, truth, [400], 3)      # 400σ = 2 mm: R84 "medium"
+    ls = adjust(bad)
+    res = robust.estimate(bad, "r84")
+    top = res.suspects[0]
+    assert top["index"] == rows[0] and top["class"] == "medium"
+    k = truth.problem.points.index
+    pts = k[:, 0] >= 0
+    sig = truth.point_sigma[pts]
+
+    def worst(adj):
+        return np.nanmax(np.abs(adj.coordinates[pts] - truth.coordinates[pts]) / np.maximum(sig, 1e-12))
+
+    assert worst(ls) > 5.0           # least squares smears the error into the coordinates
+    assert res.final is not None and worst(res.final) < 4.0   # without the suspect: recovered
+
+
+def test_classification_thresholds():
+    assert robust.error_class(3.0) == "random"
+    assert robust.error_class(10.0) == "small"
+    assert robust.error_class(60.0, 1.0) == "medium"
+    assert robust.error_class(60.0, 4.0) == "large"
+
+
+def test_weight_functions():
+    u = np.array([0.0, 1.0, 3.0, 6.0, 30.0])
+    np.testing.assert_allclose(robust.huber(u, 2.0), [1, 1, 2 / 3, 1 / 3, 2 / 30])
+    d = robust.danish(u, 3.0)
+    assert (d[:3] == 1).all() and d[3] == pytest.approx(np.exp(-3)) and d[4] < 1e-40
