@@ -1,0 +1,230 @@
+"""Precision of the coordinates: S-transformations, ellipses and criterion matrices (M84 §2).
+
+S-transformation (Baarda; M84 §2). The coordinates of a network are defined only up to the
+similarity transformations its observations leave free (G, u × d). Choosing an S-base — points
+whose coordinates are held non-stochastic — fixes them: with E the S-base rows of G,
+
+    S = I − G (EᵀG)⁻¹ Eᵀ,   x_S = S x,   Σ_S = S Σ Sᵀ.
+
+Every generalised inverse of N gives the same Σ_S, so the covariance of any adjustment (fixed
+points, weighted points, a free network) can be carried to any S-base. Here G is the null space of
+the design matrix with *all* points released (fixed ones too), so a network adjusted on fixed
+points can be shown in the S-base of other points.
+
+Criterion matrix of chaotic structure (M84 eq. 2, with the ½ of THEORY.md §8):
+var(x_i) = var(y_i) = d², cov(x_i, x_j) = cov(y_i, y_j) = d² − ½ d_ij², cov(x, y) = 0, so
+that a coordinate difference has variance d_ij², with d_ij² a function of the distance l_ij
+(linear, logarithmic, exponential). The real covariance G is judged against the criterion H in
+the same S-base by the generalised eigenvalues of |G − λH| = 0 on the non-base coordinates:
+λmax < 1 ("satisfication", M84 eq. 3) means every function F of the coordinates satisfies
+G_FF < H_FF; λmin H_FF ≤ G_FF ≤ λmax H_FF.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as la
+from scipy import optimize
+
+from . import datum as datum_mod
+from .errors import BaardaError
+
+
+@dataclass(frozen=True, eq=False)
+class CoordinateCovariance:
+    """Covariance of point coordinates in an S-base.
+
+    params: parameter indices (into Problem.params) of the coordinates, in order; point, axis:
+    the point index and axis of each; cov: the covariance (m²), σ0 as the adjustment uses.
+    """
+
+    params: np.ndarray
+    point: np.ndarray
+    axis: np.ndarray
+    cov: np.ndarray
+    sbase: tuple[str, ...]
+
+    def block(self, p: int) -> np.ndarray:
+        sel = np.flatnonzero(self.point == p)
+        return self.cov[np.ix_(sel, sel)]
+
+    def ellipses(self, scale: float = 1.0) -> np.ndarray:
+        """Standard ellipses of the points (m × 3: semi-major a, semi-minor b, bearing of a from
+        the x axis in radians), from the planimetric 2 × 2 blocks."""
+        pts = np.unique(self.point)
+        out = np.full((pts.max() + 1 if pts.size else 0, 3), np.nan)
+        for p in pts:
+            sel = np.flatnonzero((self.point == p) & (self.axis < 2))
+            if sel.size != 2:
+                continue
+            C = self.cov[np.ix_(sel, sel)]
+            lam, V = np.linalg.eigh(C)
+            lam = np.maximum(lam, 0.0)
+            out[p] = [scale * np.sqrt(lam[1]), scale * np.sqrt(lam[0]), np.arctan2(V[1, 1], V[0, 1])]
+        return out
+
+
+def release_null_space(adj):
+    """G over all coordinate parameters (fixed ones included): the transformations that the
+    observations leave free once every point is released. Returns (params, G, names)."""
+    problem = adj.problem
+    params = problem.params
+    coords = np.flatnonzero(params.kind == "k")
+    t = np.flatnonzero((params.kind == "t") & ~params.fixed)
+    cols = np.concatenate([coords, t])
+    f, J = problem.evaluate(adj.x)
+    A = J[:, cols].tocsr()
+    G, names = datum_mod.null_space(problem, adj.x, A, adj.P, cols)
+    return cols, G, names
+
+
+def covariance(adj, sbase=None) -> CoordinateCovariance:
+    """Coordinate covariance in the S-base ``sbase`` (point ids); None keeps the adjustment's datum.
+
+    The dense coordinate covariance is formed here, so this is for networks and blocks of up to a
+    few thousand points; per-point blocks of big blocks come from ``Adjustment.point_cov``.
+    """
+    problem = adj.problem
+    params = problem.params
+    coords = np.flatnonzero(params.kind == "k")
+    fpos = np.full(params.size, -1)
+    fpos[params.free] = np.arange(params.free.size)
+    loc = fpos[coords]
+    est = loc >= 0
+    i, j = np.meshgrid(loc[est], loc[est], indexing="ij")
+    Sigma = np.zeros((coords.size, coords.size))
+    Sigma[np.ix_(est, est)] = adj.cov_entries(i, j) * adj.variance_factor
+    if sbase is not None:
+        cols, G, _ = release_null_space(adj)
+        Gk = G[: coords.size]
+        ids = problem.points.ids
+        wanted = set(sbase)
+        in_base = np.array([ids[params.point[c]] in wanted for c in coords])
+        if not in_base.any():
+            raise BaardaError(f"S-base {sorted(wanted)} has no coordinates in this problem")
+        E = np.where(in_base[:, None], Gk, 0.0)
+        M = E.T @ Gk
+        if Gk.shape[1] and np.linalg.matrix_rank(M) < Gk.shape[1]:
+            raise BaardaError(f"the S-base {sorted(wanted)} does not fix the datum ({Gk.shape[1]} "
+                              "transformations free)")
+        if Gk.shape[1]:
+            S = np.eye(coords.size) - Gk @ la.solve(M, E.T)
+            Sigma = S @ Sigma @ S.T
+        sb = tuple(sorted(wanted))
+    else:
+        sb = tuple(problem.datum.sbase) if problem.datum.kind == "free" else ()
+    return CoordinateCovariance(coords, params.point[coords], params.axis[coords], Sigma, sb)
+
+
+def lambda_bar(adj, error: np.ndarray) -> float:
+    """Baarda's datum-invariant measure λ̄ = ∇0kᵀ Q_kk⁻ ∇0k (M84 §3.2) of an observation error.
+
+    ∇0k is the effect of the error on the coordinates; Q_kk⁻ a generalised inverse of their
+    covariance in any S-base (here the pseudo-inverse of the released-network covariance).
+    """
+    dx = adj.deformation(error)
+    cc = covariance(adj)
+    fpos = np.full(adj.problem.params.size, -1)
+    fpos[adj.problem.params.free] = np.arange(adj.problem.params.free.size)
+    loc = fpos[cc.params]
+    dk = np.where(loc >= 0, dx[np.maximum(loc, 0)], 0.0)
+    return float(dk @ np.linalg.pinv(cc.cov / adj.variance_factor, rcond=1e-10, hermitian=True) @ dk)
+
+
+# -- criterion matrices (M84 §2) -------------------------------------------------------------------
+
+def chaotic_d2(l: np.ndarray, kind: str, C0: float, C1: float, C2: float = 1.0) -> np.ndarray:
+    """d_ij² of the chaotic criterion matrix as a function of the distance l (THEORY.md §8)."""
+    l = np.asarray(l, dtype=float)
+    if kind == "linear":
+        return C0 + C1 * l
+    if kind == "logarithmic":
+        return C0 + C1 * C2 * np.log1p(l / C2)
+    if kind == "exponential":
+        return C0 ** 2 + C1 * (1.0 - np.exp(-(C2 ** 2) * l))
+    raise BaardaError(f"unknown criterion structure '{kind}' (linear, logarithmic, exponential)")
+
+
+def criterion_matrix(xy: np.ndarray, kind: str = "linear", C0: float = 0.0, C1: float = 1e-6,
+                     C2: float = 1.0, d2: float | None = None, axes: int = 2) -> np.ndarray:
+    """Chaotic criterion matrix H for points ``xy`` (m × 2 planimetric positions, metres), with
+    ``axes`` coordinates per point, ordered point by point (M84 eq. 2).
+
+    d² (the variance of each coordinate) defaults to the largest d_ij² so that H is positive
+    semidefinite on the differences; it cancels in any S-base.
+    """
+    xy = np.asarray(xy, dtype=float)
+    L = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    D2 = chaotic_d2(L, kind, C0, C1, C2)
+    np.fill_diagonal(D2, 0.0)
+    base = D2.max() if d2 is None else d2
+    Cp = base - 0.5 * D2
+    return np.kron(Cp, np.eye(axes))
+
+
+def sbase_transform(H: np.ndarray, G: np.ndarray, in_base: np.ndarray) -> np.ndarray:
+    """S H Sᵀ with S = I − G (EᵀG)⁻¹ Eᵀ, E the rows of G on the S-base (M84 §2)."""
+    E = np.where(in_base[:, None], G, 0.0)
+    S = np.eye(H.shape[0]) - G @ la.solve(E.T @ G, E.T)
+    return S @ H @ S.T
+
+
+@dataclass(frozen=True, eq=False)
+class Comparison:
+    """Generalised eigenvalues of |G − λH| = 0 on the non-base coordinates (M84 eq. 3)."""
+
+    lam: np.ndarray
+    vectors: np.ndarray          # eigenvectors (non-base coordinates × k)
+    nonbase: np.ndarray          # positions of the non-base coordinates
+
+    @property
+    def lam_max(self) -> float:
+        return float(self.lam[-1])
+
+    @property
+    def lam_min(self) -> float:
+        return float(self.lam[0])
+
+    @property
+    def satisfied(self) -> bool:
+        """λmax < 1: every function of the coordinates is more precise than the criterion."""
+        return self.lam_max < 1.0
+
+    def worst_pattern(self, size: int) -> np.ndarray:
+        """The eigenvector of λmax as a displacement pattern over all coordinates (size)."""
+        out = np.zeros(size)
+        v = self.vectors[:, -1]
+        out[self.nonbase] = v / np.abs(v).max()
+        return out
+
+
+def compare(G: np.ndarray, H: np.ndarray, in_base: np.ndarray) -> Comparison:
+    """λ of |G − λH| = 0 over the coordinates outside the S-base (both in that S-base)."""
+    nb = np.flatnonzero(~np.asarray(in_base))
+    Gn, Hn = G[np.ix_(nb, nb)], H[np.ix_(nb, nb)]
+    lam, V = la.eigh(0.5 * (Gn + Gn.T), 0.5 * (Hn + Hn.T))
+    return Comparison(lam, V, nb)
+
+
+def fit_criterion(G: np.ndarray, xy: np.ndarray, in_base: np.ndarray, Gnull: np.ndarray,
+                  kind: str = "logarithmic", axes: int = 2, C2_bounds=(1.0, 1e5)) -> dict:
+    """Fit C1 (λmax = 1) and C2 (λmax/λmin minimal) of a chaotic criterion to a covariance
+    (M84 §2.3): a substitute covariance matrix for the block. C0 = 0."""
+
+    def lam_for(C2):
+        H = sbase_transform(criterion_matrix(xy, kind, 0.0, 1.0, C2, axes=axes), Gnull, in_base)
+        return compare(G, H, in_base)
+
+    if kind == "linear":
+        C2 = 1.0
+    else:
+        res = optimize.minimize_scalar(lambda lc2: (lambda c: c.lam_max / max(c.lam_min, 1e-300))(lam_for(np.exp(lc2))),
+                                       bounds=np.log(C2_bounds), method="bounded",
+                                       options={"xatol": 1e-3})
+        C2 = float(np.exp(res.x))
+    c = lam_for(C2)
+    C1 = c.lam_max            # H scales with C1 when C0 = 0: λ(C1) = λ(1) / C1
+    return {"kind": kind, "C0": 0.0, "C1": float(C1), "C2": float(C2),
+            "ratio": float(c.lam_max / c.lam_min)}

@@ -1,0 +1,107 @@
+"""S-transformations, criterion matrices (M84 §2) and risk minimisation (M84 §3.3)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baarda import precision, risk
+from baarda.adjust import adjust
+
+from networks import grid_network, problem
+
+
+@pytest.fixture(scope="module")
+def pair():
+    fixed = adjust(problem(grid_network(3, 3, noise_seed=8)))
+    free = adjust(problem(grid_network(3, 3, noise_seed=8, datum="free")))
+    return fixed, free
+
+
+def test_s_transformation_to_all_points_is_the_pseudo_inverse(pair):
+    """Σ of the fixed-datum adjustment carried to the S-base of all points (inner constraints,
+    E = G) is N⁺ of the released network (M84 §2) — computed here densely at the same solution."""
+    fixed, _ = pair
+    ids = fixed.problem.points.ids
+    a = precision.covariance(fixed, sbase=ids)
+    params = fixed.problem.params
+    k = np.flatnonzero(params.kind == "k")
+    t = np.flatnonzero(params.kind == "t")
+    _, J = fixed.problem.evaluate(fixed.x)
+    A = J.toarray()
+    P = fixed.P.toarray()
+    B, Cm = A[:, t], A[:, k]
+    Cbar = Cm - B @ np.linalg.solve(B.T @ P @ B, B.T @ P @ Cm)      # F80 eq. 16
+    Nplus = np.linalg.pinv(Cbar.T @ P @ Cbar, rcond=1e-12, hermitian=True)
+    np.testing.assert_allclose(a.cov, Nplus, atol=1e-12 + 1e-7 * np.abs(Nplus).max())
+
+
+def test_s_base_changes_ellipses_but_not_tests(pair):
+    fixed, free = pair
+    ids = fixed.problem.points.ids
+    c1 = precision.covariance(fixed, sbase=ids[:2])
+    c2 = precision.covariance(fixed, sbase=ids[-3:])
+    e1, e2 = c1.ellipses(), c2.ellipses()
+    assert np.nanmax(np.abs(e1[:, 0] - e2[:, 0])) > 1e-5          # the ellipses change
+    # the S-base points are the most precise in their own base (the 3 free transformations of a
+    # distance-direction network leave one degree of freedom on two points' 4 coordinates)
+    assert (e1[:2, 0] < e2[:2, 0]).all() and (e2[-3:, 0] < e1[-3:, 0]).all()
+    # r_i, w, and Baarda's λ̄ are the same in every datum
+    np.testing.assert_allclose(fixed.r, free.r, atol=1e-9)
+    for i in (0, 7):
+        err = np.zeros(fixed.n)
+        err[i] = fixed.mdb[i]
+        lf = precision.lambda_bar(fixed, err)
+        lr = precision.lambda_bar(free, err)
+        assert abs(lf - lr) < 1e-6 * lf
+        # λ̄ = δ̄0² for a single observation (M84 §3.2), counting all coordinates
+        assert abs(lf - fixed.external[i] ** 2) < 1e-6 * lf
+
+
+def test_generalised_eigenvalues_hand_checkable(pair):
+    fixed, _ = pair
+    ids = fixed.problem.points.ids
+    cc = precision.covariance(fixed, sbase=ids[:2])
+    in_base = np.isin(np.array(ids)[cc.point], ids[:2])
+    G = cc.cov
+    c = precision.compare(G, G, in_base)
+    np.testing.assert_allclose(c.lam, 1.0, atol=1e-8)
+    c2 = precision.compare(G, 2 * G, in_base)
+    np.testing.assert_allclose(c2.lam, 0.5, atol=1e-8)
+    assert c2.satisfied and not c.satisfied
+
+
+def test_fitted_criterion_has_lambda_max_one(pair):
+    fixed, _ = pair
+    ids = fixed.problem.points.ids
+    base = ids[:2]
+    cc = precision.covariance(fixed, sbase=base)
+    cols, Gnull, _ = precision.release_null_space(fixed)
+    Gk = Gnull[: cc.params.size]
+    in_base = np.isin(np.array(ids)[cc.point], base)
+    xy = fixed.coordinates[:, :2]
+    for kind in ("linear", "logarithmic", "exponential"):
+        fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind=kind)
+        H = precision.sbase_transform(precision.criterion_matrix(xy, kind, 0.0, fit["C1"], fit["C2"]), Gk, in_base)
+        c = precision.compare(cc.cov, H, in_base)
+        assert abs(c.lam_max - 1.0) < 1e-8
+        assert c.lam_min > 0 and abs(c.lam_max / c.lam_min - fit["ratio"]) < 1e-6 * fit["ratio"]
+        pattern = c.worst_pattern(cc.params.size)
+        assert np.abs(pattern).max() == pytest.approx(1.0) and (pattern[in_base] == 0).all()
+
+
+def test_chaotic_structure_gives_difference_variance_d2():
+    xy = np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 300.0]])
+    H = precision.criterion_matrix(xy, "linear", 0.0, 1e-6)
+    # var(x1 − x2) = H11 + H22 − 2 H12 = d12² = C1 · 100
+    v = H[0, 0] + H[2, 2] - 2 * H[0, 2]
+    assert v == pytest.approx(1e-4)
+
+
+@pytest.mark.parametrize("p,L1,L2,lam", [(0.01, 1.0, 10.0, 17.0), (0.05, 2.0, 1.0, 9.0), (0.001, 1.0, 100.0, 25.0)])
+def test_risk_critical_value_closed_form_minimises_risk(p, L1, L2, lam):
+    C = risk.critical_value(p, L1, L2, lam)
+    Cn = risk.critical_value_numeric(p, L1, L2, lam)
+    assert abs(C - Cn) < 1e-6
+    for d in (-0.1, 0.1):
+        assert risk.risk(C, p, L1, L2, lam) < risk.risk(C + d, p, L1, L2, lam)
