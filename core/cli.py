@@ -50,6 +50,12 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--robust", choices=["huber", "danish", "r84"],
                     help="robust estimation (IRLS) with this weight function; its suspects are listed with "
                          "their R84 class beside data snooping")
+    an.add_argument("--sbase", metavar="ID,ID,...",
+                    help="give point standard deviations and ellipses in this S-base (Baarda's S-transformation); "
+                         "redundancy numbers and tests do not change")
+    an.add_argument("--criterion", choices=["linear", "logarithmic", "exponential"],
+                    help="compare the coordinate covariance with a fitted chaotic criterion matrix (M84 §2): "
+                         "prints λmax/λmin and C1, C2 (in the --sbase, default the first two points)")
     an.add_argument("--variance-components", action="store_true",
                     help="estimate a variance factor per observation family (F80 eq. 9, iterated) and "
                          "print them; the tests use the a priori model as given")
@@ -87,6 +93,15 @@ def build_parser() -> argparse.ArgumentParser:
                           "recipe is reused: reproduces that block exactly); other options are ignored")
     sim.add_argument("--quiet", "-q", action="store_true")
     sim.add_argument("--debug", action="store_true")
+
+    rk = sub.add_parser("risk", help="risk-minimising critical value of a test (M84 §3.3)",
+                        description="Critical value C minimising (1−p) α L1 + p (1−β) L2 for a one-sided "
+                                    "normal test against an error of tolerance λtol.")
+    rk.add_argument("--p", type=float, required=True, help="probability that an observation is erroneous")
+    rk.add_argument("--L1", type=float, default=1.0, help="cost of rejecting a good observation")
+    rk.add_argument("--L2", type=float, default=10.0, help="cost of missing a bad one")
+    rk.add_argument("--lambda-tol", type=float, default=17.07, help="tolerance λtol (non-centrality)")
+    rk.add_argument("--debug", action="store_true")
 
     sv = sub.add_parser("serve", help="serve the dashboard in the browser",
                         description="Serve the Panel dashboard for FILE (default: the demo block).")
@@ -144,6 +159,38 @@ def cmd_analyze(args) -> int:
         from . import snooping
         snoop = snooping.iterate(problem, options)
         doc["snooping"] = [s.__dict__ for s in snoop.steps]
+    prec_lines = []
+    if args.sbase or args.criterion:
+        import numpy as np
+
+        from . import precision
+        ids = problem.points.ids
+        base = [b.strip() for b in args.sbase.split(",")] if args.sbase else list(ids[:2])
+        unknown = [b for b in base if b not in ids]
+        if unknown:
+            raise BaardaError(f"--sbase: unknown point id(s) {', '.join(unknown)}")
+        cc = precision.covariance(adj, sbase=base)
+        ell = cc.ellipses()
+        sd = np.sqrt(np.maximum(np.diag(cc.cov), 0.0))
+        for d in doc["points"]:
+            i = ids.index(d["id"])
+            for c, name in zip(np.flatnonzero(cc.point == i), "xyz"):
+                d["s" + "xyz"[cc.axis[c]]] = float(sd[c])
+            if i < len(ell) and np.isfinite(ell[i, 0]):
+                d["ellipse"] = {"a": float(ell[i, 0]), "b": float(ell[i, 1]), "bearing": float(ell[i, 2])}
+        doc["summary"]["sbase"] = base
+        prec_lines.append(f"  S-base {', '.join(base)}: point standard deviations and ellipses transformed")
+        if args.criterion:
+            cols, G, _ = precision.release_null_space(adj)
+            Gk = G[: cc.params.size]
+            in_base = np.isin(np.array(ids)[cc.point], base)
+            xy = adj.coordinates[:, :2]
+            if np.isnan(xy).any() or (cc.axis == 2).any():
+                raise BaardaError("--criterion needs a planimetric network (x, y for every point)")
+            fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind=args.criterion)
+            doc["criterion"] = fit
+            prec_lines.append(f"  criterion matrix ({fit['kind']}, M84 §2): fitted C1 = {fit['C1']:.4g} m²/m, "
+                              f"C2 = {fit['C2']:.4g} m, λmax/λmin = {fit['ratio']:.3g}")
     rob = None
     if args.robust:
         from . import robust
@@ -166,6 +213,8 @@ def cmd_analyze(args) -> int:
                 ids = " ".join(f"{a}={b}" for a, b in info.ids[st.removed].items())
                 print(f"    {k:>2d}. #{st.removed:<5d} {info.kind[st.removed]:<15s} {ids:<40s} "
                       f"|w| = {st.statistic:7.2f} > {st.critical:.2f}  ∇̂ = {st.nabla:+.4g}")
+        for line in prec_lines:
+            print(line)
         if rob is not None:
             info = problem.info
             print(f"  robust estimation ({rob.method}, {rob.iterations} iterations"
@@ -259,6 +308,15 @@ def main(argv=None) -> int:
             return cmd_simulate(args)
         if args.command == "serve":
             return cmd_serve(args)
+        if args.command == "risk":
+            from . import risk
+            try:
+                C = risk.critical_value(args.p, args.L1, args.L2, args.lambda_tol)
+            except ValueError as err:
+                raise BaardaError(f"risk: {err}") from None
+            r = risk.risk(C, args.p, args.L1, args.L2, args.lambda_tol)
+            print(f"critical value C = {C:.4f} (α = {1 - __import__('scipy').stats.norm.cdf(C):.3g}), risk r_C = {r:.4g}")
+            return 0
     except BaardaError as err:
         if getattr(args, "debug", False):
             raise

@@ -112,3 +112,23 @@ def test_console_script_runs(tmp_path):
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert "global test" in res.stdout and "largest |w|" in res.stdout
+
+
+def test_theory_options_reachable_from_the_cli(tmp_path, capsys):
+    require_extdata(GAMA)
+    src = GAMA / "krumm" / "2D" / "Wolf_DistanceDirectionAngle_free.gkf"
+    out = tmp_path / "w.json"
+    code = main(["analyze", str(src), "--json", str(out), "--snoop", "--robust", "danish",
+                 "--variance-components", "--sbase", "1,2,3", "--criterion", "linear"])
+    text = capsys.readouterr().out
+    assert code == 0
+    doc = json.loads(out.read_text())
+    jsonschema.validate(doc, SCHEMA)
+    assert {"snooping", "robust", "variance_components", "criterion"} <= set(doc)
+    assert doc["summary"]["sbase"] == ["1", "2", "3"]
+    assert "ellipse" in doc["points"][5]
+    for needle in ("iterative data snooping", "robust estimation", "variance components", "criterion matrix"):
+        assert needle in text
+    assert main(["risk", "--p", "0.01", "--L1", "1", "--L2", "10", "--lambda-tol", "17"]) == 0
+    assert "critical value C" in capsys.readouterr().out
+    assert main(["analyze", str(src), "--sbase", "nope"]) == 2
