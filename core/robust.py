@@ -190,6 +190,7 @@ def estimate(problem, method: str = "danish", options: Options | None = None, to
     suspects.sort(key=lambda d: -d["size_sigma"])
     out = sorted(j for d in suspects for j in d["members"])
     keep = np.setdiff1d(np.arange(problem.n), out)
+    final = None
     if keep.size < problem.n:
         try:
             final = adjust(subset(problem, keep), options, x0=adj.x)
