@@ -25,6 +25,18 @@ def _add_test_options(p):
                    help="Baarda's B-method: multi-dimensional tests get the δ0 and β0 of the 1D test")
 
 
+def _add_input_options(p):
+    p.add_argument("--format", default="auto",
+                   help="input format: auto (default), gama, native, bal, bundler, colmap")
+    p.add_argument("--sigma-px", type=float, default=None, metavar="S",
+                   help="σ of image coordinates in pixels for BAL, Bundler and COLMAP input (default 1)")
+    p.add_argument("--refine-intrinsics", action=argparse.BooleanOptionalAction, default=None,
+                   help="estimate the cameras' focal lengths and distortion (default: yes for BAL and "
+                        "Bundler, as they define; no for COLMAP)")
+    p.add_argument("--control", metavar="CSV",
+                   help="control points id,X,Y,Z,sx,sy,sz to add as weighted observations (bundle blocks)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="baarda",
@@ -36,11 +48,13 @@ def build_parser() -> argparse.ArgumentParser:
     an = sub.add_parser("analyze", help="adjust a network or block and test it",
                         description="Adjust INPUT, run the global test and data snooping, and "
                                     "compute redundancy numbers, MDBs and external reliability.")
-    an.add_argument("input", help="the network or block file (GNU Gama .gkf ...)")
-    an.add_argument("--format", default="auto", help="input format: auto (default), gama, native")
+    an.add_argument("input", help="the network or block: GNU Gama .gkf, native .json, BAL problem .txt, "
+                                  "Bundler .out, COLMAP model directory (docs/formats.md)")
+    _add_input_options(an)
     _add_test_options(an)
     an.add_argument("--json", metavar="OUT", help="write the full results as JSON (docs/json-schema.md)")
     an.add_argument("--csv", metavar="DIR", help="write observations.csv, points.csv, groups.csv into DIR")
+    an.add_argument("--geojson", metavar="OUT", help="write the points with r_min, MDB, δ̄0 as GeoJSON (for GIS)")
     an.add_argument("--truth", metavar="FILE",
                     help="truth file of a simulated block: report which planted errors the tests find "
                          "(default: NAME.truth.json beside INPUT, if present)")
@@ -103,6 +117,16 @@ def build_parser() -> argparse.ArgumentParser:
     rk.add_argument("--lambda-tol", type=float, default=17.07, help="tolerance λtol (non-centrality)")
     rk.add_argument("--debug", action="store_true")
 
+    cv = sub.add_parser("convert", help="convert any readable network or block to the native JSON format",
+                        description="Read INPUT (any format baarda reads) and write it as a native "
+                                    "baarda-block JSON file (docs/native-format.md). Structure-from-motion "
+                                    "cameras are written with their intrinsics as fixed calibrations.")
+    cv.add_argument("input", help="the network or block to read")
+    cv.add_argument("out", help="the native JSON file to write")
+    _add_input_options(cv)
+    cv.add_argument("--quiet", "-q", action="store_true")
+    cv.add_argument("--debug", action="store_true")
+
     sv = sub.add_parser("serve", help="serve the dashboard in the browser",
                         description="Serve the Panel dashboard for FILE (default: the demo block).")
     sv.add_argument("input", nargs="?", help="the network or block file (default: data/demo-block.json)")
@@ -125,14 +149,19 @@ def _progress(quiet):
 
 def cmd_analyze(args) -> int:
     from .adjust import Options, adjust
+    from .errors import DatumDefectError, InputError
     from .io import read_problem
     from .io import results
 
     t0 = time.perf_counter()
-    problem = read_problem(args.input, args.format)
+    problem = read_problem(args.input, args.format, control=args.control, sigma_px=args.sigma_px,
+                           refine_intrinsics=args.refine_intrinsics)
     t_read = time.perf_counter() - t0
     options = Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method)
-    adj = adjust(problem, options, progress=_progress(args.quiet))
+    try:
+        adj = adjust(problem, options, progress=_progress(args.quiet))
+    except DatumDefectError as err:
+        raise InputError(args.input, 0, _defect_message(err, problem)) from None
     if not args.quiet and sys.stderr.isatty():
         print("", file=sys.stderr)
     t1 = time.perf_counter()
@@ -144,6 +173,9 @@ def cmd_analyze(args) -> int:
         results.write_json(adj, args.json, doc)
     if args.csv:
         results.write_csv(adj, args.csv, doc)
+    if args.geojson:
+        from .io.geojson import write_geojson
+        write_geojson(adj, args.geojson)
     truth_path = args.truth
     if truth_path is None:
         guess = Path(args.input).with_suffix(".truth.json")
@@ -199,8 +231,12 @@ def cmd_analyze(args) -> int:
     vc = None
     if args.variance_components:
         from . import variance
-        vc = variance.estimate(problem, options=options)
-        doc["variance_components"] = vc.as_dict()
+        try:
+            vc = variance.estimate(problem, options=options)
+            doc["variance_components"] = vc.as_dict()
+        except BaardaError as err:
+            doc["variance_components"] = {"error": str(err)}
+            prec_lines.append(f"  {err}")
     if args.json:
         results.write_json(adj, args.json, doc)
     if not args.quiet:
@@ -235,6 +271,51 @@ def cmd_analyze(args) -> int:
         if findings is not None:
             from . import truth
             print(truth.text(findings))
+    return 0
+
+
+def _defect_message(err, problem) -> str:
+    """The datum-defect message with the counts and the undetermined unknowns by entity."""
+    n, u = problem.n, problem.params.free.size
+    groups: dict[str, list[str]] = {}
+    for label in err.undetermined:
+        entity, _, name = label.rpartition(".")
+        if entity:
+            groups.setdefault(entity, []).append(name)
+    entities = list(groups)
+    kinds: dict[str, list[str]] = {}
+    for e in entities:
+        kind, _, ident = e.rpartition(" ")
+        kinds.setdefault(kind or "unknown", []).append(ident or e)
+    summary = "; ".join(f"{k}s {', '.join(v[:12])}{' ...' if len(v) > 12 else ''}" if k != "unknown"
+                        else ", ".join(v[:12]) for k, v in kinds.items())
+    gauge = " (7 of them fixed by the free-block datum)" if "convention" in problem.extra else ""
+    lines = f"{n} observations for {u} unknowns{gauge}"
+    return f"{lines}; {err.message}" + (f" [by entity: {summary}]" if summary and len(entities) > 1 else "")
+
+
+def cmd_convert(args) -> int:
+    from .bal import SfmBlock, to_block
+    from .io import read_model
+    from .io.native import write_native
+
+    model = read_model(args.input, args.format, sigma_px=args.sigma_px, refine_intrinsics=args.refine_intrinsics)
+    if args.control:
+        from .io.control import add_control
+        model = add_control(model, args.control)
+    note = ""
+    if isinstance(model, SfmBlock):
+        try:
+            model = to_block(model)
+        except ValueError as err:
+            raise BaardaError(f"{args.input}:0: cannot convert: {err}") from None
+        note = " (camera intrinsics written as fixed calibrations)"
+    out = Path(args.out)
+    if out.resolve() == Path(args.input).resolve():
+        raise BaardaError(f"{args.out}:0: refusing to overwrite the input file")
+    write_native(model, out)
+    if not args.quiet:
+        print(f"wrote {out}{note}")
     return 0
 
 
@@ -301,11 +382,16 @@ def main(argv=None) -> int:
         val = getattr(args, name, None)
         if val is not None and not 0 < val < 1:
             ap.error(f"--{name} must lie between 0 and 1 (got {val})")
+    sigma_px = getattr(args, "sigma_px", None)
+    if sigma_px is not None and not (0 < sigma_px < float("inf")):
+        ap.error(f"--sigma-px must be a positive number (got {sigma_px})")
     try:
         if args.command == "analyze":
             return cmd_analyze(args)
         if args.command == "simulate":
             return cmd_simulate(args)
+        if args.command == "convert":
+            return cmd_convert(args)
         if args.command == "serve":
             return cmd_serve(args)
         if args.command == "risk":
