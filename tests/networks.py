@@ -14,7 +14,7 @@ def grid_network(nx=3, ny=3, spacing=100.0, sigma_d=0.002, sigma_r=1e-5, datum="
                  noise_seed=None, jitter=0.0, seed=0):
     """A planimetric grid with distances and direction sets to neighbours within 1.5 spacings.
 
-    datum: "fixed" (first point fixed, second point's y fixed → minimal), "free" (all points in
+    datum: "fixed" (first point fixed, second point's x fixed → minimal), "free" (all points in
     the S-base), "over" (two corner points fixed).
     """
     rng = np.random.default_rng(seed)
@@ -29,7 +29,8 @@ def grid_network(nx=3, ny=3, spacing=100.0, sigma_d=0.002, sigma_r=1e-5, datum="
         if datum == "fixed" and k == 0:
             pts.append(NetPoint(pid, x=x, y=y, fixed="xy"))
         elif datum == "fixed" and k == 1:
-            pts.append(NetPoint(pid, x=ax, y=y, fixed="y", adjusted="x"))
+            # P01 lies along y from P00: its x (across the baseline) fixes the rotation
+            pts.append(NetPoint(pid, x=x, y=ay, fixed="x", adjusted="y"))
         elif datum == "over" and k in (0, len(ids) - 1):
             pts.append(NetPoint(pid, x=x, y=y, fixed="xy"))
         elif datum == "free":
