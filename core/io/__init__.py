@@ -1,27 +1,51 @@
-"""Readers and writers. :func:`read_problem` opens any supported file as an adjustment problem."""
+"""Readers and writers. :func:`read_problem` opens any supported file as an adjustment problem.
+
+Formats (``docs/formats.md``): GNU Gama XML (``gama``), baarda's native JSON (``native``),
+Bundle Adjustment in the Large (``bal``), Bundler v0.3 (``bundler``), COLMAP sparse models,
+text or binary (``colmap``); control points from CSV (:mod:`baarda.io.control`); GeoJSON of
+the analysed points (:mod:`baarda.io.geojson`).
+"""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import BaardaError, InputError
 
-FORMATS = ("auto", "gama", "native")
+FORMATS = ("auto", "gama", "native", "bal", "bundler", "colmap")
+SFM_FORMATS = ("bal", "bundler", "colmap")
 
 
 def detect_format(path) -> str:
-    """The format of a file from its extension, then its content."""
+    """The format of a file (or a COLMAP model directory) from its name, then its content."""
+    from .bal import looks_like_bal
+    from .bundler import looks_like_bundler
+
     p = Path(path)
     ext = p.suffix.lower()
+    if p.is_dir():
+        if any((p / f"{name}{e}").exists() for name in ("cameras", "images", "points3D") for e in (".txt", ".bin")):
+            return "colmap"
+        raise InputError(path, 0, "is a directory but not a COLMAP model (cameras, images, points3D "
+                         ".txt or .bin)")
     if ext == ".gkf":
         return "gama"
+    if p.stem in ("cameras", "images", "points3D") and ext in (".txt", ".bin"):
+        return "colmap"
     try:
         head = p.read_bytes()[:4096].decode("utf-8", "replace")
     except OSError as err:
         raise InputError(path, 0, f"cannot read: {err.strerror}") from None
     if "<gama-local" in head:
         return "gama"
+    if not head.strip():
+        raise InputError(path, 1, "empty file")
+    if ext == ".out" or looks_like_bundler(head):
+        return "bundler"
+    if looks_like_bal(head):
+        return "bal"
     if head.lstrip().startswith("{") and '"baarda-block"' in head:
         return "native"
     if head.lstrip().startswith("{") and '"baarda-truth"' in head:
@@ -31,14 +55,36 @@ def detect_format(path) -> str:
                      f"({', '.join(FORMATS[1:])})")
 
 
-def read_model(path, fmt: str = "auto"):
-    """Read ``path`` into its file-level model (Network, Block or IModelBlock)."""
+def read_model(path, fmt: str = "auto", sigma_px: float | None = None,
+               refine_intrinsics: bool | None = None):
+    """Read ``path`` into its file-level model (Network, Block, IModelBlock or SfmBlock).
+
+    sigma_px (σ of image coordinates, pixels, default 1) and refine_intrinsics (default: True
+    for BAL and Bundler, False for COLMAP) apply to structure-from-motion formats only.
+    """
     p = Path(path)
     if not p.exists():
         raise InputError(path, 0, "no such file")
-    if p.is_dir():
-        raise InputError(path, 0, "is a directory, not a file")
     fmt = detect_format(p) if fmt == "auto" else fmt
+    if p.is_dir() and fmt != "colmap":
+        raise InputError(path, 0, "is a directory, not a file")
+    if fmt in SFM_FORMATS:
+        if sigma_px is not None and not (sigma_px > 0 and math.isfinite(sigma_px)):
+            raise BaardaError(f"the σ of image coordinates must be a positive number (got {sigma_px})")
+        opts = {"sigma_px": 1.0 if sigma_px is None else float(sigma_px)}
+        if refine_intrinsics is not None:
+            opts["refine_intrinsics"] = bool(refine_intrinsics)
+        if fmt == "bal":
+            from .bal import read_bal
+            return read_bal(p, **opts)
+        if fmt == "bundler":
+            from .bundler import read_bundler
+            return read_bundler(p, **opts)
+        from .colmap import read_colmap
+        return read_colmap(p, **opts)
+    if sigma_px is not None or refine_intrinsics:
+        raise BaardaError(f"σ of image coordinates and intrinsics refinement apply to "
+                          f"{', '.join(SFM_FORMATS)} input, not to {fmt}")
     if fmt == "gama":
         from ..approx import approximate_coordinates
         from .gama import read_gama
@@ -51,10 +97,13 @@ def read_model(path, fmt: str = "auto"):
 
 def build(model):
     """The adjustment problem of a file-level model."""
+    from ..bal import SfmBlock, build_sfm_problem
     from ..bundle import Block, build_block_problem
     from ..imodel import IModelBlock, build_imodel_problem
     from ..network import Network
 
+    if isinstance(model, SfmBlock):
+        return build_sfm_problem(model)
     if isinstance(model, Block):
         return build_block_problem(model)
     if isinstance(model, IModelBlock):
@@ -69,9 +118,17 @@ def build(model):
     raise TypeError(f"cannot build a problem from {type(model).__name__}")
 
 
-def read_problem(path, fmt: str = "auto"):
-    """Read ``path`` and return a :class:`baarda.problem.Problem` ready to adjust."""
-    return build(read_model(path, fmt))
+def read_problem(path, fmt: str = "auto", control=None, **options):
+    """Read ``path`` and return a :class:`baarda.problem.Problem` ready to adjust.
+
+    control: optional control-point CSV (:func:`baarda.io.control.add_control`); options go to
+    :func:`read_model`.
+    """
+    model = read_model(path, fmt, **options)
+    if control is not None:
+        from .control import add_control
+        model = add_control(model, control)
+    return build(model)
 
 
 def read_truth(path) -> dict | None:

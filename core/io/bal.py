@@ -1,0 +1,306 @@
+"""Bundle Adjustment in the Large (BAL) problem files, and the checks every SfM reader shares.
+
+Format (Agarwal et al. 2010, https://grail.cs.washington.edu/projects/bal/)::
+
+    <num_cameras> <num_points> <num_observations>
+    <camera_index> <point_index> <x> <y>          (num_observations lines)
+    <camera parameters>                           (9 per camera: ρ1 ρ2 ρ3 t1 t2 t3 f k1 k2)
+    <point coordinates>                           (3 per point: X Y Z)
+
+Parameters are one number a line in the published files; the reader takes any whitespace
+layout. Image coordinates are pixels with the origin at the image centre, y up; the projection
+is that of :mod:`baarda.bal` with s = −1 (P = R X + t, p = −P/P_z, p' = f (1 + k1‖p‖² +
+k2‖p‖⁴) p). Camera and point ids are the file's 0-based indices, as strings.
+
+Every reader of structure-from-motion files reports errors as
+:class:`baarda.errors.InputError` ``FILE:LINE: what is wrong`` and returns a block only when
+all of it is valid (:func:`check_block`): counts as announced, finite numbers, indices in range,
+no duplicate image point, each point in ≥ 2 images, each image with ≥ 3 points, one connected
+block.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from ..bal import SfmBlock, SfmCamera, SfmImage
+from ..errors import InputError
+
+
+def read_text(path) -> str:
+    """The text of ``path`` (UTF-8), or InputError."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as err:
+        raise InputError(path, 0, f"cannot read: {err.strerror}") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data[:err.start].count(b"\n") + 1
+        raise InputError(path, line, f"not UTF-8 text (byte {err.start})") from None
+
+
+class Tokens:
+    """Whitespace-separated tokens of a text with their line numbers, read in order.
+
+    ``comment``: lines starting with it (after blanks) are skipped. The typed readers convert
+    a whole run of tokens at once and look for the culprit only when that fails.
+    """
+
+    def __init__(self, path, text: str, comment: str | None = None):
+        toks, lines = [], []
+        for ln, line in enumerate(text.splitlines(), 1):
+            if comment and line.lstrip().startswith(comment):
+                continue
+            parts = line.split()
+            toks.extend(parts)
+            lines.extend([ln] * len(parts))
+        self.path = str(path)
+        self.toks = toks
+        self.lines = lines
+        self.last_line = max(len(text.splitlines()), 1)
+        self.pos = 0
+
+    @property
+    def line(self) -> int:
+        """Line of the next token (the last line at the end of the file)."""
+        return self.lines[self.pos] if self.pos < len(self.toks) else self.last_line
+
+    def fail(self, message: str, line: int | None = None):
+        raise InputError(self.path, self.line if line is None else line, message)
+
+    def take(self, k: int, what: str) -> list[str]:
+        if self.pos + k > len(self.toks):
+            have = len(self.toks) - self.pos
+            self.pos = len(self.toks)
+            self.fail(f"the file ends early: expected {what} ({have} of {k} numbers present)")
+        out = self.toks[self.pos:self.pos + k]
+        self.pos += k
+        return out
+
+    def floats(self, k: int, what: str) -> np.ndarray:
+        """k finite numbers."""
+        start = self.pos
+        raw = self.take(k, what)
+        try:
+            a = np.array(raw, dtype=float)
+        except ValueError:
+            a = None
+        if a is None or not np.isfinite(a).all():
+            for j, t in enumerate(raw):
+                try:
+                    val = float(t)
+                except ValueError:
+                    self.fail(f"{what}: '{t[:40]}' is not a number", self.lines[start + j])
+                if not np.isfinite(val):
+                    self.fail(f"{what}: {t[:40]} is not a finite number", self.lines[start + j])
+        return a
+
+    def ints(self, k: int, what: str) -> np.ndarray:
+        """k non-negative integers."""
+        start = self.pos
+        raw = self.take(k, what)
+        ok = all(t.isdigit() and len(t) < 18 for t in raw)
+        if not ok:
+            for j, t in enumerate(raw):
+                if not t.isdigit():
+                    self.fail(f"{what}: '{t[:40]}' is not a non-negative integer", self.lines[start + j])
+                if len(t) >= 18:
+                    self.fail(f"{what}: {t[:40]} is too large", self.lines[start + j])
+        return np.array([int(t) for t in raw], dtype=np.int64) if k else np.zeros(0, dtype=np.int64)
+
+    @property
+    def left(self) -> int:
+        """Number of tokens not read yet."""
+        return len(self.toks) - self.pos
+
+    def lines_of(self, start: int, k: int, step: int = 1) -> np.ndarray:
+        return np.asarray(self.lines[start:start + k * step:step], dtype=np.int64)
+
+    def end(self, what: str):
+        if self.pos < len(self.toks):
+            self.fail(f"unexpected '{self.toks[self.pos][:40]}' after {what} (the counts in the "
+                      "header do not match the file)")
+
+
+# --------------------------------------------------------------------------------------------
+# checks shared by the SfM readers
+# --------------------------------------------------------------------------------------------
+def check_block(path, block: SfmBlock) -> SfmBlock:
+    """Validate the structure of a block (module docstring); return it or raise InputError."""
+    path = str(path)
+    ni, npt, n = len(block.images), len(block.points), block.obs_image.size
+    if ni == 0 or npt == 0 or n == 0:
+        raise InputError(path, 1, f"empty block: {ni} images, {npt} points, {n} image points")
+    ii, pp = block.obs_image, block.obs_point
+    key = ii * npt + pp
+    order = np.argsort(key, kind="stable")
+    dup = np.flatnonzero(np.diff(key[order]) == 0)
+    if dup.size:
+        a, b = order[dup[0]], order[dup[0] + 1]
+        raise InputError(path, int(block.obs_line[b]),
+                         f"point {block.points[pp[b]]} is measured twice in image "
+                         f"{block.images[ii[b]].id} (first at line {block.obs_line[a]})")
+    per_point = np.bincount(pp, minlength=npt)
+    few = np.flatnonzero(per_point < 2)
+    if few.size:
+        p = few[0]
+        where = np.flatnonzero(pp == p)
+        line = int(block.obs_line[where[0]]) if where.size else int(block.point_line[p])
+        more = f" (and {few.size - 1} more points)" if few.size > 1 else ""
+        raise InputError(path, line, f"point {block.points[p]} is seen by {per_point[p]} image"
+                         f"{'' if per_point[p] == 1 else 's'}; at least 2 are needed to intersect it{more}")
+    per_image = np.bincount(ii, minlength=ni)
+    few = np.flatnonzero(per_image < 3)
+    if few.size:
+        k = few[0]
+        more = f" (and {few.size - 1} more images)" if few.size > 1 else ""
+        raise InputError(path, int(block.images[k].line),
+                         f"image {block.images[k].id} sees {per_image[k]} point"
+                         f"{'' if per_image[k] == 1 else 's'}; at least 3 are needed to orient it{more}")
+    graph = coo_matrix((np.ones(n), (ii, ni + pp)), shape=(ni + npt, ni + npt))
+    nc, label = connected_components(graph, directed=False)
+    if nc > 1:
+        parts = []
+        for c in range(nc):
+            imgs = [block.images[k].id for k in np.flatnonzero(label[:ni] == c)]
+            npts = int((label[ni:] == c).sum())
+            parts.append(f"images {', '.join(imgs[:6])}{' ...' if len(imgs) > 6 else ''} with {npts} points")
+        sizes = np.bincount(label[:ni], minlength=nc)
+        small = int(np.argmin(sizes))
+        first = int(np.flatnonzero(label[:ni] == small)[0])
+        raise InputError(path, int(block.images[first].line),
+                         f"the block falls apart into {nc} parts that share no point: "
+                         + "; ".join(parts[:5]) + (" ..." if nc > 5 else ""))
+    return block
+
+
+def check_rotation(path, line: int, R: np.ndarray, what: str) -> None:
+    """InputError unless R is a rotation matrix (orthonormal to 1e-6, determinant +1)."""
+    if not np.isfinite(R).all() or np.abs(R).max() > 2.0:
+        raise InputError(path, line, f"{what}: not a rotation matrix (entries beyond ±1 or not finite)")
+    err = np.abs(R.T @ R - np.eye(3)).max()
+    if err > 1e-6 or np.linalg.det(R) < 0:
+        raise InputError(path, line, f"{what}: not a rotation matrix (|RᵀR − I| = {err:.2g}, "
+                         f"det = {np.linalg.det(R):.3g})")
+
+
+# --------------------------------------------------------------------------------------------
+# BAL
+# --------------------------------------------------------------------------------------------
+def looks_like_bal(head: str) -> bool:
+    """True if the text starts with a line of at most four numbers (a BAL header, perhaps a
+    broken one: the reader then says what is wrong with it)."""
+    lines = [ln.split() for ln in head.splitlines() if ln.strip()]
+    if not lines or not 1 <= len(lines[0]) <= 4:
+        return False
+    try:
+        [float(t) for t in lines[0]]
+    except ValueError:
+        return False
+    return True
+
+
+def read_bal(path, sigma_px: float = 1.0, refine_intrinsics: bool = True, check: bool = True) -> SfmBlock:
+    """Read a BAL problem file into an :class:`baarda.bal.SfmBlock` (module docstring).
+
+    sigma_px: σ of each image coordinate (pixels). refine_intrinsics: estimate f, k1, k2 of
+    every camera (BAL's definition; False holds them at the file's values). check: apply
+    :func:`check_block` (False reads blocks that cannot be adjusted, e.g. to evaluate a cost).
+    """
+    tk = Tokens(path, read_text(path))
+    if not tk.toks:
+        tk.fail("empty file: expected the header 'num_cameras num_points num_observations'", 1)
+    head_line = tk.line
+    ncam, npt, nobs = tk.ints(3, "header 'num_cameras num_points num_observations'")
+    if tk.lines[2] != head_line:
+        tk.fail("the header must be 'num_cameras num_points num_observations' on one line", head_line)
+    if ncam == 0 or npt == 0 or nobs == 0:
+        tk.fail(f"empty block: {ncam} cameras, {npt} points, {nobs} observations", head_line)
+    need = 4 * nobs + 9 * ncam + 3 * npt
+    if need > tk.left:
+        tk.fail(f"the header announces {nobs} observations, {ncam} cameras and {npt} points "
+                f"({need} numbers) but the file holds {tk.left} numbers after it", head_line)
+    start = tk.pos
+    raw = tk.take(4 * nobs, f"{nobs} observation lines 'camera point x y'")
+    lines = np.asarray(tk.lines[start:start + 4 * nobs], dtype=np.int64).reshape(nobs, 4)
+    split = np.flatnonzero(lines[:, 0] != lines[:, 3])
+    if split.size:
+        tk.fail(f"observation {split[0] + 1} must be one line 'camera point x y'", lines[split[0], 0])
+    tk.pos = start
+    idx = np.empty((nobs, 2), dtype=np.int64)
+    xy = np.empty((nobs, 2))
+    cols = np.array(raw, dtype=object).reshape(nobs, 4)
+    if all(t.isdigit() for t in cols[:, :2].ravel()):
+        idx[:] = cols[:, :2].astype(np.int64)
+    else:
+        for k in range(nobs):
+            tk.pos = start + 4 * k
+            tk.ints(2, f"observation {k + 1}: camera and point index")
+    tk.pos = start
+    try:
+        xy[:] = cols[:, 2:].astype(float)
+        ok = bool(np.isfinite(xy).all())
+    except ValueError:
+        ok = False
+    if not ok:
+        for k in range(nobs):
+            tk.pos = start + 4 * k + 2
+            tk.floats(2, f"observation {k + 1}: image coordinates")
+    tk.pos = start + 4 * nobs
+    obs_line = tk.lines_of(start, nobs, 4)
+    bad = np.flatnonzero(idx[:, 0] >= ncam)
+    if bad.size:
+        k = bad[0]
+        tk.fail(f"camera index {idx[k, 0]} out of range (the header has {ncam} cameras)", obs_line[k])
+    bad = np.flatnonzero(idx[:, 1] >= npt)
+    if bad.size:
+        k = bad[0]
+        tk.fail(f"point index {idx[k, 1]} out of range (the header has {npt} points)", obs_line[k])
+    cam_start = tk.pos
+    cams = tk.floats(9 * ncam, f"9 parameters for each of the {ncam} cameras").reshape(ncam, 9)
+    cam_line = tk.lines_of(cam_start, ncam, 9)
+    pt_start = tk.pos
+    X = tk.floats(3 * npt, f"3 coordinates for each of the {npt} points").reshape(npt, 3)
+    pt_line = tk.lines_of(pt_start, npt, 3)
+    tk.end("the last point")
+    bad = np.flatnonzero(cams[:, 6] <= 0)
+    if bad.size:
+        c = bad[0]
+        tk.fail(f"camera {c}: focal length f = {cams[c, 6]:g} must be > 0", int(cam_line[c]) + 6)
+    block = bal_block(cams, X, idx, xy, obs_line, cam_line, pt_line, "bal", path, sigma_px, refine_intrinsics)
+    return check_block(path, block) if check else block
+
+
+def bal_block(cams, X, idx, xy, obs_line, cam_line, pt_line, convention, path, sigma_px,
+              refine_intrinsics, rodrigues=None) -> SfmBlock:
+    """An SfmBlock of BAL-like cameras (one camera per image, params ρ t f k1 k2)."""
+    ncam = cams.shape[0]
+    rho = cams[:, :3] if rodrigues is None else rodrigues
+    cameras = tuple(SfmCamera(str(c), "BAL", tuple(float(v) for v in cams[c, 6:9]), line=int(cam_line[c]))
+                    for c in range(ncam))
+    images = tuple(SfmImage(str(c), str(c), tuple(float(v) for v in rho[c]),
+                            tuple(float(v) for v in cams[c, 3:6]), line=int(cam_line[c])) for c in range(ncam))
+    return SfmBlock(cameras=cameras, images=images, points=tuple(str(i) for i in range(X.shape[0])),
+                    X=X, point_line=np.asarray(pt_line, dtype=np.int64), obs_image=idx[:, 0].copy(),
+                    obs_point=idx[:, 1].copy(), xy=xy, obs_line=np.asarray(obs_line, dtype=np.int64),
+                    convention=convention, sigma_px=sigma_px, refine_intrinsics=refine_intrinsics,
+                    source=str(path), title=Path(path).name)
+
+
+def write_bal(block: SfmBlock, path) -> None:
+    """Write a BAL-convention block (``bal`` or ``bundler``) as a BAL problem file."""
+    if block.convention not in ("bal", "bundler"):
+        raise ValueError("only BAL and Bundler blocks can be written as BAL")
+    out = [f"{len(block.images)} {len(block.points)} {block.obs_image.size}"]
+    out += [f"{i} {p} {x:.17g} {y:.17g}" for i, p, (x, y) in zip(block.obs_image, block.obs_point, block.xy)]
+    cams = {c.id: c for c in block.cameras}
+    for im in block.images:
+        out += [f"{v:.17g}" for v in (*im.rodrigues, *im.t, *cams[im.camera].params)]
+    out += [f"{v:.17g}" for v in block.X.ravel()]
+    Path(path).write_text("\n".join(out) + "\n")
+
