@@ -108,6 +108,16 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--quiet", "-q", action="store_true")
     sim.add_argument("--debug", action="store_true")
 
+    rp = sub.add_parser("report", help="write a standalone HTML report (opens without a server)",
+                        description="Analyse INPUT and write a standalone HTML report: summary, global test, "
+                                    "maps, hypotheses, group tests and the observation table.")
+    rp.add_argument("input", help="the network or block file")
+    rp.add_argument("--out", "-o", metavar="HTML", help="the report to write (default: INPUT with .html)")
+    rp.add_argument("--format", default="auto", help="input format (see analyze)")
+    _add_test_options(rp)
+    rp.add_argument("--quiet", "-q", action="store_true")
+    rp.add_argument("--debug", action="store_true")
+
     rk = sub.add_parser("risk", help="risk-minimising critical value of a test (M84 §3.3)",
                         description="Critical value C minimising (1−p) α L1 + p (1−β) L2 for a one-sided "
                                     "normal test against an error of tolerance λtol.")
@@ -368,6 +378,26 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_report(args) -> int:
+    from .adjust import Options, adjust
+    from .io import read_problem
+
+    problem = read_problem(args.input, args.format)
+    adj = adjust(problem, Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method))
+    out = Path(args.out) if args.out else Path(args.input).with_suffix(".html")
+    if out.resolve() == Path(args.input).resolve():
+        raise BaardaError(f"{out}: refusing to overwrite the input file")
+    import logging
+
+    logging.getLogger("bokeh").setLevel(logging.ERROR)   # static export warns about server callbacks
+    from .dashboard.report import write_report
+
+    write_report(adj, out)
+    if not args.quiet:
+        print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
 def cmd_serve(args) -> int:
     from .dashboard.app import serve
 
@@ -394,6 +424,8 @@ def main(argv=None) -> int:
             return cmd_convert(args)
         if args.command == "serve":
             return cmd_serve(args)
+        if args.command == "report":
+            return cmd_report(args)
         if args.command == "risk":
             from . import risk
             try:

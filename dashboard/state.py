@@ -1,0 +1,603 @@
+"""The dashboard's one state object: the problem, the test settings, the selections, the results.
+
+:class:`State` owns everything the views show. It calls the core (:func:`baarda.adjust.adjust`,
+:meth:`baarda.result.Adjustment.test`, :meth:`~baarda.result.Adjustment.deformation`) and keeps
+the results; the views only read it and write selections back.
+
+Observation indices are always those of the *full* problem as read (``problem``); the
+adjustment ``results`` is computed on the problem without the excluded observations
+(:mod:`baarda.dashboard.subset`), and ``kept[k]`` maps its index k back.
+
+Hypothesis specifications are plain dicts, ``{"kind": ..., "active": bool, ...}``:
+
+- ``{"kind": "observation", "index": i}`` — one observation (q = 1, T = w²);
+- ``{"kind": "group", "group": g}`` — a test group of the problem (GNSS vector, image point);
+- ``{"kind": "image-point", "image": j, "point": p}`` — both coordinates of one image point;
+- ``{"kind": "control", "point": p}`` — every observation of a control (weighted) point;
+- ``{"kind": "transfer", "point": p, "images": [j1, j2, ...]}`` — one 2D point-transfer error
+  common to the image coordinates of point p in the images listed (F80 §2.2, H = (0 … I₂ … I₂ … 0)ᵀ).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import param
+from scipy.sparse.csgraph import shortest_path
+import scipy.sparse as sp
+
+from baarda.adjust import Options, adjust
+from baarda.errors import BaardaError
+from baarda.hypotheses import common_error, selection
+
+from .subset import without
+
+#: Results of the adjustment that do not depend on α0, β0 or the B-method; they are carried
+#: over when only those options change, so that δ0 and the MDBs update without a new solve.
+OPTION_FREE = ("v", "keep", "Ar", "factor", "Pv", "vPv", "_cluster_stats", "_sbase_Z")
+
+#: Keys of ``ObservationInfo.ids`` that name something other than a point.
+NOT_POINT_KEYS = ("image", "component", "group", "set")
+
+#: Redundancy numbers below these are flagged: uncontrolled, weak (the dashboard's colour scale).
+R_UNCONTROLLED = 0.1
+R_WEAK = 0.3
+
+
+def with_options(adj, options: Options):
+    """The adjustment ``adj`` with other test options, without solving again.
+
+    Creates a new :class:`~baarda.result.Adjustment` (so every option-dependent property is
+    recomputed by the core) and hands over the cached option-free quantities (:data:`OPTION_FREE`).
+    """
+    new = replace(adj, options=options)
+    for name in OPTION_FREE:
+        if name in adj.__dict__:
+            new.__dict__[name] = adj.__dict__[name]
+    return new
+
+
+def display_matrix(problem) -> np.ndarray:
+    """M (2 × 2) with (east, north) = M (x, y) for the problem's planimetric axes.
+
+    A Gama network's x, y axes point as its ``axes-xy`` says (``"ne"``: x north, y east); a
+    block's X, Y are plotted as they are (M = I).
+    """
+    axes = problem.extra.get("axes_xy")
+    if not axes or "block" in problem.extra:
+        return np.eye(2)
+    unit = {"n": (1.0, 0.0), "e": (0.0, 1.0), "s": (-1.0, 0.0), "w": (0.0, -1.0)}
+    ax, ay = unit[axes[0]], unit[axes[1]]  # (north, east) components of +x and +y
+    return np.array([[ax[1], ay[1]], [ax[0], ay[0]]])
+
+
+def display_xy(problem, coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, str, str]:
+    """Map coordinates (east, north) of the points and the axis labels.
+
+    Planimetric coordinates go through :func:`display_matrix`. A levelling network has no
+    planimetric coordinates: its points are placed schematically by classical scaling of the
+    graph distances of its observations.
+    """
+    X, Y = coords[:, 0], coords[:, 1]
+    if np.isfinite(X).any() and np.isfinite(Y).any():
+        e, n = display_matrix(problem) @ np.vstack([np.nan_to_num(X), np.nan_to_num(Y)])
+        if "block" in problem.extra or not problem.extra.get("axes_xy"):
+            return e, n, "X [m]", "Y [m]"
+        return e, n, "east [m]", "north [m]"
+    e, n = schematic_layout(problem)
+    return e, n, "schematic position", "schematic position"
+
+
+def schematic_layout(problem) -> tuple[np.ndarray, np.ndarray]:
+    """2D positions of the points from the graph of their observations (classical scaling)."""
+    m = len(problem.points.ids)
+    if m == 1:
+        return np.zeros(1), np.zeros(1)
+    pairs = observation_points(problem)
+    rows, cols = [], []
+    for pts in pairs:
+        for a in pts:
+            for b in pts:
+                if a != b:
+                    rows.append(a)
+                    cols.append(b)
+    G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(m, m))
+    D = shortest_path(G, unweighted=True, directed=False)
+    finite = np.isfinite(D)
+    D[~finite] = (D[finite].max() if finite.any() else 1.0) + 1.0
+    J = np.eye(m) - 1.0 / m
+    B = -0.5 * J @ (D ** 2) @ J
+    lam, V = np.linalg.eigh(B)
+    top = np.argsort(lam)[::-1][:2]
+    xy = V[:, top] * np.sqrt(np.maximum(lam[top], 1e-12))
+    return xy[:, 0], xy[:, 1]
+
+
+def observation_points(problem) -> list[list[int]]:
+    """Per observation, the indices of the points it names (``from`` first)."""
+    index = {pid: k for k, pid in enumerate(problem.points.ids)}
+    out = []
+    for ids in problem.info.ids:
+        pts = []
+        for key, val in ids.items():
+            if key in NOT_POINT_KEYS:
+                continue
+            k = index.get(str(val))
+            if k is not None and k not in pts:
+                pts.append(k)
+        out.append(pts)
+    return out
+
+
+def display_factor(problem) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Factor from SI to the unit of each observation's σ in the file (mm, cc, px...), and the unit."""
+    sig_si = problem.cov.sigma()
+    sig_file = np.asarray(problem.info.sigma_file, dtype=float)
+    ok = np.isfinite(sig_file) & (sig_file > 0) & (sig_si > 0)
+    factor = np.where(ok, sig_file / np.where(sig_si > 0, sig_si, 1.0), 1.0)
+    units = tuple(u if o else "SI" for u, o in zip(problem.info.sigma_unit, ok))
+    return factor, units
+
+
+def observation_label(problem, i: int) -> str:
+    """A short readable name of observation i: ``12 direction A→B``, ``40 image-x 101:P7``."""
+    kind = problem.info.kind[i]
+    ids = problem.info.ids[i]
+    if "from" in ids:
+        rest = [str(v) for k, v in ids.items() if k != "from"]
+        name = f"{ids['from']}→{','.join(rest)}"
+    elif "image" in ids:
+        name = f"{ids['image']}:{ids.get('point', '?')}"
+    else:
+        name = " ".join(str(v) for v in ids.values())
+    return f"{i} {kind} {name}"
+
+
+class State(param.Parameterized):
+    """Everything the dashboard shows (see the module docstring)."""
+
+    source = param.String(default="", doc="Path of the problem file.")
+    problem = param.Parameter(default=None, doc="The full problem as read (baarda.problem.Problem).")
+    alpha0 = param.Number(default=0.001, bounds=(1e-6, 0.5), doc="Size α0 of the 1D tests.")
+    beta0 = param.Number(default=0.80, bounds=(0.5, 0.999), doc="Power β0.")
+    b_method = param.Boolean(default=False, doc="Baarda's B-method for multi-dimensional tests.")
+    sigma0_mode = param.Selector(default="apriori", objects=["apriori", "aposteriori"],
+                                 doc="σ0 used for covariances and the decision (w or τ).")
+    excluded = param.Parameter(default=frozenset(), doc="Excluded observations (full indices).")
+    hypotheses = param.List(default=[], doc="Hypothesis specifications (module docstring).")
+    hyp_results = param.List(default=[], doc="Per hypothesis: HypothesisTest, an error text or None.")
+    selected_point = param.Integer(default=None, allow_None=True, doc="Selected point index.")
+    selected_obs = param.Integer(default=None, allow_None=True, doc="Selected observation (full index).")
+    selected_hypothesis = param.Integer(default=None, allow_None=True)
+    selected_image = param.Parameter(default=None, doc="Image shown in the image-space view (blocks).")
+    exaggeration = param.Number(default=1.0, bounds=(0.0, None),
+                                doc="Exaggeration of image residual vectors.")
+    results = param.Parameter(default=None, doc="The core's Adjustment of the reduced problem.")
+    kept = param.Array(default=np.zeros(0, dtype=np.int64), doc="Full index of each reduced observation.")
+    error = param.String(default="", doc="A message for the user (bad file, failed exclusion).")
+    busy = param.Boolean(default=False, doc="True while a computation runs.")
+    timings = param.Dict(default={}, doc="Seconds of the last recomputations.")
+
+    def __init__(self, path=None, problem=None, **params):
+        super().__init__(**params)
+        self._frames = None
+        if problem is not None:
+            self.set_problem(problem, source=str(path or problem.source))
+        elif path is not None:
+            self.load(path)
+
+    @classmethod
+    def from_adjustment(cls, adj) -> "State":
+        """A state showing an existing adjustment (no exclusions, no new solve)."""
+        st = cls()
+        mode = adj.problem.sigma_act if adj.problem.sigma_act in ("apriori", "aposteriori") else "apriori"
+        with param.parameterized.discard_events(st):
+            st.param.update(problem=adj.problem, source=str(adj.problem.source), sigma0_mode=mode,
+                            alpha0=adj.options.alpha, beta0=adj.options.beta,
+                            b_method=adj.options.b_method, kept=np.arange(adj.n), results=adj)
+            images = st.images
+            st.selected_image = images[0]["id"] if images else None
+        return st
+
+    # -- loading --------------------------------------------------------------------------------
+    def load(self, path) -> bool:
+        """Read and adjust a file; on failure keep the current problem and set ``error``."""
+        from baarda.io import read_problem
+
+        try:
+            with self._busy():
+                problem = read_problem(path)
+        except BaardaError as err:
+            self.error = f"Cannot read {Path(str(path)).name}: {err}"
+            return False
+        except Exception as err:  # noqa: BLE001 - the app must show a message, never a traceback
+            self.error = f"Cannot read {Path(str(path)).name}: {type(err).__name__}: {err}"
+            return False
+        return self.set_problem(problem, source=str(path))
+
+    def set_problem(self, problem, source: str = "") -> bool:
+        """Make ``problem`` current (clears exclusions, hypotheses and selections) and adjust it."""
+        old = (self.problem, self.results, self.kept, self.excluded, self.hypotheses, self.hyp_results)
+        mode = problem.sigma_act if problem.sigma_act in ("apriori", "aposteriori") else "apriori"
+        with param.parameterized.discard_events(self):
+            self.problem = problem
+            self.excluded = frozenset()
+            self.hypotheses = []
+            self.hyp_results = []
+            self.selected_point = None
+            self.selected_obs = None
+            self.selected_hypothesis = None
+            self.sigma0_mode = mode
+            images = self.images
+            self.selected_image = images[0]["id"] if images else None
+        if not self._readjust():
+            with param.parameterized.discard_events(self):
+                (self.problem, self.results, self.kept, self.excluded, self.hypotheses,
+                 self.hyp_results) = old
+            return False
+        self.source = source or problem.source
+        self.exaggeration = self._auto_exaggeration()
+        self.error = ""
+        self.param.trigger("problem")
+        return True
+
+    @contextlib.contextmanager
+    def _busy(self):
+        self.busy = True
+        try:
+            yield
+        finally:
+            self.busy = False
+
+    # -- recomputation --------------------------------------------------------------------------
+    def options(self) -> Options:
+        return Options(alpha=float(self.alpha0), beta=float(self.beta0), b_method=bool(self.b_method))
+
+    def _readjust(self) -> bool:
+        """Adjust the problem without the excluded observations; False (and ``error``) on failure."""
+        import time
+
+        t0 = time.perf_counter()
+        try:
+            with self._busy():
+                reduced, kept = without(self.problem, self.excluded)
+                reduced = replace(reduced, sigma_act=self.sigma0_mode)
+                adj = adjust(reduced, self.options())
+        except BaardaError as err:
+            self.error = f"Adjustment failed: {err}"
+            return False
+        except Exception as err:  # noqa: BLE001
+            self.error = f"Adjustment failed: {type(err).__name__}: {err}"
+            return False
+        self._frames = None
+        with param.parameterized.batch_call_watchers(self):
+            self.kept = kept
+            self.results = adj
+            self._run_hypotheses()
+            self.timings = {**self.timings, "adjust": time.perf_counter() - t0}
+        return True
+
+    @param.depends("alpha0", "beta0", "b_method", watch=True)
+    def _options_changed(self):
+        if self.results is None:
+            return
+        self._frames = None
+        with param.parameterized.batch_call_watchers(self):
+            self.results = with_options(self.results, self.options())
+            self._run_hypotheses()
+
+    @param.depends("sigma0_mode", watch=True)
+    def _sigma_changed(self):
+        if self.problem is not None:
+            self._readjust()
+
+    # -- exclusion ------------------------------------------------------------------------------
+    def exclude(self, index: int) -> bool:
+        """Exclude observation ``index`` (full index) and adjust again; False if that fails."""
+        return self._set_excluded(self.excluded | {int(index)})
+
+    def include(self, index: int) -> bool:
+        """Re-include observation ``index``."""
+        return self._set_excluded(self.excluded - {int(index)})
+
+    def include_all(self) -> bool:
+        return self._set_excluded(frozenset())
+
+    def _set_excluded(self, new) -> bool:
+        old = self.excluded
+        if new == old:
+            return True
+        with param.parameterized.discard_events(self):
+            self.excluded = frozenset(new)
+        if self._readjust():
+            self.param.trigger("excluded")
+            return True
+        with param.parameterized.discard_events(self):
+            self.excluded = old
+        return False
+
+    def reduced_index(self, full) -> np.ndarray:
+        """Reduced indices of full observation indices (−1 where excluded)."""
+        pos = np.full(self.problem.n, -1, dtype=np.int64)
+        pos[self.kept] = np.arange(self.kept.size)
+        return pos[np.asarray(full, dtype=np.int64)]
+
+    def expand(self, values, fill=np.nan) -> np.ndarray:
+        """A per-observation array of the reduced problem spread to the full problem."""
+        values = np.asarray(values)
+        out = np.full(self.problem.n, fill, dtype=np.result_type(values.dtype, type(fill)))
+        out[self.kept] = values
+        return out
+
+    # -- hypotheses -----------------------------------------------------------------------------
+    def add_hypothesis(self, spec: dict) -> int:
+        """Add (and activate) a hypothesis; returns its position."""
+        spec = {"active": True, **spec}
+        spec["label"] = spec.get("label") or self.describe(spec)
+        self.hypotheses = self.hypotheses + [spec]
+        self.selected_hypothesis = len(self.hypotheses) - 1
+        return len(self.hypotheses) - 1
+
+    def toggle_hypothesis(self, k: int, active: bool | None = None) -> None:
+        hyps = [dict(h) for h in self.hypotheses]
+        hyps[k]["active"] = (not hyps[k]["active"]) if active is None else bool(active)
+        self.hypotheses = hyps
+
+    def remove_hypothesis(self, k: int) -> None:
+        hyps = list(self.hypotheses)
+        del hyps[k]
+        if self.selected_hypothesis is not None and self.selected_hypothesis >= len(hyps):
+            self.selected_hypothesis = len(hyps) - 1 if hyps else None
+        self.hypotheses = hyps
+
+    @param.depends("hypotheses", watch=True)
+    def _hypotheses_changed(self):
+        self._run_hypotheses()
+
+    def _run_hypotheses(self):
+        import time
+
+        t0 = time.perf_counter()
+        out = []
+        for spec in self.hypotheses:
+            if not spec.get("active", True) or self.results is None:
+                out.append(None)
+                continue
+            try:
+                H = self.hypothesis_matrix(spec)
+                out.append(self.results.test(H, label=spec.get("label", "")))
+            except (ValueError, BaardaError, np.linalg.LinAlgError) as err:
+                out.append(f"{spec.get('label', '')}: {err}")
+        self.hyp_results = out
+        self.timings = {**self.timings, "hypotheses": time.perf_counter() - t0}
+
+    def hypothesis_rows(self, spec: dict) -> list[np.ndarray]:
+        """The full observation indices a hypothesis acts on, one array per component of ∇s
+        for a common error (point transfer), else one array of independently tested rows."""
+        info = self.problem.info
+        kind = spec["kind"]
+        if kind == "observation":
+            return [np.array([int(spec["index"])])]
+        if kind == "group":
+            return [np.flatnonzero(np.asarray(info.group) == int(spec["group"]))]
+        if kind == "image-point":
+            rows = [i for i, ids in enumerate(info.ids)
+                    if str(ids.get("image")) == str(spec["image"]) and str(ids.get("point")) == str(spec["point"])]
+            return [np.array(rows, dtype=np.int64)]
+        if kind == "control":
+            rows = [i for i, ids in enumerate(info.ids) if str(ids.get("id")) == str(spec["point"])]
+            return [np.array(rows, dtype=np.int64)]
+        if kind == "transfer":
+            images = {str(j) for j in spec["images"]}
+            comps = {}
+            for i, ids in enumerate(info.ids):
+                if str(ids.get("point")) == str(spec["point"]) and str(ids.get("image")) in images:
+                    comp = ids.get("component") or info.kind[i].rsplit("-", 1)[-1]
+                    comps.setdefault(str(comp), []).append(i)
+            return [np.array(comps[c], dtype=np.int64) for c in sorted(comps)]
+        raise ValueError(f"unknown hypothesis kind '{kind}'")
+
+    def hypothesis_matrix(self, spec: dict):
+        """H (reduced n × q) of a hypothesis; excluded observations drop out."""
+        rows = self.hypothesis_rows(spec)
+        n = self.results.n
+        red = [self.reduced_index(r) for r in rows]
+        red = [r[r >= 0] for r in red]
+        if not any(r.size for r in red):
+            raise ValueError("no (included) observations")
+        if spec["kind"] == "transfer":
+            return common_error(n, [r for r in red if r.size])
+        return selection(n, red[0])
+
+    def describe(self, spec: dict) -> str:
+        kind = spec["kind"]
+        if kind == "observation":
+            return "obs " + observation_label(self.problem, int(spec["index"]))
+        if kind == "group":
+            rows = self.hypothesis_rows(spec)[0]
+            first = observation_label(self.problem, int(rows[0])).split(" ", 2)[-1] if rows.size else ""
+            return f"group {spec['group']} ({first})"
+        if kind == "image-point":
+            return f"image point {spec['point']} in image {spec['image']}"
+        if kind == "control":
+            return f"control point {spec['point']}"
+        if kind == "transfer":
+            return f"transfer of {spec['point']} in images {', '.join(map(str, spec['images']))}"
+        return str(spec)
+
+    def hypothesis_point(self, spec: dict):
+        """The point a hypothesis is about (for drawing its ellipse on the map), or None."""
+        pid = spec.get("point")
+        if pid is None and spec["kind"] in ("observation", "group"):
+            rows = self.hypothesis_rows(spec)[0]
+            pts = self.obs_points[int(rows[0])] if rows.size else []
+            return pts[-1] if pts else None
+        if pid is None:
+            return None
+        return self.point_index.get(str(pid))
+
+    # -- derived data for the views -------------------------------------------------------------
+    @property
+    def block(self) -> dict | None:
+        return self.problem.extra.get("block") if self.problem is not None else None
+
+    @property
+    def images(self) -> list[dict]:
+        b = self.block
+        return list(b.get("images", [])) if isinstance(b, dict) else []
+
+    @property
+    def point_index(self) -> dict:
+        return {pid: k for k, pid in enumerate(self.problem.points.ids)}
+
+    @property
+    def obs_points(self) -> list[list[int]]:
+        if getattr(self, "_obs_points_for", None) is not self.problem:
+            self._obs_points = observation_points(self.problem)
+            self._obs_points_for = self.problem
+        return self._obs_points
+
+    def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
+        """``(observations, points)`` tables of the current results (cached until they change).
+
+        observations: one row per observation of the full problem (index = full index) with the
+        core's v, w, τ, r, MDB, δ̄0 (v and MDB in the unit of the observation's σ in the file),
+        MDB/σ, the decision and the exclusion flag. points: one row per point with its map
+        position, status, σ and the extreme values over its observations (min r, max |w|,
+        max δ̄0, max MDB/σ).
+        """
+        if self._frames is not None and self._frames[0] is self.results:
+            return self._frames[1], self._frames[2]
+        p, adj = self.problem, self.results
+        factor, units = display_factor(p)
+        sig_si = p.cov.sigma()
+        aposteriori = self.sigma0_mode == "aposteriori"
+        w = self.expand(adj.w)
+        tau = self.expand(adj.tau)
+        if aposteriori:
+            rejected = np.nan_to_num(np.abs(tau)) > adj.critical_tau
+        else:
+            rejected = np.nan_to_num(np.abs(w)) > adj.critical_w
+        mdb = self.expand(adj.mdb)
+        obs = pd.DataFrame({
+            "kind": list(p.info.kind),
+            "ids": [observation_label(p, i).split(" ", 2)[-1] for i in range(p.n)],
+            "v": self.expand(adj.v) * factor,
+            "w": w,
+            "tau": tau,
+            "r": self.expand(adj.r),
+            "mdb": mdb * factor,
+            "mdb_sigma": mdb / np.where(sig_si > 0, sig_si, np.nan),
+            "ext": self.expand(adj.external),
+            "unit": list(units),
+            "rejected": rejected,
+            "excluded": np.isin(np.arange(p.n), sorted(self.excluded)),
+        })
+        obs.index.name = "index"
+        coords = adj.coordinates
+        east, north, _, _ = display_xy(p, coords)
+        m = len(p.points.ids)
+        min_r = np.full(m, np.nan)
+        max_w = np.full(m, np.nan)
+        max_ext = np.full(m, np.nan)
+        max_mdb = np.full(m, np.nan)
+        n_obs = np.zeros(m, dtype=int)
+        r_all, aw, ext_all, ms = obs["r"].to_numpy(), np.abs(w), obs["ext"].to_numpy(), obs["mdb_sigma"].to_numpy()
+        for i, pts in enumerate(self.obs_points):
+            if obs["excluded"].iat[i]:
+                continue
+            for k in pts:
+                n_obs[k] += 1
+                min_r[k] = np.fmin(min_r[k], r_all[i])
+                max_w[k] = np.fmax(max_w[k], aw[i])
+                max_ext[k] = np.fmax(max_ext[k], ext_all[i])
+                max_mdb[k] = np.fmax(max_mdb[k], ms[i])
+        sig = adj.point_sigma * 1000.0
+        pts = pd.DataFrame({
+            "id": list(p.points.ids), "status": list(p.points.status),
+            "x": east, "y": north,
+            "sx_mm": sig[:, 0], "sy_mm": sig[:, 1], "sz_mm": sig[:, 2],
+            "n_obs": n_obs, "min_r": min_r, "max_w": max_w,
+            "max_ext": np.where(np.isfinite(max_ext), max_ext, np.nan),
+            "max_mdb_sigma": np.where(np.isfinite(max_mdb), max_mdb, np.nan),
+        })
+        self._frames = (self.results, obs, pts)
+        return obs, pts
+
+    def map_labels(self) -> tuple[str, str]:
+        return display_xy(self.problem, self.results.coordinates)[2:]
+
+    def segments(self) -> pd.DataFrame:
+        """One line per (observation, other point) of the network observations: from → to."""
+        obs, pts = self.frames()
+        rows = []
+        for i, pp in enumerate(self.obs_points):
+            if len(pp) < 2 or self.problem.info.kind[i].startswith("image"):
+                continue
+            for k in pp[1:]:
+                rows.append((i, pp[0], k))
+        if not rows:
+            return pd.DataFrame(columns=["obs", "x0", "y0", "x1", "y1"])
+        a = np.array(rows)
+        seg = pd.DataFrame({"obs": a[:, 0], "x0": pts["x"].to_numpy()[a[:, 1]],
+                            "y0": pts["y"].to_numpy()[a[:, 1]], "x1": pts["x"].to_numpy()[a[:, 2]],
+                            "y1": pts["y"].to_numpy()[a[:, 2]]})
+        return seg
+
+    def deformation_field(self, index: int | None = None) -> np.ndarray:
+        """∇0x of an error of MDB size in observation ``index`` (full; default the selected one)
+        as point shifts (m × 3, metres), from the core's :meth:`Adjustment.deformation`."""
+        index = self.selected_obs if index is None else index
+        adj = self.results
+        m = len(self.problem.points.ids)
+        if index is None:
+            return np.zeros((m, 3))
+        k = int(self.reduced_index([index])[0])
+        if k < 0 or not np.isfinite(adj.mdb[k]):
+            return np.zeros((m, 3))
+        err = np.zeros(adj.n)
+        err[k] = adj.mdb[k]
+        return adj.point_shifts(adj.deformation(err))
+
+    def observations_of_point(self, k: int) -> list[int]:
+        return [i for i, pts in enumerate(self.obs_points) if k in pts]
+
+    def _auto_exaggeration(self) -> float:
+        """Image residual vectors: the 90th percentile of |v| drawn 4 % of the image width long
+        (a round factor), so that ordinary residuals are visible and gross ones stand out."""
+        adj = self.results
+        if adj is None or not self.images:
+            return 1.0
+        kinds = np.asarray(adj.problem.info.kind)
+        v = np.abs(adj.v[np.char.startswith(kinds.astype(str), "image")])
+        size = (self.block or {}).get("image_size") or [1.0, 1.0]
+        vref = float(np.percentile(v, 90)) if v.size else 0.0
+        if vref <= 0:
+            return 1.0
+        raw = 0.04 * float(size[0]) / vref
+        return float(10 ** math.floor(math.log10(raw)))
+
+    # -- summary --------------------------------------------------------------------------------
+    def summary(self) -> dict:
+        """The numbers of the summary header, taken from the core's results."""
+        from baarda.io.results import summary as core_summary
+
+        adj = self.results
+        s = core_summary(adj)
+        obs, pts = self.frames()
+        live = ~obs["excluded"]
+        s.update({
+            "n_excluded": int(len(self.excluded)),
+            "n_rejected": int((obs["rejected"] & live).sum()),
+            "n_uncontrolled": int(((obs["r"] < R_UNCONTROLLED) & live).sum()),
+            "n_weak": int(((obs["r"] >= R_UNCONTROLLED) & (obs["r"] < R_WEAK) & live).sum()),
+            "n_points": len(pts),
+            "n_images": len(self.images),
+            "n_strips": len({im.get("strip") for im in self.images}) if self.images else 0,
+        })
+        return s

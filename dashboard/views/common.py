@@ -1,0 +1,154 @@
+"""Shared pieces of the map views: colours, the block context layers, click handling."""
+
+from __future__ import annotations
+
+import math
+
+import holoviews as hv
+import numpy as np
+import pandas as pd
+from bokeh.models import NumeralTickFormatter
+
+from ..state import R_UNCONTROLLED, R_WEAK
+
+STATUS_COLORS = {
+    "fixed": "#111111", "adjusted": "#1f77b4", "constrained": "#9467bd",
+    "tie": "#1f77b4", "control": "#d62728", "check": "#2ca02c",
+}
+
+#: Redundancy colour scale: r < 0.1 uncontrolled (red), < 0.3 weak (orange), then greens.
+R_LEVELS = [0.0, R_UNCONTROLLED, R_WEAK, 0.6, 1.0]
+R_COLORS = ["#d7191c", "#fdae61", "#a6d96a", "#1a9641"]
+
+MAP_OPTS = dict(tools=["tap"], active_tools=["pan", "wheel_zoom", "tap"],
+                toolbar="right", fontscale=1.0, xrotation=0)
+
+
+def formatters() -> dict:
+    """Plain tick labels (no 1e+6 notation); new Bokeh models for every plot (one document each)."""
+    return {"xformatter": NumeralTickFormatter(format="0.[00]"),
+            "yformatter": NumeralTickFormatter(format="0.[00]")}
+
+
+def round_scale(raw: float) -> float:
+    """A round number (1, 2 or 5 × 10^k) not above ``raw``, for displayed exaggerations."""
+    if not np.isfinite(raw) or raw <= 0:
+        return 1.0
+    k = math.floor(math.log10(raw))
+    for m in (5, 2, 1):
+        if m * 10 ** k <= raw:
+            return float(m * 10 ** k)
+    return float(10 ** k)
+
+
+def frame_size(pts: pd.DataFrame, images=(), size: int = 440) -> dict:
+    """Frame width/height and limits with equal scales on both axes (metres per pixel), the
+    larger side ``size`` pixels; the block's footprints are included in the extent."""
+    xs = list(pts["x"]) if len(pts) else [0.0]
+    ys = list(pts["y"]) if len(pts) else [0.0]
+    for im in images:
+        for X, Y in im.get("footprint") or []:
+            xs.append(float(X))
+            ys.append(float(Y))
+    x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
+    span = max(x1 - x0, y1 - y0, 1e-9)
+    pad = 0.08 * span
+    w, h = (x1 - x0) + 2 * pad, (y1 - y0) + 2 * pad
+    scale = size / max(w, h)
+    fw, fh = max(int(w * scale), 260), max(int(h * scale), 260)
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    half_w, half_h = fw / scale / 2, fh / scale / 2
+    return {"frame_width": fw, "frame_height": fh, "xlim": (cx - half_w, cx + half_w),
+            "ylim": (cy - half_h, cy + half_h)}
+
+
+def extent(pts: pd.DataFrame) -> float:
+    """The larger side of the points' bounding box (map units), at least 1."""
+    if len(pts) == 0:
+        return 1.0
+    span = max(float(np.ptp(pts["x"])), float(np.ptp(pts["y"])))
+    return span if span > 0 else 1.0
+
+
+def block_context(state) -> hv.Overlay:
+    """Footprints, projection centres and strips of a block; empty layers for a network."""
+    images = state.images
+    polys, centres, strips = [], [], {}
+    for im in images:
+        fp = im.get("footprint")
+        if fp:
+            fp = np.asarray(fp, dtype=float)
+            polys.append({"x": fp[:, 0], "y": fp[:, 1], "image": str(im.get("id")),
+                          "strip": str(im.get("strip", ""))})
+        if "X0" in im and "Y0" in im:
+            centres.append((float(im["X0"]), float(im["Y0"]), str(im.get("id")), str(im.get("strip", ""))))
+            strips.setdefault(str(im.get("strip", "")), []).append((float(im["X0"]), float(im["Y0"])))
+    footprints = hv.Polygons(polys, vdims=["image", "strip"], label="footprints" if polys else "").opts(
+        fill_alpha=0.04, line_alpha=0.35, line_color="#555555", color="#888888",
+        nonselection_fill_alpha=0.04, nonselection_line_alpha=0.35, tools=[])
+    cdf = pd.DataFrame(centres, columns=["x", "y", "image", "strip"])
+    proj = hv.Points(cdf, ["x", "y"], ["image", "strip"], label="projection centres" if centres else "").opts(
+        marker="triangle", size=9, color="#444444", nonselection_alpha=1, tools=["hover"])
+    paths = [np.array(v) for v in strips.values() if len(v) > 1]
+    strip_path = hv.Path(paths, label="strips" if paths else "").opts(color="#999999", line_dash="dashed",
+                                                      nonselection_alpha=1)
+    return footprints * strip_path * proj
+
+
+def nearest(state, x: float, y: float, tol_fraction: float = 0.04):
+    """What a click at (x, y) hits: ``("point", k)``, ``("obs", i)`` or None.
+
+    A point within ``tol_fraction`` of the map extent wins; otherwise the nearest observation
+    line within the same distance.
+    """
+    if x is None or y is None or state.results is None:
+        return None
+    obs, pts = state.frames()
+    tol = tol_fraction * extent(pts)
+    d = np.hypot(pts["x"].to_numpy() - x, pts["y"].to_numpy() - y)
+    if d.size and d.min() <= tol:
+        return ("point", int(np.argmin(d)))
+    seg = state.segments()
+    if len(seg):
+        p0 = seg[["x0", "y0"]].to_numpy()
+        p1 = seg[["x1", "y1"]].to_numpy()
+        dv = p1 - p0
+        L2 = np.maximum((dv ** 2).sum(1), 1e-300)
+        t = np.clip(((np.array([x, y]) - p0) * dv).sum(1) / L2, 0, 1)
+        ds = np.hypot(*(p0 + t[:, None] * dv - np.array([x, y])).T)
+        if ds.min() <= tol:
+            return ("obs", int(seg["obs"].iat[int(np.argmin(ds))]))
+    return None
+
+
+def on_tap(state):
+    """A Tap-stream subscriber selecting what the click hit in ``state``."""
+    def select(x=None, y=None, **_):
+        hit = nearest(state, x, y)
+        if hit is None:
+            return
+        if hit[0] == "point":
+            state.param.update(selected_obs=None, selected_point=hit[1])
+        else:
+            state.param.update(selected_point=None, selected_obs=hit[1])
+    return select
+
+
+def selection_layer(state) -> hv.Overlay:
+    """Rings around the selected point and the selected observation's points and line."""
+    obs, pts = state.frames()
+    ring = pts.iloc[[]]
+    line = []
+    if state.selected_point is not None and state.selected_point < len(pts):
+        ring = pts.iloc[[state.selected_point]]
+    if state.selected_obs is not None and state.selected_obs < len(obs):
+        k = state.obs_points[state.selected_obs]
+        ring = pts.iloc[k]
+        if len(k) >= 2:
+            line = [np.array([[pts["x"].iat[k[0]], pts["y"].iat[k[0]]], [pts["x"].iat[j], pts["y"].iat[j]]])
+                    for j in k[1:]]
+    rings = hv.Points(ring, ["x", "y"], ["id"]).opts(
+        size=22, fill_alpha=0, line_color="#e6007e", line_width=3, nonselection_alpha=1, tools=[])
+    sel_line = hv.Path(line).opts(color="#e6007e", line_width=4,
+                                                                  nonselection_alpha=1)
+    return sel_line * rings

@@ -1,0 +1,229 @@
+"""The hypothesis panel: build a hypothesis, toggle it, read T, R, critical value, ∇ŝ and its
+lower-bound ellipse (F80 eq. 10-15, computed by the core's ``Adjustment.test``)."""
+
+from __future__ import annotations
+
+import holoviews as hv
+import numpy as np
+import pandas as pd
+import panel as pn
+import param
+
+from ..state import State, display_factor
+
+KINDS = {
+    "observation": "one observation",
+    "group": "test group (2D/3D: vector, image point)",
+    "image-point": "image point (x, y)",
+    "control": "control point",
+    "transfer": "point transfer across images",
+}
+
+
+class HypothesisPanel(pn.viewable.Viewer):
+    """Widgets to define hypotheses, their results table and the lower-bound ellipse plot."""
+
+    state = param.ClassSelector(class_=State)
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        s = self.state
+        self.kind = pn.widgets.Select(name="Hypothesis", options={}, width=260, css_classes=["hyp-kind"])
+        self.obs_input = pn.widgets.IntInput(name="Observation index", value=0, start=0, width=150,
+                                             css_classes=["hyp-obs"])
+        self.group = pn.widgets.Select(name="Group", options=[], width=260)
+        self.point = pn.widgets.Select(name="Point", options=[], width=150, css_classes=["hyp-point"])
+        self.image = pn.widgets.Select(name="Image", options=[], width=150, css_classes=["hyp-image"])
+        self.images = pn.widgets.MultiChoice(name="Images (the transferred point's)", options=[], width=260)
+        self.add = pn.widgets.Button(name="Test", button_type="primary", width=90,
+                                     css_classes=["hyp-add"])
+        self.remove = pn.widgets.Button(name="Remove selected", width=130)
+        self.message = pn.pane.Alert("", alert_type="warning", visible=False)
+        self.results = pn.widgets.Tabulator(
+            pd.DataFrame(), disabled=False, selectable=1, show_index=False, sizing_mode="stretch_width",
+            height=220, editors={}, css_classes=["hyp-table"], layout="fit_data_stretch")
+        self.add.on_click(self._add)
+        self.remove.on_click(self._remove)
+        self.kind.param.watch(self._kind_changed, "value")
+        self.point.param.watch(self._point_changed, "value")
+        self.results.on_edit(self._edited)
+        self.results.param.watch(self._selected, "selection")
+        s.param.watch(self._refresh_options, ["problem"])
+        s.param.watch(self._refresh_table, ["hyp_results", "hypotheses"])
+        s.param.watch(self._follow_selection, ["selected_obs", "selected_point"])
+        self.plot = hv.DynamicMap(self._ellipse_plot, streams=[hv.streams.Params(
+            s, ["hyp_results", "selected_hypothesis"])])
+        self._refresh_options()
+        self._refresh_table()
+
+    # -- options --------------------------------------------------------------------------------
+    def _available(self) -> dict:
+        p = self.state.problem
+        kinds = set(p.info.kind)
+        out = {KINDS["observation"]: "observation"}
+        if (np.asarray(p.info.group) >= 0).any():
+            out[KINDS["group"]] = "group"
+        if any(k.startswith("image-") for k in kinds):
+            out[KINDS["image-point"]] = "image-point"
+            out[KINDS["transfer"]] = "transfer"
+        if any("id" in ids for ids in p.info.ids):
+            out[KINDS["control"]] = "control"
+        return out
+
+    def _refresh_options(self, *_):
+        p = self.state.problem
+        self.kind.options = self._available()
+        self.obs_input.end = p.n - 1
+        groups = {}
+        for i, g in enumerate(p.info.group):
+            if g >= 0 and int(g) not in groups.values():
+                groups[f"{int(g)}: " + self.state.describe({"kind": "group", "group": int(g)})] = int(g)
+        self.group.options = groups
+        self._kind_changed()
+
+    def _kind_changed(self, *_):
+        p = self.state.problem
+        kind = self.kind.value
+        if kind in ("image-point", "transfer"):
+            pts = sorted({str(ids["point"]) for ids in p.info.ids if "point" in ids},
+                         key=lambda x: (len(x), x))
+        elif kind == "control":
+            pts = sorted({str(ids["id"]) for ids in p.info.ids if "id" in ids}, key=lambda x: (len(x), x))
+        else:
+            pts = []
+        self.point.options = pts
+        self._point_changed()
+        self.obs_input.visible = kind == "observation"
+        self.group.visible = kind == "group"
+        self.point.visible = kind in ("image-point", "transfer", "control")
+        self.image.visible = kind == "image-point"
+        self.images.visible = kind == "transfer"
+
+    def _point_changed(self, *_):
+        p = self.state.problem
+        ims = sorted({str(ids["image"]) for ids in p.info.ids
+                      if str(ids.get("point")) == str(self.point.value) and "image" in ids})
+        self.image.options = ims
+        self.images.options = ims
+        self.images.value = ims[:2] if len(ims) >= 2 else ims
+
+    def _follow_selection(self, *_):
+        s = self.state
+        if s.selected_obs is not None:
+            self.obs_input.value = int(s.selected_obs)
+        if s.selected_point is not None:
+            pid = s.problem.points.ids[s.selected_point]
+            if pid in self.point.options:
+                self.point.value = pid
+
+    def spec(self) -> dict:
+        kind = self.kind.value
+        if kind == "observation":
+            return {"kind": kind, "index": int(self.obs_input.value)}
+        if kind == "group":
+            return {"kind": kind, "group": int(self.group.value)}
+        if kind == "image-point":
+            return {"kind": kind, "image": self.image.value, "point": self.point.value}
+        if kind == "control":
+            return {"kind": kind, "point": self.point.value}
+        return {"kind": kind, "point": self.point.value, "images": list(self.images.value)}
+
+    # -- actions --------------------------------------------------------------------------------
+    def _add(self, *_):
+        try:
+            spec = self.spec()
+            if spec["kind"] == "transfer" and len(spec["images"]) < 1:
+                raise ValueError("choose the images of the transferred point")
+            if any(v is None for v in spec.values()):
+                raise ValueError("choose the ids of the hypothesis")
+            self.state.add_hypothesis(spec)
+            self.message.visible = False
+        except (ValueError, KeyError, TypeError) as err:
+            self.message.object = f"Cannot build this hypothesis: {err}"
+            self.message.visible = True
+
+    def _remove(self, *_):
+        k = self.state.selected_hypothesis
+        if k is not None and k < len(self.state.hypotheses):
+            self.state.remove_hypothesis(k)
+
+    def _edited(self, event):
+        if event.column == "active":
+            self.state.toggle_hypothesis(int(event.row), bool(event.value))
+
+    def _selected(self, event):
+        if event.new:
+            self.state.selected_hypothesis = int(event.new[0])
+
+    # -- display --------------------------------------------------------------------------------
+    def frame(self) -> pd.DataFrame:
+        """One row per hypothesis with the core's test results (∇ŝ in the file's σ units)."""
+        s = self.state
+        factor, units = display_factor(s.problem)
+        rows = []
+        for spec, h in zip(s.hypotheses, s.hyp_results + [None] * (len(s.hypotheses) - len(s.hyp_results))):
+            row = {"active": bool(spec.get("active", True)), "hypothesis": spec.get("label", ""),
+                   "q": None, "T": None, "critical T": None, "R": None, "decision": "",
+                   "∇ŝ": "", "σ∇ŝ": "", "δ0'max": None}
+            if isinstance(h, str):
+                row["decision"] = h
+            elif h is not None:
+                first = s.hypothesis_rows(spec)[0]
+                f = factor[int(first[0])] if len(first) else 1.0
+                u = units[int(first[0])] if len(first) else ""
+                row.update({"q": h.q, "T": round(h.T, 3), "critical T": round(h.critical_T, 3),
+                            "R": None if not np.isfinite(h.R) else round(h.R, 3),
+                            "decision": "REJECTED" if h.rejected_T else "accepted",
+                            "∇ŝ": ", ".join(f"{x * f:.3g}" for x in h.nabla) + f" {u}",
+                            "σ∇ŝ": ", ".join(f"{x * f:.3g}" for x in h.nabla_sigma) + f" {u}",
+                            "δ0'max": round(h.delta0_prime_max, 2) if np.isfinite(h.delta0_prime_max) else None})
+            rows.append(row)
+        return pd.DataFrame(rows, columns=["active", "hypothesis", "q", "T", "critical T", "R", "decision",
+                                           "∇ŝ", "σ∇ŝ", "δ0'max"])
+
+    def _refresh_table(self, *_):
+        df = self.frame()
+        self.results.editors = {c: None for c in df.columns if c != "active"}
+        self.results.formatters = {"active": {"type": "tickCross"}}
+        self.results.value = df
+        k = self.state.selected_hypothesis
+        self.results.selection = [k] if k is not None and k < len(df) else []
+
+    def _ellipse_plot(self, **_):
+        s = self.state
+        k = s.selected_hypothesis
+        h = s.hyp_results[k] if k is not None and k < len(s.hyp_results) else None
+        ell, est, title = [], pd.DataFrame({"s1": [], "s2": []}), "Select a hypothesis"
+        if h is not None and not isinstance(h, str):
+            spec = s.hypotheses[k]
+            factor, units = display_factor(s.problem)
+            first = s.hypothesis_rows(spec)[0]
+            f = factor[int(first[0])] if len(first) else 1.0
+            u = units[int(first[0])] if len(first) else ""
+            if h.q == 2 and np.isfinite(h.ellipse_axes).all():
+                ell = [h.ellipse() * f]  # 73 points
+                est = pd.DataFrame({"s1": [h.nabla[0] * f], "s2": [h.nabla[1] * f]})
+                title = f"∇0s (β0) and ∇ŝ [{u}], T = {h.T:.2f}"
+            elif h.q == 1:
+                a = float(h.ellipse_axes[0]) * f
+                ell = [np.array([[-a, 0.0], [a, 0.0]])]
+                est = pd.DataFrame({"s1": [h.nabla[0] * f], "s2": [0.0]})
+                title = f"q = 1: |∇0s| = {a:.3g} {u}, ∇ŝ = {h.nabla[0] * f:.3g}"
+            else:
+                title = f"q = {h.q}: semi-axes " + ", ".join(f"{x * f:.3g}" for x in h.ellipse_axes) + f" {u}"
+        extent = float(np.abs(np.concatenate(ell)).max()) * 1.2 if ell else 1.0
+        return (hv.Path(ell, ["s1", "s2"]).opts(color="#e6007e", line_width=2, framewise=True)
+                * hv.Points(est, ["s1", "s2"]).opts(color="black", size=10, marker="x", framewise=True)
+                * hv.VLine(0).opts(color="#bbbbbb") * hv.HLine(0).opts(color="#bbbbbb")).opts(
+            title=title, xlabel="∇s₁", ylabel="∇s₂", xlim=(-extent, extent), ylim=(-extent, extent),
+            frame_width=220, frame_height=220, framewise=True)
+
+    def __panel__(self):
+        form = pn.FlexBox(self.kind, self.obs_input, self.group, self.point, self.image, self.images,
+                          pn.Column(pn.Spacer(height=18), pn.Row(self.add, self.remove)),
+                          sizing_mode="stretch_width")
+        return pn.Column(
+            "### Hypotheses (F80 eq. 10-15)", form, self.message, self.results,
+            pn.pane.HoloViews(self.plot, css_classes=["hyp-ellipse"],
+                                                   linked_axes=False),
+            sizing_mode="stretch_width")

@@ -1,0 +1,62 @@
+"""The summary header: global test, σ̂0, counts of observations, rejections, weak ones; for a
+block the images and strips."""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+import panel as pn
+import param
+
+from ..state import State
+
+
+def summary_html(s: dict) -> str:
+    """HTML cards of the numbers of :meth:`State.summary` (also used by the report)."""
+    g = s["global_test"]
+    if g["passed"] is None:
+        gt, cls = "n/a (r = 0)", "na"
+    else:
+        gt = "passed" if g["passed"] else "FAILED"
+        cls = "ok" if g["passed"] else "bad"
+    post = s["sigma0_aposteriori"]
+    cards = [
+        ("Global test", f"<b class='{cls}'>{gt}</b><br>vᵀPv = {g['statistic']:.4g}"
+         + (f" ∈ [{g['lower']:.4g}, {g['upper']:.4g}]" if g["lower"] is not None else "")),
+        ("σ0", f"a priori {s['sigma0_apriori']:.4g}<br>σ̂0 = " + ("–" if post is None else f"{post:.4g}")
+         + f" (uses {s['sigma0_used']})"),
+        ("Model", f"n = {s['n_observations']}, u = {s['n_unknowns']}, r = {s['dof']}<br>{html.escape(s['datum'])}"),
+        ("Tests", f"α0 = {s['alpha0']:g}, β0 = {s['beta0']:g}, δ0 = {s['delta0']:.3f}<br>"
+         f"<b class='{'bad' if s['n_rejected'] else 'ok'}'>{s['n_rejected']} rejected</b>"),
+        ("Reliability", f"{s['n_uncontrolled']} with r &lt; 0.1, {s['n_weak']} with r &lt; 0.3<br>"
+         f"{s['n_excluded']} excluded"),
+    ]
+    if s.get("n_images"):
+        cards.append(("Block", f"{s['n_images']} images in {s['n_strips']} strips<br>{s['n_points']} points"))
+    else:
+        cards.append(("Network", f"{s['n_points']} points"))
+    body = "".join(f"<div class='card'><div class='h'>{h}</div><div>{b}</div></div>" for h, b in cards)
+    style = ("<style>.cards{display:flex;flex-wrap:wrap;gap:8px}.card{border:1px solid #ddd;border-radius:6px;"
+             "padding:6px 10px;min-width:150px;font-size:13px;background:#fafafa}.card .h{font-size:11px;"
+             "color:#666;text-transform:uppercase}.ok{color:#1a7f37}.bad{color:#c62828}.na{color:#888}</style>")
+    return style + f"<div class='cards'>{body}</div>"
+
+
+class SummaryHeader(pn.viewable.Viewer):
+    state = param.ClassSelector(class_=State)
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        self.pane = pn.pane.HTML(pn.bind(self._html, self.state.param.results), sizing_mode="stretch_width",
+                                 css_classes=["summary"])
+
+    def _html(self, adj):
+        if adj is None:
+            return "<i>No problem loaded.</i>"
+        s = self.state.summary()
+        title = html.escape(s["title"] or Path(s["source"]).name)
+        return f"<div style='font-size:15px;margin-bottom:4px'><b>{title}</b></div>" + summary_html(s)
+
+    def __panel__(self):
+        return self.pane

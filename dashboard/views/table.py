@@ -1,0 +1,108 @@
+"""The tests table: every observation with the core's v, w, τ, r, MDB, δ̄0 and the decision.
+
+Selecting one row selects that observation in the state (and so on the maps); a point selected
+on a map selects all rows of its observations here. The table is sortable, has header filters
+and can be limited to the rows of the current selection.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import panel as pn
+from bokeh.models.widgets.tables import NumberFormatter
+import param
+
+from ..state import State
+
+COLUMNS = {"kind": "kind [unit]", "ids": "ids", "v": "v", "w": "w", "tau": "τ", "r": "r",
+           "mdb": "MDB", "ext": "δ̄0", "rejected": "rej.", "excluded": "excl."}
+WIDTHS = {"index": 48, "kind": 105, "ids": 112, "rejected": 44, "excluded": 44}
+TABLE_CSS = ".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; }"
+
+
+class TestsTable(pn.viewable.Viewer):
+    """A :class:`panel.widgets.Tabulator` of the observation table of the state."""
+
+    state = param.ClassSelector(class_=State)
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        self._syncing = False
+        self.only_selection = pn.widgets.Checkbox(name="only rows of the selected point / observation",
+                                                  value=False)
+        self.table = pn.widgets.Tabulator(
+            self._frame(), layout="fit_data_stretch", sizing_mode="stretch_width", height=560,
+            selectable=True, show_index=True, disabled=True,
+            pagination="local", page_size=200,
+            header_filters={"kind": {"type": "input", "func": "like", "placeholder": "kind"},
+                            "ids": {"type": "input", "func": "like", "placeholder": "ids"},
+                            "rejected": {"type": "tickCross", "tristate": True, "indeterminateValue": None},
+                            "excluded": {"type": "tickCross", "tristate": True, "indeterminateValue": None}},
+            formatters={"rejected": {"type": "tickCross"}, "excluded": {"type": "tickCross"},
+                        "v": NumberFormatter(format="0.[000]"), "w": NumberFormatter(format="0.000"),
+                        "tau": NumberFormatter(format="0.000"), "r": NumberFormatter(format="0.000"),
+                        "mdb": NumberFormatter(format="0.[000]"), "ext": NumberFormatter(format="0.00")},
+            titles=COLUMNS, css_classes=["tests-table"], stylesheets=[TABLE_CSS], widths=WIDTHS,
+            text_align={"v": "right", "w": "right", "tau": "right", "r": "right", "mdb": "right", "ext": "right"})
+        self.only_selection.param.watch(self._refresh, "value")
+        self.table.param.watch(self._on_selection, "selection")
+        self.state.param.watch(self._refresh, ["results"])
+        self.state.param.watch(self._select_from_state, ["selected_point", "selected_obs"])
+
+    def _frame(self):
+        obs, _ = self.state.frames()
+        df = obs[list(COLUMNS)].copy()
+        df["kind"] = obs["kind"] + " [" + obs["unit"] + "]"
+        rows = self._state_rows()
+        if self.only_selection.value and rows is not None:
+            df = df.loc[df.index.isin(rows)]
+        for c in ("v", "w", "tau", "r", "mdb", "ext"):
+            df[c] = df[c].astype(float)
+        return df
+
+    def _state_rows(self):
+        s = self.state
+        if s.selected_point is not None:
+            return s.observations_of_point(s.selected_point)
+        if s.selected_obs is not None:
+            return [s.selected_obs]
+        return None
+
+    def _refresh(self, *_):
+        self._syncing = True
+        try:
+            self.table.value = self._frame()
+            self._apply_selection()
+        finally:
+            self._syncing = False
+
+    def _select_from_state(self, *_):
+        if self.only_selection.value:
+            self._refresh()
+            return
+        self._apply_selection()
+
+    def _apply_selection(self):
+        rows = self._state_rows()
+        sel = [] if rows is None else [int(i) for i in rows]
+        positions = list(np.flatnonzero(np.isin(self.table.value.index.to_numpy(), sel)))
+        if positions != list(self.table.selection):
+            old, self._syncing = self._syncing, True
+            try:
+                self.table.selection = [int(p) for p in positions]
+            finally:
+                self._syncing = old
+
+    def _on_selection(self, event):
+        if self._syncing:
+            return
+        added = sorted(set(event.new) - set(event.old or []))
+        if added:
+            index = int(self.table.value.index[added[-1]])
+            self.state.param.update(selected_point=None, selected_obs=index)
+            self._select_from_state()
+        elif not event.new:
+            self.state.param.update(selected_point=None, selected_obs=None)
+
+    def __panel__(self):
+        return pn.Column(self.only_selection, self.table, sizing_mode="stretch_width")

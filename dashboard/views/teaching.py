@@ -1,0 +1,84 @@
+"""Teaching views: the power function of the test and the MDB against the redundancy number.
+
+The left plot shows the density of T under H0 (central χ²(q)) and under Ha (non-central
+χ'²(q, δ0²)), the critical value k = χ²_{1−α}(q) with the size α (area of H0 right of k) and
+the power β0 (area of Ha right of k). δ0 and k come from the core (:mod:`baarda.stats`); the
+densities are only drawn here. The right plot is ∇0l/σ = δ0/√r (F80 §5) with the observations
+of the problem on it.
+"""
+
+from __future__ import annotations
+
+import holoviews as hv
+import numpy as np
+import panel as pn
+import param
+from scipy import stats as sps
+
+from baarda import stats
+
+from ..state import State
+
+
+class TeachingView(pn.viewable.Viewer):
+    state = param.ClassSelector(class_=State)
+    q = param.Integer(default=1, bounds=(1, 6), doc="Dimension of the test shown.")
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        self.q_widget = pn.widgets.IntSlider(name="test dimension q", start=1, end=6, value=self.q, width=220)
+        self.q_widget.link(self, value="q")
+        self.power = hv.DynamicMap(self._power, streams=[hv.streams.Params(self.state, ["results"]),
+                                                         hv.streams.Params(self, ["q"])])
+        self.mdb = hv.DynamicMap(self._mdb_curve, streams=[hv.streams.Params(self.state, ["results"])])
+
+    def _power(self, **_):
+        o = self.state.results.options
+        q = self.q
+        alpha = stats.alpha_b_method(o.alpha, o.beta, q) if o.b_method else o.alpha
+        d0 = stats.delta0(alpha, o.beta, q)
+        k = stats.critical_chi2(alpha, q)
+        lam = d0 ** 2
+        top = max(lam + q + 5 * np.sqrt(2 * (q + 2 * lam)), k * 1.3)
+        x = np.linspace(1e-3, top, 600)
+        f0 = sps.chi2.pdf(x, q)
+        fa = sps.ncx2.pdf(x, q, lam)
+        ymax = float(np.nanmax(fa)) * 2.5
+        f0 = np.minimum(f0, ymax)
+        right = x >= k
+        kd, vd = "T", "density"
+        return (hv.Area((x[right], fa[right]), kd, vd, label=f"power β0 = {o.beta:.2f}").opts(
+                    color="#e6007e", alpha=0.3)
+                * hv.Area((x[right], f0[right]), kd, vd, label=f"size α = {alpha:.2g}").opts(color="#1f4e9c", alpha=0.6)
+                * hv.Curve((x, f0), kd, vd, label=f"H0: χ²({q})").opts(color="#1f4e9c", line_width=2)
+                * hv.Curve((x, fa), kd, vd, label=f"Ha: χ'²({q}, δ0² = {lam:.2f})").opts(color="#e6007e", line_width=2)
+                * hv.VLine(k).opts(color="black", line_dash="dashed")
+                * hv.Text(k, ymax * 0.9, f" k = {k:.2f}", halign="left", kdims=[kd, vd]).opts(text_font_size="10pt")
+                * hv.VLine(lam).opts(color="#e6007e", line_dash="dotted")
+                * hv.Text(lam, ymax * 0.75, f" δ0² (δ0 = {d0:.2f})", halign="left", kdims=[kd, vd]).opts(text_font_size="10pt")
+                ).opts(title=f"Power of the {q}-dimensional test (α = {alpha:.2g}, β0 = {o.beta:.2f})",
+                       xlabel="T", ylabel="density", ylim=(0, ymax), responsive=True, height=290,
+                       legend_position="top_right", fontscale=0.9)
+
+    def _mdb_curve(self, **_):
+        adj = self.state.results
+        obs, _ = self.state.frames()
+        r = np.linspace(0.02, 1.0, 200)
+        d0 = adj.delta0
+        live = obs[~obs["excluded"] & np.isfinite(obs["mdb_sigma"])]
+        return (hv.Curve((r, d0 / np.sqrt(r)), "r", "mdb_sigma", label="δ0 / √r").opts(color="black")
+                * hv.Points(live, ["r", "mdb_sigma"], ["kind", "ids"]).opts(
+                    color="kind", cmap="Category10", size=7, tools=["hover"], alpha=0.8, show_legend=False)
+                * hv.VSpan(0, 0.1).opts(color="#d7191c", alpha=0.1)
+                * hv.VSpan(0.1, 0.3).opts(color="#fdae61", alpha=0.1)
+                ).opts(title=f"MDB in units of σ against the redundancy number (δ0 = {d0:.2f})",
+                       xlim=(0, 1.02), ylim=(0, max(6 * d0, 1.0)), responsive=True, height=290,
+                       fontscale=0.9, xlabel="redundancy number r", ylabel="∇0l / σ")
+
+    def __panel__(self):
+        return pn.Column(self.q_widget,
+                         pn.pane.HoloViews(self.power, sizing_mode="stretch_width", css_classes=["teach-power"],
+                                           linked_axes=False),
+                         pn.pane.HoloViews(self.mdb, sizing_mode="stretch_width", css_classes=["teach-mdb"],
+                                           linked_axes=False),
+                         sizing_mode="stretch_width")

@@ -1,0 +1,222 @@
+"""The served dashboard in Chromium: loading, every view, clicks, hypotheses, α0 (issue 4).
+
+Screenshots of every view go to ``screenshots/`` (gitignored).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.browser
+
+MAP_TABS = {"Layout": "Layout", "Redundancy": "Redundancy", "w": "|w|", "External": "External",
+            "MDB": "Minimal detectable", "Precision": "Standard ellipses"}
+RIGHT_TABS = ["Tests table", "Hypotheses", "Teaching"]
+BENIGN = ("GL Driver Message", "WebGL", "[bokeh] Lost websocket")
+
+JS_COLUMN = """(col) => {
+  const out = [];
+  for (const doc of Bokeh.documents) for (const m of doc.all_models) {
+    if (m.constructor.__name__ !== 'ColumnDataSource') continue;
+    const d = m.data;
+    const get = (k) => d instanceof Map ? d.get(k) : d[k];
+    const v = get(col);
+    if (v !== undefined) out.push(Array.from(v));
+  }
+  return out;
+}"""
+
+JS_FIGURE_PIXELS = """([prefix, xs, ys]) => {
+  const views = [];
+  const walk = (v) => { views.push(v); const c = v.children ? Array.from(v.children()) : []; c.forEach(walk); };
+  for (const r of Object.values(Bokeh.index)) walk(r);
+  const pv = views.find(v => v.model.constructor.__name__ === 'Figure' && v.model.title
+                        && String(v.model.title.text).startsWith(prefix) && v.el.isConnected
+                        && v.el.getBoundingClientRect().width > 0);
+  if (!pv) return null;
+  const rect = pv.el.getBoundingClientRect();
+  return xs.map((x, i) => [rect.left + pv.frame.x_scale.compute(x), rect.top + pv.frame.y_scale.compute(ys[i])]);
+}"""
+
+JS_TABLE_SELECTION = """() => {
+  for (const doc of Bokeh.documents) for (const m of doc.all_models)
+    if (m.constructor.__name__ === 'DataTabulator' && m.css_classes.includes('tests-table'))
+      return Array.from(m.source.selected.indices);
+  return null;
+}"""
+
+JS_TITLES = """() => {
+  const out = [];
+  for (const doc of Bokeh.documents) for (const m of doc.all_models)
+    if (m.constructor.__name__ === 'Title' && m.text) out.push(String(m.text));
+  return out;
+}"""
+
+
+def open_app(page, served):
+    errors = []
+    page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("requestfailed", lambda r: errors.append(f"request failed: {r.url}"))
+    n = len(served.templates)
+    page.goto(served.url)
+    page.wait_for_function("window.Bokeh && Bokeh.documents.length > 0", timeout=60_000)
+    deadline = time.time() + 30
+    while len(served.templates) <= n and time.time() < deadline:
+        time.sleep(0.1)
+    try:
+        page.locator(".summary").get_by_text("Global test").first.wait_for(timeout=60_000)
+    except Exception:
+        page.screenshot(path="screenshots/failed-load.png")
+        raise
+    page.wait_for_timeout(1500)
+    return served.latest().state, errors
+
+
+def click_tab(page, name):
+    page.get_by_role("tab", name=name, exact=True).click() if page.get_by_role("tab", name=name).count() \
+        else page.get_by_text(name, exact=True).first.click()
+    page.wait_for_timeout(1200)
+
+
+def wait_until(cond, timeout=15.0):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if cond():
+            return True
+        time.sleep(0.1)
+    return cond()
+
+
+def wait_for_title(page, prefix, timeout=30_000):
+    """Wait until a Bokeh figure titled ``prefix…`` is in the document."""
+    page.wait_for_function("(p) => { for (const d of Bokeh.documents) for (const m of d.all_models)"
+                           " if (m.constructor.__name__ === 'Title' && String(m.text).startsWith(p)) return true;"
+                           " return false; }", arg=prefix, timeout=timeout)
+
+
+def real_errors(errors):
+    return [e for e in errors if not any(b in e for b in BENIGN)]
+
+
+def test_page_loads_without_console_errors(page, network_app, screenshots):
+    state, errors = open_app(page, network_app)
+    assert page.title() == "baarda"
+    assert page.get_by_text("Frantisek Charamza").count() >= 1
+    page.screenshot(path=str(screenshots / "network-start.png"))
+    assert real_errors(errors) == []
+
+
+@pytest.mark.parametrize("which", ["network", "block"])
+def test_every_view_renders(page, which, network_app, block_app, screenshots):
+    served = network_app if which == "network" else block_app
+    state, errors = open_app(page, served)
+    for tab, prefix in MAP_TABS.items():
+        click_tab(page, tab)
+        wait_for_title(page, prefix)
+        page.wait_for_timeout(500)
+        page.screenshot(path=str(screenshots / f"{which}-map-{tab.split()[0].lower()}.png"))
+    for tab in RIGHT_TABS:
+        click_tab(page, tab)
+        if tab == "Teaching":
+            wait_for_title(page, "Power of the")
+            wait_for_title(page, "MDB in units of σ")
+        page.screenshot(path=str(screenshots / f"{which}-right-{tab.split()[0].lower()}.png"))
+    if which == "block":
+        click_tab(page, "Image v")
+        wait_for_title(page, "Image ")
+        page.screenshot(path=str(screenshots / f"{which}-map-image-residuals.png"))
+    assert real_errors(errors) == []
+
+
+def test_click_point_selects_table_rows(page, network_app, screenshots):
+    state, errors = open_app(page, network_app)
+    click_tab(page, "Layout")
+    _, pts = state.frames()
+    k = int(np.argmax(pts["n_obs"].to_numpy()))
+    xy = page.evaluate(JS_FIGURE_PIXELS, ["Layout", [float(pts["x"].iat[k])], [float(pts["y"].iat[k])]])
+    assert xy, "layout figure not found"
+    page.mouse.click(*xy[0])
+    assert wait_until(lambda: state.selected_point == k), state.selected_point
+    rows = state.observations_of_point(k)
+    page.wait_for_timeout(800)
+    selected = page.evaluate(JS_TABLE_SELECTION)
+    assert selected is not None and len(selected) == len(rows)
+    assert page.locator(".tabulator-row.tabulator-selected").count() >= 1
+    page.screenshot(path=str(screenshots / "network-click-point.png"))
+    assert real_errors(errors) == []
+
+
+def test_hypothesis_shows_T_and_ellipse(page, block_app, screenshots):
+    state, errors = open_app(page, block_app)
+    click_tab(page, "Hypotheses")
+    page.locator(".hyp-kind select").first.select_option(label="image point (x, y)")
+    page.wait_for_timeout(800)
+    obs, _ = state.frames()
+    best = obs[obs["kind"] == "image-x"].sort_values("r", ascending=False).index[0]
+    ids = state.problem.info.ids[best]
+    page.locator(".hyp-point select").first.select_option(str(ids["point"]))
+    page.wait_for_timeout(800)
+    page.locator(".hyp-image select").first.select_option(str(ids["image"]))
+    page.wait_for_timeout(500)
+    page.get_by_role("button", name="Test", exact=True).click()
+    assert wait_until(lambda: state.hyp_results and state.hyp_results[-1] is not None)
+    h = state.hyp_results[-1]
+    assert state.hypotheses[-1] == {**state.hypotheses[-1], "kind": "image-point", "image": str(ids["image"]),
+                                    "point": str(ids["point"])}
+    assert h.q == 2
+    page.wait_for_timeout(1500)
+    assert page.get_by_text(f"{h.T:.3f}".rstrip("0").rstrip(".")).count() >= 1
+    titles = page.evaluate(JS_TITLES)
+    assert any(t.startswith("∇0s (β0)") and f"T = {h.T:.2f}" in t for t in titles), titles
+    ellipse = [c for c in page.evaluate(JS_COLUMN, "xs") if c and len(c[0]) == 73]
+    assert ellipse, "lower-bound ellipse path not in the page"
+    page.screenshot(path=str(screenshots / "block-hypothesis.png"))
+    click_tab(page, "Layout")
+    page.screenshot(path=str(screenshots / "block-hypothesis-map.png"))
+    assert any("lower-bound ellipse" in t for t in page.evaluate(JS_TITLES))
+    assert real_errors(errors) == []
+
+
+def test_network_hypothesis_T_in_table(page, network_app):
+    state, errors = open_app(page, network_app)
+    click_tab(page, "Hypotheses")
+    box = page.locator(".hyp-obs input").first
+    box.fill("17")
+    box.press("Enter")
+    page.wait_for_timeout(500)
+    page.get_by_role("button", name="Test", exact=True).click()
+    assert wait_until(lambda: state.hyp_results and state.hyp_results[-1] is not None)
+    h = state.hyp_results[-1]
+    assert state.hypotheses[-1]["index"] == 17
+    assert h.T == pytest.approx(state.results.w[17] ** 2, rel=1e-9)
+    page.wait_for_timeout(1000)
+    assert page.get_by_text(f"{round(h.T, 3)}").count() >= 1
+    assert real_errors(errors) == []
+
+
+def test_alpha_changes_delta0_and_mdb_data(page, network_app, screenshots):
+    state, errors = open_app(page, network_app)
+    click_tab(page, "MDB")
+    before = page.evaluate(JS_COLUMN, "mdb_sigma")
+    assert before
+    d_old = state.results.delta0
+    assert page.get_by_text(f"δ0 = {d_old:.3f}").count() >= 1
+    handle = page.locator(".alpha-slider .noUi-handle").first
+    handle.focus()
+    handle.press("ArrowRight")
+    assert wait_until(lambda: state.results.delta0 != d_old)
+    d_new = state.results.delta0
+    page.wait_for_timeout(1500)
+    assert page.get_by_text(f"δ0 = {d_new:.3f}").count() >= 1
+    after = page.evaluate(JS_COLUMN, "mdb_sigma")
+    ratio = d_new / d_old
+    b = np.array([v for col in before for v in col], dtype=float)
+    a = np.array([v for col in after for v in col], dtype=float)
+    ok = np.isfinite(b)
+    np.testing.assert_allclose(a[ok], b[ok] * ratio, rtol=1e-6)
+    page.screenshot(path=str(screenshots / "network-alpha-changed.png"))
+    assert real_errors(errors) == []

@@ -1,0 +1,396 @@
+"""The dashboard's state and views without a browser (issue 4).
+
+- toggling a hypothesis gives exactly the core's ``adj.test(H)``;
+- excluding an observation equals a fresh core adjustment without it (and the "weight zero"
+  limit of the full problem);
+- α0 changes δ0 and the MDB data of the plot's ColumnDataSource;
+- every view builds its Bokeh model; map clicks and table rows select each other;
+- bad files give a message, never a traceback; the HTML report is self-contained.
+
+The tiny block (2 strips × 3 images, 25 points; :func:`tiny_block_problem`) is built with the
+core's :mod:`baarda.bundle`; ``data/demo-block.json`` is used as well when it exists.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("panel")
+pytest.importorskip("holoviews")
+
+import holoviews as hv  # noqa: E402
+import panel as pn  # noqa: E402
+from bokeh.document import Document  # noqa: E402
+from bokeh.models import ColumnDataSource  # noqa: E402
+
+from baarda import stats  # noqa: E402
+from baarda.adjust import Options, adjust  # noqa: E402
+from baarda.dashboard.state import State  # noqa: E402
+from baarda.dashboard.subset import without  # noqa: E402
+from baarda.hypotheses import selection  # noqa: E402
+from extdata import GAMA, require_extdata  # noqa: E402
+
+hv.extension("bokeh", logo=False)
+
+DEMO_BLOCK = Path(__file__).resolve().parents[1] / "data" / "demo-block.json"
+NETWORKS = ["gama-local.gkf", "krumm/1D/Niemeier_Height_free.gkf", "tetrahedron.gkf",
+            "krumm/2D/Grossmann_Direction_fix.gkf"]
+
+
+from baarda.bundle import (Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem,
+                           project)
+
+
+def tiny_block_problem(seed: int = 1):
+    rng = np.random.default_rng(seed)
+    cam = Camera("cam", c=150.0, width=230.0, height=230.0, unit="mm")
+    H = 1500.0
+    images = []
+    for s, Y0 in enumerate((0.0, 1400.0)):
+        for j in range(3):
+            images.append(Image(f"{s + 1}{j + 1:02d}", "cam", 920.0 * j, Y0, H, 0.0, 0.0, 0.0,
+                                strip=str(s + 1)))
+    points = []
+    k = 0
+    for Y in (-300.0, 300.0, 700.0, 1100.0, 1700.0):
+        for X in (100.0, 460.0, 920.0, 1380.0, 1740.0):
+            k += 1
+            corner = X in (100.0, 1740.0) and Y in (-300.0, 1700.0)
+            status = "control" if corner or k == 13 else ("check" if k == 7 else "tie")
+            Z = 10.0 * np.sin(X / 500.0) + 5.0 * np.cos(Y / 400.0)
+            ref = (X, Y, Z) if status != "tie" else None
+            points.append(ObjectPoint(f"P{k}", X, Y, Z, status=status, ref=ref, sigma_h=0.05,
+                                      sigma_v=0.05))
+    im_idx, pt_idx = [], []
+    P = np.array([[p.X, p.Y, p.Z] for p in points])
+    for i, im in enumerate(images):
+        for j, p in enumerate(points):
+            xy = project(cam, [im], P[j])[0]
+            if abs(xy[0]) < 115 and abs(xy[1]) < 115:
+                im_idx.append(i)
+                pt_idx.append(j)
+    im_idx, pt_idx = np.array(im_idx), np.array(pt_idx)
+    xy = project(cam, [images[i] for i in im_idx], P[pt_idx])
+    xy = xy + rng.normal(0, 0.005, xy.shape)
+    xy[3, 0] += 0.040
+    m = im_idx.size
+    obs = ImageObservations(im_idx, pt_idx, xy, np.repeat((0.005 ** 2 * np.eye(2))[None], m, 0),
+                            np.zeros(m, dtype=np.int64))
+    approx_pts = tuple(ObjectPoint(p.id, p.X + 3.0, p.Y - 2.0, p.Z + 1.0, p.status, p.ref, p.sigma_h,
+                                   p.sigma_v) for p in points)
+    approx_imgs = tuple(Image(im.id, im.camera, im.X0 + 2.0, im.Y0 - 1.0, im.Z0 + 1.0, 0.001, -0.001,
+                              0.002, im.strip) for im in images)
+    block = Block((cam,), approx_imgs, approx_pts, obs, title="tiny test block", source="tiny-block")
+    return build_block_problem(block)
+
+
+# --------------------------------------------------------------------------------------------
+# fixtures
+# --------------------------------------------------------------------------------------------
+def network_state(name: str) -> State:
+    path = require_extdata(GAMA) / name
+    st = State(path)
+    assert st.error == "" and st.results is not None
+    return st
+
+
+@pytest.fixture(scope="module")
+def block_problem():
+    return tiny_block_problem()
+
+
+def fresh(problem, excluded=(), sigma_act=None, options=None):
+    reduced, kept = without(problem, excluded)
+    if sigma_act:
+        reduced = replace(reduced, sigma_act=sigma_act)
+    return adjust(reduced, options or Options()), kept
+
+
+# --------------------------------------------------------------------------------------------
+# hypotheses
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", NETWORKS)
+def test_toggle_observation_hypothesis_is_core_test(name):
+    st = network_state(name)
+    adj = st.results
+    i = int(np.nanargmax(np.abs(adj.w)))
+    k = st.add_hypothesis({"kind": "observation", "index": i})
+    h = st.hyp_results[k]
+    ref = adj.test(selection(adj.n, [i]))
+    assert h.T == pytest.approx(ref.T, rel=1e-12)
+    assert h.T == pytest.approx(adj.w[i] ** 2, rel=1e-9)
+    assert h.critical_T == ref.critical_T and h.rejected_T == ref.rejected_T
+    st.toggle_hypothesis(k)
+    assert st.hyp_results[k] is None
+    st.toggle_hypothesis(k)
+    assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-12)
+
+
+def test_group_hypothesis_matches_core_groups():
+    st = network_state("tetrahedron.gkf")
+    adj = st.results
+    g = adj.groups[0]
+    k = st.add_hypothesis({"kind": "group", "group": g["group"]})
+    assert st.hyp_results[k].T == pytest.approx(g["T"], rel=1e-12)
+    assert st.hyp_results[k].q == g["dimension"]
+
+
+def test_block_hypotheses_match_bundle_builders(block_problem):
+    from baarda import bundle
+
+    st = State(problem=block_problem)
+    adj = st.results
+    k1 = st.add_hypothesis({"kind": "transfer", "point": "P8", "images": ["101", "102"]})
+    k2 = st.add_hypothesis({"kind": "control", "point": "P1"})
+    k3 = st.add_hypothesis({"kind": "image-point", "image": "101", "point": "P8"})
+    refs = [adj.test(bundle.h_point_transfer(adj.problem, "P8", ["101", "102"])),
+            adj.test(bundle.h_control_point(adj.problem, "P1")),
+            adj.test(bundle.h_image_point(adj.problem, "101", "P8"))]
+    for k, ref in zip((k1, k2, k3), refs):
+        assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-10)
+        assert st.hyp_results[k].q == ref.q
+    assert st.hyp_results[k1].q == 2 and st.hyp_results[k1].ellipse().shape[1] == 2
+
+
+def test_hypothesis_follows_exclusion_and_alpha():
+    st = network_state("gama-local.gkf")
+    k = st.add_hypothesis({"kind": "observation", "index": 10})
+    st.exclude(3)
+    adj = st.results
+    j = int(st.reduced_index([10])[0])
+    assert st.hyp_results[k].T == pytest.approx(adj.test(selection(adj.n, [j])).T, rel=1e-12)
+    st.alpha0 = 0.05
+    assert st.hyp_results[k].critical_T == pytest.approx(stats.critical_chi2(0.05, 1))
+    st.exclude(10)
+    assert isinstance(st.hyp_results[k], str) and "no (included) observations" in st.hyp_results[k]
+
+
+# --------------------------------------------------------------------------------------------
+# exclusion
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", NETWORKS)
+def test_exclusion_equals_fresh_adjustment(name):
+    st = network_state(name)
+    n = st.problem.n
+    i = int(np.argmax(st.results.r))           # the best controlled one can go
+    assert st.exclude(i), st.error
+    ref, kept = fresh(st.problem, [i], sigma_act=st.sigma0_mode)
+    adj = st.results
+    assert adj.n == n - 1 and list(st.kept) == list(kept)
+    assert adj.dof == ref.dof
+    np.testing.assert_allclose(adj.r, ref.r, atol=1e-12)
+    np.testing.assert_allclose(adj.w, ref.w, atol=1e-9, equal_nan=True)
+    np.testing.assert_allclose(adj.mdb, ref.mdb, rtol=1e-9)
+    obs, _ = st.frames()
+    assert obs["excluded"].sum() == 1 and np.isnan(obs["r"].iat[i])
+    assert st.include(i)
+    assert st.results.n == n
+
+
+def test_exclusion_is_the_weight_zero_limit():
+    """Independent of the subset code: the full problem with the excluded observation's variance
+    multiplied by 1e12 has the same r and w in the other observations."""
+    st = network_state("gama-local.gkf")
+    p = st.problem
+    i = 7
+    st.exclude(i)
+    factors = np.ones(len(p.cov.blocks))
+    factors[p.cov.cluster[i]] = 1e12
+    assert p.cov.members[p.cov.cluster[i]].size == 1
+    heavy = adjust(replace(p, cov=p.cov.scaled(factors), sigma_act=st.sigma0_mode), Options())
+    others = np.setdiff1d(np.arange(p.n), [i])
+    np.testing.assert_allclose(st.results.r, heavy.r[others], atol=1e-7)
+    np.testing.assert_allclose(st.results.w, heavy.w[others], atol=1e-5)
+    assert st.results.dof == heavy.dof - 1   # the weight-zero observation is still counted there
+
+
+def test_failed_exclusion_is_reverted_with_a_message():
+    st = network_state("krumm/2D/Grossmann_Direction_fix.gkf")
+    weakest = int(np.argmin(st.results.r))
+    adj0 = st.results
+    rows = st.observations_of_point(st.obs_points[weakest][-1])
+    ok = True
+    for i in rows:
+        ok = st.exclude(i)
+        if not ok:
+            break
+    if ok:
+        pytest.skip("no exclusion made this network singular")
+    assert "Adjustment failed" in st.error
+    assert st.results.n == adj0.n - (len(st.excluded))
+
+
+# --------------------------------------------------------------------------------------------
+# α0, β0, σ0 and the plot data
+# --------------------------------------------------------------------------------------------
+def sources_with(root, column):
+    return [m for m in root.select({"type": ColumnDataSource}) if column in m.data]
+
+
+def test_alpha_changes_delta0_and_mdb_plot_data():
+    from baarda.dashboard.views import MDBMap
+
+    st = network_state("gama-local.gkf")
+    view = MDBMap(state=st)
+    root = pn.panel(view).get_root(Document())
+    d_old = st.results.delta0
+    before = [np.asarray(s.data["mdb_sigma"], dtype=float).copy() for s in sources_with(root, "mdb_sigma")]
+    assert before and d_old == pytest.approx(stats.delta0(0.001, 0.8, 1))
+    st.alpha0 = 0.01
+    assert st.results.delta0 == pytest.approx(stats.delta0(0.01, 0.8, 1))
+    ref = adjust(replace(st.results.problem), Options(alpha=0.01))
+    np.testing.assert_allclose(st.results.mdb, ref.mdb, rtol=1e-9)
+    after = [np.asarray(s.data["mdb_sigma"], dtype=float) for s in sources_with(root, "mdb_sigma")]
+    ratio = st.results.delta0 / d_old
+    for b, a in zip(before, after):
+        np.testing.assert_allclose(a, b * ratio, rtol=1e-9)
+    st.beta0 = 0.9
+    assert st.results.delta0 == pytest.approx(stats.delta0(0.01, 0.9, 1))
+
+
+def test_sigma0_mode_switches_decision_and_covariance():
+    st = network_state("gama-local.gkf")
+    st.sigma0_mode = "apriori"
+    cov_a = st.results.point_cov.copy()
+    st.sigma0_mode = "aposteriori"
+    f = (st.results.sigma0_post / st.results.sigma0) ** 2
+    np.testing.assert_allclose(st.results.point_cov, cov_a * f, rtol=1e-8, atol=1e-18)
+    obs, _ = st.frames()
+    np.testing.assert_array_equal(obs["rejected"].to_numpy(),
+                                  np.nan_to_num(np.abs(st.results.tau)) > st.results.critical_tau)
+
+
+# --------------------------------------------------------------------------------------------
+# views
+# --------------------------------------------------------------------------------------------
+def all_views(st):
+    from baarda.dashboard import views as V
+
+    out = [cls(state=st) for cls in V.MAP_VIEWS]
+    out += [V.TestsTable(state=st), V.HypothesisPanel(state=st), V.TeachingView(state=st),
+            V.Controls(state=st), V.SelectionPanel(state=st), V.FilePanel(state=st),
+            V.SummaryHeader(state=st)]
+    if st.images:
+        out.append(V.ImageResidualView(state=st))
+    return out
+
+
+@pytest.mark.parametrize("name", NETWORKS)
+def test_network_views_build_bokeh_models(name):
+    st = network_state(name)
+    for view in all_views(st):
+        root = pn.panel(view).get_root(Document())
+        assert root is not None
+    st.selected_obs = 0          # the deformation field and selection layers update
+    st.add_hypothesis({"kind": "observation", "index": 0})
+
+
+def test_block_views_build_bokeh_models(block_problem):
+    from baarda.dashboard.views import ImageResidualView, LayoutMap
+
+    st = State(problem=block_problem)
+    for view in all_views(st):
+        pn.panel(view).get_root(Document())
+    root = pn.panel(LayoutMap(state=st)).get_root(Document())
+    assert sources_with(root, "image"), "footprints / projection centres are drawn"
+    img = ImageResidualView(state=st)
+    root = pn.panel(img).get_root(Document())
+    df = img.data()
+    assert len(df) > 3
+    src = [s for s in sources_with(root, "abs_w") if "x1" in s.data][0]
+    x1 = np.asarray(src.data["x1"]).copy()
+    st.exaggeration = 2 * st.exaggeration
+    x1b = np.asarray(src.data["x1"])
+    x = np.asarray(src.data["x"])
+    np.testing.assert_allclose(x1b - x, 2 * (x1 - x), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.skipif(not DEMO_BLOCK.exists(), reason="data/demo-block.json not written yet")
+def test_demo_block_app_builds():
+    from baarda.dashboard.app import create_app
+
+    tpl = create_app(DEMO_BLOCK)
+    assert tpl.state.error == "" and tpl.state.images
+    tpl.server_doc(Document())
+
+
+def test_app_builds_with_network_and_reports_missing_default(tmp_path, monkeypatch):
+    from baarda.dashboard import app
+
+    tpl = app.create_app(require_extdata(GAMA) / "gama-local.gkf")
+    tpl.server_doc(Document())
+    assert app.default_path(tmp_path) is None
+    (tmp_path / "demo-levelling.gkf").write_text("x")
+    assert app.default_path(tmp_path).name == "demo-levelling.gkf"
+    (tmp_path / "demo-block.json").write_text("{}")
+    assert app.default_path(tmp_path).name == "demo-block.json"
+    monkeypatch.setattr(app, "DATA", tmp_path / "nothing")
+    tpl = app.create_app(None)
+    assert "No file given" in tpl.state.error
+
+
+def test_map_click_selects_table_rows_and_back():
+    from baarda.dashboard.views import LayoutMap, TestsTable
+
+    st = network_state("gama-local.gkf")
+    m = LayoutMap(state=st)
+    table = TestsTable(state=st)
+    pn.panel(m).get_root(Document())
+    _, pts = st.frames()
+    k = 5
+    m.tap.event(x=float(pts["x"].iat[k]), y=float(pts["y"].iat[k]))
+    assert st.selected_point == k
+    rows = st.observations_of_point(k)
+    assert sorted(table.table.value.index[table.table.selection]) == sorted(rows)
+    table.table.selection = [12]
+    assert st.selected_obs == int(table.table.value.index[12]) and st.selected_point is None
+
+
+def test_controls_drive_state():
+    from baarda.dashboard.views import Controls
+
+    st = network_state("gama-local.gkf")
+    c = Controls(state=st)
+    c.alpha.value = 0.05
+    assert st.alpha0 == 0.05 and st.results.delta0 == pytest.approx(stats.delta0(0.05, 0.8, 1))
+    assert "δ0 = " in c._delta_text(st.results)
+    st.beta0 = 0.9
+    assert c.beta.value == 0.9
+
+
+def test_bad_upload_gives_a_message(tmp_path):
+    from baarda.dashboard.views import FilePanel
+
+    st = network_state("gama-local.gkf")
+    adj = st.results
+    fp = FilePanel(state=st)
+    fp.upload.filename = "broken.gkf"
+    fp.upload.value = b"<gama-local><network><points-observations><obs"
+    assert st.error.startswith("Cannot read broken.gkf") and "Traceback" not in st.error
+    assert fp.alert.visible and st.results is adj
+    fp.upload.filename = "photo.png"
+    fp.upload.value = b"\x89PNG\r\n"
+    assert "Cannot read photo.png" in st.error
+    fp.upload.filename = "ok.gkf"
+    fp.upload.value = (require_extdata(GAMA) / "triangle-1.gkf").read_bytes()
+    assert st.error == "" and not fp.alert.visible and st.results is not adj
+
+
+def test_report_is_standalone(tmp_path, block_problem):
+    from baarda.dashboard.report import write_report
+
+    st = network_state("gama-local.gkf")
+    st.exclude(2)
+    st.add_hypothesis({"kind": "observation", "index": 4})
+    path = write_report(st.results, tmp_path / "r.html", state=st)
+    text = path.read_text(encoding="utf-8")
+    assert "Bokeh" in text and "global test" in text.lower() and "Excluded observations" in text
+    assert not re.search(r"<(script|link)[^>]+(src|href)=\"https?://", text)
+    adj = adjust(block_problem)
+    text = write_report(adj, tmp_path / "b.html").read_text(encoding="utf-8")
+    assert "images in" in text
