@@ -1,0 +1,52 @@
+"""`baarda serve` with no file serves the demo block on 127.0.0.1 and prints the URL."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+
+import pytest
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_serve_demo_on_loopback(tmp_path):
+    port = _free_port()
+    env = dict(os.environ, DISPLAY="", BROWSER="false")
+    proc = subprocess.Popen([sys.executable, "-m", "baarda.cli", "serve", "--port", str(port)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True, env=env, cwd=tmp_path)
+    try:
+        first = proc.stdout.readline()
+        assert first.strip() == f"baarda dashboard: http://127.0.0.1:{port}/"
+        deadline = time.time() + 90
+        body = ""
+        while time.time() < deadline:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as r:
+                    body = r.read().decode("utf-8", "replace")
+                    break
+            except OSError:
+                time.sleep(0.5)
+        assert "baarda" in body
+        # bound to loopback only: no listener on the machine's other addresses
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.settimeout(2)
+            try:
+                other = socket.gethostbyname(socket.gethostname())
+            except OSError:
+                other = None
+            if other and not other.startswith("127."):
+                assert s.connect_ex((other, port)) != 0
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=20)
