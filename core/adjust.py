@@ -5,7 +5,10 @@ linearised at x, A = ∂f/∂x over the estimated parameters, and
 
     N Δx = −Aᵀ P (f(x) − l),   N = AᵀPA,
 
-is solved with a sparse Cholesky factor (:mod:`baarda.linalg`). A datum defect is removed by
+is solved with a sparse Cholesky factor (:mod:`baarda.linalg`) or, for bundle blocks with many
+point unknowns that only nuisance parameters couple, through the reduced camera system
+(:mod:`baarda.schur`: the points are eliminated blockwise, the Schur complement S is factored and
+the points back-substituted; ``Options.solver``, chosen automatically by default). A datum defect is removed by
 holding d parameters at their values (a minimum constraint, :mod:`baarda.datum`) and then
 S-transforming the increment so that the S-base points keep the minimum sum of squared shifts
 from their input coordinates (Gama's free-network convention).
@@ -31,7 +34,10 @@ import scipy.sparse as sp
 
 from . import datum as datum_mod
 from .errors import DatumDefectError, SingularError
+from . import schur
 from .linalg import SPDFactor
+
+SOLVERS = ("auto", "schur", "generic")
 
 
 @dataclass(frozen=True)
@@ -41,6 +47,11 @@ class Options:
     alpha: size α0 of the one-dimensional tests (data snooping). beta: power β0.
     b_method: derive α of multi-dimensional tests from α0 and β0 (Baarda's B-method).
     tol, max_iter: Gauss-Newton convergence (see the module docstring).
+    solver: ``"auto"`` (eliminate points through the reduced camera system when that pays,
+    :meth:`baarda.schur.Structure.worthwhile`), ``"schur"`` (whenever the structure allows it) or
+    ``"generic"`` (one sparse Cholesky of N). backend: the pair loops of the Schur path,
+    ``"numba"`` or ``"numpy"`` (None: numba when installed). Every choice gives the same
+    numbers to round-off.
     """
 
     alpha: float = 0.001
@@ -48,12 +59,50 @@ class Options:
     b_method: bool = False
     tol: float = 1e-9
     max_iter: int = 50
+    solver: str = "auto"
+    backend: str | None = None
 
 
 def _regularised(A, P, free, plan):
     keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
     Ar = A[:, keep]
     return keep, Ar
+
+
+def weight_matrix(cov) -> sp.csr_matrix:
+    """P = C⁻¹ block by block: :meth:`baarda.problem.Covariance.weight`, vectorised per cluster
+    size (the same batched inverses, so the same numbers)."""
+    from .result import size_groups
+
+    n = cov.cluster.size
+    rows, cols, vals = [], [], []
+    for m, _, members, C in size_groups(cov):
+        W = np.linalg.inv(C)
+        W = 0.5 * (W + np.swapaxes(W, 1, 2))
+        rows.append(np.repeat(members, m, axis=1).ravel())
+        cols.append(np.tile(members, (1, m)).ravel())
+        vals.append(W.ravel())
+    if not rows:
+        return sp.csr_matrix((n, n))
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+
+
+def schur_structure(problem, Ar, keep, solver: str = "auto"):
+    """The point-elimination layout of :mod:`baarda.schur` for the reduced design matrix ``Ar``,
+    or None when the generic solver is to be used (``solver``: see :class:`Options`)."""
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r} (known: {', '.join(SOLVERS)})")
+    if solver == "generic":
+        return None
+    params = problem.params
+    fr = params.free[keep]
+    kind = params.kind[fr]
+    if solver == "auto" and int((kind == "k").sum()) < schur.MIN_ELIMINATED:
+        return None
+    st = schur.analyse(Ar, problem.cov, kind, params.point[fr], np.asarray(params.labels)[fr])
+    if st is None or (solver == "auto" and not st.worthwhile()):
+        return None
+    return st
 
 
 def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None,
@@ -72,7 +121,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     free = params.free
     x = (params.x0 if x0 is None else x0).astype(float).copy()
     x_ref = x.copy()
-    P = problem.cov.weight()
+    P = weight_matrix(problem.cov)
     labels = np.asarray(params.labels)[free]
     f, J = problem.evaluate(x)
     A = J[:, free].tocsr()
@@ -80,18 +129,27 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     converged = False
     history = []
     it = 0
+    keep, Ar = _regularised(A, P, free, plan)
+    st = schur_structure(problem, Ar, keep, options.solver)
     for it in range(1, options.max_iter + 1):
         v = problem.misclosure(f)
         keep, Ar = _regularised(A, P, free, plan)
-        N = (Ar.T @ P @ Ar).tocsr()
-        factor = _factor_or_diagnose(N, Ar, P, labels[keep], problem, plan)
+        if st is not None and not st.matches(Ar):
+            st = schur_structure(problem, Ar, keep, "schur")
+        if st is not None:
+            factor = _schur_or_diagnose(st, Ar, P, labels[keep], options.backend)
+            diagN = factor.diagonal
+        else:
+            N = (Ar.T @ P @ Ar).tocsr()
+            factor = _factor_or_diagnose(N, Ar, P, labels[keep], problem, plan)
+            diagN = N.diagonal()
         dx = np.zeros(free.size)
         dx[keep] = factor.solve(-(Ar.T @ (P @ v)))
         if plan.defect:
             # S-transform the total shift from the input coordinates to the S-base (M84 §2)
             total = x[free] + dx - x_ref[free]
             dx = plan.transform(total) - (x[free] - x_ref[free])
-        ratio = np.abs(dx[keep]) * np.sqrt(N.diagonal())
+        ratio = np.abs(dx[keep]) * np.sqrt(diagN)
         history.append(float(ratio.max(initial=0.0)))
         x[free] += dx
         f, J = problem.evaluate(x)
@@ -105,25 +163,44 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             converged = True
             break
     if plan.defect:
+        old = plan.eliminate
         plan = datum_mod.plan(problem, x, A, P, free)
+        if st is not None and not np.array_equal(old, plan.eliminate):
+            keep, Ar = _regularised(A, P, free, plan)
+            st = schur_structure(problem, Ar, keep, "schur")
     t_solve = time.perf_counter() - t0
-    return Adjustment(problem=problem, options=options, x=x, f=f, A=A, P=P, plan=plan,
-                      converged=converged, iterations=it, history=tuple(history),
-                      timings={"solve": t_solve})
+    adj = Adjustment(problem=problem, options=options, x=x, f=f, A=A, P=P, plan=plan,
+                     converged=converged, iterations=it, history=tuple(history),
+                     timings={"solve": t_solve}, solver="schur" if st is not None else "generic")
+    if st is not None:
+        adj.__dict__["schur_structure"] = st
+    return adj
+
+
+def _schur_or_diagnose(st, Ar, P, labels, backend):
+    try:
+        return schur.SchurFactor(st, Ar, P, backend=backend)
+    except SingularError as err:
+        raise _defect_error(err, (Ar.T @ P @ Ar).tocsr(), labels) from None
 
 
 def _factor_or_diagnose(N, Ar, P, labels, problem, plan):
     try:
         return SPDFactor(N, labels=labels)
     except SingularError as err:
-        undetermined = diagnose(N, labels)
-        if not undetermined:
-            undetermined = [str(err).split(": ", 1)[-1].split(" is not")[0]]
-        raise DatumDefectError(
-            len(undetermined) if len(undetermined) < 8 else 1, undetermined,
-            "the observations do not determine " + ", ".join(undetermined[:20])
-            + (" ..." if len(undetermined) > 20 else "")
-            + " (a local datum defect: too few observations to these unknowns)") from None
+        raise _defect_error(err, N, labels) from None
+
+
+def _defect_error(err, N, labels) -> DatumDefectError:
+    """The error of a singular normal matrix, naming the unknowns in its null space."""
+    undetermined = diagnose(N, labels)
+    if not undetermined:
+        undetermined = [str(err).split(": ", 1)[-1].split(" is not")[0]]
+    return DatumDefectError(
+        len(undetermined) if len(undetermined) < 8 else 1, undetermined,
+        "the observations do not determine " + ", ".join(undetermined[:20])
+        + (" ..." if len(undetermined) > 20 else "")
+        + " (a local datum defect: too few observations to these unknowns)")
 
 
 def diagnose(N, labels, max_dense: int = 6000) -> list[str]:

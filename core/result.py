@@ -14,11 +14,17 @@ free network), H = AΣAᵀ, C_vv = C − H (F80 eq. 8). Per observation i:
   unknowns, δ0 √((1 − r_i)/r_i).
 
 Everything per observation needs only a_i Σ a_jᵀ for observations i, j of one covariance
-cluster, i.e. entries of Σ on the pattern of N: the selected inverse of :mod:`baarda.linalg`.
+cluster, i.e. entries of Σ on the pattern of N: the selected inverse of :mod:`baarda.linalg`, or
+for bundle blocks (``solver == "schur"``) the blocks of Σ that the reduced camera system of
+:mod:`baarda.schur` delivers without ever forming N.
+
+:meth:`Adjustment.exclude` leaves observations out at the same linearisation point by a
+low-rank (Woodbury) update of the factor and of these blocks (:class:`baarda.linalg.LowRankUpdate`).
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -27,9 +33,13 @@ import scipy.linalg as la
 import scipy.sparse as sp
 
 from . import stats
-from .linalg import SPDFactor
+from .linalg import LowRankUpdate, SPDFactor
 
 R_EPS = 1e-10
+#: :meth:`Adjustment.exclude` updates by Woodbury when the left-out clusters hold at most this
+#: many observations (k solves with the cached factor and O(n·k) for the statistics); more are
+#: refactored, which costs about as much as the first analysis.
+WOODBURY_MAX = 64
 
 
 def _padded_rows(A: sp.csr_matrix):
@@ -82,22 +92,37 @@ def cluster_pairs(cov) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.concatenate(I), np.concatenate(J), np.concatenate(Cl)
 
 
-def _by_size(cov):
-    """Clusters grouped by their size: yields (m, cluster ids (k,), members (k, m))."""
+@functools.lru_cache(maxsize=8)
+def size_groups(cov) -> tuple:
+    """Clusters grouped by their size: ((m, cluster ids (k,), members (k, m), C (k, m, m)), ...).
+
+    Cached per (immutable) covariance object: the stacks are built once.
+    """
     sizes = np.array([idx.size for idx in cov.members])
+    out = []
     for m in np.unique(sizes):
         cl = np.flatnonzero(sizes == m)
-        yield int(m), cl, np.array([cov.members[c] for c in cl]).reshape(cl.size, m)
+        members = np.array([cov.members[c] for c in cl]).reshape(cl.size, m)
+        C = np.array([cov.blocks[c] for c in cl]).reshape(cl.size, m, m)
+        for a in (cl, members, C):
+            a.setflags(write=False)
+        out.append((int(m), cl, members, C))
+    return tuple(out)
+
+
+def _by_size(cov):
+    """Clusters grouped by their size: yields (m, cluster ids (k,), members (k, m))."""
+    for m, cl, members, _ in size_groups(cov):
+        yield m, cl, members
 
 
 def _cluster_blocks(cov, values):
     """Split pair values laid out by :func:`cluster_pairs` into stacks (k, m, m) per size."""
     pos = 0
-    for m, clusters, members in _by_size(cov):
+    for m, clusters, members, C in size_groups(cov):
         k = clusters.size
         block = values[pos:pos + k * m * m].reshape(k, m, m)
         pos += k * m * m
-        C = np.array([cov.blocks[c] for c in clusters]).reshape(k, m, m)
         yield m, members, C, block
 
 
@@ -116,6 +141,7 @@ class Adjustment:
     iterations: int
     history: tuple = ()
     timings: dict = field(default_factory=dict)
+    solver: str = "generic"   # "generic" (sparse Cholesky of N) or "schur" (baarda.schur)
 
     # -- basic quantities -------------------------------------------------------------------
     @cached_property
@@ -132,10 +158,29 @@ class Adjustment:
         return self.A[:, self.keep].tocsr()
 
     @cached_property
-    def factor(self) -> SPDFactor:
-        N = (self.Ar.T @ self.P @ self.Ar).tocsr()
+    def schur_structure(self):
+        """The point-elimination layout (:mod:`baarda.schur`), None for the generic solver."""
+        if self.solver != "schur":
+            return None
+        from .adjust import schur_structure
+        return schur_structure(self.problem, self.Ar, self.keep, "schur")
+
+    @cached_property
+    def factor(self):
+        """Factor of N = AᵀPA over the kept unknowns: :class:`baarda.linalg.SPDFactor`, or
+        :class:`baarda.schur.SchurFactor` for the reduced camera system."""
+        import time
+
+        t0 = time.perf_counter()
         labels = np.asarray(self.problem.params.labels)[self.problem.params.free][self.keep]
-        return SPDFactor(N, labels=labels)
+        if self.schur_structure is not None:
+            from .schur import SchurFactor
+            f = SchurFactor(self.schur_structure, self.Ar, self.P, backend=getattr(self.options, "backend", None))
+        else:
+            N = (self.Ar.T @ self.P @ self.Ar).tocsr()
+            f = SPDFactor(N, labels=labels)
+        self.timings.setdefault("factor", time.perf_counter() - t0)
+        return f
 
     @property
     def n(self) -> int:
@@ -187,12 +232,44 @@ class Adjustment:
 
     # -- per-observation reliability ----------------------------------------------------------
     @cached_property
+    def _hat_blocks(self):
+        """a_i Σ a_jᵀ and a_i Σ_t a_jᵀ (nuisance part) for the pairs of :func:`cluster_pairs`."""
+        import time
+
+        factor = self.factor
+        t0 = time.perf_counter()
+        if hasattr(factor, "hat_blocks"):
+            out = factor.hat_blocks(self.problem.cov)
+        else:
+            I, J, _ = cluster_pairs(self.problem.cov)
+            out = pair_products(self.Ar, factor, I, J), self._nuisance_products(I, J)
+        self.timings.setdefault("selected_inverse", time.perf_counter() - t0)
+        return out
+
+    @cached_property
+    def _nuisance_factor(self):
+        """Factor of BᵀPB over the nuisance unknowns (ascending), None when there are none."""
+        if hasattr(self.factor, "nuisance_factor"):
+            return self.factor.nuisance_factor()
+        t = self._nuisance_columns
+        if t.size == 0:
+            return None
+        B = self.Ar[:, t].tocsr()
+        return SPDFactor((B.T @ self.P @ B).tocsr())
+
+    @cached_property
+    def _nuisance_columns(self) -> np.ndarray:
+        kind = self.problem.params.kind[self.problem.params.free][self.keep]
+        return np.flatnonzero(kind == "t")
+
+    @cached_property
     def _cluster_stats(self):
         """Per observation: (C_vv P)_ii, (P C_vv P)_ii, (P H P)_ii, (P H_k P)_ii (see module doc)."""
+        import time
+
+        t0 = time.perf_counter()
         cov = self.problem.cov
-        I, J, _ = cluster_pairs(cov)
-        H = pair_products(self.Ar, self.factor, I, J)
-        Ht = self._nuisance_products(I, J)
+        H, Ht = self._hat_blocks
         n = self.n
         r, pcp, php, phkp, uk = (np.empty(n) for _ in range(5))
         for (m, members, C, Hc), (_, _, _, Htc) in zip(_cluster_blocks(cov, H), _cluster_blocks(cov, Ht)):
@@ -206,16 +283,14 @@ class Adjustment:
             php[members] = diag(Pc @ Hc @ Pc)
             phkp[members] = diag(Pc @ Hk @ Pc)
             uk[members] = diag(Hk @ Pc)
+        self.timings.setdefault("reliability", time.perf_counter() - t0)
         return r, pcp, php, phkp, uk
 
     def _nuisance_products(self, I, J):
-        kind = self.problem.params.kind[self.problem.params.free][self.keep]
-        t = np.flatnonzero(kind == "t")
+        t = self._nuisance_columns
         if t.size == 0:
             return np.zeros(len(I))
-        B = self.Ar[:, t].tocsr()
-        Ntt = (B.T @ self.P @ B).tocsr()
-        return pair_products(B, SPDFactor(Ntt), I, J)
+        return pair_products(self.Ar[:, t].tocsr(), self._nuisance_factor, I, J)
 
     @cached_property
     def r(self) -> np.ndarray:
@@ -435,3 +510,95 @@ class Adjustment:
         out = np.zeros(idx.shape)
         out[idx >= 0] = full[idx[idx >= 0]]
         return out
+
+    # -- leaving observations out --------------------------------------------------------------
+    def exclude(self, rows, method: str = "auto") -> "Adjustment":
+        """The adjustment without the observations ``rows``, at the same linearisation point.
+
+        One Gauss-Newton step from x̂ with A held: Δx = Σ' A'ᵀP'(l' − f'), x' = x̂ + Δx
+        (S-transformed to the datum), f' = f + A'Δx, so v' are the residuals of the model
+        linearised at x̂ — what a full readjustment started at x̂ gives after its first step.
+
+        ``method``: ``"woodbury"`` updates the cached factor, N' = N + VᵀMV with V the design
+        rows of the covariance clusters touched and M = −P_c (+ the weight of the members that
+        stay), N'⁻¹ = N⁻¹ − Y T Yᵀ (:class:`baarda.linalg.LowRankUpdate`); the blocks a_iΣ'a_jᵀ
+        of every cluster are the cached ones minus (a_iY) T (a_jY)ᵀ, so all statistics follow
+        in O(n·k) after k solves. ``"refactor"`` builds and factors N' anew. ``"auto"`` takes
+        Woodbury when the touched clusters hold at most :data:`WOODBURY_MAX` observations —
+        then k solves cost far less than a new factorisation and selected inverse. When leaving
+        out the rows orphans a nuisance parameter (all observations of an image), the unknowns
+        change and the problem is readjusted from x̂ (:func:`baarda.adjust.adjust`).
+        """
+        import time
+
+        from .adjust import adjust, weight_matrix
+        from .problem import subset
+
+        t0 = time.perf_counter()
+        rows = np.unique(np.asarray(rows, dtype=np.int64))
+        cov = self.problem.cov
+        keep_obs = np.setdiff1d(np.arange(self.n), rows)
+        problem = subset(self.problem, keep_obs)
+        if not np.array_equal(problem.params.fixed, self.problem.params.fixed):
+            return adjust(problem, self.options, x0=self.x)
+        touched = np.unique(cov.cluster[rows])
+        Rc = np.sort(np.concatenate([cov.members[c] for c in touched])) if touched.size else rows
+        if method == "auto":
+            method = "woodbury" if Rc.size <= WOODBURY_MAX else "refactor"
+        if method not in ("woodbury", "refactor"):
+            raise ValueError(f"unknown method {method!r}")
+        A = self.A[keep_obs].tocsr()
+        P = weight_matrix(problem.cov)
+        new = Adjustment(problem=problem, options=self.options, x=self.x, f=self.f[keep_obs], A=A, P=P,
+                         plan=self.plan, converged=True, iterations=0, history=(), timings={},
+                         solver=self.solver)
+        if method == "woodbury":
+            new_index = np.full(self.n, -1, dtype=np.int64)
+            new_index[keep_obs] = np.arange(keep_obs.size)
+            stay = new_index[Rc] >= 0
+            M = -self.P[Rc][:, Rc].toarray()
+            ks = np.flatnonzero(stay)
+            M[np.ix_(ks, ks)] += P[new_index[Rc[ks]]][:, new_index[Rc[ks]]].toarray()
+            V = self.Ar[Rc]
+            factor = LowRankUpdate(self.factor, V, M)
+            H, Ht = self._hat_blocks
+            I, J, _ = cluster_pairs(problem.cov)
+            old = _pair_index(cov, keep_obs[I], keep_obs[J])
+            AY = new.Ar @ factor.Y
+            H = H[old] - np.einsum("pa,ab,pb->p", AY[I], factor.T, AY[J])
+            t = self._nuisance_columns
+            if t.size:
+                nf = LowRankUpdate(self._nuisance_factor, V[:, t], M)
+                BY = new.Ar[:, t] @ nf.Y
+                Ht = Ht[old] - np.einsum("pa,ab,pb->p", BY[I], nf.T, BY[J])
+                new.__dict__["_nuisance_factor"] = nf
+            else:
+                Ht = np.zeros(I.size)
+            new.__dict__["factor"] = factor
+            new.__dict__["_hat_blocks"] = (H, Ht)
+        dx = new._full(new.factor.solve(-(new.Ar.T @ new.Pv)))
+        dx = self.plan.transform(dx)
+        x = self.x.copy()
+        x[self.problem.params.free] += dx
+        f = new.f + A @ dx
+        out = Adjustment(problem=problem, options=self.options, x=x, f=f, A=A, P=P, plan=self.plan,
+                         converged=True, iterations=0, history=(),
+                         timings={"solve": time.perf_counter() - t0}, solver=self.solver)
+        for name in ("keep", "Ar", "factor", "schur_structure", "_hat_blocks", "_nuisance_factor"):
+            if name in new.__dict__:
+                out.__dict__[name] = new.__dict__[name]
+        return out
+
+
+def _pair_index(cov, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Position of the pair (i, j) (same cluster) in the layout of :func:`cluster_pairs`."""
+    sizes = np.array([m.size for m in cov.members])
+    order = np.lexsort((np.arange(sizes.size), sizes))
+    start = np.empty(sizes.size, dtype=np.int64)
+    start[order] = np.concatenate([[0], np.cumsum(sizes[order] ** 2)[:-1]])
+    n = cov.cluster.size
+    rpos = np.empty(n, dtype=np.int64)
+    for m, _, members in _by_size(cov):
+        rpos[members] = np.arange(m)[None, :]
+    c = cov.cluster[i]
+    return start[c] + rpos[i] * sizes[c] + rpos[j]

@@ -1,0 +1,871 @@
+"""Point elimination: the reduced camera system of bundle blocks and its selected inverse.
+
+A bundle block has many point unknowns k in 3 × 3 blocks (2 × 2 or 1 × 1 where the datum holds
+some coordinates) that no observation couples with each other: every image point, every control
+point sees one point and some nuisance parameters t (orientations, APs; F80 eq. 1). Order the
+unknowns as "cameras" c (all unknowns that are not eliminated) and points p:
+
+.. math::
+
+    N = \\begin{pmatrix} U & W \\\\ W^T & V \\end{pmatrix},\\quad
+    V = \\operatorname{diag}(C_j),\\quad S = U - W V^{-1} W^T
+
+(S the reduced camera system, the Schur complement of V). With Z_j = C_j⁻¹ W_jᵀ the blocks of
+Σ = N⁻¹ are (THEORY.md §11)
+
+.. math::
+
+    Σ_{cc} = S^{-1},\\quad Σ_{c p_j} = -Σ_{cc} Z_j^T,\\quad
+    Σ_{p_j p_j} = C_j^{-1} + Z_j Σ_{cc} Z_j^T .
+
+Z_j has non-zero columns only for the cameras K_j that observe point j, and every pair of them is
+a non-zero block of S; so the selected inverse of S on its own pattern (Takahashi,
+:class:`baarda.linalg.SPDFactor`) gives every block that a_i Σ a_iᵀ of an observation of point j
+needs. Per covariance cluster c (one image point, one control point) of point j, with a_c its
+camera columns, b_c its point columns, P_c its weight, E_c = a_cᵀ P_c b_c and E_c C_j⁻¹ = Q_c:
+
+    W_j = Σ_c E_c,           G_c = Σ_{k_c, p_j} = −Σ_{c' ∈ j} Σ_{k_c k_c'} Q_c',
+    Σ_{p_j p_j} = C_j⁻¹ − Σ_c Q_cᵀ G_c,
+    a_c Σ a_cᵀ (the cluster's block of A Σ Aᵀ) = a Σ_{kk} aᵀ + a G bᵀ + b Gᵀ aᵀ + b Σ_pp bᵀ.
+
+The two loops over pairs of clusters of one point — scattering −Q_c E_c'ᵀ into S, and gathering
+Σ_{k_c k_c'} Q_c' — are kernels compiled by numba when it is installed; a chunked numpy version
+of the same formulas gives the same numbers to round-off (``backend="numpy"``).
+
+Cameras are grouped into *supernodes*, columns that the same observation rows touch (the six
+orientation unknowns of one image, the APs of one camera), and S is stored as dense blocks
+between supernodes on the pattern of point-sharing (a block-sparse matrix). S is then factored by
+:class:`baarda.linalg.SPDFactor` (reverse Cuthill-McKee, block tridiagonal; a small or densely
+connected S becomes one dense LAPACK Cholesky). Nothing larger than the band of S is ever dense;
+:data:`DENSE_LIMIT` bounds the size of a dense S.
+
+Solving N x = b goes through the same elimination: y_p = V⁻¹ b_p,
+S x_c = b_c − W y_p, x_p = y_p − V⁻¹ Wᵀ x_c, with W applied as A_cᵀ P A_p (sparse products).
+
+The nuisance split u_t (F80 eq. 16) needs (BᵀPB)⁻¹ over the nuisance columns B; that matrix is
+U restricted to the nuisance supernodes (block diagonal per image without APs, coupled through
+shared APs otherwise) and is factored and selected-inverted the same way.
+
+Datum: eliminated points are whatever coordinates remain after the datum plan
+(:mod:`baarda.datum`) holds d coordinates of S-base points: a point with a held coordinate simply
+has a 2 × 2 or 1 × 1 block. The regularised system is the one the generic path solves, so x̂, the
+generalised inverse and every statistic agree with it.
+
+Reference: Takahashi, K., Fagan, J., Chen, M.-S. (1973), Formation of a sparse bus impedance
+matrix and its application to short circuit study, PICA; Triggs, B. et al. (2000), Bundle
+adjustment — a modern synthesis, §6.1 (reduced camera system).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import SingularError
+from .linalg import SPDFactor, block_partition
+
+try:                       # optional: compiled pair loops
+    import numba
+except ImportError:        # pragma: no cover - exercised where numba is absent
+    numba = None
+
+#: Largest covariance cluster (observations) the padded per-cluster arrays accept.
+MAX_CLUSTER = 6
+#: Automatic choice: eliminate points when at least this many point unknowns ...
+MIN_ELIMINATED = 2000
+#: ... make up at least this share of the unknowns.
+MIN_SHARE = 0.3
+#: Camera unknowns up to which S may be factored as one dense block (8·n_c² bytes per copy, the
+#: factor keeps about three: 1.5 GB at 8000); a larger S whose band after ordering exceeds half
+#: its size raises MemoryError instead of silently going dense.
+DENSE_LIMIT = 8000
+PIVOT_TOL = 1e-11
+#: Entries of the temporary arrays in one chunk of the numpy fallback.
+CHUNK = 1 << 21
+BACKENDS = ("numba", "numpy")
+
+
+def default_backend() -> str:
+    return "numba" if numba is not None else "numpy"
+
+
+def _canonical(A) -> sp.csr_matrix:
+    A = sp.csr_matrix(A)
+    if not A.has_canonical_format:
+        A = A.copy()
+        A.sum_duplicates()
+    return A
+
+
+# ------------------------------------------------------------------------------------------
+# structure (pattern only, computed once per design-matrix pattern)
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Structure:
+    """The elimination layout of one design-matrix pattern (see the module docstring).
+
+    Positions p number the covariance clusters grouped by entity (an eliminated point, or a
+    cluster that sees none); S indices number the camera unknowns supernode by supernode.
+    """
+
+    n: int
+    u: int
+    M: int                     # rows per cluster (padded)
+    K: int                     # camera columns per cluster (padded)
+    G: int                     # supernodes per cluster (padded)
+    indptr: np.ndarray         # canonical pattern of the design matrix
+    indices: np.ndarray
+    cam: np.ndarray            # reduced index of each S index (n_c,)
+    cam_pos: np.ndarray        # S index of each reduced unknown, −1 for eliminated (u,)
+    sn_ptr: np.ndarray         # supernode g = S indices sn_ptr[g]:sn_ptr[g+1]
+    sn_t: np.ndarray           # supernode of nuisance unknowns
+    n_points: int              # entities 0..n_points−1 are points
+    ent_ptr: np.ndarray        # positions of entity e: ent_ptr[e]:ent_ptr[e+1]
+    ent_cols: np.ndarray       # (ne, 3) reduced indices of the point's coordinates, −1 padded
+    ent_size: np.ndarray       # (ne,)
+    cl_id: np.ndarray          # cluster id at position p
+    cl_pos: np.ndarray         # position of each cluster id
+    cl_ent: np.ndarray         # entity of position p
+    cl_sn: np.ndarray          # (nc, G) supernodes of position p, −1 padded
+    cl_off: np.ndarray         # (nc, G) their first local column
+    col_S: np.ndarray          # (nc, K) S index of each local camera column, −1 padded
+    cluster: np.ndarray        # cluster of each observation (n,)
+    rpos: np.ndarray           # position of each observation within its cluster (n,)
+    nnz_a: np.ndarray          # design-matrix entries in camera columns ...
+    dest_a: np.ndarray         # ... and their place in a (nc·M·K)
+    nnz_b: np.ndarray          # entries in point columns ...
+    dest_b: np.ndarray         # ... and their place in b (nc·M·3)
+    bptr: np.ndarray           # block pattern of S (CSR over supernodes)
+    bcol: np.ndarray
+    bstart: np.ndarray         # offset of each block in the flat value array (nblocks+1)
+    flat_r: np.ndarray         # S row and column of each stored entry
+    flat_c: np.ndarray
+    labels: np.ndarray | None
+
+    @property
+    def n_eliminated(self) -> int:
+        return int(self.ent_size[: self.n_points].sum())
+
+    @property
+    def n_cameras(self) -> int:
+        return int(self.cam.size)
+
+    def matches(self, Ar) -> bool:
+        """Whether ``Ar`` has the pattern this structure was analysed for."""
+        Ar = _canonical(Ar)
+        return (Ar.shape == (self.n, self.u) and np.array_equal(Ar.indptr, self.indptr)
+                and np.array_equal(Ar.indices, self.indices))
+
+    def worthwhile(self) -> bool:
+        """Whether elimination pays (the automatic choice of :func:`baarda.adjust.adjust`)."""
+        return self.n_eliminated >= MIN_ELIMINATED and self.n_eliminated >= MIN_SHARE * self.u
+
+
+def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Structure | None:
+    """The elimination layout for design matrix ``Ar`` (n × u, reduced unknowns).
+
+    kind: "k"/"t" per reduced unknown; point: its point index (−1 for none). A point is
+    eliminated when no covariance cluster sees it together with another point. Returns None
+    when the problem does not fit the padded layout (a cluster of more than
+    :data:`MAX_CLUSTER` observations) or nothing would be eliminated.
+    """
+    Ar = _canonical(Ar)
+    n, u = Ar.shape
+    kind = np.asarray(kind)
+    point = np.asarray(point, dtype=np.int64)
+    cluster = np.asarray(cov.cluster, dtype=np.int64)
+    ncl = len(cov.members)
+    csize = np.bincount(cluster, minlength=ncl)
+    M = int(csize.max(initial=1))
+    if M > MAX_CLUSTER or n == 0 or u == 0:
+        return None
+    counts = np.diff(Ar.indptr)
+    row = np.repeat(np.arange(n, dtype=np.int64), counts)
+    col = Ar.indices.astype(np.int64)
+    ccl = cluster[row]
+    order = np.argsort(cluster, kind="stable")
+    cstart = np.concatenate([[0], np.cumsum(csize)[:-1]])
+    rpos = np.empty(n, dtype=np.int64)
+    rpos[order] = np.arange(n) - cstart[cluster[order]]
+
+    # eliminable points: candidates seen by no cluster together with another point
+    is_pt = (kind == "k") & (point >= 0)
+    npt = int(point.max(initial=-1)) + 1
+    m = is_pt[col]
+    key = _unique_sorted(ccl[m] * max(npt, 1) + point[col[m]])
+    kc, kp = key // max(npt, 1), key % max(npt, 1)
+    per_cl = np.bincount(kc, minlength=ncl)
+    bad = np.zeros(max(npt, 1), dtype=bool)
+    bad[kp[per_cl[kc] > 1]] = True
+    elig = is_pt & ~bad[np.maximum(point, 0)]
+    if not elig.any():
+        return None
+    pts = np.unique(point[elig])
+    ent_of_point = np.full(max(npt, 1), -1, dtype=np.int64)
+    ent_of_point[pts] = np.arange(pts.size)
+    ecols = np.flatnonzero(elig)
+    e_of = ent_of_point[point[ecols]]
+    srt = np.lexsort((ecols, e_of))              # by entity, then unknown (x, y, z order)
+    ecols, e_of = ecols[srt], e_of[srt]
+    first = np.searchsorted(e_of, np.arange(pts.size))
+    coord = np.arange(ecols.size) - first[e_of]
+    if coord.max(initial=0) > 2:
+        return None
+    n_points = pts.size
+    # entity of each cluster: its point, or an entity of its own
+    cl_point_ent = np.full(ncl, -1, dtype=np.int64)
+    sel = ~bad[kp]
+    cl_point_ent[kc[sel]] = ent_of_point[kp[sel]]
+    alone = np.flatnonzero(cl_point_ent < 0)
+    ent_of_cl = cl_point_ent.copy()
+    ent_of_cl[alone] = n_points + np.arange(alone.size)
+    ne = n_points + alone.size
+    cl_id = np.argsort(ent_of_cl, kind="stable")
+    cl_pos = np.empty(ncl, dtype=np.int64)
+    cl_pos[cl_id] = np.arange(ncl)
+    cl_ent = ent_of_cl[cl_id]
+    ent_ptr = np.concatenate([[0], np.cumsum(np.bincount(cl_ent, minlength=ne))]).astype(np.int64)
+    ent_cols = np.full((ne, 3), -1, dtype=np.int64)
+    ent_cols[e_of, coord] = ecols
+    ent_size = (ent_cols >= 0).sum(axis=1).astype(np.int64)
+
+    # supernodes: camera columns touched by the same rows (two random row hashes)
+    camcols = np.flatnonzero(~elig)
+    cm = ~elig[col]
+    colc, rowc = col[cm], row[cm]
+    rng = np.random.default_rng(12345)
+    h1 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
+    h2 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
+    cnt = np.bincount(colc, minlength=u)[camcols]
+    tk = (kind[camcols] == "t").astype(float)
+    _, grp = np.unique(np.stack([h1, h2, cnt.astype(float), tk], 1), axis=0, return_inverse=True)
+    grp = grp.ravel()
+    ngrp = int(grp.max(initial=-1)) + 1
+    firstcol = np.full(ngrp, np.iinfo(np.int64).max)
+    np.minimum.at(firstcol, grp, camcols)
+    rank = np.empty(ngrp, dtype=np.int64)
+    rank[np.argsort(firstcol)] = np.arange(ngrp)
+    sn = rank[grp]
+    o = np.lexsort((camcols, sn))
+    cam = camcols[o]
+    sn_sorted = sn[o]
+    nsn = ngrp
+    sn_size = np.bincount(sn_sorted, minlength=nsn).astype(np.int64)
+    sn_ptr = np.concatenate([[0], np.cumsum(sn_size)]).astype(np.int64)
+    cam_pos = np.full(u, -1, dtype=np.int64)
+    cam_pos[cam] = np.arange(cam.size)
+    sn_of = np.full(u, -1, dtype=np.int64)
+    sn_of[cam] = sn_sorted
+    off_of = np.full(u, -1, dtype=np.int64)
+    off_of[cam] = np.arange(cam.size) - sn_ptr[sn_sorted]
+    sn_t = np.zeros(nsn, dtype=bool)
+    sn_t[sn_sorted] = kind[cam] == "t"
+
+    # supernode slots of each cluster position
+    nc = ncl
+    pa = cl_pos[cluster[rowc]]
+    akey = pa * max(nsn, 1) + sn_of[colc]
+    run = np.flatnonzero(np.r_[True, akey[1:] != akey[:-1]]) if akey.size else np.zeros(0, dtype=np.int64)
+    skey = _unique_sorted(akey[run])
+    sp_, sg = skey // max(nsn, 1), skey % max(nsn, 1)
+    sfirst = np.searchsorted(sp_, np.arange(nc))
+    slot = np.arange(skey.size) - sfirst[sp_]
+    G = int(slot.max(initial=-1)) + 1
+    G = max(G, 1)
+    cl_sn = np.full((nc, G), -1, dtype=np.int64)
+    cl_sn[sp_, slot] = sg
+    sizes = np.where(cl_sn >= 0, sn_size[np.maximum(cl_sn, 0)], 0)
+    cl_off = np.cumsum(sizes, axis=1) - sizes
+    K = max(int(sizes.sum(axis=1).max(initial=0)), 1)
+    nnz_a = np.flatnonzero(cm)
+    loc = np.searchsorted(skey, akey[run])
+    local = np.repeat(cl_off[sp_[loc], slot[loc]], np.diff(np.r_[run, akey.size])) + off_of[colc]
+    dest_a = (pa * M + rpos[rowc]) * K + local
+    col_S = np.full((nc, K), -1, dtype=np.int64)
+    for s_ in range(G):                          # a cluster sees every column of its supernodes
+        g = cl_sn[:, s_]
+        for i in range(int(sn_size.max(initial=0))):
+            p_ = np.flatnonzero((g >= 0) & (i < sn_size[np.maximum(g, 0)]))
+            col_S[p_, cl_off[p_, s_] + i] = sn_ptr[g[p_]] + i
+    nnz_b = np.flatnonzero(~cm)
+    cb = col[~cm]
+    coord_col = np.full(u, -1, dtype=np.int64)
+    coord_col[ecols] = coord
+    dest_b = ((cl_pos[ccl[~cm]] * M + rpos[row[~cm]]) * 3 + coord_col[cb]).astype(np.int64)
+
+    # block pattern of S: supernodes sharing an entity (plus the diagonal)
+    valid = cl_sn >= 0
+    er = np.repeat(cl_ent[:, None], G, axis=1)[valid]
+    Inc = sp.csr_matrix((np.ones(er.size), (er, cl_sn[valid])), shape=(ne, nsn))
+    Inc.data[:] = 1.0
+    Pat = (Inc.T @ Inc + sp.identity(nsn, format="csr")).tocsr()
+    Pat.sort_indices()
+    bptr = Pat.indptr.astype(np.int64)
+    bcol = Pat.indices.astype(np.int64)
+    brow = np.repeat(np.arange(nsn, dtype=np.int64), np.diff(bptr))
+    bsz = sn_size[brow] * sn_size[bcol]
+    bstart = np.concatenate([[0], np.cumsum(bsz)]).astype(np.int64)
+    blk = np.repeat(np.arange(bcol.size, dtype=np.int64), bsz)
+    local = np.arange(int(bstart[-1]), dtype=np.int64) - bstart[blk]
+    wh = sn_size[bcol[blk]]
+    flat_r = sn_ptr[brow[blk]] + local // wh
+    flat_c = sn_ptr[bcol[blk]] + local % wh
+    return Structure(n=n, u=u, M=M, K=K, G=G, indptr=Ar.indptr.copy(), indices=Ar.indices.copy(),
+                     cam=cam, cam_pos=cam_pos, sn_ptr=sn_ptr, sn_t=sn_t, n_points=n_points,
+                     ent_ptr=ent_ptr, ent_cols=ent_cols, ent_size=ent_size, cl_id=cl_id,
+                     cl_pos=cl_pos, cl_ent=cl_ent, cl_sn=cl_sn, cl_off=cl_off.astype(np.int64), col_S=col_S,
+                     cluster=cluster, rpos=rpos, nnz_a=nnz_a, dest_a=dest_a, nnz_b=nnz_b, dest_b=dest_b, bptr=bptr,
+                     bcol=bcol, bstart=bstart, flat_r=flat_r, flat_c=flat_c,
+                     labels=None if labels is None else np.asarray(labels))
+
+
+def _unique_sorted(key: np.ndarray) -> np.ndarray:
+    """Sorted unique values (runs removed first: the keys of one row repeat)."""
+    if key.size:
+        key = key[np.r_[True, key[1:] != key[:-1]]]
+    key = np.sort(key)
+    return key[np.r_[True, key[1:] != key[:-1]]] if key.size else key
+
+
+# ------------------------------------------------------------------------------------------
+# pair kernels (pure Python source, compiled by numba when available)
+# ------------------------------------------------------------------------------------------
+def _find_block(bptr, bcol, g, h):
+    lo, hi = bptr[g], bptr[g + 1]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if bcol[mid] < h:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+def _scatter_kernel(ent_ptr, ent_size, cl_sn, cl_off, sn_size, bptr, bcol, bstart, a, Pc, Q, E, S, U):
+    """S += Σ_c a_cᵀP_c a_c − Σ_{c,c' ∈ j} Q_c E_c'ᵀ and U += Σ_c a_cᵀP_c a_c, blockwise."""
+    G = cl_sn.shape[1]
+    M = a.shape[1]
+    for e in range(ent_ptr.size - 1):
+        c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+        schur = ent_size[e] > 0
+        for c in range(c0, c1):
+            for s in range(G):
+                g = cl_sn[c, s]
+                if g < 0:
+                    break
+                ag, ng = cl_off[c, s], sn_size[g]
+                for c2 in range(c0, c1):
+                    if not schur and c2 != c:
+                        continue
+                    for t in range(G):
+                        h = cl_sn[c2, t]
+                        if h < 0:
+                            break
+                        bh, nh = cl_off[c2, t], sn_size[h]
+                        base = bstart[_find_block(bptr, bcol, g, h)]
+                        if schur:
+                            for i in range(ng):
+                                for j in range(nh):
+                                    y = (Q[c, ag + i, 0] * E[c2, bh + j, 0] + Q[c, ag + i, 1] * E[c2, bh + j, 1]
+                                         + Q[c, ag + i, 2] * E[c2, bh + j, 2])
+                                    S[base + i * nh + j] -= y
+                        if c2 == c:
+                            for i in range(ng):
+                                for j in range(nh):
+                                    v = 0.0
+                                    for r in range(M):
+                                        pa = 0.0
+                                        for r2 in range(M):
+                                            pa += Pc[c, r, r2] * a[c, r2, bh + j]
+                                        v += a[c, r, ag + i] * pa
+                                    S[base + i * nh + j] += v
+                                    U[base + i * nh + j] += v
+
+
+def _gather_kernel(ent_ptr, ent_size, cl_sn, cl_off, sn_size, sn_t, bptr, bcol, bstart, Q, a,
+               Sig, Sigt, Gc, SA, SAt):
+    """G_c = −Σ_{c'} Σ_{k_c k_c'} Q_c', SA_c = Σ_{k_c k_c} a_cᵀ, SAt_c = Σt_{k_c k_c} a_cᵀ."""
+    G = cl_sn.shape[1]
+    M = a.shape[1]
+    for e in range(ent_ptr.size - 1):
+        c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+        schur = ent_size[e] > 0
+        for c in range(c0, c1):
+            for s in range(G):
+                g = cl_sn[c, s]
+                if g < 0:
+                    break
+                ag, ng = cl_off[c, s], sn_size[g]
+                for c2 in range(c0, c1):
+                    if not schur and c2 != c:
+                        continue
+                    for t in range(G):
+                        h = cl_sn[c2, t]
+                        if h < 0:
+                            break
+                        bh, nh = cl_off[c2, t], sn_size[h]
+                        base = bstart[_find_block(bptr, bcol, g, h)]
+                        if schur:
+                            for i in range(ng):
+                                for j in range(nh):
+                                    sg = Sig[base + i * nh + j]
+                                    for q in range(3):
+                                        Gc[c, ag + i, q] -= sg * Q[c2, bh + j, q]
+                        if c2 == c:
+                            tt = sn_t[g] and sn_t[h]
+                            for i in range(ng):
+                                for j in range(nh):
+                                    sg = Sig[base + i * nh + j]
+                                    st = Sigt[base + i * nh + j]
+                                    for r in range(M):
+                                        SA[c, ag + i, r] += sg * a[c, r, bh + j]
+                                        if tt:
+                                            SAt[c, ag + i, r] += st * a[c, r, bh + j]
+
+
+_KERNELS = {}
+
+
+def _kernels():
+    """The numba-compiled pair loops (compiled on first use, cached on disk)."""
+    if "scatter" not in _KERNELS:
+        _KERNELS["scatter"] = numba.njit(cache=True)(_scatter_kernel)
+        _KERNELS["gather"] = numba.njit(cache=True)(_gather_kernel)
+    return _KERNELS
+
+
+if numba is not None:       # the kernels call the compiled search (numba resolves globals)
+    _find_block = numba.njit(cache=True)(_find_block)
+
+
+# ------------------------------------------------------------------------------------------
+# numpy fallback of the pair loops (same formulas, chunked)
+# ------------------------------------------------------------------------------------------
+def _pairs(ent_ptr):
+    """All ordered pairs (c, c') of cluster positions of one entity, c-major."""
+    k = np.diff(ent_ptr)
+    reps = np.repeat(k, k)                            # partners of each position
+    c = np.repeat(np.arange(ent_ptr[-1], dtype=np.int64), reps)
+    first = np.repeat(np.concatenate([[0], np.cumsum(reps)[:-1]]), reps)
+    c2 = np.repeat(np.repeat(ent_ptr[:-1], k), reps) + (np.arange(c.size) - first)
+    return c, c2
+
+
+def _local_columns(st: Structure):
+    """Per position and local camera column: supernode and offset in it (−1 padded)."""
+    sn_size = np.diff(st.sn_ptr)
+    nc = st.cl_sn.shape[0]
+    col_sn = np.full((nc, st.K), -1, dtype=np.int64)
+    col_off = np.zeros((nc, st.K), dtype=np.int64)
+    for s in range(st.G):
+        g = st.cl_sn[:, s]
+        ok = g >= 0
+        for i in range(int(sn_size.max(initial=0))):
+            m = ok & (i < sn_size[np.maximum(g, 0)])
+            p = np.flatnonzero(m)
+            col_sn[p, st.cl_off[p, s] + i] = g[p]
+            col_off[p, st.cl_off[p, s] + i] = i
+    return col_sn, col_off
+
+
+def _pair_positions(st, col_sn, col_off, c, c2):
+    sn_size = np.diff(st.sn_ptr)
+    nsn = sn_size.size
+    gs, hs = col_sn[c][:, :, None], col_sn[c2][:, None, :]
+    valid = (gs >= 0) & (hs >= 0)
+    brow = np.repeat(np.arange(nsn, dtype=np.int64), np.diff(st.bptr))
+    bkey = brow * nsn + st.bcol
+    key = np.where(valid, gs * nsn + hs, 0)
+    blk = np.minimum(np.searchsorted(bkey, key), bkey.size - 1)
+    pos = st.bstart[blk] + col_off[c][:, :, None] * sn_size[np.maximum(hs, 0)] + col_off[c2][:, None, :]
+    return np.where(valid, pos, 0), valid
+
+
+def _scatter_np(st, Ua, Q, E, nnz):
+    col_sn, col_off = _local_columns(st)
+    S = np.zeros(nnz)
+    U = np.zeros(nnz)
+    c, c2 = _pairs(st.ent_ptr)
+    step = max(1, CHUNK // (st.K * st.K))
+    for s in range(0, c.size, step):
+        ci, cj = c[s:s + step], c2[s:s + step]
+        pos, valid = _pair_positions(st, col_sn, col_off, ci, cj)
+        Y = -np.einsum("pkq,plq->pkl", Q[ci], E[cj])
+        Y[st.ent_size[st.cl_ent[ci]] == 0] = 0.0
+        same = ci == cj
+        Uv = np.where(same[:, None, None], Ua[ci], 0.0)
+        S += np.bincount(pos[valid], weights=(Y + Uv)[valid], minlength=nnz)
+        U += np.bincount(pos[valid], weights=Uv[valid], minlength=nnz)
+    return S, U
+
+
+def _gather_np(st, Q, a, Sig, Sigt):
+    col_sn, col_off = _local_columns(st)
+    nc, M, K = a.shape
+    sn_t = st.sn_t
+    Gc = np.zeros((nc, K, 3))
+    SA = np.zeros((nc, K, M))
+    SAt = np.zeros((nc, K, M))
+    c, c2 = _pairs(st.ent_ptr)
+    step = max(1, CHUNK // (K * K))
+    for s in range(0, c.size, step):
+        ci, cj = c[s:s + step], c2[s:s + step]
+        pos, valid = _pair_positions(st, col_sn, col_off, ci, cj)
+        Sg = np.where(valid, Sig[pos], 0.0)
+        contrib = -np.einsum("pkl,plq->pkq", Sg, Q[cj])
+        contrib[st.ent_size[st.cl_ent[ci]] == 0] = 0.0
+        np.add.at(Gc, ci, contrib)
+        same = np.flatnonzero(ci == cj)
+        if same.size:
+            p = ci[same]
+            SA[p] += np.einsum("pkl,pml->pkm", Sg[same], a[p])
+            tt = valid[same] & sn_t[np.maximum(col_sn[p], 0)][:, :, None] & sn_t[np.maximum(col_sn[p], 0)][:, None, :]
+            St = np.where(tt, Sigt[pos[same]], 0.0)
+            SAt[p] += np.einsum("pkl,pml->pkm", St, a[p])
+    return Gc, SA, SAt
+
+
+# ------------------------------------------------------------------------------------------
+# small dense helpers
+# ------------------------------------------------------------------------------------------
+def _chol3_inverse(C: np.ndarray, diag: np.ndarray, tol: float = PIVOT_TOL):
+    """Inverses of a stack of SPD 3 × 3 matrices by Cholesky; also the first failing coordinate.
+
+    ``diag`` (ne, 3) are the diagonal entries the pivots are compared with (the pivot d_i² must
+    exceed tol · N_ii, as in :class:`baarda.linalg.SPDFactor`). Returns (C⁻¹, bad) with bad the
+    index of the first failing pivot per matrix, −1 where all pass.
+    """
+    ne = C.shape[0]
+    L = np.zeros_like(C)
+    bad = np.full(ne, -1, dtype=np.int64)
+    ok = np.ones(ne, dtype=bool)
+    for i in range(3):
+        s = C[:, i, i] - (L[:, i, :i] ** 2).sum(axis=1)
+        fail = ok & ~(s > tol * diag[:, i])
+        bad[fail] = i
+        ok &= ~fail
+        s = np.where(ok, s, 1.0)
+        L[:, i, i] = np.sqrt(s)
+        for k in range(i + 1, 3):
+            L[:, k, i] = (C[:, k, i] - (L[:, k, :i] * L[:, i, :i]).sum(axis=1)) / L[:, i, i]
+    Li = np.zeros_like(L)
+    for i in range(3):
+        Li[:, i, i] = 1.0 / L[:, i, i]
+        for k in range(i + 1, 3):
+            Li[:, k, i] = -(L[:, k, i:k] * Li[:, i:k, i]).sum(axis=1) / L[:, k, k]
+    Ci = np.einsum("pki,pkj->pij", Li, Li)
+    return Ci, bad
+
+
+def _T(X: np.ndarray) -> np.ndarray:
+    return np.swapaxes(X, 1, 2)
+
+
+def _bmm_loops(X, Y, out):
+    """out[p] = X[p] @ Y[p] (pure loops, compiled by numba)."""
+    for p in range(X.shape[0]):
+        for i in range(X.shape[1]):
+            for k in range(Y.shape[2]):
+                acc = 0.0
+                for j in range(X.shape[2]):
+                    acc += X[p, i, j] * Y[p, j, k]
+                out[p, i, k] = acc
+
+
+def _bmm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """X[p] @ Y[p] for stacks of small matrices: compiled loops when numba is installed (numpy's
+    stacked matmul pays a call per tiny matrix), numpy's matmul otherwise."""
+    if numba is None:
+        return np.matmul(X, Y)
+    if "bmm" not in _KERNELS:
+        _KERNELS["bmm"] = numba.njit(cache=True)(_bmm_loops)
+    out = np.empty((X.shape[0], X.shape[1], Y.shape[2]))
+    _KERNELS["bmm"](X, Y, out)
+    return out
+
+
+def _segment_sum(X: np.ndarray, ptr: np.ndarray) -> np.ndarray:
+    """Sums of X over consecutive segments ptr[e]:ptr[e+1] (empty segments give 0)."""
+    ne = ptr.size - 1
+    out = np.zeros((ne,) + X.shape[1:])
+    nonempty = np.flatnonzero(np.diff(ptr) > 0)
+    if nonempty.size:
+        out[nonempty] = np.add.reduceat(X, ptr[:-1][nonempty], axis=0)
+    return out
+
+
+def _partition_cost(Smat, perm) -> float:
+    """Flops (∝ Σ s_K³) of the block-tridiagonal factor of S in the order ``perm``."""
+    ip = np.empty_like(perm)
+    ip[perm] = np.arange(perm.size)
+    C = Smat.tocoo()
+    size = np.diff(block_partition(ip[C.row], ip[C.col], perm.size))
+    return float((size.astype(float) ** 3).sum())
+
+
+def _order(Smat, st) -> np.ndarray:
+    """Order of S for the block-tridiagonal factor: reverse Cuthill-McKee, or the spectral order
+    of the supernode graph (sorted Fiedler vector; Barnard, Pothen & Simon 1995) when its blocks
+    are cheaper — strip blocks are ordered along the block rather than in RCM's diagonal fronts."""
+    from scipy.sparse.csgraph import laplacian, reverse_cuthill_mckee
+    from scipy.sparse.linalg import eigsh
+
+    rcm = np.asarray(reverse_cuthill_mckee(Smat, symmetric_mode=True), dtype=np.int64)
+    nsn = st.sn_t.size
+    if nsn < 50:
+        return rcm
+    Pat = sp.csr_matrix((np.ones(st.bcol.size), st.bcol, st.bptr), shape=(nsn, nsn))
+    try:
+        vals, vecs = eigsh(laplacian(Pat) + 1e-8 * sp.identity(nsn), k=2, sigma=-1e-3, which="LM")
+    except Exception:          # no convergence: keep RCM
+        return rcm
+    fiedler = vecs[:, np.argsort(vals)[1]]
+    sn_order = np.argsort(fiedler, kind="stable")
+    size = np.diff(st.sn_ptr)
+    spec = (np.repeat(st.sn_ptr[sn_order], size[sn_order])
+            + np.arange(st.sn_ptr[-1]) - np.repeat(np.cumsum(size[sn_order]) - size[sn_order], size[sn_order]))
+    return spec if _partition_cost(Smat, spec) < _partition_cost(Smat, rcm) else rcm
+
+
+class _Permuted:
+    """A factor kept in another order: unknown k of the caller is unknown perm[k] of the factor."""
+
+    def __init__(self, factor: SPDFactor, perm: np.ndarray):
+        self.factor, self.perm, self.m = factor, perm, perm.size
+
+    def solve(self, b):
+        b = np.asarray(b, dtype=float)
+        y = np.empty_like(b)
+        y[self.perm] = b
+        return self.factor.solve(y)[self.perm]
+
+
+# ------------------------------------------------------------------------------------------
+# numeric factor
+# ------------------------------------------------------------------------------------------
+class SchurFactor:
+    """N = AᵀPA factored through the reduced camera system (module docstring).
+
+    Has the interface of :class:`baarda.linalg.SPDFactor` (``m``, ``solve``, ``entries``,
+    ``logdet``, ``dense_inverse``) plus the blocks reliability needs (:meth:`hat_blocks`).
+    Raises SingularError naming an unknown the observations do not determine.
+    """
+
+    def __init__(self, st: Structure, Ar, P, backend: str | None = None, pivot_tol: float = PIVOT_TOL):
+        Ar = _canonical(Ar)
+        if not st.matches(Ar):
+            raise ValueError("design matrix pattern differs from the analysed structure")
+        self.backend = backend or default_backend()
+        if self.backend not in BACKENDS or (self.backend == "numba" and numba is None):
+            raise ValueError(f"backend {self.backend!r} not available")
+        self.st, self.m, self.labels = st, st.u, st.labels
+        self.P = sp.csr_matrix(P)
+        nc, M, K = st.cl_id.size, st.M, st.K
+        a = np.zeros(nc * M * K)
+        a[st.dest_a] = Ar.data[st.nnz_a]
+        b = np.zeros(nc * M * 3)
+        b[st.dest_b] = Ar.data[st.nnz_b]
+        self.a, self.b = a.reshape(nc, M, K), b.reshape(nc, M, 3)
+        Pc = self._cluster_weights(st, self.P)
+        self.Pc = Pc
+        Pb = _bmm(Pc, self.b)
+        Cb = _bmm(_T(self.b), Pb)
+        C = _segment_sum(Cb, st.ent_ptr)
+        pad = np.arange(3)[None, :] >= st.ent_size[:, None]
+        C[:, np.arange(3), np.arange(3)] += pad
+        dC = np.diagonal(C, axis1=1, axis2=2)
+        Ci, bad = _chol3_inverse(C, np.where(pad, 1.0, np.maximum(dC, 1e-300)), pivot_tol)
+        if (bad >= 0).any():
+            e = int(np.flatnonzero(bad >= 0)[0])
+            raise self._singular(int(st.ent_cols[e, bad[e]]))
+        self.C, self.Ci = C, Ci
+        self.E = _bmm(_T(self.a), Pb)
+        self.Q = _bmm(self.E, Ci[st.cl_ent])
+        nnz = int(st.bstart[-1])
+        sn_size = np.diff(st.sn_ptr)
+        if self.backend == "numba":
+            S, U = np.zeros(nnz), np.zeros(nnz)
+            _kernels()["scatter"](st.ent_ptr, st.ent_size, st.cl_sn, st.cl_off, sn_size, st.bptr,
+                                  st.bcol, st.bstart, self.a, Pc, self.Q, self.E, S, U)
+        else:
+            Ua = np.matmul(_T(self.a), np.matmul(Pc, self.a))
+            S, U = _scatter_np(st, Ua, self.Q, self.E, nnz)
+        self.Svals, self.Uvals = S, U
+        nc_ = st.cam.size
+        Smat = sp.csr_matrix((S, (st.flat_r, st.flat_c)), shape=(nc_, nc_))
+        self._check_dense(Smat)
+        try:
+            self.S = SPDFactor(Smat, labels=None if st.labels is None else st.labels[st.cam],
+                               pivot_tol=pivot_tol, perm=_order(Smat, st))
+        except SingularError as err:
+            raise self._singular(int(st.cam[err.index])) from None
+        self.bandwidth = getattr(self.S, "bandwidth", 0)
+        diag = np.empty(st.u)
+        dsel = st.flat_r == st.flat_c
+        diag[st.cam[st.flat_r[dsel]]] = U[dsel]
+        okc = st.ent_cols >= 0
+        diag[st.ent_cols[okc]] = dC[okc]
+        self.diagonal = diag
+        pflat = np.flatnonzero(st.ent_cols.ravel() >= 0)
+        self._pflat, self._pcols = pflat, st.ent_cols.ravel()[pflat]
+        self._blocks = None
+        self._nuisance = None
+
+    @staticmethod
+    def _cluster_weights(st, P):
+        """P_c of every cluster position, (nc, M, M); P must be block diagonal by clusters."""
+        P = sp.csr_matrix(P)
+        if not P.has_canonical_format:
+            P = P.copy()
+            P.sum_duplicates()
+        C = P.tocoo()
+        p = st.cl_pos[st.cluster[C.row]]
+        if not np.array_equal(p, st.cl_pos[st.cluster[C.col]]):
+            raise ValueError("weight matrix couples observations of different clusters")
+        Pc = np.zeros(st.cl_id.size * st.M * st.M)
+        Pc[(p * st.M + st.rpos[C.row]) * st.M + st.rpos[C.col]] = C.data   # canonical: no duplicates
+        return Pc.reshape(-1, st.M, st.M)
+
+    def _singular(self, col):
+        name = self.labels[col] if self.labels is not None else f"unknown {col}"
+        err = SingularError(f"normal matrix is singular: {name} is not determined by the observations")
+        err.index = col
+        return err
+
+    def _check_dense(self, Smat):
+        nc_ = Smat.shape[0]
+        if nc_ <= DENSE_LIMIT:
+            return
+        from scipy.sparse.csgraph import reverse_cuthill_mckee
+        perm = reverse_cuthill_mckee(Smat, symmetric_mode=True)
+        iperm = np.empty_like(perm)
+        iperm[perm] = np.arange(nc_)
+        Cm = Smat.tocoo()
+        band = int(np.abs(iperm[Cm.row] - iperm[Cm.col]).max(initial=0))
+        if 2 * band >= nc_:
+            raise MemoryError(f"the reduced camera system ({nc_} unknowns) has a band of {band}: "
+                              f"its factor would be dense beyond DENSE_LIMIT = {DENSE_LIMIT}")
+
+    # -- solves -------------------------------------------------------------------------------
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """N⁻¹ b for a vector or a matrix of right-hand sides (reduced unknowns)."""
+        st = self.st
+        b = np.asarray(b, dtype=float)
+        vec = b.ndim == 1
+        B = b.reshape(self.m, -1)
+        q = B.shape[1]
+        ne = st.ent_size.size
+        bp = np.zeros((ne * 3, q))
+        bp[self._pflat] = B[self._pcols]
+        yp = _bmm(self.Ci, bp.reshape(ne, 3, q))                 # V⁻¹ b_p   (ne, 3, q)
+        Wy = _bmm(self.E, yp[st.cl_ent]).reshape(-1, q)            # E_c y_e(c)  (nc·K, q)
+        cols = st.col_S.ravel()
+        ok = cols >= 0
+        rhs = B[st.cam].copy()
+        for j in range(q):
+            rhs[:, j] -= np.bincount(cols[ok], weights=Wy[ok, j], minlength=st.cam.size)
+        xc = self.S.solve(rhs).reshape(-1, q)
+        xk = np.where(ok[:, None], xc[np.maximum(cols, 0)], 0.0).reshape(-1, st.K, q)
+        t = _segment_sum(_bmm(_T(self.E), xk), st.ent_ptr)       # W_jᵀ x_c  (ne, 3, q)
+        xp = (yp - _bmm(self.Ci, t)).reshape(ne * 3, q)
+        out = np.empty((self.m, q))
+        out[st.cam] = xc
+        out[self._pcols] = xp[self._pflat]
+        return out.ravel() if vec else out
+
+    def logdet(self) -> float:
+        d = np.linalg.slogdet(self.C)[1].sum()
+        return float(self.S.logdet() + d)
+
+    def dense_inverse(self) -> np.ndarray:
+        """N⁻¹ as a dense matrix (tests and small problems only)."""
+        return self.solve(np.eye(self.m))
+
+    # -- selected inverse and reliability blocks ----------------------------------------------
+    def nuisance_factor(self):
+        """Factor of BᵀPB over the nuisance unknowns (ascending reduced index), or None."""
+        self._selected()
+        return self._nuisance
+
+    def _selected(self):
+        """Σ and Σ_t on the block pattern of S, and the per-cluster blocks (module docstring)."""
+        if self._blocks is not None:
+            return self._blocks
+        st = self.st
+        Sig = self.S.entries(st.flat_r, st.flat_c)
+        sn_of = np.repeat(np.arange(st.sn_t.size), np.diff(st.sn_ptr))
+        tflat = st.sn_t[sn_of[st.flat_r]] & st.sn_t[sn_of[st.flat_c]]
+        Sigt = np.zeros_like(Sig)
+        tS = np.flatnonzero(st.sn_t[sn_of])                # S indices of nuisance unknowns
+        if tS.size:
+            tpos = np.full(st.cam.size, -1, dtype=np.int64)
+            tpos[tS] = np.arange(tS.size)
+            Ntt = sp.csr_matrix((self.Uvals[tflat], (tpos[st.flat_r[tflat]], tpos[st.flat_c[tflat]])),
+                                shape=(tS.size, tS.size))
+            T = SPDFactor(Ntt)
+            Sigt[tflat] = T.entries(tpos[st.flat_r[tflat]], tpos[st.flat_c[tflat]])
+            # in ascending reduced order
+            red = st.cam[tS]
+            self._nuisance = _Permuted(T, np.argsort(red))
+        nc, M, K = self.a.shape
+        sn_size = np.diff(st.sn_ptr)
+        if self.backend == "numba":
+            Gc, SA, SAt = np.zeros((nc, K, 3)), np.zeros((nc, K, M)), np.zeros((nc, K, M))
+            _kernels()["gather"](st.ent_ptr, st.ent_size, st.cl_sn, st.cl_off, sn_size, st.sn_t, st.bptr,
+                                 st.bcol, st.bstart, self.Q, self.a, Sig, Sigt, Gc, SA, SAt)
+        else:
+            Gc, SA, SAt = _gather_np(st, self.Q, self.a, Sig, Sigt)
+        a, b = self.a, self.b
+        F = _bmm(a, Gc)                                        # a_c Σ_{k_c p}  (nc, M, 3)
+        Spp = self.Ci - _segment_sum(_bmm(_T(self.Q), Gc), st.ent_ptr)
+        FbT = _bmm(F, _T(b))
+        H = _bmm(a, SA) + FbT + _T(FbT) + _bmm(_bmm(b, Spp[st.cl_ent]), _T(b))
+        Ht = _bmm(a, SAt)
+        self._blocks = (H, Ht, Spp)
+        return self._blocks
+
+    def hat_blocks(self, cov):
+        """a_i Σ a_jᵀ and a_i Σ_t a_jᵀ (nuisance part) for all pairs within each covariance
+        cluster, laid out as :func:`baarda.result.cluster_pairs` lays them out."""
+        from .result import _by_size
+
+        H, Ht, _ = self._selected()
+        out_h, out_t = [], []
+        for m, clusters, _ in _by_size(cov):
+            p = self.st.cl_pos[clusters]
+            out_h.append(H[p, :m, :m].reshape(-1))
+            out_t.append(Ht[p, :m, :m].reshape(-1))
+        return np.concatenate(out_h), np.concatenate(out_t)
+
+    def entries(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """Entries Σ_ij of N⁻¹ (reduced unknowns): camera pairs from the selected inverse of S,
+        pairs within one point from Σ_pp, any other pair by solves for its columns."""
+        st = self.st
+        i = np.asarray(i, dtype=np.int64)
+        j = np.asarray(j, dtype=np.int64)
+        shape = i.shape
+        i, j = i.ravel(), j.ravel()
+        out = np.empty(i.size)
+        ci, cj = st.cam_pos[i], st.cam_pos[j]
+        cc = (ci >= 0) & (cj >= 0)
+        if cc.any():
+            out[cc] = self.S.entries(ci[cc], cj[cc])
+        ent = np.full(st.u, -1, dtype=np.int64)
+        crd = np.full(st.u, -1, dtype=np.int64)
+        ok = st.ent_cols >= 0
+        ent[st.ent_cols[ok]] = np.nonzero(ok)[0]
+        crd[st.ent_cols[ok]] = np.nonzero(ok)[1]
+        pp = (ent[i] >= 0) & (ent[i] == ent[j])
+        if pp.any():
+            Spp = self._selected()[2]
+            out[pp] = Spp[ent[i[pp]], crd[i[pp]], crd[j[pp]]]
+        rest = ~(cc | pp)
+        if rest.any():
+            cols, inv = np.unique(j[rest], return_inverse=True)
+            Em = np.zeros((self.m, cols.size))
+            Em[cols, np.arange(cols.size)] = 1.0
+            X = self.solve(Em)
+            out[rest] = X[i[rest], inv]
+        return out.reshape(shape)
