@@ -13,7 +13,14 @@ holding d parameters at their values (a minimum constraint, :mod:`baarda.datum`)
 S-transforming the increment so that the S-base points keep the minimum sum of squared shifts
 from their input coordinates (Gama's free-network convention).
 
-Convergence criterion: every increment is below ``tol`` times the conditional standard deviation
+A Gauss-Newton step that raises vᵀPv by more than ``DIVERGENCE`` (or meets a singular system after
+the first iteration) switches the solver to Levenberg-Marquardt for the rest of the run: damping
+N + λ diag(N), a step accepted only when vᵀPv decreases, λ updated after Nielsen (1999) from the
+gain ratio. The damping falls to 0 near the solution, so the last iterations are plain
+Gauss-Newton and the result is the least-squares fixed point. Networks whose Gauss-Newton
+converges never see the damping.
+
+Convergence criterion (checked once λ < 1e-6): every increment is below ``tol`` times the conditional standard deviation
 of its parameter, |Δx_i| < tol / √N_ii (unit-free, so metres, radians and pixels can share it),
 with tol = 1e-9 by default; or the increments have reached round-off (below 1e-6 and no longer
 shrinking by half per iteration); at most ``max_iter`` iterations. A loose tolerance biases tests
@@ -38,6 +45,10 @@ from . import schur
 from .linalg import SPDFactor
 
 SOLVERS = ("auto", "schur", "generic")
+
+
+#: a Gauss-Newton step that multiplies vᵀPv by more than this switches to Levenberg-Marquardt
+DIVERGENCE = 1.5
 
 
 @dataclass(frozen=True)
@@ -131,35 +142,93 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     it = 0
     keep, Ar = _regularised(A, P, free, plan)
     st = schur_structure(problem, Ar, keep, options.solver)
+    lam = 0.0                      # Levenberg-Marquardt damping, 0 = Gauss-Newton
+    lm_mode = False                # becomes True once a Gauss-Newton step has failed
+    nu = 2.0
+    v = problem.misclosure(f)
+    cost = float(v @ (P @ v))
+    it = 0
     for it in range(1, options.max_iter + 1):
-        v = problem.misclosure(f)
         keep, Ar = _regularised(A, P, free, plan)
         if st is not None and not st.matches(Ar):
             st = schur_structure(problem, Ar, keep, "schur")
-        if st is not None:
-            factor = _schur_or_diagnose(st, Ar, P, labels[keep], options.backend)
-            diagN = factor.diagonal
+        try:
+            if st is not None:
+                factor = _schur_or_diagnose(st, Ar, P, labels[keep], options.backend, lam)
+                diagN = factor.diagonal
+            else:
+                N = (Ar.T @ P @ Ar).tocsr()
+                diagN = N.diagonal()
+                if lam:
+                    N = (N + sp.diags(lam * diagN)).tocsr()
+                factor = _factor_or_diagnose(N, Ar, P, labels[keep], problem, plan)
+        except DatumDefectError:
+            # singular at the start: a real defect. Later (after a long step) or while damped:
+            # damp more and retry from the same point; give up past a huge damping.
+            if it == 1 or lam > 1e12:
+                raise
+            lm_mode = True
+            lam, nu = max(nu * lam, 1e-3), 2.0 * nu
+            history.append(float("inf"))
+            continue
+        lam_used = lam
+        g = -(Ar.T @ (P @ v))
+        step_keep = factor.solve(g)
+        dx_raw = np.zeros(free.size)
+        dx_raw[keep] = step_keep
+        ratio = np.abs(step_keep) * np.sqrt(diagN)
+        step = float(ratio.max(initial=0.0))
+        trial = x.copy()
+        trial[free] += dx_raw
+        f_new, J_new = problem.evaluate(trial)
+        v_new = problem.misclosure(f_new)
+        cost_new = float(v_new @ (P @ v_new))
+        if lm_mode:
+            # Levenberg-Marquardt (Nielsen's update): accept when vᵀPv decreases
+            predicted = float(step_keep @ (lam * diagN * step_keep + g))
+            rho = (cost - cost_new) / predicted if predicted > 0 else -1.0
+            ok = np.isfinite(cost_new) and (rho > 0 or step < 1e-3)
+            if ok:
+                lam = lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3) if rho > 0 else lam
+                nu = 2.0
+                if lam < 1e-9:
+                    lam = 0.0
+            else:
+                if lam > 1e12:
+                    break
+                lam, nu = max(nu * lam, 1e-6), 2.0 * nu
         else:
-            N = (Ar.T @ P @ Ar).tocsr()
-            factor = _factor_or_diagnose(N, Ar, P, labels[keep], problem, plan)
-            diagN = N.diagonal()
-        dx = np.zeros(free.size)
-        dx[keep] = factor.solve(-(Ar.T @ (P @ v)))
-        if plan.defect:
+            # Gauss-Newton may raise vᵀPv a little on its way (and a free network's gauge motion
+            # is not exactly cost-free for a finite step); only a step that makes the fit much
+            # worse is taken as the start of divergence: switch to Levenberg-Marquardt
+            ok = np.isfinite(cost_new) and not (cost_new > DIVERGENCE * cost and step > 1e-3)
+            if not ok:
+                lm_mode, lam = True, 1e-3
+        history.append(step)
+        if not ok:
+            continue
+        dx = dx_raw
+        if plan.defect and lam_used == 0.0:
+            # (while damped, the minimal constraint's gauge is kept; the S-base is restored by
+            # the undamped steps at the end)
             # S-transform the total shift from the input coordinates to the S-base (M84 §2)
             total = x[free] + dx - x_ref[free]
             dx = plan.transform(total) - (x[free] - x_ref[free])
-        ratio = np.abs(dx[keep]) * np.sqrt(diagN)
-        history.append(float(ratio.max(initial=0.0)))
-        x[free] += dx
-        f, J = problem.evaluate(x)
+            x_new = x.copy()
+            x_new[free] += dx
+            f_new, J_new = problem.evaluate(x_new)
+            v_new = problem.misclosure(f_new)
+            cost_new = float(v_new @ (P @ v_new))
+        else:
+            x_new = trial
+        if not np.isfinite(x_new).all():
+            raise SingularError("the adjustment diverged (non-finite parameters)")
+        x, f, J, v, cost = x_new, f_new, J_new, v_new, cost_new
         A = J[:, free].tocsr()
         if progress is not None:
             progress(it, history[-1])
-        if not np.isfinite(x).all():
-            raise SingularError("the adjustment diverged (non-finite parameters)")
-        if history[-1] < options.tol or (len(history) > 1 and history[-1] < 1e-6
-                                          and history[-1] > 0.5 * history[-2]):
+        if lam_used < 1e-6 and (step < options.tol or (len(history) > 1 and step < 1e-6
+                                                    and step > 0.5 * history[-2])):
             converged = True
             break
     if plan.defect:
@@ -177,9 +246,9 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     return adj
 
 
-def _schur_or_diagnose(st, Ar, P, labels, backend):
+def _schur_or_diagnose(st, Ar, P, labels, backend, damping=0.0):
     try:
-        return schur.SchurFactor(st, Ar, P, backend=backend)
+        return schur.SchurFactor(st, Ar, P, backend=backend, damping=damping)
     except SingularError as err:
         raise _defect_error(err, (Ar.T @ P @ Ar).tocsr(), labels) from None
 

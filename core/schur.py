@@ -82,6 +82,9 @@ MIN_SHARE = 0.3
 #: its size raises MemoryError instead of silently going dense.
 DENSE_LIMIT = 8000
 PIVOT_TOL = 1e-11
+#: the 3 × 3 point blocks are inverted in closed form, stable to a condition of ~1e14: a point
+#: seen along nearly parallel rays (far away, short base) is weak but still determined
+POINT_PIVOT_TOL = 1e-14
 #: Entries of the temporary arrays in one chunk of the numpy fallback.
 CHUNK = 1 << 21
 BACKENDS = ("numba", "numpy")
@@ -653,7 +656,8 @@ class SchurFactor:
     Raises SingularError naming an unknown the observations do not determine.
     """
 
-    def __init__(self, st: Structure, Ar, P, backend: str | None = None, pivot_tol: float = PIVOT_TOL):
+    def __init__(self, st: Structure, Ar, P, backend: str | None = None, pivot_tol: float = PIVOT_TOL,
+                 damping: float = 0.0):
         Ar = _canonical(Ar)
         if not st.matches(Ar):
             raise ValueError("design matrix pattern differs from the analysed structure")
@@ -675,8 +679,11 @@ class SchurFactor:
         C = _segment_sum(Cb, st.ent_ptr)
         pad = np.arange(3)[None, :] >= st.ent_size[:, None]
         C[:, np.arange(3), np.arange(3)] += pad
-        dC = np.diagonal(C, axis1=1, axis2=2)
-        Ci, bad = _chol3_inverse(C, np.where(pad, 1.0, np.maximum(dC, 1e-300)), pivot_tol)
+        dC = np.diagonal(C, axis1=1, axis2=2).copy()
+        if damping:
+            # Levenberg-Marquardt: N + λ diag(N), here on the point blocks (the camera part below)
+            C[:, np.arange(3), np.arange(3)] += damping * np.where(pad, 0.0, dC)
+        Ci, bad = _chol3_inverse(C, np.where(pad, 1.0, np.maximum(dC, 1e-300)), min(pivot_tol, POINT_PIVOT_TOL))
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
@@ -692,6 +699,10 @@ class SchurFactor:
         else:
             Ua = np.matmul(_T(self.a), np.matmul(Pc, self.a))
             S, U = _scatter_np(st, Ua, self.Q, self.E, nnz)
+        if damping:
+            dsel0 = st.flat_r == st.flat_c
+            S = S.copy()
+            S[dsel0] += damping * U[dsel0]
         self.Svals, self.Uvals = S, U
         nc_ = st.cam.size
         Smat = sp.csr_matrix((S, (st.flat_r, st.flat_c)), shape=(nc_, nc_))

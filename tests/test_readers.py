@@ -113,26 +113,26 @@ def test_underdetermined_bal_names_what_is_undetermined(capsys):
 
 @pytest.mark.slow
 def test_ladybug_adjusts():
-    """Ladybug (23,769 unknowns) against the README's bound for a good solver (≤ 13,392.3).
+    """Ladybug (23,769 unknowns) from its initial values (cost 850,912) to the README's bound for
+    a good solver (≤ 13,392.3): the first Gauss-Newton step diverges, Levenberg-Marquardt takes
+    over (core/adjust.py), through the Schur-complement path.
 
-    Known limitation (expected failure, not a reader problem): the generic dense path cannot
-    factor the normal equations in reasonable time and memory, and undamped Gauss-Newton from
-    Ladybug's start (cost 850,912) reaches a singular system in its second iteration; the test
-    needs the Schur-complement solver with damping (Levenberg-Marquardt)."""
-    from baarda.errors import DatumDefectError, SingularError
+    Known limitation: the solver has not converged after 50 iterations (it creeps on), and the
+    undamped normal matrix at that point is numerically singular for some far points/cameras, so
+    its reliability is not yet reported — the test says so with an expected failure."""
+    from baarda.adjust import Options
+    from baarda.errors import BaardaError
 
     require_extdata(BAL)
     p = read_problem(BAL / "problem-49-7776-pre.txt")
-    t0 = time.perf_counter()
-    try:
-        adj = adjust(p)
-    except MemoryError:
-        pytest.xfail("the solver cannot factor Ladybug's normal equations in memory")
-    except (DatumDefectError, SingularError) as err:
-        pytest.xfail(f"undamped Gauss-Newton fails from Ladybug's start: {err}")
-    if time.perf_counter() - t0 > 600:
-        pytest.skip("too slow with the current solver (> 10 min)")
+    adj = adjust(p, Options(max_iter=50))
+    assert adj.solver == "schur"
     assert 0.5 * adj.vPv <= 13392.3
+    try:
+        r = adj.r
+    except BaardaError as err:
+        pytest.xfail(f"reliability at the (unconverged) Ladybug solution: {err}")
+    assert abs(r.sum() - adj.dof) < 1e-3 * adj.dof
 
 
 # --------------------------------------------------------------------------------------------

@@ -235,7 +235,7 @@ def read_bal(path, sigma_px: float = 1.0, refine_intrinsics: bool = True, check:
     idx = np.empty((nobs, 2), dtype=np.int64)
     xy = np.empty((nobs, 2))
     cols = np.array(raw, dtype=object).reshape(nobs, 4)
-    if all(t.isdigit() for t in cols[:, :2].ravel()):
+    if all(t.isdigit() and len(t) < 18 for t in cols[:, :2].ravel()):
         idx[:] = cols[:, :2].astype(np.int64)
     else:
         for k in range(nobs):
