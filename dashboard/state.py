@@ -15,7 +15,17 @@ Hypothesis specifications are plain dicts, ``{"kind": ..., "active": bool, ...}`
 - ``{"kind": "image-point", "image": j, "point": p}`` — both coordinates of one image point;
 - ``{"kind": "control", "point": p}`` — every observation of a control (weighted) point;
 - ``{"kind": "transfer", "point": p, "images": [j1, j2, ...]}`` — one 2D point-transfer error
-  common to the image coordinates of point p in the images listed (F80 §2.2, H = (0 … I₂ … I₂ … 0)ᵀ).
+  common to the image coordinates of point p in the images listed (F80 §2.2, H = (0 … I₂ … I₂ … 0)ᵀ);
+- ``{"kind": "ap-group", "camera": c, "group": g}`` — a group of additional parameters of a
+  block's camera: tested by :func:`baarda.bundle.ap_test` when the group is estimated
+  (``extra["ap_groups"]``), otherwise as the hypothesis H = ∂f/∂s of
+  :func:`baarda.bundle.h_ap_group` (F80 §7.2).
+
+Besides the adjustment the state keeps the results of the core's other analyses, each run on the
+current (reduced) problem: the coordinate covariance in a chosen S-base
+(:func:`baarda.precision.covariance`), robust reweighting (:func:`baarda.robust.estimate`),
+iterative data snooping with the leave-one-out view (:mod:`baarda.snooping`), variance components
+(:func:`baarda.variance.estimate`) and an adjustment with an injected error (teaching).
 """
 
 from __future__ import annotations
@@ -31,9 +41,13 @@ import param
 from scipy.sparse.csgraph import shortest_path
 import scipy.sparse as sp
 
+from types import SimpleNamespace
+
+from baarda import bundle, precision, robust, snooping, variance
 from baarda.adjust import Options, adjust
+from baarda.datum import Datum
 from baarda.errors import BaardaError
-from baarda.hypotheses import common_error, selection
+from baarda.hypotheses import HypothesisTest, common_error, deformation, selection
 
 from .subset import without
 
@@ -43,6 +57,11 @@ OPTION_FREE = ("v", "keep", "Ar", "factor", "Pv", "vPv", "_cluster_stats", "_sba
 
 #: Keys of ``ObservationInfo.ids`` that name something other than a point.
 NOT_POINT_KEYS = ("image", "component", "group", "set")
+
+#: Robust methods of the controls ("none": plain least squares).
+ROBUST_METHODS = ("none", *robust.METHODS)
+#: How many of the largest |w| the leave-one-out ("find the error") view tries.
+LOO_SUSPECTS = 5
 
 #: Redundancy numbers below these are flagged: uncontrolled, weak (the dashboard's colour scale).
 R_UNCONTROLLED = 0.1
@@ -182,10 +201,23 @@ class State(param.Parameterized):
     error = param.String(default="", doc="A message for the user (bad file, failed exclusion).")
     busy = param.Boolean(default=False, doc="True while a computation runs.")
     timings = param.Dict(default={}, doc="Seconds of the last recomputations.")
+    sbase = param.List(default=[], doc="S-base (point ids) of the precision view; [] = the problem's datum.")
+    sbase_error = param.String(default="", doc="Why the chosen S-base cannot be used.")
+    field_source = param.Selector(default="observation", objects=["observation", "hypothesis"],
+                                  doc="Whose deformation field the external-reliability map shows.")
+    robust_method = param.Selector(default="none", objects=list(ROBUST_METHODS),
+                                   doc="Robust reweighting of the analysis panel.")
+    robust = param.Parameter(default=None, doc="The core's RobustResult, or None.")
+    snoop = param.Parameter(default=None, doc="The core's SnoopResult of the current problem, or None.")
+    snoop_loo = param.List(default=[], doc="σ̂0 with each top suspect left out (snooping.leave_one_out).")
+    variance = param.Parameter(default=None, doc="The core's VarianceComponents, or None.")
+    injection = param.Dict(default=None, allow_None=True, doc="What the tests see of an injected error.")
+    analysis_error = param.String(default="", doc="A message of the last analysis the core refused.")
 
     def __init__(self, path=None, problem=None, **params):
         super().__init__(**params)
         self._frames = None
+        self._cov = None
         if problem is not None:
             self.set_problem(problem, source=str(path or problem.source))
         elif path is not None:
@@ -227,6 +259,8 @@ class State(param.Parameterized):
         with param.parameterized.discard_events(self):
             self.problem = problem
             self.excluded = frozenset()
+            self.sbase = []
+            self.sbase_error = ""
             self.hypotheses = []
             self.hyp_results = []
             self.selected_point = None
@@ -275,10 +309,14 @@ class State(param.Parameterized):
             self.error = f"Adjustment failed: {type(err).__name__}: {err}"
             return False
         self._frames = None
+        self._cov = None
         with param.parameterized.batch_call_watchers(self):
             self.kept = kept
             self.results = adj
+            self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
+            self.analysis_error = ""
             self._run_hypotheses()
+            self._run_robust()
             self.timings = {**self.timings, "adjust": time.perf_counter() - t0}
         return True
 
@@ -290,6 +328,7 @@ class State(param.Parameterized):
         with param.parameterized.batch_call_watchers(self):
             self.results = with_options(self.results, self.options())
             self._run_hypotheses()
+            self._run_robust()
 
     @param.depends("sigma0_mode", watch=True)
     def _sigma_changed(self):
@@ -369,9 +408,12 @@ class State(param.Parameterized):
                 out.append(None)
                 continue
             try:
+                if spec["kind"] == "ap-group" and self.ap_estimated(spec):
+                    out.append(bundle.ap_test(self.results, str(spec["camera"]), str(spec["group"])))
+                    continue
                 H = self.hypothesis_matrix(spec)
                 out.append(self.results.test(H, label=spec.get("label", "")))
-            except (ValueError, BaardaError, np.linalg.LinAlgError) as err:
+            except (ValueError, KeyError, BaardaError, np.linalg.LinAlgError) as err:
                 out.append(f"{spec.get('label', '')}: {err}")
         self.hyp_results = out
         self.timings = {**self.timings, "hypotheses": time.perf_counter() - t0}
@@ -400,7 +442,15 @@ class State(param.Parameterized):
                     comp = ids.get("component") or info.kind[i].rsplit("-", 1)[-1]
                     comps.setdefault(str(comp), []).append(i)
             return [np.array(comps[c], dtype=np.int64) for c in sorted(comps)]
+        if kind == "ap-group":
+            images = {str(im["id"]) for im in self.images if str(im.get("camera")) == str(spec["camera"])}
+            return [np.array([i for i, ids in enumerate(info.ids) if str(ids.get("image")) in images],
+                             dtype=np.int64)]
         raise ValueError(f"unknown hypothesis kind '{kind}'")
+
+    def ap_estimated(self, spec: dict) -> bool:
+        """True if the AP group of an ``ap-group`` hypothesis is estimated in the model."""
+        return f"{spec['camera']}:{spec['group']}" in self.problem.extra.get("ap_groups", {})
 
     def hypothesis_matrix(self, spec: dict):
         """H (reduced n × q) of a hypothesis; excluded observations drop out."""
@@ -412,6 +462,11 @@ class State(param.Parameterized):
             raise ValueError("no (included) observations")
         if spec["kind"] == "transfer":
             return common_error(n, [r for r in red if r.size])
+        if spec["kind"] == "ap-group":
+            # ∂f/∂s of the full problem at the current solution, cut to the observations kept
+            # (the core's builder reads the collinearity sets, which exclusion wraps)
+            full = SimpleNamespace(problem=self.problem, x=self.results.x, n=self.problem.n)
+            return bundle.h_ap_group(full, str(spec["camera"]), str(spec["group"])).tocsr()[self.kept].tocsc()
         return selection(n, red[0])
 
     def describe(self, spec: dict) -> str:
@@ -428,11 +483,16 @@ class State(param.Parameterized):
             return f"control point {spec['point']}"
         if kind == "transfer":
             return f"transfer of {spec['point']} in images {', '.join(map(str, spec['images']))}"
+        if kind == "ap-group":
+            how = "estimated" if self.ap_estimated(spec) else "not in the model"
+            return f"AP group {spec['group']} of camera {spec['camera']} ({how})"
         return str(spec)
 
     def hypothesis_point(self, spec: dict):
         """The point a hypothesis is about (for drawing its ellipse on the map), or None."""
         pid = spec.get("point")
+        if spec["kind"] == "ap-group":
+            return None
         if pid is None and spec["kind"] in ("observation", "group"):
             rows = self.hypothesis_rows(spec)[0]
             pts = self.obs_points[int(rows[0])] if rows.size else []
@@ -467,7 +527,8 @@ class State(param.Parameterized):
 
         observations: one row per observation of the full problem (index = full index) with the
         core's v, w, τ, r, MDB, δ̄0 (v and MDB in the unit of the observation's σ in the file),
-        MDB/σ, the decision and the exclusion flag. points: one row per point with its map
+        MDB/σ, the decision, the exclusion flag and the robust weight factor (NaN without robust
+        reweighting). points: one row per point with its map
         position, status, σ and the extreme values over its observations (min r, max |w|,
         max δ̄0, max MDB/σ).
         """
@@ -497,6 +558,7 @@ class State(param.Parameterized):
             "unit": list(units),
             "rejected": rejected,
             "excluded": np.isin(np.arange(p.n), sorted(self.excluded)),
+            "robust_w": self.expand(self.robust.weights) if self.robust is not None else np.full(p.n, np.nan),
         })
         obs.index.name = "index"
         coords = adj.coordinates
@@ -563,6 +625,282 @@ class State(param.Parameterized):
         err = np.zeros(adj.n)
         err[k] = adj.mdb[k]
         return adj.point_shifts(adj.deformation(err))
+
+    def hypothesis_deformation(self, k: int | None = None) -> np.ndarray:
+        """∇0x of hypothesis ``k`` (default the selected one) as point shifts (m × 3, metres):
+        the core's :func:`baarda.hypotheses.deformation` — the lower bound ∇0s in the direction
+        the test sees worst. Zero for an inactive hypothesis, a failed one or an AP-group test."""
+        k = self.selected_hypothesis if k is None else k
+        m = len(self.problem.points.ids)
+        h = self.hyp_results[k] if k is not None and k < len(self.hyp_results) else None
+        if not isinstance(h, HypothesisTest) or not np.isfinite(h.delta0):
+            return np.zeros((m, 3))
+        return self.results.point_shifts(deformation(self.results, h))
+
+    def external_field(self) -> tuple[str, np.ndarray]:
+        """The deformation field the external-reliability map shows: ``(label, shifts)`` of the
+        last selected observation or hypothesis ("" and zeros if there is none)."""
+        m = len(self.problem.points.ids)
+        k = self.selected_hypothesis
+        if self.field_source == "hypothesis" and k is not None and k < len(self.hypotheses):
+            shifts = self.hypothesis_deformation(k)
+            if np.abs(shifts).max(initial=0.0) > 0:
+                return f"hypothesis {self.hypotheses[k].get('label', k)}", shifts
+        if self.selected_obs is not None:
+            return f"obs {self.selected_obs}", self.deformation_field()
+        return "", np.zeros((m, 3))
+
+    @param.depends("selected_hypothesis", watch=True)
+    def _hypothesis_selected(self):
+        if self.selected_hypothesis is not None:
+            self.field_source = "hypothesis"
+
+    @param.depends("selected_obs", watch=True)
+    def _observation_selected(self):
+        if self.selected_obs is not None:
+            self.field_source = "observation"
+
+    # -- precision in an S-base -----------------------------------------------------------------
+    def datum_points(self) -> list[str]:
+        """Point ids of the problem's own S-base (a free network's), else [] (fixed points)."""
+        d = self.problem.datum
+        if getattr(d, "kind", "") != "free":
+            return []
+        ids = self.problem.points.ids
+        if not d.sbase:
+            return list(ids)
+        named = {str(b).rsplit(".", 1)[0] if str(b) not in ids else str(b) for b in d.sbase}
+        return [pid for pid in ids if pid in named]
+
+    def coordinate_covariance(self):
+        """The core's :class:`~baarda.precision.CoordinateCovariance` in the chosen S-base
+        (``sbase``; [] = the problem's datum), or None if the core refuses that base
+        (``sbase_error`` says why)."""
+        key = (self.results, tuple(self.sbase))
+        if self._cov is not None and self._cov[0] == key:
+            return self._cov[1]
+        try:
+            cc = precision.covariance(self.results, list(self.sbase) or None)
+            self.sbase_error = ""
+        except (BaardaError, np.linalg.LinAlgError) as err:
+            cc = None
+            self.sbase_error = f"S-base {', '.join(self.sbase)}: {err}"
+        self._cov = (key, cc)
+        return cc
+
+    def point_cov2(self) -> np.ndarray:
+        """Planimetric 2 × 2 covariance per point (m × 2 × 2, m², the adjustment's σ0) in the
+        chosen S-base; the adjustment's own per-point blocks when no S-base is chosen (or the
+        chosen one is refused)."""
+        cc = self.coordinate_covariance() if self.sbase else None
+        if cc is None:
+            return self.results.point_cov[:, :2, :2]
+        m = len(self.problem.points.ids)
+        out = np.zeros((m, 2, 2))
+        plan = (cc.axis < 2)
+        for p in np.unique(cc.point[plan]):
+            sel = np.flatnonzero((cc.point == p) & plan)
+            if sel.size == 2:
+                out[p] = cc.cov[np.ix_(sel, sel)]
+        return out
+
+    def sbase_check(self) -> str:
+        """The note beside the S-base control: r and w do not depend on the S-base.
+
+        For a free network the problem is adjusted again with the chosen S-base as its datum
+        and the core's r and w compared; otherwise the S-transformation acts on the covariance
+        alone (Σ_S = S Σ Sᵀ, M84 §2) and the adjustment is not repeated.
+        """
+        if not self.sbase:
+            return "S-base: the problem's own datum."
+        if self.sbase_error:
+            return self.sbase_error
+        if getattr(self.problem.datum, "kind", "") != "free":
+            return ("r and w unchanged: the S-transformation acts on the covariance only "
+                    "(Σ_S = S Σ Sᵀ); the adjustment, its r and w are the same.")
+        try:
+            other = adjust(replace(self.results.problem, datum=Datum("free", tuple(self.sbase))),
+                           self.options())
+        except BaardaError as err:
+            return f"S-base {', '.join(self.sbase)}: {err}"
+        dr = float(np.nanmax(np.abs(other.r - self.results.r), initial=0.0))
+        dw = float(np.nanmax(np.abs(other.w - self.results.w), initial=0.0))
+        return (f"r and w unchanged (free network adjusted again in this S-base): "
+                f"max |Δr| = {dr:.1e}, max |Δw| = {dw:.1e}")
+
+    # -- robust estimation, data snooping, variance components ----------------------------------
+    def _run_robust(self):
+        """Robust reweighting of the current problem with ``robust_method`` (None for "none")."""
+        if self.results is None or self.robust_method == "none":
+            self.robust = None
+            return
+        import time
+
+        t0 = time.perf_counter()
+        try:
+            with self._busy():
+                self.robust = robust.estimate(self.results.problem, self.robust_method, self.options())
+        except (BaardaError, np.linalg.LinAlgError) as err:
+            self.robust = None
+            self.analysis_error = f"Robust estimation ({self.robust_method}) failed: {err}"
+        self.timings = {**self.timings, "robust": time.perf_counter() - t0}
+
+    @param.depends("robust_method", watch=True)
+    def _robust_changed(self):
+        self._run_robust()
+
+    @param.depends("robust", watch=True)
+    def _robust_done(self):
+        self._frames = None
+
+    def robust_suspects(self) -> pd.DataFrame:
+        """The robust suspects (full indices) with R84 class, weight, size, and beside them the
+        data snooping of the least-squares adjustment (its w and decision)."""
+        cols = ["obs", "ids", "kind", "robust weight", "size [σ]", "class", "w (LS)", "LS rejects"]
+        rr = self.robust
+        if rr is None:
+            return pd.DataFrame(columns=cols)
+        obs, _ = self.frames()
+        rows = []
+        for d in rr.suspects:
+            i = int(self.kept[d["index"]])
+            rows.append({"obs": i, "ids": obs["ids"].iat[i], "kind": d["kind"],
+                         "robust weight": round(d["weight"], 4), "size [σ]": round(d["size_sigma"], 1),
+                         "class": d["class"], "w (LS)": round(float(obs["w"].iat[i]), 2),
+                         "LS rejects": bool(obs["rejected"].iat[i])})
+        return pd.DataFrame(rows, columns=cols)
+
+    def suspect_observations(self) -> list[int]:
+        """Full indices of every observation of the robust suspects (their clusters)."""
+        if self.robust is None:
+            return []
+        return sorted({int(self.kept[j]) for d in self.robust.suspects for j in d["members"]})
+
+    def run_snooping(self) -> bool:
+        """Iterative data snooping (:func:`baarda.snooping.iterate`) of the current problem with
+        w (σ0 a priori) or τ (a posteriori), and σ̂0 with each of the ``LOO_SUSPECTS`` largest
+        |w| left out in turn (:func:`baarda.snooping.leave_one_out`)."""
+        adj = self.results
+        try:
+            with self._busy():
+                res = snooping.iterate(adj.problem, self.options(), use_tau=self.sigma0_mode == "aposteriori")
+                top = np.argsort(-np.abs(np.nan_to_num(adj.w)), kind="stable")[:LOO_SUSPECTS]
+                loo = snooping.leave_one_out(adj, [int(i) for i in top])
+        except (BaardaError, np.linalg.LinAlgError) as err:
+            self.analysis_error = f"Data snooping failed: {err}"
+            return False
+        self.param.update(snoop=res, snoop_loo=loo, analysis_error="")
+        return True
+
+    def snoop_log(self) -> pd.DataFrame:
+        """One row per snooping step: full index, ids, |w| (or |τ|), critical value, ∇̂ (file
+        units), σ̂0 before → after."""
+        cols = ["step", "obs", "ids", "|w|", "critical", "∇̂", "σ̂0 before", "σ̂0 after"]
+        if self.snoop is None:
+            return pd.DataFrame(columns=cols)
+        obs, _ = self.frames()
+        factor, units = display_factor(self.problem)
+        rows = []
+        for k, st in enumerate(self.snoop.steps, 1):
+            i = int(self.kept[st.removed])
+            rows.append({"step": k, "obs": i, "ids": f"{obs['kind'].iat[i]} {obs['ids'].iat[i]}",
+                         "|w|": round(st.statistic, 3), "critical": round(st.critical, 3),
+                         "∇̂": f"{st.nabla * factor[i]:.4g} {units[i]}",
+                         "σ̂0 before": round(st.sigma0_before, 4), "σ̂0 after": round(st.sigma0_after, 4)})
+        return pd.DataFrame(rows, columns=cols)
+
+    def loo_table(self) -> pd.DataFrame:
+        cols = ["obs", "ids", "w", "σ̂0 without", "ratio"]
+        obs, _ = self.frames()
+        rows = [{"obs": int(self.kept[d["index"]]), "ids": obs["ids"].iat[int(self.kept[d["index"]])],
+                 "w": round(d["w"], 3), "σ̂0 without": round(d["sigma0_without"], 4),
+                 "ratio": round(d["ratio"], 4)} for d in self.snoop_loo]
+        return pd.DataFrame(rows, columns=cols)
+
+    def accept_snooping(self) -> bool:
+        """Exclude the observations the snooping removed (a full rerun)."""
+        if self.snoop is None or not self.snoop.steps:
+            return False
+        removed = {int(self.kept[i]) for i in self.snoop.removed}
+        return self._set_excluded(self.excluded | removed)
+
+    def run_variance(self) -> bool:
+        """Variance components per observation family (:func:`baarda.variance.estimate`)."""
+        try:
+            with self._busy():
+                vc = variance.estimate(self.results.problem, options=self.options())
+        except (BaardaError, np.linalg.LinAlgError) as err:
+            self.param.update(variance=None, analysis_error=f"Variance components: {err}")
+            return False
+        self.param.update(variance=vc, analysis_error="")
+        return True
+
+    def variance_table(self) -> pd.DataFrame:
+        cols = ["family", "σ̂0j²", "± s.e.", "σ̂0j", "redundancy"]
+        if self.variance is None:
+            return pd.DataFrame(columns=cols)
+        return pd.DataFrame([{"family": d["group"], "σ̂0j²": round(d["factor"], 4),
+                              "± s.e.": round(d["std_error"], 4), "σ̂0j": round(d["sigma_factor"], 4),
+                              "redundancy": round(d["redundancy"], 2)}
+                             for d in self.variance.as_dict()], columns=cols)
+
+    # -- teaching: inject an error --------------------------------------------------------------
+    def injected_error(self, index: int, size: float, unit: str = "sigma") -> np.ndarray:
+        """The error vector (reduced problem, SI) of ``size`` σ or MDB in observation ``index``."""
+        adj = self.results
+        k = int(self.reduced_index([index])[0])
+        if k < 0:
+            raise ValueError(f"observation {index} is excluded")
+        scale = adj.problem.cov.sigma()[k] if unit == "sigma" else adj.mdb[k]
+        if not np.isfinite(scale):
+            raise ValueError(f"observation {index} has no finite MDB (r = {adj.r[k]:.3g})")
+        e = np.zeros(adj.n)
+        e[k] = float(size) * float(scale)
+        return e
+
+    def inject(self, index: int, size: float, unit: str = "sigma") -> dict | None:
+        """Adjust a copy of the problem with an error added to observation ``index`` and keep
+        what the tests see in ``injection``; the loaded data stay as they are."""
+        adj = self.results
+        try:
+            e = self.injected_error(index, size, unit)
+            with self._busy():
+                new = adjust(replace(adj.problem, l=adj.problem.l + e), adj.options)
+        except (ValueError, BaardaError, np.linalg.LinAlgError) as err:
+            self.param.update(injection=None, analysis_error=f"Cannot inject: {err}")
+            return None
+        k = int(self.reduced_index([index])[0])
+        aposteriori = self.sigma0_mode == "aposteriori"
+        stat = np.abs(np.nan_to_num(new.tau if aposteriori else new.w))
+        crit = new.critical_tau if aposteriori else new.critical_w
+        top = int(np.argmax(stat))
+        group = next((g for g in new.groups if k in g["members"]), None)
+        factor, units = display_factor(self.problem)
+        out = {"index": int(index), "size": float(size), "unit": unit,
+               "error": float(e[k] * factor[index]), "error_unit": units[index],
+               "statistic": "τ" if aposteriori else "w",
+               "w_before": float((adj.tau if aposteriori else adj.w)[k]),
+               "w_after": float((new.tau if aposteriori else new.w)[k]),
+               "critical": float(crit), "rejected": bool(stat[k] > crit),
+               "largest": float(stat[top]), "largest_index": int(self.kept[top]),
+               "largest_label": observation_label(self.problem, int(self.kept[top])),
+               "group_T": None if group is None else float(group["T"]),
+               "group_critical": None if group is None else float(group["critical"]),
+               "global_passed": new.global_test.get("passed"),
+               "sigma0_post": float(new.sigma0_post), "error_vector": e}
+        self.param.update(injection=out, analysis_error="")
+        return out
+
+    def keep_injection(self) -> bool:
+        """Make the last injected error part of the loaded data (the user asked to keep it)."""
+        inj = self.injection
+        if inj is None:
+            return False
+        l = np.array(self.problem.l, dtype=float)
+        l[self.kept] += inj["error_vector"]
+        with param.parameterized.discard_events(self):
+            self.problem = replace(self.problem, l=l)
+        return self._readjust()
 
     def observations_of_point(self, k: int) -> list[int]:
         return [i for i, pts in enumerate(self.obs_points) if k in pts]

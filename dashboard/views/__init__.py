@@ -1,5 +1,6 @@
 """The dashboard's views: each a ``pn.viewable.Viewer`` that renders the :class:`State`."""
 
+from .analysis import AnalysisPanel, InjectPanel
 from .controls import Controls, FilePanel, SelectionPanel
 from .hypotheses import HypothesisPanel
 from .maps import (MAP_VIEWS, ExternalMap, ImageResidualView, LayoutMap, MDBMap, PrecisionMap,
@@ -8,6 +9,6 @@ from .summary import SummaryHeader
 from .table import TestsTable
 from .teaching import TeachingView
 
-__all__ = ["Controls", "FilePanel", "SelectionPanel", "HypothesisPanel", "MAP_VIEWS", "ExternalMap",
+__all__ = ["AnalysisPanel", "InjectPanel", "Controls", "FilePanel", "SelectionPanel", "HypothesisPanel", "MAP_VIEWS", "ExternalMap",
            "ImageResidualView", "LayoutMap", "MDBMap", "PrecisionMap", "RedundancyMap", "ResidualMap",
            "SummaryHeader", "TestsTable", "TeachingView"]

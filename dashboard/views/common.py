@@ -151,4 +151,23 @@ def selection_layer(state) -> hv.Overlay:
         size=22, fill_alpha=0, line_color="#e6007e", line_width=3, nonselection_alpha=1, tools=[])
     sel_line = hv.Path(line).opts(color="#e6007e", line_width=4,
                                                                   nonselection_alpha=1)
-    return sel_line * rings
+    return suspects_layer(state) * sel_line * rings
+
+
+def suspects_layer(state) -> hv.Overlay:
+    """The robust suspects: their lines (network observations) and points, in orange."""
+    obs, pts = state.frames()
+    sus = state.suspect_observations()
+    lines, marks = [], set()
+    for i in sus:
+        k = state.obs_points[i]
+        marks.update(k[-1:] if state.problem.info.kind[i].startswith("image") else k)
+        if len(k) >= 2 and not state.problem.info.kind[i].startswith("image"):
+            lines += [np.array([[pts["x"].iat[k[0]], pts["y"].iat[k[0]]], [pts["x"].iat[j], pts["y"].iat[j]]])
+                      for j in k[1:]]
+    path = hv.Path(lines).opts(color="#ff7f0e", line_width=6, alpha=0.6,
+                                                             line_dash="dotted", nonselection_alpha=0.6)
+    points = hv.Points(pts.iloc[sorted(marks)], ["x", "y"], ["id"]).opts(
+        marker="diamond", size=20, fill_alpha=0, line_color="#ff7f0e", line_width=3,
+        nonselection_alpha=1, tools=[])
+    return path * points

@@ -10,7 +10,7 @@ from pathlib import Path
 import panel as pn
 import param
 
-from ..state import State, observation_label
+from ..state import ROBUST_METHODS, State, observation_label
 
 ALPHAS = [1e-5, 1e-4, 2e-4, 5e-4, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1]
 MAX_UPLOAD_MB = 50
@@ -39,8 +39,11 @@ class Controls(pn.viewable.Viewer):
         self.sigma = pn.widgets.RadioButtonGroup(name="σ0", options={"σ0 a priori (w)": "apriori",
                                                                    "σ̂0 a posteriori (τ)": "aposteriori"},
                                                  value=s.sigma0_mode, sizing_mode="stretch_width")
+        self.robust = pn.widgets.Select(name="Robust reweighting (M84 §3.1, R84)", options=list(ROBUST_METHODS),
+                                        value=s.robust_method, css_classes=["robust-select"],
+                                        sizing_mode="stretch_width")
         for w, name in ((self.alpha, "alpha0"), (self.beta, "beta0"), (self.b_method, "b_method"),
-                        (self.sigma, "sigma0_mode")):
+                        (self.sigma, "sigma0_mode"), (self.robust, "robust_method")):
             _two_way(w, s, name)
         self.delta = pn.pane.Markdown(pn.bind(self._delta_text, s.param.results),
                                       css_classes=["delta0"], sizing_mode="stretch_width")
@@ -54,7 +57,7 @@ class Controls(pn.viewable.Viewer):
 
     def __panel__(self):
         return pn.Column("### Tests", self.alpha, self.beta, self.delta, self.b_method, self.sigma,
-                         sizing_mode="stretch_width")
+                         self.robust, sizing_mode="stretch_width")
 
 
 class SelectionPanel(pn.viewable.Viewer):

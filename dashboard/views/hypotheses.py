@@ -9,6 +9,8 @@ import pandas as pd
 import panel as pn
 import param
 
+from baarda.bundle import AP_GROUPS, APTest
+
 from ..state import State, display_factor
 
 KINDS = {
@@ -17,6 +19,7 @@ KINDS = {
     "image-point": "image point (x, y)",
     "control": "control point",
     "transfer": "point transfer across images",
+    "ap-group": "additional-parameter group (camera)",
 }
 
 
@@ -35,6 +38,8 @@ class HypothesisPanel(pn.viewable.Viewer):
         self.point = pn.widgets.Select(name="Point", options=[], width=150, css_classes=["hyp-point"])
         self.image = pn.widgets.Select(name="Image", options=[], width=150, css_classes=["hyp-image"])
         self.images = pn.widgets.MultiChoice(name="Images (the transferred point's)", options=[], width=260)
+        self.camera = pn.widgets.Select(name="Camera", options=[], width=150, css_classes=["hyp-camera"])
+        self.ap_group = pn.widgets.Select(name="AP group", options=[], width=150, css_classes=["hyp-ap"])
         self.add = pn.widgets.Button(name="Test", button_type="primary", width=90,
                                      css_classes=["hyp-add"])
         self.remove = pn.widgets.Button(name="Remove selected", width=130)
@@ -46,6 +51,7 @@ class HypothesisPanel(pn.viewable.Viewer):
         self.remove.on_click(self._remove)
         self.kind.param.watch(self._kind_changed, "value")
         self.point.param.watch(self._point_changed, "value")
+        self.camera.param.watch(lambda e: setattr(self.ap_group, "options", self._ap_options()), "value")
         self.results.on_edit(self._edited)
         self.results.param.watch(self._selected, "selection")
         s.param.watch(self._refresh_options, ["problem"])
@@ -68,6 +74,24 @@ class HypothesisPanel(pn.viewable.Viewer):
             out[KINDS["transfer"]] = "transfer"
         if any("id" in ids for ids in p.info.ids):
             out[KINDS["control"]] = "control"
+        if self._cameras():
+            out[KINDS["ap-group"]] = "ap-group"
+        return out
+
+    def _cameras(self) -> list[str]:
+        block = self.state.block
+        return [str(c["id"]) for c in block.get("cameras", [])] if isinstance(block, dict) else []
+
+    def _ap_options(self) -> dict:
+        """AP groups: the estimated ones (``extra["ap_groups"]``) first, then the others."""
+        est = self.state.problem.extra.get("ap_groups", {})
+        out = {}
+        for g in AP_GROUPS:
+            if f"{self.camera.value}:{g}" in est:
+                out[f"{g} (estimated: significance)"] = g
+        for g in AP_GROUPS:
+            if f"{self.camera.value}:{g}" not in est:
+                out[f"{g} (not in the model: H = ∂f/∂s)"] = g
         return out
 
     def _refresh_options(self, *_):
@@ -79,6 +103,8 @@ class HypothesisPanel(pn.viewable.Viewer):
             if g >= 0 and int(g) not in groups.values():
                 groups[f"{int(g)}: " + self.state.describe({"kind": "group", "group": int(g)})] = int(g)
         self.group.options = groups
+        self.camera.options = self._cameras()
+        self.ap_group.options = self._ap_options()
         self._kind_changed()
 
     def _kind_changed(self, *_):
@@ -98,6 +124,7 @@ class HypothesisPanel(pn.viewable.Viewer):
         self.point.visible = kind in ("image-point", "transfer", "control")
         self.image.visible = kind == "image-point"
         self.images.visible = kind == "transfer"
+        self.camera.visible = self.ap_group.visible = kind == "ap-group"
 
     def _point_changed(self, *_):
         p = self.state.problem
@@ -126,6 +153,8 @@ class HypothesisPanel(pn.viewable.Viewer):
             return {"kind": kind, "image": self.image.value, "point": self.point.value}
         if kind == "control":
             return {"kind": kind, "point": self.point.value}
+        if kind == "ap-group":
+            return {"kind": kind, "camera": self.camera.value, "group": self.ap_group.value}
         return {"kind": kind, "point": self.point.value, "images": list(self.images.value)}
 
     # -- actions --------------------------------------------------------------------------------
@@ -153,7 +182,7 @@ class HypothesisPanel(pn.viewable.Viewer):
 
     def _selected(self, event):
         if event.new:
-            self.state.selected_hypothesis = int(event.new[0])
+            self.state.param.update(selected_hypothesis=int(event.new[0]), field_source="hypothesis")
 
     # -- display --------------------------------------------------------------------------------
     def frame(self) -> pd.DataFrame:
@@ -167,6 +196,12 @@ class HypothesisPanel(pn.viewable.Viewer):
                    "∇ŝ": "", "σ∇ŝ": "", "δ0'max": None}
             if isinstance(h, str):
                 row["decision"] = h
+            elif isinstance(h, APTest):
+                row.update({"q": h.q, "T": round(h.T, 3), "critical T": round(h.critical, 3),
+                            "decision": "SIGNIFICANT" if h.significant else "not significant",
+                            "∇ŝ": ", ".join(f"{x:.3g}" for x in h.estimate) + " (ŝ)",
+                            "σ∇ŝ": ", ".join(f"{x:.3g}" for x in h.sigma),
+                            "δ0'max": round(h.delta0_prime_max, 2) if np.isfinite(h.delta0_prime_max) else None})
             elif h is not None:
                 first = s.hypothesis_rows(spec)[0]
                 f = factor[int(first[0])] if len(first) else 1.0
@@ -194,7 +229,10 @@ class HypothesisPanel(pn.viewable.Viewer):
         k = s.selected_hypothesis
         h = s.hyp_results[k] if k is not None and k < len(s.hyp_results) else None
         ell, est, title = [], pd.DataFrame({"s1": [], "s2": []}), "Select a hypothesis"
-        if h is not None and not isinstance(h, str):
+        if isinstance(h, APTest):
+            title = (f"AP group, q = {h.q}: T = {h.T:.2f}, semi-axes "
+                     + ", ".join(f"{x:.3g}" for x in h.ellipsoid_axes))
+        elif h is not None and not isinstance(h, str):
             spec = s.hypotheses[k]
             factor, units = display_factor(s.problem)
             first = s.hypothesis_rows(spec)[0]
@@ -220,6 +258,7 @@ class HypothesisPanel(pn.viewable.Viewer):
 
     def __panel__(self):
         form = pn.FlexBox(self.kind, self.obs_input, self.group, self.point, self.image, self.images,
+                          self.camera, self.ap_group,
                           pn.Column(pn.Spacer(height=18), pn.Row(self.add, self.remove)),
                           sizing_mode="stretch_width")
         return pn.Column(

@@ -15,6 +15,8 @@ import panel as pn
 import param
 from bokeh.events import Tap
 
+from baarda.hypotheses import HypothesisTest
+
 from ..state import State, display_matrix
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
                      round_scale, selection_layer)
@@ -38,7 +40,7 @@ class MapView(pn.viewable.Viewer):
     """Base class: subclasses give ``name_`` and ``layers()``; the title comes from ``title()``."""
 
     state = param.ClassSelector(class_=State)
-    depends = ("results", "selected_point", "selected_obs")
+    depends = ("results", "selected_point", "selected_obs", "robust")
 
     def __init__(self, **params):
         super().__init__(**params)
@@ -104,7 +106,7 @@ class LayoutMap(MapView):
     """Points coloured by status, observation lines by kind; block footprints, centres, strips."""
 
     key = "layout"
-    depends = ("results", "selected_point", "selected_obs", "hyp_results", "selected_hypothesis")
+    depends = ("results", "selected_point", "selected_obs", "robust", "hyp_results", "selected_hypothesis")
 
     def title(self):
         s = self.state
@@ -121,7 +123,7 @@ class LayoutMap(MapView):
         if k is None or k >= len(s.hyp_results) or k >= len(s.hypotheses):
             return None, []
         h = s.hyp_results[k]
-        if h is None or isinstance(h, str) or h.q != 2 or not np.isfinite(h.ellipse_axes).all():
+        if not isinstance(h, HypothesisTest) or h.q != 2 or not np.isfinite(h.ellipse_axes).all():
             return None, []
         pk = s.hypothesis_point(s.hypotheses[k])
         if pk is None:
@@ -205,28 +207,30 @@ class ResidualMap(MapView):
 
 class ExternalMap(MapView):
     """δ̄0 per point (largest over its observations); the deformation field of the selected
-    observation's MDB as vectors (from the core's Adjustment.deformation)."""
+    observation's MDB (the core's Adjustment.deformation) or of the selected hypothesis' lower
+    bound (the core's hypotheses.deformation) as vectors."""
 
     key = "external"
+    depends = ("results", "selected_point", "selected_obs", "robust", "hyp_results", "selected_hypothesis",
+               "field_source")
 
     def _field(self):
         s = self.state
         pts = self.points()
-        shifts = s.deformation_field()
+        label, shifts = s.external_field()
         d = (display_matrix(s.problem) @ shifts[:, :2].T).T
         if s.problem.points.dim == 1:
             d = np.column_stack([np.zeros(len(pts)), shifts[:, 2]])
         size = np.hypot(d[:, 0], d[:, 1])
         big = size.max(initial=0.0)
         scale = round_scale(0.12 * extent(pts) / big) if big > 0 else 1.0
-        return d, size, scale
+        return label, d, size, scale
 
     def title(self):
-        s = self.state
-        if s.selected_obs is None:
-            return "External reliability δ̄0 (select an observation: its ∇0x)"
-        d, size, scale = self._field()
-        return (f"External reliability δ̄0; ∇0x of obs {s.selected_obs}: "
+        label, d, size, scale = self._field()
+        if not label:
+            return "External reliability δ̄0 (select an observation or a hypothesis: its ∇0x)"
+        return (f"External reliability δ̄0; ∇0x of {label}: "
                 f"max {1000 * size.max(initial=0):.3g} mm, ×{scale:g}")
 
     def layers(self):
@@ -235,7 +239,7 @@ class ExternalMap(MapView):
             color="max_ext", cmap="viridis", colorbar=True, size=12, line_color="#333333",
             tools=["hover", "tap"], nonselection_alpha=1, clipping_colors={"NaN": "#cccccc"},
             clabel="δ̄0")
-        d, size, scale = self._field()
+        _, d, size, scale = self._field()
         keep = size > 0
         vec = pd.DataFrame({"x0": pts["x"][keep], "y0": pts["y"][keep],
                             "x1": pts["x"][keep] + scale * d[keep, 0],
@@ -286,14 +290,31 @@ class PrecisionMap(MapView):
     """Standard error ellipses from the core's point covariances (σ0 as chosen), exaggerated."""
 
     key = "precision"
-    depends = ("results", "selected_point", "selected_obs")
+    depends = ("results", "selected_point", "selected_obs", "robust", "sbase")
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        s = self.state
+        datum = s.datum_points()
+        self.sbase = pn.widgets.MultiChoice(
+            name="S-base (empty: the problem's datum" + (f" — {', '.join(datum)})" if datum else
+                                                        ", its fixed / weighted points)"),
+            options=list(s.problem.points.ids), value=list(s.sbase), css_classes=["sbase-choice"],
+            sizing_mode="stretch_width", visible=s.problem.points.dim > 1)
+        self.sbase.param.watch(lambda e: setattr(s, "sbase", list(e.new)), "value")
+        s.param.watch(lambda e: setattr(self.sbase, "value", list(e.new)), "sbase")
+        self.note = pn.pane.Markdown(pn.bind(lambda *_: s.sbase_check(), s.param.results, s.param.sbase),
+                                     css_classes=["sbase-note"], sizing_mode="stretch_width",
+                                     visible=s.problem.points.dim > 1)
+
+    def __panel__(self):
+        return pn.Column(self.sbase, self.note, self._pane, sizing_mode="stretch_width")
 
     def _ellipses(self):
         s = self.state
-        adj = s.results
         pts = self.points()
         M = display_matrix(s.problem)
-        C = np.einsum("ij,mjk,lk->mil", M, adj.point_cov[:, :2, :2], M)
+        C = np.einsum("ij,mjk,lk->mil", M, s.point_cov2(), M)
         axis = np.sqrt(np.maximum(np.linalg.eigvalsh(C)[:, -1], 0.0))
         big = axis.max(initial=0.0)
         scale = round_scale(0.05 * extent(pts) / big) if big > 0 else 1.0
@@ -307,7 +328,8 @@ class PrecisionMap(MapView):
         if s.problem.points.dim == 1:
             return f"Precision: σ of the heights [mm] ({sig})"
         _, scale, big = self._ellipses()
-        return f"Standard ellipses ({sig}) ×{scale:g}, largest {1000 * big:.3g} mm"
+        base = f"S-base {', '.join(s.sbase)}" if s.sbase and not s.sbase_error else "datum of the problem"
+        return f"Standard ellipses ({sig}, {base}) ×{scale:g}, largest {1000 * big:.3g} mm"
 
     def layers(self):
         pts = self.points()

@@ -15,7 +15,8 @@ import param
 from ..state import State
 
 COLUMNS = {"kind": "kind [unit]", "ids": "ids", "v": "v", "w": "w", "tau": "τ", "r": "r",
-           "mdb": "MDB", "ext": "δ̄0", "rejected": "rej.", "excluded": "excl."}
+           "mdb": "MDB", "ext": "δ̄0", "rejected": "rej.", "excluded": "excl.",
+           "robust_w": "robust weight"}
 WIDTHS = {"index": 48, "kind": 105, "ids": 112, "rejected": 44, "excluded": 44}
 TABLE_CSS = ".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; }"
 
@@ -33,6 +34,7 @@ class TestsTable(pn.viewable.Viewer):
         self.table = pn.widgets.Tabulator(
             self._frame(), layout="fit_data_stretch", sizing_mode="stretch_width", height=560,
             selectable=True, show_index=True, disabled=True,
+            hidden_columns=[] if self.state.robust is not None else ["robust_w"],
             pagination="local", page_size=200,
             header_filters={"kind": {"type": "input", "func": "like", "placeholder": "kind"},
                             "ids": {"type": "input", "func": "like", "placeholder": "ids"},
@@ -41,12 +43,14 @@ class TestsTable(pn.viewable.Viewer):
             formatters={"rejected": {"type": "tickCross"}, "excluded": {"type": "tickCross"},
                         "v": NumberFormatter(format="0.[000]"), "w": NumberFormatter(format="0.000"),
                         "tau": NumberFormatter(format="0.000"), "r": NumberFormatter(format="0.000"),
-                        "mdb": NumberFormatter(format="0.[000]"), "ext": NumberFormatter(format="0.00")},
+                        "mdb": NumberFormatter(format="0.[000]"), "ext": NumberFormatter(format="0.00"),
+                        "robust_w": NumberFormatter(format="0.000", nan_format="")},
             titles=COLUMNS, css_classes=["tests-table"], stylesheets=[TABLE_CSS], widths=WIDTHS,
-            text_align={"v": "right", "w": "right", "tau": "right", "r": "right", "mdb": "right", "ext": "right"})
+            text_align={"v": "right", "w": "right", "tau": "right", "r": "right", "mdb": "right", "ext": "right",
+                        "robust_w": "right"})
         self.only_selection.param.watch(self._refresh, "value")
         self.table.param.watch(self._on_selection, "selection")
-        self.state.param.watch(self._refresh, ["results"])
+        self.state.param.watch(self._refresh, ["results", "robust"])
         self.state.param.watch(self._select_from_state, ["selected_point", "selected_obs"])
 
     def _frame(self):
@@ -56,7 +60,7 @@ class TestsTable(pn.viewable.Viewer):
         rows = self._state_rows()
         if self.only_selection.value and rows is not None:
             df = df.loc[df.index.isin(rows)]
-        for c in ("v", "w", "tau", "r", "mdb", "ext"):
+        for c in ("v", "w", "tau", "r", "mdb", "ext", "robust_w"):
             df[c] = df[c].astype(float)
         return df
 
@@ -71,6 +75,7 @@ class TestsTable(pn.viewable.Viewer):
     def _refresh(self, *_):
         self._syncing = True
         try:
+            self.table.hidden_columns = [] if self.state.robust is not None else ["robust_w"]
             self.table.value = self._frame()
             self._apply_selection()
         finally:

@@ -220,3 +220,83 @@ def test_alpha_changes_delta0_and_mdb_data(page, network_app, screenshots):
     np.testing.assert_allclose(a[ok], b[ok] * ratio, rtol=1e-6)
     page.screenshot(path=str(screenshots / "network-alpha-changed.png"))
     assert real_errors(errors) == []
+
+
+def _ellipses(page):
+    return [np.asarray(x, dtype=float) for col in page.evaluate(JS_COLUMN, "xs") for x in col
+            if len(x) == 49]
+
+
+def test_sbase_and_robust_selector(page, network_app, screenshots):
+    """The S-base choice changes the ellipse data in the page and says r, w are unchanged; the
+    robust selector runs the core's robust estimation and shows its suspects (issue 4, 7)."""
+    state, errors = open_app(page, network_app)
+    click_tab(page, "Precision")
+    wait_for_title(page, "Standard ellipses")
+    before = _ellipses(page)
+    assert before
+    free = [pid for pid, s in zip(state.problem.points.ids, state.problem.points.status) if s != "fixed"]
+    box = page.locator(".sbase-choice input.choices__input--cloned").first
+    for pid in free[:3]:
+        box.click()
+        box.fill(pid)
+        page.wait_for_timeout(300)
+        box.press("Enter")
+        page.wait_for_timeout(500)
+    # Choices.js matches fuzzily ("3" may pick "403"): whatever three points were picked
+    assert wait_until(lambda: len(state.sbase) == 3), state.sbase
+    assert set(state.sbase) <= set(state.problem.points.ids)
+    assert wait_until(lambda: any(t.startswith("Standard ellipses") and "S-base" in t
+                                  for t in page.evaluate(JS_TITLES)), 30)
+    page.wait_for_timeout(1000)
+    after = _ellipses(page)
+    # the fixed points, outside the new S-base, get ellipses too
+    assert len(after) >= len(before)
+    assert len(after) > len(before) or any(not np.allclose(a, b) for a, b in zip(after, before)), \
+        "ellipse data did not change"
+    assert page.locator(".sbase-note").count() >= 1
+    assert page.locator(".sbase-note").get_by_text("r and w unchanged").count() >= 1
+
+    page.locator(".robust-select select").first.select_option("danish")
+    assert wait_until(lambda: state.robust is not None and state.robust.method == "danish", 60)
+    page.wait_for_timeout(800)            # known: the Choices.js dropdown may still cover the map here
+    page.screenshot(path=str(screenshots / "network-precision-sbase.png"))
+    click_tab(page, "Find errors")
+    page.wait_for_timeout(1000)
+    assert page.locator(".robust-info").get_by_text("danish").count() >= 1
+    page.get_by_role("button", name="Run iterative data snooping").click()
+    assert wait_until(lambda: state.snoop is not None, 60)
+    page.wait_for_timeout(1500)
+    assert page.locator(".loo-table .tabulator-row").count() == len(state.snoop_loo)
+    page.screenshot(path=str(screenshots / "network-find-errors.png"))
+    click_tab(page, "Tests table")
+    page.wait_for_timeout(800)
+    assert page.get_by_text("robust weight").count() >= 1
+    page.screenshot(path=str(screenshots / "network-robust-table.png"))
+    assert real_errors(errors) == []
+
+
+def test_block_robust_suspects_and_injection(page, block_app, screenshots):
+    state, errors = open_app(page, block_app)
+    page.locator(".robust-select select").first.select_option("r84")
+    assert wait_until(lambda: state.robust is not None and state.robust.method == "r84", 90)
+    click_tab(page, "w")
+    wait_for_title(page, "|w|")
+    page.wait_for_timeout(1500)
+    page.screenshot(path=str(screenshots / "block-robust-map.png"))
+    click_tab(page, "Find errors")
+    page.wait_for_timeout(1000)
+    assert page.locator(".robust-table .tabulator-row").count() == len(state.robust.suspects)
+    page.screenshot(path=str(screenshots / "block-find-errors.png"))
+    obs, _ = state.frames()
+    i = int(obs["r"].iloc[:12].to_numpy().argmax())        # a well-controlled one on screen
+    click_tab(page, "Tests table")
+    page.locator(".tests-table .tabulator-row").nth(i).click()
+    assert wait_until(lambda: state.selected_obs == i), state.selected_obs
+    click_tab(page, "Teaching")
+    page.get_by_role("button", name="Inject and adjust").click()
+    assert wait_until(lambda: state.injection is not None, 60)
+    page.wait_for_timeout(1000)
+    assert page.locator(".inject-result").get_by_text("a copy of the data").count() >= 1
+    page.screenshot(path=str(screenshots / "block-inject.png"))
+    assert state.injection["index"] == i and real_errors(errors) == []

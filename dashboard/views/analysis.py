@@ -1,0 +1,191 @@
+"""Finding errors: robust reweighting beside data snooping, iterative data snooping with the
+leave-one-out view, variance components (issue 7), and the "inject an error here" teaching tool.
+
+Every number comes from the core through the state (:meth:`State.robust_suspects`,
+:meth:`State.run_snooping`, :meth:`State.run_variance`, :meth:`State.inject`); these views only
+show them and forward button clicks.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+import panel as pn
+import param
+
+from ..state import State, observation_label
+
+TABLE = dict(show_index=False, disabled=True, sizing_mode="stretch_width", layout="fit_data_stretch",
+             stylesheets=[".tabulator { font-size: 12px; }"])
+
+
+def _table(css: str, height: int) -> pn.widgets.Tabulator:
+    return pn.widgets.Tabulator(pd.DataFrame(), height=height, css_classes=[css], **TABLE)
+
+
+class AnalysisPanel(pn.viewable.Viewer):
+    """Robust suspects (R84 classes) with the least-squares data snooping beside (M84 §3.2);
+    iterative data snooping and σ̂0 with each top suspect left out; variance components."""
+
+    state = param.ClassSelector(class_=State)
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        s = self.state
+        self.message = pn.pane.Alert("", alert_type="warning", visible=False, sizing_mode="stretch_width",
+                                     css_classes=["analysis-alert"])
+        self.robust_info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["robust-info"])
+        self.robust_table = _table("robust-table", 200)
+        self.snoop_button = pn.widgets.Button(name="Run iterative data snooping", button_type="primary",
+                                              width=220, css_classes=["snoop-run"])
+        self.accept = pn.widgets.Button(name="Accept: exclude the removed", button_type="warning", width=210,
+                                        disabled=True, css_classes=["snoop-accept"])
+        self.snoop_info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["snoop-info"])
+        self.snoop_table = _table("snoop-table", 130)
+        self.loo_table = _table("loo-table", 130)
+        self.variance_button = pn.widgets.Button(name="Estimate variance components", width=230,
+                                                 css_classes=["variance-run"])
+        self.variance_table = _table("variance-table", 90)
+        self.snoop_button.on_click(lambda e: s.run_snooping())
+        self.accept.on_click(lambda e: s.accept_snooping())
+        self.variance_button.on_click(lambda e: s.run_variance())
+        s.param.watch(self._robust, ["robust", "robust_method", "results"])
+        s.param.watch(self._snoop, ["snoop", "snoop_loo", "results"])
+        s.param.watch(self._variance, ["variance", "results"])
+        s.param.watch(self._message, ["analysis_error"])
+        self._robust()
+        self._snoop()
+        self._variance()
+
+    def _message(self, *_):
+        self.message.object = self.state.analysis_error
+        self.message.visible = bool(self.state.analysis_error)
+
+    def _robust(self, *_):
+        s = self.state
+        rr = s.robust
+        self.robust_table.value = s.robust_suspects()
+        self.robust_table.visible = rr is not None and bool(rr.suspects)
+        if s.robust_method == "none":
+            self.robust_info.object = "*Robust reweighting is off (choose a method in the sidebar).*"
+            return
+        if rr is None:
+            self.robust_info.object = f"*{s.robust_method}: no result.*"
+            return
+        obs, _ = s.frames()
+        rejected = obs.index[obs["rejected"] & ~obs["excluded"]].tolist()
+        final = ""
+        if rr.final is not None:
+            g = rr.final.global_test
+            final = (f" Least squares without them: σ̂0 = {rr.final.sigma0_post:.4g}, global test "
+                     f"{'passed' if g.get('passed') else 'FAILED'}.")
+        self.robust_info.object = (
+            f"**{rr.method}**: {rr.iterations} iterations ({'converged' if rr.converged else 'NOT converged'}), "
+            f"{len(rr.suspects)} suspects (orange on the maps).{final}  \n"
+            f"Data snooping of the least-squares fit beside: {len(rejected)} rejected"
+            + (f" ({', '.join(map(str, rejected[:8]))}{'…' if len(rejected) > 8 else ''})" if rejected else "")
+            + ".")
+
+    def _snoop(self, *_):
+        s = self.state
+        res = s.snoop
+        self.snoop_table.value = s.snoop_log()
+        self.loo_table.value = s.loo_table()
+        self.snoop_table.visible = res is not None and bool(res.steps)
+        self.loo_table.visible = bool(s.snoop_loo)
+        self.accept.disabled = res is None or not res.steps
+        if res is None:
+            self.snoop_info.object = ""
+            return
+        stat = "τ" if res.use_tau else "w"
+        self.snoop_info.object = (f"{len(res.steps)} observations removed (test with {stat}); final σ̂0 = "
+                                  f"{res.adjustment.sigma0_post:.4g}. Below: σ̂0 with each of the largest "
+                                  f"|w| left out in turn (the likeliest error lowers it most).")
+
+    def _variance(self, *_):
+        self.variance_table.value = self.state.variance_table()
+        self.variance_table.visible = self.state.variance is not None
+
+    def __panel__(self):
+        return pn.Column(
+            self.message,
+            "#### Robust reweighting and data snooping (M84 §3.2)", self.robust_info, self.robust_table,
+            "#### Iterative data snooping", pn.Row(self.snoop_button, self.accept), self.snoop_info,
+            self.snoop_table, self.loo_table,
+            "#### Variance components per observation family (F80 eq. 9)", self.variance_button,
+            self.variance_table, sizing_mode="stretch_width", scroll=True, height=640)
+
+
+class InjectPanel(pn.viewable.Viewer):
+    """Add an error of a chosen size to the selected observation of a *copy* of the problem,
+    adjust it and show what the tests see; "keep" makes it part of the loaded data."""
+
+    state = param.ClassSelector(class_=State)
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        s = self.state
+        self.target = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["inject-target"])
+        self.size = pn.widgets.FloatInput(name="Error size", value=1.0, step=0.5, width=120,
+                                          css_classes=["inject-size"])
+        self.unit = pn.widgets.RadioButtonGroup(options={"× σ": "sigma", "× MDB": "mdb"}, value="mdb", width=160,
+                                                button_type="primary", button_style="outline",
+                                                css_classes=["inject-unit"])
+        self.run = pn.widgets.Button(name="Inject and adjust", button_type="primary", width=150,
+                                     css_classes=["inject-run"])
+        self.keep = pn.widgets.Button(name="Keep it in the data", button_type="danger", width=150,
+                                      disabled=True, css_classes=["inject-keep"])
+        self.result = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["inject-result"])
+        self.message = pn.pane.Alert("", alert_type="warning", visible=False, sizing_mode="stretch_width")
+        self.run.on_click(self._run)
+        self.keep.on_click(lambda e: s.keep_injection())
+        s.param.watch(self._target, ["selected_obs", "results"])
+        s.param.watch(self._show, ["injection", "analysis_error"])
+        self._target()
+        self._show()
+
+    def _target(self, *_):
+        s = self.state
+        if s.selected_obs is None:
+            self.target.object = "*Select an observation (map or tests table).*"
+            self.run.disabled = True
+            return
+        obs, _ = s.frames()
+        r = obs.loc[s.selected_obs]
+        self.run.disabled = bool(r.excluded)
+        self.target.object = (f"**{observation_label(s.problem, s.selected_obs)}**: σ-scaled MDB = "
+                              f"{r.mdb_sigma:.2f} σ ({r.mdb:.4g} {r.unit}), r = {r.r:.3f}")
+
+    def _run(self, *_):
+        s = self.state
+        if s.selected_obs is not None:
+            s.inject(int(s.selected_obs), float(self.size.value), self.unit.value)
+
+    def _show(self, *_):
+        s = self.state
+        inj = s.injection
+        self.message.object = s.analysis_error
+        self.message.visible = bool(s.analysis_error) and s.analysis_error.startswith("Cannot inject")
+        self.keep.disabled = inj is None
+        if inj is None:
+            self.result.object = ""
+            return
+        st = inj["statistic"]
+        unit = "σ" if inj["unit"] == "sigma" else "MDB"
+        group = ("" if inj["group_T"] is None else
+                 f"  \nT of its group = {inj['group_T']:.2f} (critical {inj['group_critical']:.2f})")
+        where = ("the same observation" if inj["largest_index"] == inj["index"]
+                 else f"obs {inj['largest_label']}")
+        self.result.object = (
+            f"Error of {inj['size']:g} {unit} = {inj['error']:.4g} {inj['error_unit']} "
+            f"in obs {inj['index']} (a copy of the data):  \n"
+            f"{st} of that observation: {inj['w_before']:.3f} → **{inj['w_after']:.3f}** "
+            f"(critical {inj['critical']:.3f}): **{'REJECTED' if inj['rejected'] else 'not rejected'}**  \n"
+            f"largest |{st}| = {inj['largest']:.3f} at {where}{group}  \n"
+            f"σ̂0 = {inj['sigma0_post']:.4g}, global test "
+            f"{'passed' if inj['global_passed'] else 'failed' if inj['global_passed'] is False else 'n/a'}")
+
+    def __panel__(self):
+        return pn.Column("#### Inject an error here (teaching)", self.target,
+                         pn.Row(self.size, pn.Column(pn.Spacer(height=20), self.unit)),
+                         pn.Row(self.run, self.keep), self.message, self.result,
+                         sizing_mode="stretch_width")
