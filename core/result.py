@@ -286,6 +286,12 @@ class Adjustment:
         self.timings.setdefault("reliability", time.perf_counter() - t0)
         return r, pcp, php, phkp, uk
 
+    def cluster_cvv(self):
+        """Cluster blocks of C_vv = C − A Σ Aᵀ (F80 eq. 8), as stacks per cluster size:
+        a list of (members (k, m), C (k, m, m), C_vv (k, m, m))."""
+        H, _ = self._hat_blocks
+        return [(members, C, C - Hc) for m, members, C, Hc in _cluster_blocks(self.problem.cov, H)]
+
     def _nuisance_products(self, I, J):
         t = self._nuisance_columns
         if t.size == 0:

@@ -108,3 +108,111 @@ def estimate(problem, groups: dict[str, np.ndarray] | None = None, options: Opti
     red_final = np.array([adj.r[ix].sum() for ix in groups.values()])
     return VarianceComponents(tuple(groups), factors, red_final, factors * np.sqrt(2.0 / red_final),
                               it, converged, adj)
+
+
+# -- additive components: the radial model of F80 §2.1 ---------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class ComponentEstimate:
+    """Estimated variance components θ_j of D(l) = Σ_j θ_j C_j (F80 eq. 2, eq. 9)."""
+
+    names: tuple[str, ...]
+    theta: np.ndarray
+    redundancy: np.ndarray       # tr(C_vv P Q_j P), the share of the redundancy of component j
+    std_error: np.ndarray        # θ_j √(2 / r_j)
+    iterations: int
+    converged: bool
+    adjustment: object
+
+    def as_dict(self) -> list[dict]:
+        return [{"component": n, "theta": float(t), "redundancy": float(r), "std_error": float(s)}
+                for n, t, r, s in zip(self.names, self.theta, self.redundancy, self.std_error)]
+
+
+def _cluster_stack(blocks, members):
+    return np.array([blocks[c] for c in members])
+
+
+def estimate_components(problem, components: dict[str, tuple], theta0=None, options: Options | None = None,
+                        tol: float = 1e-5, max_iter: int = 100) -> ComponentEstimate:
+    """Iterated estimation of additive variance components (F80 eq. 9).
+
+    ``components`` maps a name to per-cluster blocks C_j (aligned with ``problem.cov.members``;
+    zero blocks where a component does not act). With Q_j = θ_j C_j and the adjustment's P and
+    C_vv for C = Σ_j Q_j:  θ_j ← θ_j · vᵀPQ_jPv / tr(C_vv P Q_j P), to convergence.
+    """
+    names = tuple(components)
+    ncl = len(problem.cov.members)
+    for name, blocks in components.items():
+        if len(blocks) != ncl:
+            raise BaardaError(f"variance component '{name}': {len(blocks)} blocks for {ncl} clusters")
+    theta = np.ones(len(names)) if theta0 is None else np.asarray(theta0, dtype=float).copy()
+    sizes = np.array([m.size for m in problem.cov.members])
+    x0 = None
+    adj = None
+    converged = False
+    it = 0
+    red = np.zeros(len(names))
+    for it in range(1, max_iter + 1):
+        blocks = tuple(sum(t * np.asarray(components[n][c]) for t, n in zip(theta, names)) for c in range(ncl))
+        cov = dataclasses.replace(problem.cov, blocks=blocks)
+        p = dataclasses.replace(problem, cov=cov)
+        adj = adjust(p, options, x0=x0)
+        x0 = adj.x
+        Pv = adj.Pv
+        num = np.zeros(len(names))
+        red = np.zeros(len(names))
+        for members, C, Cvv in adj.cluster_cvv():
+            cl = problem.cov.cluster[members[:, 0]]
+            Pc = np.linalg.inv(C)
+            pv = Pv[members]
+            for j, n in enumerate(names):
+                Q = theta[j] * _cluster_stack(components[n], cl).reshape(C.shape)
+                num[j] += float(np.einsum("ki,kij,kj->", pv, Q, pv))
+                red[j] += float(np.einsum("kij,kjl,klm,kmi->", Cvv, Pc, Q, Pc))
+        if (red <= 1e-12).any():
+            bad = [n for n, r in zip(names, red) if r <= 1e-12]
+            raise BaardaError(f"variance components: {', '.join(bad)} without redundancy")
+        factor = num / red
+        theta = theta * factor
+        if (theta <= 0).any():
+            raise BaardaError("variance components: an estimate became negative (the model does not fit)")
+        if np.abs(factor - 1.0).max() < tol:
+            converged = True
+            break
+    del sizes
+    return ComponentEstimate(names, theta, red, theta * np.sqrt(2.0 / red), it, converged, adj)
+
+
+def radial_components(problem) -> dict[str, tuple]:
+    """The radial model σ_r² = a² + b² c² / cos⁴α of F80 §2.1 for the image observations of a block.
+
+    Components: ``a²`` (C = I on image coordinates), ``b²c²`` (C = diag(1/cos⁴α), α the angle of the
+    ray to the optical axis, cos²α = c² / (c² + ρ²), ρ the radial distance of the observed point
+    from the principal point), and ``other`` (the a priori covariance of every non-image cluster,
+    e.g. control). Each 2 × 2 image cluster gets diagonal blocks.
+    """
+    blk = problem.extra.get("block") if problem.extra else None
+    if not blk or "camera" not in blk:
+        raise BaardaError("the radial variance model needs a block with a camera (principal distance)")
+    cams = {c["id"]: c for c in blk.get("cameras", [blk["camera"]])}
+    img_cam = {im["id"]: im.get("camera", blk["camera"]["id"]) for im in blk["images"]}
+    info = problem.info
+    kinds = info.kind
+    a2, b2, other = [], [], []
+    for c, idx in enumerate(problem.cov.members):
+        m = idx.size
+        if all(kinds[i].startswith("image-") for i in idx):
+            ids = info.ids[idx[0]]
+            cam = cams[img_cam[ids["image"]]]
+            xy = {info.ids[i]["component"]: problem.l[i] for i in idx}
+            rho2 = (xy.get("x", cam["x0"]) - cam["x0"]) ** 2 + (xy.get("y", cam["y0"]) - cam["y0"]) ** 2
+            inv_cos4 = ((cam["c"] ** 2 + rho2) / cam["c"] ** 2) ** 2
+            a2.append(np.eye(m))
+            b2.append(np.eye(m) * inv_cos4)
+            other.append(np.zeros((m, m)))
+        else:
+            a2.append(np.zeros((m, m)))
+            b2.append(np.zeros((m, m)))
+            other.append(np.asarray(problem.cov.blocks[c]))
+    return {"a²": tuple(a2), "b²c²": tuple(b2), "other": tuple(other)}

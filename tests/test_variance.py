@@ -51,3 +51,41 @@ def test_split_cluster_is_refused():
     p = problem(vector_network())
     with pytest.raises(BaardaError, match="cluster"):
         variance.estimate(p, {"a": np.arange(0, 4), "b": np.arange(4, p.n)})
+
+
+def test_additive_components_agree_with_group_factors():
+    """With components that do not overlap (one per observation family) the additive estimator
+    θ_j ← θ_j vᵀPQ_jPv / tr(C_vv P Q_j P) is the group estimator: same factors."""
+    p = problem(_network_with_true_factors(5))
+    groups = variance.groups_by_kind(p)
+    comps = {}
+    for name, ix in groups.items():
+        inside = np.zeros(p.n, dtype=bool)
+        inside[ix] = True
+        comps[name] = tuple(np.asarray(b) if inside[m[0]] else np.zeros_like(b)
+                            for m, b in zip(p.cov.members, p.cov.blocks))
+    add = variance.estimate_components(p, comps, tol=1e-8, max_iter=200)
+    grp = variance.estimate(p, groups, tol=1e-8, max_iter=200)
+    np.testing.assert_allclose(add.theta, grp.factors, rtol=1e-5)
+    np.testing.assert_allclose(add.redundancy, grp.redundancy, rtol=1e-5)
+
+
+def test_radial_components_shape():
+    """The radial model's C_j (F80 §2.1): a² on image coordinates, b²c²/cos⁴α growing with the
+    radius, control kept apart."""
+    from baarda.bundle import build_block_problem
+    from baarda.simulate import simulate_block
+
+    block, _ = simulate_block(strips=2, images_per_strip=4, design=True, seed=3, approx_sigma=0.0)
+    p = build_block_problem(block)
+    comps = variance.radial_components(p)
+    kinds = np.array(p.info.kind)
+    for c, idx in enumerate(p.cov.members):
+        a, b, o = comps["a²"][c], comps["b²c²"][c], comps["other"][c]
+        if kinds[idx[0]].startswith("image-"):
+            assert np.allclose(a, np.eye(idx.size)) and (np.diag(b) >= 1.0).all() and not o.any()
+            cam = p.extra["block"]["camera"]
+            x, y = p.l[idx[0]] - cam["x0"], p.l[idx[1]] - cam["y0"]
+            assert b[0, 0] == pytest.approx(((cam["c"] ** 2 + x * x + y * y) / cam["c"] ** 2) ** 2, rel=1e-12)
+        else:
+            assert not a.any() and not b.any() and np.allclose(o, p.cov.blocks[c])
