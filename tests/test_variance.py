@@ -89,3 +89,30 @@ def test_radial_components_shape():
             assert b[0, 0] == pytest.approx(((cam["c"] ** 2 + x * x + y * y) / cam["c"] ** 2) ** 2, rel=1e-12)
         else:
             assert not a.any() and not b.any() and np.allclose(o, p.cov.blocks[c])
+
+
+def test_radial_model_recovers_a_and_b():
+    """F80 §2.1: image noise with σ² = a² + b²c²/cos⁴α is recovered within its standard errors."""
+    from baarda.bundle import build_block_problem
+    from baarda.simulate import simulate_block
+
+    # the two components are nearly collinear (1/cos⁴α from 1 to 3.1 in a 153 mm camera): a block
+    # of 4 × 10 images with 15 points each and a dominant radial term separates them
+    block, _ = simulate_block(strips=4, images_per_strip=10, design=True, seed=3, control="dense",
+                              approx_sigma=0.0, pattern=[5, 3])
+    p = build_block_problem(block)
+    comps = variance.radial_components(p)
+    a2_true, b2c2_true = 0.002 ** 2, 0.005 ** 2
+    for seed in (12, 13):
+        rng = np.random.default_rng(seed)
+        e = np.zeros(p.n)
+        for c, idx in enumerate(p.cov.members):
+            C = a2_true * comps["a²"][c] + b2c2_true * comps["b²c²"][c] + comps["other"][c]
+            e[idx] = np.linalg.cholesky(C) @ rng.normal(size=idx.size)
+        est = variance.estimate_components(dataclasses.replace(p, l=p.l + e), comps, theta0=[2.5e-5, 2.5e-5, 1.0])
+        assert est.converged and est.iterations < 20
+        th = dict(zip(est.names, est.theta))
+        se = dict(zip(est.names, est.std_error))
+        assert abs(th["a²"] - a2_true) < 3 * se["a²"]
+        assert abs(th["b²c²"] - b2c2_true) < 3 * se["b²c²"]
+        assert abs(est.redundancy.sum() - est.adjustment.dof) < 1e-6 * est.adjustment.dof
