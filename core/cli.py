@@ -70,9 +70,10 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--criterion", choices=["linear", "logarithmic", "exponential"],
                     help="compare the coordinate covariance with a fitted chaotic criterion matrix (M84 §2): "
                          "prints λmax/λmin and C1, C2 (in the --sbase, default the first two points)")
-    an.add_argument("--variance-components", action="store_true",
-                    help="estimate a variance factor per observation family (F80 eq. 9, iterated) and "
-                         "print them; the tests use the a priori model as given")
+    an.add_argument("--variance-components", nargs="?", const="families", choices=["families", "radial"],
+                    help="estimate variance components (F80 eq. 9, iterated): a factor per observation "
+                         "family (default), or the radial model σ² = a² + b²c²/cos⁴α of image "
+                         "observations (F80 §2.1, blocks)")
     an.add_argument("--top", type=int, default=8, help="how many entries each summary list shows")
     an.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
     an.add_argument("--debug", action="store_true", help="show tracebacks of errors")
@@ -201,10 +202,10 @@ def cmd_analyze(args) -> int:
         from . import snooping
         snoop = snooping.iterate(problem, options)
         doc["snooping"] = [s.__dict__ for s in snoop.steps]
+    import numpy as np
+
     prec_lines = []
     if args.sbase or args.criterion:
-        import numpy as np
-
         from . import precision
         ids = problem.points.ids
         base = [b.strip() for b in args.sbase.split(",")] if args.sbase else list(ids[:2])
@@ -242,8 +243,20 @@ def cmd_analyze(args) -> int:
     if args.variance_components:
         from . import variance
         try:
-            vc = variance.estimate(problem, options=options)
-            doc["variance_components"] = vc.as_dict()
+            if args.variance_components == "radial":
+                comps = variance.radial_components(problem)
+                sig2 = float(np.median(problem.cov.sigma()[[k.startswith("image-") for k in problem.info.kind]]) ** 2)
+                est = variance.estimate_components(problem, comps, theta0=[sig2 / 2, sig2 / 2, 1.0], options=options)
+                doc["variance_components"] = est.as_dict()
+                prec_lines.append(f"  radial variance model (F80 §2.1, {est.iterations} iterations"
+                                  f"{'' if est.converged else ', NOT converged'}):")
+                for d in est.as_dict():
+                    prec_lines.append(f"    {d['component']:<8s} θ = {d['theta']:.4g} ± {d['std_error']:.2g}   "
+                                      f"redundancy {d['redundancy']:.2f}")
+                vc = None
+            else:
+                vc = variance.estimate(problem, options=options)
+                doc["variance_components"] = vc.as_dict()
         except BaardaError as err:
             doc["variance_components"] = {"error": str(err)}
             prec_lines.append(f"  {err}")
