@@ -49,6 +49,9 @@ SOLVERS = ("auto", "schur", "generic")
 
 #: a Gauss-Newton step that multiplies vᵀPv by more than this switches to Levenberg-Marquardt
 DIVERGENCE = 1.5
+#: in Levenberg-Marquardt mode, two accepted steps lowering vᵀPv by less than this (relative)
+#: end the iteration (converged in the cost, as Ceres' function tolerance)
+FUNCTION_TOL = 1e-6
 
 
 @dataclass(frozen=True)
@@ -144,6 +147,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     st = schur_structure(problem, Ar, keep, options.solver)
     lam = 0.0                      # Levenberg-Marquardt damping, 0 = Gauss-Newton
     lm_mode = False                # becomes True once a Gauss-Newton step has failed
+    small_drops = 0
     nu = 2.0
     v = problem.misclosure(f)
     cost = float(v @ (P @ v))
@@ -223,6 +227,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             x_new = trial
         if not np.isfinite(x_new).all():
             raise SingularError("the adjustment diverged (non-finite parameters)")
+        rel_drop = (cost - cost_new) / cost if cost > 0 else 0.0
         x, f, J, v, cost = x_new, f_new, J_new, v_new, cost_new
         A = J[:, free].tocsr()
         if progress is not None:
@@ -231,6 +236,15 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                                                     and step > 0.5 * history[-2])):
             converged = True
             break
+        if lm_mode and 0.0 <= rel_drop < FUNCTION_TOL:
+            small_drops += 1
+            if small_drops >= 2:
+                # Levenberg-Marquardt's end game (Ceres' function tolerance): vᵀPv no longer
+                # changes although far, weakly determined points still drift along their rays
+                converged = True
+                break
+        else:
+            small_drops = 0
     if plan.defect:
         old = plan.eliminate
         plan = datum_mod.plan(problem, x, A, P, free)
