@@ -15,8 +15,8 @@ import holoviews as hv
 import panel as pn
 
 from .state import State
-from .views import (MAP_VIEWS, AnalysisPanel, Controls, FilePanel, HypothesisPanel, ImageResidualView, SelectionPanel,
-                    SummaryHeader, TeachingView, TestsTable, InjectPanel)
+from .views import (MAP_VIEWS, AnalysisPanel, Controls, CriterionView, FilePanel, HypothesisPanel, ImageResidualView,
+                    RiskView, SelectionPanel, SummaryHeader, TeachingView, TestsTable, InjectPanel)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 TAB_NAMES = {"layout": "Layout", "redundancy": "Redundancy", "residuals": "w",
@@ -88,13 +88,15 @@ def _main(state):
         maps.append((TAB_NAMES[V.key], view))
         if V.key == "residuals" and state.images:
             maps.append(("Image v", ImageResidualView(state=state)))
+    maps.append(("Criterion", CriterionView(state=state)))
     map_tabs = pn.Tabs(*maps, dynamic=True, sizing_mode="stretch_width", min_height=660,
                        css_classes=["map-tabs"])
     right = pn.Tabs(("Tests table", TestsTable(state=state)), ("Hypotheses", HypothesisPanel(state=state)),
                     ("Find errors", AnalysisPanel(state=state)),
-                    ("Teaching", pn.Column(InjectPanel(state=state), TeachingView(state=state), scroll=True,
-                                           height=640, sizing_mode="stretch_width")), dynamic=True, sizing_mode="fixed",
-                    width=590, height=660, css_classes=["right-tabs"])
+                    ("Teaching", pn.Column(InjectPanel(state=state), TeachingView(state=state),
+                                           RiskView(state=state), scroll=True, height=640,
+                                           sizing_mode="stretch_width")),
+                    dynamic=True, sizing_mode="fixed", width=590, height=660, css_classes=["right-tabs"])
     main = pn.Column(SummaryHeader(state=state),
                      pn.Row(map_tabs, right, sizing_mode="stretch_width"),
                      sizing_mode="stretch_width")

@@ -43,7 +43,7 @@ import scipy.sparse as sp
 
 from types import SimpleNamespace
 
-from baarda import bundle, precision, robust, snooping, variance
+from baarda import bundle, precision, risk, robust, snooping, variance
 from baarda.adjust import Options, adjust
 from baarda.datum import Datum
 from baarda.errors import BaardaError
@@ -213,6 +213,11 @@ class State(param.Parameterized):
     variance = param.Parameter(default=None, doc="The core's VarianceComponents, or None.")
     injection = param.Dict(default=None, allow_None=True, doc="What the tests see of an injected error.")
     analysis_error = param.String(default="", doc="A message of the last analysis the core refused.")
+    variance_model = param.Selector(default="families", objects=["families", "radial"],
+                                    doc="Variance components per family, or the radial model of a block.")
+    components = param.Parameter(default=None, doc="The core's ComponentEstimate (radial model), or None.")
+    criterion = param.Dict(default=None, allow_None=True, doc="The last criterion comparison (criterion_*).")
+    criterion_error = param.String(default="", doc="Why the criterion comparison was refused.")
 
     def __init__(self, path=None, problem=None, **params):
         super().__init__(**params)
@@ -314,6 +319,7 @@ class State(param.Parameterized):
             self.kept = kept
             self.results = adj
             self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
+            self.components, self.criterion, self.criterion_error = None, None, ""
             self.analysis_error = ""
             self._run_hypotheses()
             self._run_robust()
@@ -825,17 +831,35 @@ class State(param.Parameterized):
         return self._set_excluded(self.excluded | removed)
 
     def run_variance(self) -> bool:
-        """Variance components per observation family (:func:`baarda.variance.estimate`)."""
+        """Variance components per observation family (:func:`baarda.variance.estimate`), or
+        with ``variance_model == "radial"`` the radial model σ² = a² + b²c²/cos⁴α of a block
+        (:func:`baarda.variance.radial_components`, :func:`~baarda.variance.estimate_components`,
+        F80 §2.1) started at θ0 = (σ²/2, σ²/2, 1), σ² the median a priori image variance."""
         try:
             with self._busy():
-                vc = variance.estimate(self.results.problem, options=self.options())
+                problem = self.results.problem
+                if self.variance_model == "radial":
+                    comps = variance.radial_components(problem)
+                    image = np.char.startswith(np.asarray(problem.info.kind).astype(str), "image")
+                    sig2 = float(np.median(problem.cov.sigma()[image]) ** 2) if image.any() else 1.0
+                    est = variance.estimate_components(problem, comps, theta0=[sig2 / 2, sig2 / 2, 1.0],
+                                                       options=self.options())
+                    self.param.update(components=est, variance=None, analysis_error="")
+                    return True
+                vc = variance.estimate(problem, options=self.options())
         except (BaardaError, np.linalg.LinAlgError) as err:
-            self.param.update(variance=None, analysis_error=f"Variance components: {err}")
+            self.param.update(variance=None, components=None, analysis_error=f"Variance components: {err}")
             return False
-        self.param.update(variance=vc, analysis_error="")
+        self.param.update(variance=vc, components=None, analysis_error="")
         return True
 
     def variance_table(self) -> pd.DataFrame:
+        if self.components is not None:
+            return pd.DataFrame([{"component": d["component"], "θ": f"{d['theta']:.4g}",
+                                  "± s.e.": f"{d['std_error']:.2g}", "√θ": f"{math.sqrt(max(d['theta'], 0.0)):.4g}",
+                                  "redundancy": round(d["redundancy"], 2)}
+                                 for d in self.components.as_dict()],
+                                columns=["component", "θ", "± s.e.", "√θ", "redundancy"])
         cols = ["family", "σ̂0j²", "± s.e.", "σ̂0j", "redundancy"]
         if self.variance is None:
             return pd.DataFrame(columns=cols)
@@ -843,6 +867,81 @@ class State(param.Parameterized):
                               "± s.e.": round(d["std_error"], 4), "σ̂0j": round(d["sigma_factor"], 4),
                               "redundancy": round(d["redundancy"], 2)}
                              for d in self.variance.as_dict()], columns=cols)
+
+    # -- criterion matrices and risk (M84 §2, §3.3) ---------------------------------------------
+    def criterion_reason(self) -> str:
+        """Why the criterion comparison does not apply to this problem ("" if it does)."""
+        if self.block:
+            return ("Criterion matrices compare planimetric networks (M84 §2); a block's "
+                    "3D coordinates are not supported.")
+        xy = self.results.coordinates[:, :2]
+        if np.isnan(xy).any() or (self.problem.params.axis[self.problem.params.kind == "k"] == 2).any():
+            return ("Criterion matrices compare planimetric networks (M84 §2): this problem has "
+                    "heights (levelling or 3D), not x, y for every point.")
+        return ""
+
+    def criterion_base(self) -> list[str]:
+        """The S-base of the comparison: the precision view's (``sbase``), else the first two points."""
+        return list(self.sbase) or list(self.problem.points.ids[:2])
+
+    def _criterion_setup(self, sbase):
+        """Covariance G in the S-base, point positions, S-base flags and the null space (the
+        arguments of :func:`baarda.precision.fit_criterion`, as ``baarda analyze --criterion``)."""
+        adj = self.results
+        cc = precision.covariance(adj, list(sbase))
+        _, Gfull, _ = precision.release_null_space(adj)
+        in_base = np.isin(np.array(self.problem.points.ids)[cc.point], list(sbase))
+        return cc, adj.coordinates[:, :2], in_base, Gfull[: cc.params.size]
+
+    def criterion_compare(self, kind: str = "logarithmic", C1: float | None = None, C2: float = 1.0,
+                          sbase=None) -> dict | None:
+        """Compare the coordinate covariance with a chaotic criterion matrix (M84 §2).
+
+        Without ``C1`` the criterion is fitted (:func:`baarda.precision.fit_criterion`, M84 §2.3:
+        C1 so that λmax = 1, C2 so that λmax/λmin is smallest); with ``C1`` (m²/m) and ``C2`` (m)
+        the user's criterion is compared (:func:`~baarda.precision.compare`). Keeps λmax, λmin,
+        "satisfied" (λmax < 1) and the eigenvector of λmax as a displacement pattern per point
+        (m × 2, x, y, largest component 1) in ``criterion``; None and ``criterion_error`` if the
+        core refuses.
+        """
+        reason = self.criterion_reason()
+        base = list(sbase) if sbase else self.criterion_base()
+        try:
+            if reason:
+                raise BaardaError(reason)
+            cc, xy, in_base, Gk = self._criterion_setup(base)
+            fitted = C1 is None
+            if fitted:
+                fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind=kind)
+                C1, C2 = fit["C1"], fit["C2"]
+            H = precision.sbase_transform(precision.criterion_matrix(xy, kind, 0.0, float(C1), float(C2)),
+                                          Gk, in_base)
+            cmp_ = precision.compare(cc.cov, H, in_base)
+        except (BaardaError, ValueError, np.linalg.LinAlgError) as err:
+            self.param.update(criterion=None, criterion_error=f"Criterion: {err}")
+            return None
+        pattern = np.zeros((len(self.problem.points.ids), 2))
+        pattern[cc.point, cc.axis] = cmp_.worst_pattern(cc.params.size)
+        out = {"kind": kind, "sbase": base, "fitted": fitted, "C1": float(C1), "C2": float(C2),
+               "lam_max": cmp_.lam_max, "lam_min": cmp_.lam_min, "ratio": cmp_.lam_max / cmp_.lam_min,
+               "satisfied": cmp_.satisfied, "pattern": pattern}
+        self.param.update(criterion=out, criterion_error="")
+        return out
+
+    def risk_curve(self, p: float, L1: float, L2: float, lam_tol: float | None = None, n: int = 300) -> dict:
+        """The risk-minimising critical value C (:func:`baarda.risk.critical_value`, M84 §3.3),
+        its α_C = 1 − Φ(C) and β_C = 1 − Φ(C − √λtol) (the definitions of :mod:`baarda.risk`),
+        and r_C (:func:`baarda.risk.risk`) over C for the plot. λtol defaults to δ0² of the
+        adjustment. Raises ValueError for p ∉ (0, 1) or non-positive L1, L2, λtol."""
+        from scipy import stats as sps
+
+        lam = float(self.results.delta0 ** 2 if lam_tol is None else lam_tol)
+        C = risk.critical_value(p, L1, L2, lam)
+        s = math.sqrt(lam)
+        grid = np.linspace(min(C, 0.0) - 2.0, max(C, s) + 3.0, n)
+        r = np.array([risk.risk(c, p, L1, L2, lam) for c in grid])
+        return {"C": C, "r_C": risk.risk(C, p, L1, L2, lam), "alpha": float(sps.norm.sf(C)),
+                "beta": float(sps.norm.sf(C - s)), "lam_tol": lam, "grid": grid, "r": r}
 
     # -- teaching: inject an error --------------------------------------------------------------
     def injected_error(self, index: int, size: float, unit: str = "sigma") -> np.ndarray:

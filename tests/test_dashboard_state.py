@@ -631,3 +631,119 @@ def test_inject_error_on_a_copy_and_keep(block_problem):
     np.testing.assert_allclose(st.problem.l, l0 + e10)
     ref10 = adjust(replace(block_problem, l=l0 + e10))
     np.testing.assert_allclose(st.results.w, ref10.w, atol=1e-8)
+
+
+# --------------------------------------------------------------------------------------------
+# criterion matrices, risk, radial variance model (M84 §2, §3.3; F80 §2.1) — against the core
+# --------------------------------------------------------------------------------------------
+def test_criterion_fit_and_given_c1_c2_match_the_core():
+    from baarda import precision
+    from baarda.dashboard.views import CriterionView
+
+    st = network_state(FREE_2D)
+    view = CriterionView(state=st)
+    root = pn.panel(view).get_root(Document())
+    ids = list(st.problem.points.ids)
+    assert view.sbase.value == ids[:2] and st.criterion["fitted"]        # fitted when opened
+    adj = st.results
+    cc = precision.covariance(adj, ids[:2])
+    _, G, _ = precision.release_null_space(adj)
+    Gk = G[: cc.params.size]
+    in_base = np.isin(np.array(ids)[cc.point], ids[:2])
+    xy = adj.coordinates[:, :2]
+    for kind in ("linear", "logarithmic"):
+        view.kind.value = kind
+        view.fit.clicks += 1
+        fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind=kind)
+        c = st.criterion
+        assert c["C1"] == pytest.approx(fit["C1"], rel=1e-9) and c["C2"] == pytest.approx(fit["C2"], rel=1e-6)
+        assert c["lam_max"] == pytest.approx(1.0, rel=1e-9) and c["ratio"] == pytest.approx(fit["ratio"], rel=1e-6)
+        assert view.C1.value == c["C1"] and "λmax" in view.info.object
+    view.C1.value, view.C2.value = 3 * fit["C1"], fit["C2"]
+    view.check.clicks += 1
+    H = precision.sbase_transform(precision.criterion_matrix(xy, "logarithmic", 0.0, 3 * fit["C1"], fit["C2"]),
+                                  Gk, in_base)
+    ref = precision.compare(cc.cov, H, in_base)
+    c = st.criterion
+    assert not c["fitted"] and c["satisfied"] and c["lam_max"] == pytest.approx(ref.lam_max, rel=1e-9)
+    assert c["lam_min"] == pytest.approx(ref.lam_min, rel=1e-9) and "satisfied" in view.info.object
+    pattern = ref.worst_pattern(cc.params.size)
+    np.testing.assert_allclose(c["pattern"][cc.point, cc.axis], pattern)
+    assert np.abs(c["pattern"][[ids.index(b) for b in ids[:2]]]).max() == 0     # the S-base does not move
+    seg = [s for s in sources_with(root, "x1")]
+    assert seg, "the eigenvector of λmax is drawn as segments"
+    view.C1.value = fit["C1"] / 3
+    view.check.clicks += 1
+    assert not st.criterion["satisfied"] and "NOT satisfied" in view.info.object
+    view.sbase.value = [ids[0]]                 # one point does not fix the datum: a message
+    view.check.clicks += 1
+    assert st.criterion is None and "does not fix the datum" in st.criterion_error and view.message.visible
+
+
+def test_criterion_refused_for_blocks_and_levelling(block_problem):
+    from baarda.dashboard.views import CriterionView
+
+    for st in (State(problem=block_problem), network_state("krumm/1D/Niemeier_Height_free.gkf")):
+        assert st.criterion_reason()
+        view = CriterionView(state=st)
+        pn.panel(view).get_root(Document())
+        assert st.criterion is None
+        assert st.criterion_compare("linear") is None and st.criterion_error.startswith("Criterion:")
+
+
+def test_risk_panel_matches_closed_form():
+    from scipy import stats as sps
+
+    from baarda import risk
+    from baarda.dashboard.views import RiskView
+
+    st = network_state(FREE_2D)
+    view = RiskView(state=st)
+    pn.panel(view).get_root(Document())
+    assert view.lam.value == pytest.approx(st.results.delta0 ** 2, abs=1e-4)
+    view.p.value, view.L1.value, view.L2.value, view.lam.value = 0.05, 1.0, 20.0, 9.0
+    rc = view.rc
+    C = risk.critical_value(0.05, 1.0, 20.0, 9.0)
+    assert rc["C"] == pytest.approx(C, rel=1e-12)
+    assert rc["C"] == pytest.approx(risk.critical_value_numeric(0.05, 1.0, 20.0, 9.0), abs=1e-6)
+    assert rc["alpha"] == pytest.approx(sps.norm.sf(C)) and rc["beta"] == pytest.approx(sps.norm.sf(C - 3.0))
+    assert rc["r_C"] == pytest.approx(risk.risk(C, 0.05, 1.0, 20.0, 9.0))
+    assert rc["r"].min() >= rc["r_C"] - 1e-12                  # the marked C is the minimum of the curve
+    assert f"{C:.4f}" in view.info.object
+    view.p.value = 0.0
+    assert "0 < p < 1" in view.info.object
+
+
+def test_radial_variance_model_matches_core_and_refusal_is_a_message(block_problem):
+    from baarda import variance
+    from baarda.bundle import build_block_problem
+    from baarda.dashboard.views import AnalysisPanel
+    from baarda.simulate import simulate_block
+
+    block, _ = simulate_block(strips=4, images_per_strip=10, design=True, seed=3, control="dense",
+                              approx_sigma=0.0, pattern=[5, 3])
+    p = build_block_problem(block)
+    comps = variance.radial_components(p)
+    rng = np.random.default_rng(12)
+    e = np.zeros(p.n)
+    for c, idx in enumerate(p.cov.members):
+        C = 0.002 ** 2 * comps["a²"][c] + 0.005 ** 2 * comps["b²c²"][c] + comps["other"][c]
+        e[idx] = np.linalg.cholesky(C) @ rng.normal(size=idx.size)
+    st = State(problem=replace(p, l=p.l + e))
+    panel = AnalysisPanel(state=st)
+    panel.variance_model.value = "radial"
+    assert st.variance_model == "radial"
+    panel.variance_button.clicks += 1
+    prob = st.results.problem
+    image = np.char.startswith(np.asarray(prob.info.kind).astype(str), "image")
+    sig2 = float(np.median(prob.cov.sigma()[image]) ** 2)
+    ref = variance.estimate_components(prob, comps, theta0=[sig2 / 2, sig2 / 2, 1.0], options=st.options())
+    tab = st.variance_table()
+    assert list(tab["component"]) == list(ref.names) and st.analysis_error == ""
+    assert [float(x) for x in tab["θ"]] == pytest.approx(ref.theta, rel=1e-3)
+    assert len(panel.variance_table.value) == 3 and panel.variance_table.visible
+    st2 = network_state("gama-local.gkf")                 # no camera: the core refuses
+    panel2 = AnalysisPanel(state=st2)
+    st2.variance_model = "radial"
+    assert not st2.run_variance()
+    assert "radial variance model needs a block" in st2.analysis_error and panel2.message.visible

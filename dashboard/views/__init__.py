@@ -1,6 +1,7 @@
 """The dashboard's views: each a ``pn.viewable.Viewer`` that renders the :class:`State`."""
 
 from .analysis import AnalysisPanel, InjectPanel
+from .criterion import CriterionView, RiskView
 from .controls import Controls, FilePanel, SelectionPanel
 from .hypotheses import HypothesisPanel
 from .maps import (MAP_VIEWS, ExternalMap, ImageResidualView, LayoutMap, MDBMap, PrecisionMap,
@@ -11,4 +12,4 @@ from .teaching import TeachingView
 
 __all__ = ["AnalysisPanel", "InjectPanel", "Controls", "FilePanel", "SelectionPanel", "HypothesisPanel", "MAP_VIEWS", "ExternalMap",
            "ImageResidualView", "LayoutMap", "MDBMap", "PrecisionMap", "RedundancyMap", "ResidualMap",
-           "SummaryHeader", "TestsTable", "TeachingView"]
+           "SummaryHeader", "TestsTable", "TeachingView", "CriterionView", "RiskView"]

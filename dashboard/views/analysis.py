@@ -44,13 +44,17 @@ class AnalysisPanel(pn.viewable.Viewer):
         self.loo_table = _table("loo-table", 130)
         self.variance_button = pn.widgets.Button(name="Estimate variance components", width=230,
                                                  css_classes=["variance-run"])
-        self.variance_table = _table("variance-table", 90)
+        self.variance_model = pn.widgets.RadioButtonGroup(options=["families", "radial"], value=s.variance_model,
+                                                          button_type="primary", button_style="outline", width=180,
+                                                          css_classes=["variance-model"])
+        self.variance_model.link(s, value="variance_model")
+        self.variance_table = _table("variance-table", 110)
         self.snoop_button.on_click(lambda e: s.run_snooping())
         self.accept.on_click(lambda e: s.accept_snooping())
         self.variance_button.on_click(lambda e: s.run_variance())
         s.param.watch(self._robust, ["robust", "robust_method", "results"])
         s.param.watch(self._snoop, ["snoop", "snoop_loo", "results"])
-        s.param.watch(self._variance, ["variance", "results"])
+        s.param.watch(self._variance, ["variance", "components", "results"])
         s.param.watch(self._message, ["analysis_error"])
         self._robust()
         self._snoop()
@@ -103,7 +107,7 @@ class AnalysisPanel(pn.viewable.Viewer):
 
     def _variance(self, *_):
         self.variance_table.value = self.state.variance_table()
-        self.variance_table.visible = self.state.variance is not None
+        self.variance_table.visible = self.state.variance is not None or self.state.components is not None
 
     def __panel__(self):
         return pn.Column(
@@ -111,7 +115,8 @@ class AnalysisPanel(pn.viewable.Viewer):
             "#### Robust reweighting and data snooping (M84 §3.2)", self.robust_info, self.robust_table,
             "#### Iterative data snooping", pn.Row(self.snoop_button, self.accept), self.snoop_info,
             self.snoop_table, self.loo_table,
-            "#### Variance components per observation family (F80 eq. 9)", self.variance_button,
+            "#### Variance components (F80 eq. 9): per observation family, or the radial model "
+            "σ² = a² + b²c²/cos⁴α of a block (F80 §2.1)", pn.Row(self.variance_model, self.variance_button),
             self.variance_table, sizing_mode="stretch_width", scroll=True, height=640)
 
 

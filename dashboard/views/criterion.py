@@ -1,0 +1,160 @@
+"""Criterion matrices and the risk of a critical value (Molenaar 1984, §2 and §3.3).
+
+:class:`CriterionView` compares the coordinate covariance of a planimetric network with a chaotic
+criterion matrix in an S-base: fitted (C1 so that λmax = 1, C2 so that λmax/λmin is smallest,
+M84 §2.3) or typed by the user, and maps the eigenvector of λmax as a displacement pattern — the
+direction in which the network is weakest relative to the criterion. :class:`RiskView` shows the
+critical value C that minimises the risk r_C = (1 − p) α_C L1 + p (1 − β_C) L2 and r_C over C.
+
+Every number comes from the core through :meth:`State.criterion_compare` and
+:meth:`State.risk_curve`; these views only render them.
+"""
+
+from __future__ import annotations
+
+import holoviews as hv
+import numpy as np
+import panel as pn
+import param
+
+from ..state import State, display_matrix, display_xy
+
+KINDS = ["linear", "logarithmic", "exponential"]
+#: Length of the longest pattern arrow as a share of the network's extent.
+ARROW_SHARE = 0.12
+#: Networks up to this many points are fitted when the view opens (the covariance is dense).
+AUTO_FIT_POINTS = 300
+
+
+class CriterionView(pn.viewable.Viewer):
+    """Fit or type a criterion (C1, C2) and see λmax, λmin and the worst displacement pattern."""
+
+    state = param.ClassSelector(class_=State)
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        s = self.state
+        self.reason = s.criterion_reason()
+        self.kind = pn.widgets.Select(name="structure", options=KINDS, value="logarithmic", width=150,
+                                      css_classes=["criterion-kind"])
+        self.sbase = pn.widgets.MultiChoice(name="S-base", options=list(s.problem.points.ids),
+                                            value=s.criterion_base(), css_classes=["criterion-sbase"])
+        self.fit = pn.widgets.Button(name="Fit C1, C2", button_type="primary", width=120,
+                                     css_classes=["criterion-fit"])
+        self.C1 = pn.widgets.FloatInput(name="C1 [m²/m]", value=1e-6, width=140,
+                                        css_classes=["criterion-c1"])
+        self.C2 = pn.widgets.FloatInput(name="C2 [m]", value=1.0, width=140,
+                                        css_classes=["criterion-c2"])
+        self.check = pn.widgets.Button(name="Compare with C1, C2", width=170, css_classes=["criterion-check"])
+        self.info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["criterion-info"])
+        self.message = pn.pane.Alert("", alert_type="warning", visible=False, sizing_mode="stretch_width",
+                                     css_classes=["criterion-alert"])
+        self.plot = pn.pane.HoloViews(self._map(), sizing_mode="stretch_width", css_classes=["criterion-map"],
+                                      linked_axes=False)
+        self.fit.on_click(lambda e: self.run_fit())
+        self.check.on_click(lambda e: self.run_check())
+        s.param.watch(self._show, ["criterion", "criterion_error"])
+        if not self.reason and len(s.problem.points.ids) <= AUTO_FIT_POINTS:
+            self.run_fit()
+
+    def run_fit(self):
+        c = self.state.criterion_compare(self.kind.value, sbase=self.sbase.value)
+        if c is not None:
+            self.C1.value, self.C2.value = c["C1"], c["C2"]
+
+    def run_check(self):
+        self.state.criterion_compare(self.kind.value, C1=float(self.C1.value), C2=float(self.C2.value),
+                                     sbase=self.sbase.value)
+
+    def _show(self, *_):
+        s = self.state
+        self.message.object = s.criterion_error
+        self.message.visible = bool(s.criterion_error)
+        c = s.criterion
+        if c is None:
+            self.info.object = ""
+        else:
+            verdict = ("λmax = 1 by construction of the fit" if c["fitted"] else
+                       "**satisfied** (λmax < 1)" if c["satisfied"] else "**NOT satisfied** (λmax ≥ 1)")
+            self.info.object = (
+                f"{'Fitted' if c['fitted'] else 'Given'} {c['kind']} criterion in S-base "
+                f"{', '.join(c['sbase'])}: C1 = {c['C1']:.4g} m²/m, C2 = {c['C2']:.4g} m  \n"
+                f"λmax = {c['lam_max']:.4g}, λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}: {verdict}")
+        self.plot.object = self._map()
+
+    def _map(self):
+        s = self.state
+        e, n, xl, yl = display_xy(s.problem, s.results.coordinates)
+        pts = hv.Points((e, n, list(s.problem.points.ids)), [xl, yl], ["id"]).opts(
+            color="#1f4e9c", size=6, tools=["hover"])
+        c = s.criterion
+        title = "Eigenvector of λmax (M84 §2.3)"
+        if c is None:
+            return pts.opts(title=title, responsive=True, height=520, data_aspect=1)
+        d = (display_matrix(s.problem) @ c["pattern"].T).T
+        extent = max(float(np.ptp(e)), float(np.ptp(n)), 1e-9)
+        scale = ARROW_SHARE * extent / max(float(np.hypot(*d.T).max()), 1e-300)
+        arrows = hv.Segments((e, n, e + scale * d[:, 0], n + scale * d[:, 1]), [xl, yl, "x1", "y1"]).opts(
+            color="#e6007e", line_width=2)
+        tips = hv.Points((e + scale * d[:, 0], n + scale * d[:, 1]), [xl, yl]).opts(
+            color="#e6007e", size=4, marker="triangle")
+        base = np.isin(list(s.problem.points.ids), c["sbase"])
+        sb = hv.Points((e[base], n[base]), [xl, yl], label="S-base").opts(
+            color="black", marker="square", size=10, fill_alpha=0)
+        return (pts * sb * arrows * tips).opts(
+            title=f"{title}: λmax = {c['lam_max']:.3g} (arbitrary scale, largest arrow "
+                  f"{ARROW_SHARE:.0%} of the extent)", responsive=True, height=520, data_aspect=1,
+            xlabel=xl, ylabel=yl, fontscale=0.9)
+
+    def __panel__(self):
+        if self.reason:
+            return pn.pane.Markdown(f"*{self.reason}*", css_classes=["criterion-reason"],
+                                    sizing_mode="stretch_width")
+        return pn.Column("#### Criterion matrix (M84 §2)",
+                         pn.Row(self.kind, self.sbase, pn.Column(pn.Spacer(height=20), self.fit)),
+                         pn.Row(self.C1, self.C2, pn.Column(pn.Spacer(height=20), self.check)),
+                         self.message, self.info, self.plot, sizing_mode="stretch_width")
+
+
+class RiskView(pn.viewable.Viewer):
+    """Risk-minimising critical value C of a one-sided test and r_C over C (M84 §3.3)."""
+
+    state = param.ClassSelector(class_=State)
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        s = self.state
+        kw = dict(width=110)
+        self.p = pn.widgets.FloatInput(name="p (erroneous)", value=0.01, step=0.005, start=1e-6, end=0.999,
+                                       css_classes=["risk-p"], **kw)
+        self.L1 = pn.widgets.FloatInput(name="L1 (reject good)", value=1.0, step=0.5, css_classes=["risk-l1"], **kw)
+        self.L2 = pn.widgets.FloatInput(name="L2 (miss bad)", value=10.0, step=1.0, css_classes=["risk-l2"], **kw)
+        self.lam = pn.widgets.FloatInput(name="λtol", value=round(float(s.results.delta0 ** 2), 4), step=1.0,
+                                         css_classes=["risk-lam"], **kw)
+        self.info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["risk-info"])
+        self.plot = pn.pane.HoloViews(hv.Curve([]), sizing_mode="stretch_width", css_classes=["risk-plot"],
+                                      linked_axes=False)
+        for w in (self.p, self.L1, self.L2, self.lam):
+            w.param.watch(self._update, "value")
+        self._update()
+
+    def _update(self, *_):
+        try:
+            rc = self.state.risk_curve(float(self.p.value), float(self.L1.value), float(self.L2.value),
+                                       float(self.lam.value))
+        except (TypeError, ValueError) as err:
+            self.info.object = f"**Risk:** {err}"
+            return
+        self.rc = rc
+        self.info.object = (f"C = **{rc['C']:.4f}** (closed form), α_C = {rc['alpha']:.3g}, "
+                            f"β_C = {rc['beta']:.3f}, r_C = {rc['r_C']:.4g} (λtol = {rc['lam_tol']:.3g})")
+        self.plot.object = (
+            hv.Curve((rc["grid"], rc["r"]), "C", "r_C").opts(color="#1f4e9c", line_width=2)
+            * hv.VLine(rc["C"]).opts(color="#e6007e", line_dash="dashed")
+            * hv.Points([(rc["C"], rc["r_C"])], ["C", "r_C"]).opts(color="#e6007e", size=8)
+        ).opts(title="Risk r_C = (1−p) α_C L1 + p (1−β_C) L2 (M84 §3.3)", responsive=True, height=260,
+               fontscale=0.9)
+
+    def __panel__(self):
+        return pn.Column("#### Risk of a critical value (M84 §3.3)", pn.Row(self.p, self.L1, self.L2, self.lam),
+                         self.info, self.plot, sizing_mode="stretch_width")
