@@ -291,6 +291,10 @@ def cmd_analyze(args) -> int:
             for d in vc.as_dict():
                 print(f"    {d['group']:<20s} σ̂²/σ² = {d['factor']:8.4f} ± {d['std_error']:.4f}   "
                       f"redundancy {d['redundancy']:.2f}")
+            va = vc.adjustment
+            print(f"    with these components: {int(va.rejected.sum())} observation(s) rejected "
+                  f"(before: {int(adj.rejected.sum())}), global test "
+                  f"{'passed' if va.global_test['passed'] else 'FAILED'}")
         if findings is not None:
             from . import truth
             print(truth.text(findings))
