@@ -21,6 +21,9 @@ import numpy as np
 from .adjust import Options, adjust
 from .errors import BaardaError
 
+#: a group with less redundancy than this cannot be estimated (its factor would be noise)
+MIN_GROUP_REDUNDANCY = 0.5
+
 KIND_FAMILIES = {
     "distance": "distances", "slope-distance": "distances",
     "direction": "angles", "angle": "angles", "azimuth": "angles", "zenith-angle": "angles",
@@ -98,8 +101,9 @@ def estimate(problem, groups: dict[str, np.ndarray] | None = None, options: Opti
         red = np.empty(len(groups))
         for j, ix in enumerate(groups.values()):
             red[j] = adj.r[ix].sum()
-            if red[j] <= 1e-9:
-                raise BaardaError(f"variance components: group '{list(groups)[j]}' has no redundancy")
+            if red[j] <= MIN_GROUP_REDUNDANCY:
+                raise BaardaError(f"variance components: group '{list(groups)[j]}' has no redundancy "
+                                  f"to estimate from (Σ r_i = {red[j]:.2g}): merge it with another group")
             new[j] = float(adj.v[ix] @ Pv[ix]) / red[j]
         factors = factors * new
         if np.abs(new - 1.0).max() < tol:
