@@ -81,9 +81,11 @@ def similarity_candidates(problem, x: np.ndarray) -> tuple[np.ndarray, tuple[str
     X = np.zeros(idx.shape)
     X[has] = x[idx[has]]
     used = has.any(axis=1)
-    centre = np.array([X[has[:, a], a].mean() if has[:, a].any() else 0.0 for a in range(3)])
+    # median centre and a quantile extent: a few far, weakly determined points (a bundle block's
+    # points near infinity) must not make the rotation and scale columns of the others vanish
+    centre = np.array([np.median(X[has[:, a], a]) if has[:, a].any() else 0.0 for a in range(3)])
     Xc = np.where(has, X - centre, 0.0)
-    ext = np.abs(Xc[used]).max() if used.any() else 1.0
+    ext = float(np.quantile(np.abs(Xc[used]).max(axis=1), 0.9)) if used.any() else 1.0
     ext = ext if ext > 0 else 1.0
     Xc = Xc / ext
     names = TRANSFORMS[dim]
@@ -114,6 +116,32 @@ def similarity_candidates(problem, x: np.ndarray) -> tuple[np.ndarray, tuple[str
     return G, names
 
 
+#: the default S-base leaves out points further from the block's median than FAR times the
+#: 90 % quantile of the point distances (points near infinity of a structure-from-motion block,
+#: whose depth the rays hardly determine: as a datum they would fix nothing and swamp the rest)
+FAR = 1000.0
+
+
+def point_distances(problem, x: np.ndarray) -> tuple[np.ndarray, float]:
+    """Distances of the points from the median of all points, and their 90 % quantile."""
+    idx = problem.points.index
+    has = idx >= 0
+    used = has.any(axis=1)
+    X = np.where(has, x[np.maximum(idx, 0)], 0.0)
+    centre = np.array([np.median(X[has[:, a], a]) if has[:, a].any() else 0.0 for a in range(3)])
+    dist = np.linalg.norm(np.where(has, X - centre, 0.0), axis=1)
+    return dist, float(np.quantile(dist[used], 0.9)) if used.any() else 0.0
+
+
+def far_points(problem, x: np.ndarray) -> np.ndarray:
+    """Boolean mask over the problem's points: the points near infinity (see :data:`FAR`)."""
+    used = (problem.points.index >= 0).any(axis=1)
+    if used.sum() < 10:
+        return np.zeros(used.size, dtype=bool)
+    dist, ref = point_distances(problem, x)
+    return used & (dist > FAR * ref) if ref > 0 else np.zeros(used.size, dtype=bool)
+
+
 @dataclass(frozen=True, eq=False)
 class DatumPlan:
     """The outcome of the datum analysis at a linearisation point.
@@ -137,8 +165,19 @@ class DatumPlan:
         """S-transformation of a solution vector (or matrix of columns) to the S-base (M84 §2)."""
         if self.defect == 0:
             return dx
-        M = la.solve(self.E.T @ self.G, self.E.T @ dx)
-        return dx - self.G @ M
+        return dx - self.G @ (self.K @ dx)
+
+    @property
+    def K(self) -> np.ndarray:
+        """(EᵀG)⁻¹Eᵀ (d × u), computed as the pseudo-inverse of G on the S-base rows (the least
+        squares shift over the base; EᵀG itself has the square of the base's condition)."""
+        K = self.__dict__.get("_K")
+        if K is None:
+            rows = np.flatnonzero(np.abs(self.E).max(axis=1) > 0)
+            K = np.zeros((self.defect, self.G.shape[0]))
+            K[:, rows] = la.pinv(self.G[rows])
+            object.__setattr__(self, "_K", K)
+        return K
 
 
 def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray):
@@ -168,23 +207,49 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
     num = R.T @ (P @ R)
     Gk = G[k]
     den = Gk.T @ (Gk * diagN[k, None])      # size of each combination by the point motion alone
-    s, U = la.eigh(den)
+    # equilibrate: each candidate's own size must not decide whether it counts (far points)
+    dd = np.sqrt(np.maximum(np.diag(den), 0.0))
+    on = dd > 1e-150
+    D = np.where(on, 1.0 / np.where(on, dd, 1.0), 0.0)
+    s, U = la.eigh(den * D[:, None] * D[None, :])
     keep = s > 1e-10 * max(s.max(initial=0.0), 1e-300)
     if not keep.any():
         return np.zeros((free.size, 0)), ()
-    Bm = U[:, keep] / np.sqrt(s[keep])            # den-orthonormal combinations of candidates
+    Bm = D[:, None] * U[:, keep] / np.sqrt(s[keep])   # den-orthonormal combinations of candidates
     lam, V = la.eigh(Bm.T @ num @ Bm)
     null = lam < NULL_TOL
     if not null.any():
         return np.zeros((free.size, 0)), ()
     coef = Bm @ V[:, null]                          # candidate coefficients of each null vector
+    # where the null space is spanned by single candidates (the usual case: "translation x",
+    # "scale"), use them: the named transformations are the ones the user knows
+    # (a candidate counts as null alone when it is as null as the null space itself: with free
+    # focal lengths a one-axis stretch can be nearly, but not quite, a null direction)
+    thresh = min(NULL_TOL, 1e-14)
+    alone = np.flatnonzero(on & (np.diag(num) < thresh * np.maximum(np.diag(den), 1e-300)))
+    if 0 < alone.size <= coef.shape[1]:
+        single = np.eye(G.shape[1])[:, alone]
+        rest = coef.copy()
+        rest[alone] = 0.0                 # what the single candidates leave of the null space
+        Ur, sr, _ = la.svd(rest * D[:, None] if D.size else rest, full_matrices=False)
+        extra = Ur[:, : coef.shape[1] - alone.size] / np.where(on, D, 1.0)[:, None]
+        new = np.hstack([single, extra])
+        check = G @ new
+        ok = (sr[: coef.shape[1] - alone.size] > 1e-6 * max(sr.max(initial=0.0), 1e-300)).all()
+        if ok and np.linalg.matrix_rank(check / np.abs(check).max(axis=0), tol=1e-8) == coef.shape[1]:
+            coef = new
     Gn = G @ coef
     Gn = Gn / np.abs(Gn).max(axis=0)              # unit size: the scale of N is irrelevant here
     desc = []
     for c in range(coef.shape[1]):
         w = np.abs(coef[:, c]) * np.sqrt(np.maximum(np.diag(den), 0.0))
         w = w / w.max()
-        desc.append(" + ".join(n for n, wi in zip(names, w) if wi > 0.05))
+        used = [n for n, wi in zip(names, w) if wi > 0.05]
+        both = coef[[i for i, n in enumerate(names) if n.startswith("scale")], c]
+        if used and all(n.startswith("scale") for n in used) and len(both) == 2 and (np.abs(both) > 0).all():
+            desc.append("scale")            # the uniform scale: the two scale candidates together
+        else:
+            desc.append(" + ".join(used))
     return Gn, tuple(desc)
 
 
@@ -215,13 +280,34 @@ def plan(problem, x, A, P, free) -> DatumPlan:
                             for p, lab in zip(point_of, labels)])
     else:
         in_base = (point_of >= 0) & (problem.params.kind[free] == "k")
+        far = far_points(problem, x)
+        if far.any() and not far[point_of[in_base]].all():
+            in_base &= ~far[np.maximum(point_of, 0)]
     E = np.where(in_base[:, None], G, 0.0)
-    if np.linalg.matrix_rank(E.T @ G, tol=1e-9 * np.abs(E.T @ G).max(initial=1e-300)) < d:
+    Gb = G[in_base]
+    sv = la.svdvals(Gb / np.maximum(np.abs(Gb).max(axis=0), 1e-300)) if Gb.size else np.zeros(1)
+    if Gb.shape[0] < d or sv.min() <= 1e-9 * sv.max():
+        base = sorted(ids[p] for p in set(point_of[in_base]))
         raise DatumDefectError(
             d, list(names),
             f"datum defect {d} ({'; '.join(names)}): the S-base points "
-            f"{', '.join(sorted(ids[p] for p in set(point_of[in_base])))} do not fix it")
+            f"{', '.join(base[:12])}{' ...' if len(base) > 12 else ''} do not fix it")
     cand = np.flatnonzero(in_base)
-    _, _, piv = la.qr(G[cand].T, pivoting=True, mode="economic")
+    # the held coordinates only regularise the solve (the result is S-transformed to the S-base),
+    # but they decide its conditioning: hold points that many observations determine (a 2-ray
+    # point next to a camera, or a point near infinity, makes the regularised system needlessly
+    # ill-conditioned), spread so that they fix the transformations best (pivoted QR of G)
+    nobs = np.diff(A.tocsc().indptr)[cand]
+    dist, ref = point_distances(problem, x)
+    strong = (nobs >= np.quantile(nobs, 0.9)) & (dist[point_of[cand]] <= ref)
+    def equilibrated(rows):
+        g = G[rows]
+        return g / np.maximum(np.linalg.norm(g, axis=0), 1e-300)
+
+    sub = cand[strong]
+    if sub.size < d or la.svdvals(equilibrated(sub)).min() <= 1e-6:
+        sub = cand
+    _, _, piv = la.qr(equilibrated(sub).T, pivoting=True, mode="economic")
+    cand = sub
     eliminate = np.sort(cand[piv[:d]])
     return DatumPlan(G, names, eliminate, E)

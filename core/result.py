@@ -243,8 +243,53 @@ class Adjustment:
         else:
             I, J, _ = cluster_pairs(self.problem.cov)
             out = pair_products(self.Ar, factor, I, J), self._nuisance_products(I, J)
+        out = self._repair_hat_blocks(*out)
         self.timings.setdefault("selected_inverse", time.perf_counter() - t0)
         return out
+
+    def _repair_hat_blocks(self, H, Ht):
+        """Recompute by direct solves the cluster blocks whose selected-inverse values betray
+        round-off: a redundancy number outside [0, 1] or an asymmetric block.
+
+        a Σ aᵀ from entries of Σ sums large terms of both signs when Σ is ill-conditioned (a
+        camera that a near 2-ray point dominates); a solve N x = aᵀ followed by a x loses far
+        less. Only the flagged clusters are solved for (few, if any); their number is kept in
+        ``repaired_clusters``.
+        """
+        H, Ht = H.copy(), Ht.copy()
+        pos, fixed = 0, 0
+        for m, _, members, C in size_groups(self.problem.cov):
+            k = members.shape[0]
+            sl = slice(pos, pos + k * m * m)
+            pos += k * m * m
+            Hm, Htm = H[sl].reshape(k, m, m), Ht[sl].reshape(k, m, m)
+            Pc = np.linalg.inv(C)
+            r = np.diagonal((C - Hm) @ Pc, axis1=1, axis2=2)
+            hr = np.diagonal(Hm @ Pc, axis1=1, axis2=2)
+            asym = np.abs(Hm - np.swapaxes(Hm, 1, 2)).max(axis=(1, 2))
+            scale = np.abs(C).max(axis=(1, 2))
+            if m == 1:
+                out_of_range = (r[:, 0] < -1e-9) | (hr[:, 0] < -1e-9)
+            else:      # single components of a correlated cluster may leave [0, 1]; the trace not
+                out_of_range = (r.sum(axis=1) < -1e-9) | (hr.sum(axis=1) < -1e-9)
+            bad = np.flatnonzero(out_of_range | (asym > 1e-9 * scale))
+            if bad.size == 0:
+                continue
+            rows = members[bad].ravel()
+            Ac = self.Ar[rows].toarray()
+            X = self.factor.solve(Ac.T)
+            Hm[bad] = np.einsum("kij,kjl->kil", Ac.reshape(bad.size, m, -1),
+                                X.T.reshape(bad.size, m, -1).transpose(0, 2, 1))
+            t = self._nuisance_columns
+            if t.size:
+                Bc = Ac[:, t]
+                Xt = self._nuisance_factor.solve(Bc.T)
+                Htm[bad] = np.einsum("kij,kjl->kil", Bc.reshape(bad.size, m, -1),
+                                     Xt.T.reshape(bad.size, m, -1).transpose(0, 2, 1))
+            H[sl], Ht[sl] = Hm.ravel(), Htm.ravel()
+            fixed += bad.size
+        self.__dict__["repaired_clusters"] = fixed
+        return H, Ht
 
     @cached_property
     def _nuisance_factor(self):
@@ -433,8 +478,7 @@ class Adjustment:
     def _sbase_Z(self):
         if self.plan.defect == 0:
             return None
-        E = self.plan.E
-        K = la.solve(E.T @ self.plan.G, E.T)            # d × u
+        K = self.plan.K                                  # (EᵀG)⁻¹Eᵀ, d × u
         Z = self._full(self.factor.solve(K.T[self.keep]))  # Σ Kᵀ, u × d
         return K, Z, K @ Z
 

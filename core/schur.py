@@ -533,33 +533,57 @@ def _gather_np(st, Q, a, Sig, Sigt):
 # ------------------------------------------------------------------------------------------
 # small dense helpers
 # ------------------------------------------------------------------------------------------
-def _chol3_inverse(C: np.ndarray, diag: np.ndarray, tol: float = PIVOT_TOL):
-    """Inverses of a stack of SPD 3 × 3 matrices by Cholesky; also the first failing coordinate.
+def _point_roots(b: np.ndarray, Pc: np.ndarray, ent_ptr: np.ndarray, ent_size: np.ndarray,
+                 dC: np.ndarray, damping: float, tol: float):
+    """Square roots R_j (upper triangular, C_j = R_jᵀR_j) of the point blocks, from a QR
+    decomposition of each point's whitened rows — never from C_j itself.
 
-    ``diag`` (ne, 3) are the diagonal entries the pivots are compared with (the pivot d_i² must
-    exceed tol · N_ii, as in :class:`baarda.linalg.SPDFactor`). Returns (C⁻¹, bad) with bad the
-    index of the first failing pivot per matrix, −1 where all pass.
+    A point near infinity has a 3 × 3 block of condition 1e12 (its depth along the rays is
+    hardly determined): a Cholesky factor of C_j loses ε·cond(C_j) ≈ 1e-4 of its weakest
+    direction, and every product E C_j⁻¹ Eᵀ of the elimination loses as much to cancellation
+    (r_i < 0 came out). The QR of the whitened rows [L_cᵀ b_c; √(λ diag C_j)] loses only
+    ε·cond(B_j) = ε·√cond(C_j), and with p̃ = R_j p as the point unknowns the point blocks are the
+    identity, so no product in the elimination is formed through C_j⁻¹ (the "square-root"
+    elimination: Demmel, N. et al. (2021), Square root bundle adjustment for large-scale
+    reconstruction, CVPR).
+
+    ``dC`` (ne, 3) holds the diagonals of C_j (padded coordinates 1); a padded coordinate gets a
+    unit row, ``damping`` λ adds the rows √(λ C_ii) of Levenberg-Marquardt. Returns (R, bad),
+    bad the first coordinate whose pivot R_ii² ≤ tol · C_ii, −1 where all pass.
     """
-    ne = C.shape[0]
-    L = np.zeros_like(C)
-    bad = np.full(ne, -1, dtype=np.int64)
-    ok = np.ones(ne, dtype=bool)
-    for i in range(3):
-        s = C[:, i, i] - (L[:, i, :i] ** 2).sum(axis=1)
-        fail = ok & ~(s > tol * diag[:, i])
-        bad[fail] = i
-        ok &= ~fail
-        s = np.where(ok, s, 1.0)
-        L[:, i, i] = np.sqrt(s)
-        for k in range(i + 1, 3):
-            L[:, k, i] = (C[:, k, i] - (L[:, k, :i] * L[:, i, :i]).sum(axis=1)) / L[:, i, i]
-    Li = np.zeros_like(L)
-    for i in range(3):
-        Li[:, i, i] = 1.0 / L[:, i, i]
-        for k in range(i + 1, 3):
-            Li[:, k, i] = -(L[:, k, i:k] * Li[:, i:k, i]).sum(axis=1) / L[:, k, k]
-    Ci = np.einsum("pki,pkj->pij", Li, Li)
-    return Ci, bad
+    nc, M, _ = b.shape
+    ne = ent_size.size
+    eyeM = np.eye(M)
+    d = np.diagonal(Pc, axis1=1, axis2=2)
+    L = np.linalg.cholesky(Pc + eyeM * (d <= 0)[:, None, :])           # padded rows: unit weight
+    Bw = np.matmul(_T(L), b)                                          # whitened rows (nc, M, 3)
+    pad = np.arange(3)[None, :] >= ent_size[:, None]
+    extra = np.where(pad, 1.0, np.sqrt(damping * np.maximum(dC, 0.0)))  # (ne, 3)
+    R = np.zeros((ne, 3, 3))
+    count = np.diff(ent_ptr)
+    for n in np.unique(count):
+        ents = np.flatnonzero(count == n)
+        pos = ent_ptr[ents][:, None] + np.arange(n)[None, :]
+        X = np.concatenate([Bw[pos].reshape(ents.size, n * M, 3),
+                            extra[ents][:, :, None] * np.eye(3)[None]], axis=1)
+        R[ents] = np.linalg.qr(X, mode="r")[:, :3, :]
+    sign = np.where(np.diagonal(R, axis1=1, axis2=2) < 0, -1.0, 1.0)
+    R *= sign[:, :, None]                                             # positive diagonal
+    piv = np.diagonal(R, axis1=1, axis2=2) ** 2
+    fail = ~(piv > tol * np.where(pad, 1.0, np.maximum(dC, 1e-300)))
+    bad = np.where(fail.any(axis=1), fail.argmax(axis=1), -1)
+    return R, bad
+
+
+def _upper3_inverse(R: np.ndarray) -> np.ndarray:
+    """Inverses of a stack of upper triangular 3 × 3 matrices by back-substitution."""
+    Ri = np.zeros_like(R)
+    d = np.diagonal(R, axis1=1, axis2=2)
+    Ri[:, 0, 0], Ri[:, 1, 1], Ri[:, 2, 2] = 1.0 / d[:, 0], 1.0 / d[:, 1], 1.0 / d[:, 2]
+    Ri[:, 0, 1] = -R[:, 0, 1] * Ri[:, 1, 1] / d[:, 0]
+    Ri[:, 1, 2] = -R[:, 1, 2] * Ri[:, 2, 2] / d[:, 1]
+    Ri[:, 0, 2] = -(R[:, 0, 1] * Ri[:, 1, 2] + R[:, 0, 2] * Ri[:, 2, 2]) / d[:, 0]
+    return Ri
 
 
 def _T(X: np.ndarray) -> np.ndarray:
@@ -674,22 +698,22 @@ class SchurFactor:
         self.a, self.b = a.reshape(nc, M, K), b.reshape(nc, M, 3)
         Pc = self._cluster_weights(st, self.P)
         self.Pc = Pc
-        Pb = _bmm(Pc, self.b)
-        Cb = _bmm(_T(self.b), Pb)
-        C = _segment_sum(Cb, st.ent_ptr)
+        # diagonal of C_j = Σ_c b_cᵀ P_c b_c (convergence measure, damping, pivot test)
+        Cb = _bmm(_T(self.b), _bmm(Pc, self.b))
+        dC = np.diagonal(_segment_sum(Cb, st.ent_ptr), axis1=1, axis2=2).copy()
         pad = np.arange(3)[None, :] >= st.ent_size[:, None]
-        C[:, np.arange(3), np.arange(3)] += pad
-        dC = np.diagonal(C, axis1=1, axis2=2).copy()
-        if damping:
-            # Levenberg-Marquardt: N + λ diag(N), here on the point blocks (the camera part below)
-            C[:, np.arange(3), np.arange(3)] += damping * np.where(pad, 0.0, dC)
-        Ci, bad = _chol3_inverse(C, np.where(pad, 1.0, np.maximum(dC, 1e-300)), min(pivot_tol, POINT_PIVOT_TOL))
+        dC[pad] = 1.0
+        R, bad = _point_roots(self.b, Pc, st.ent_ptr, st.ent_size, dC, damping,
+                              min(pivot_tol, POINT_PIVOT_TOL))
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
-        self.C, self.Ci = C, Ci
-        self.E = _bmm(_T(self.a), Pb)
-        self.Q = _bmm(self.E, Ci[st.cl_ent])
+        # point unknowns p̃ = R_j p: the point blocks become I, b_c becomes b_c R_j⁻¹
+        self.R, self.Ri = R, _upper3_inverse(R)
+        self.b = _bmm(self.b, self.Ri[st.cl_ent])
+        Pb = _bmm(Pc, self.b)
+        self.E = _bmm(_T(self.a), Pb)           # E_c = a_cᵀ P_c b̃_c
+        self.Q = self.E                         # E_c C̃⁻¹ with C̃ = I
         nnz = int(st.bstart[-1])
         sn_size = np.diff(st.sn_ptr)
         if self.backend == "numba":
@@ -770,7 +794,7 @@ class SchurFactor:
         ne = st.ent_size.size
         bp = np.zeros((ne * 3, q))
         bp[self._pflat] = B[self._pcols]
-        yp = _bmm(self.Ci, bp.reshape(ne, 3, q))                 # V⁻¹ b_p   (ne, 3, q)
+        yp = _bmm(_T(self.Ri), bp.reshape(ne, 3, q))             # Ṽ⁻¹ b̃_p = R⁻ᵀ b_p  (ne, 3, q)
         Wy = _bmm(self.E, yp[st.cl_ent]).reshape(-1, q)            # E_c y_e(c)  (nc·K, q)
         cols = st.col_S.ravel()
         ok = cols >= 0
@@ -780,14 +804,14 @@ class SchurFactor:
         xc = self.S.solve(rhs).reshape(-1, q)
         xk = np.where(ok[:, None], xc[np.maximum(cols, 0)], 0.0).reshape(-1, st.K, q)
         t = _segment_sum(_bmm(_T(self.E), xk), st.ent_ptr)       # W_jᵀ x_c  (ne, 3, q)
-        xp = (yp - _bmm(self.Ci, t)).reshape(ne * 3, q)
+        xp = _bmm(self.Ri, yp - t).reshape(ne * 3, q)            # p = R⁻¹ p̃
         out = np.empty((self.m, q))
         out[st.cam] = xc
         out[self._pcols] = xp[self._pflat]
         return out.ravel() if vec else out
 
     def logdet(self) -> float:
-        d = np.linalg.slogdet(self.C)[1].sum()
+        d = 2.0 * np.log(np.diagonal(self.R, axis1=1, axis2=2)).sum()
         return float(self.S.logdet() + d)
 
     def dense_inverse(self) -> np.ndarray:
@@ -830,11 +854,12 @@ class SchurFactor:
             Gc, SA, SAt = _gather_np(st, self.Q, self.a, Sig, Sigt)
         a, b = self.a, self.b
         F = _bmm(a, Gc)                                        # a_c Σ_{k_c p}  (nc, M, 3)
-        Spp = self.Ci - _segment_sum(_bmm(_T(self.Q), Gc), st.ent_ptr)
+        I3 = np.broadcast_to(np.eye(3), (st.ent_size.size, 3, 3))
+        Spp = I3 - _segment_sum(_bmm(_T(self.Q), Gc), st.ent_ptr)      # Σ of p̃ (C̃ = I)
         FbT = _bmm(F, _T(b))
         H = _bmm(a, SA) + FbT + _T(FbT) + _bmm(_bmm(b, Spp[st.cl_ent]), _T(b))
         Ht = _bmm(a, SAt)
-        self._blocks = (H, Ht, Spp)
+        self._blocks = (H, Ht, _bmm(_bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
         return self._blocks
 
     def hat_blocks(self, cov):

@@ -116,6 +116,32 @@ def test_correlated_clusters_against_dense_formulas():
         assert g["dimension"] == 3
 
 
+@pytest.mark.parametrize("make", [lambda: grid_network(4, 4, seed=2), vector_network])
+def test_hat_blocks_with_round_off_are_recomputed_by_solves(make):
+    """Cluster blocks of A Σ Aᵀ that betray round-off (r_i < 0, asymmetry) are recomputed by
+    direct solves; untouched blocks stay as they were."""
+    from baarda.result import size_groups
+
+    adj = adjust(problem(make()))
+    H, Ht = adj._hat_blocks
+    assert adj.repaired_clusters == 0
+    spoiled = H.copy()
+    pos, touched = 0, 0
+    for m, _, members, C in size_groups(adj.problem.cov):
+        k = members.shape[0]
+        block = spoiled[pos:pos + k * m * m].reshape(k, m, m)
+        block[0] = 1.01 * C[0]                    # r < 0 (trace too)
+        if k > 1 and m > 1:
+            block[1, 0, m - 1] += 1e-3 * np.abs(C[1]).max()   # asymmetric
+            touched += 1
+        touched += 1
+        pos += k * m * m
+    H2, Ht2 = adj._repair_hat_blocks(spoiled, Ht)
+    assert adj.repaired_clusters == touched
+    np.testing.assert_allclose(H2, H, atol=1e-10 * np.abs(H).max())
+    np.testing.assert_allclose(Ht2, Ht, atol=1e-10 * max(np.abs(Ht).max(), 1e-300))
+
+
 # -- identities ---------------------------------------------------------------------------------
 
 def test_error_of_mdb_size_gives_w_equal_delta0():
