@@ -28,7 +28,7 @@ def _figures(state) -> list[tuple[str, object]]:
     figs = []
     for V in MAP_VIEWS:
         view = V(state=state)
-        obj = view._render().opts(hv.opts.Overlay(responsive=False, frame_width=760, frame_height=560,
+        obj = view.static().opts(hv.opts.Overlay(responsive=False, frame_width=760, frame_height=560,
                                                            min_height=None))
         fig = hv.render(obj, backend="bokeh")
         figs.append((view.title(), fig))

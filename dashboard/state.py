@@ -197,6 +197,9 @@ class State(param.Parameterized):
     exaggeration = param.Number(default=1.0, bounds=(0.0, None),
                                 doc="Exaggeration of image residual vectors.")
     results = param.Parameter(default=None, doc="The core's Adjustment of the reduced problem.")
+    solution = param.Integer(default=0, doc="Counts the adjustments: changes when the problem is solved "
+                             "again (exclusion, σ0, a new problem), not when only α0, β0 or the B-method "
+                             "change (then only ``results`` does).")
     kept = param.Array(default=np.zeros(0, dtype=np.int64), doc="Full index of each reduced observation.")
     error = param.String(default="", doc="A message for the user (bad file, failed exclusion).")
     busy = param.Boolean(default=False, doc="True while a computation runs.")
@@ -318,6 +321,7 @@ class State(param.Parameterized):
         with param.parameterized.batch_call_watchers(self):
             self.kept = kept
             self.results = adj
+            self.solution += 1
             self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
             self.components, self.criterion, self.criterion_error = None, None, ""
             self.analysis_error = ""
@@ -434,19 +438,17 @@ class State(param.Parameterized):
         if kind == "group":
             return [np.flatnonzero(np.asarray(info.group) == int(spec["group"]))]
         if kind == "image-point":
-            rows = [i for i, ids in enumerate(info.ids)
-                    if str(ids.get("image")) == str(spec["image"]) and str(ids.get("point")) == str(spec["point"])]
-            return [np.array(rows, dtype=np.int64)]
+            return [np.array(self.image_point_rows(spec["image"], spec["point"]), dtype=np.int64)]
         if kind == "control":
             rows = [i for i, ids in enumerate(info.ids) if str(ids.get("id")) == str(spec["point"])]
             return [np.array(rows, dtype=np.int64)]
         if kind == "transfer":
-            images = {str(j) for j in spec["images"]}
             comps = {}
-            for i, ids in enumerate(info.ids):
-                if str(ids.get("point")) == str(spec["point"]) and str(ids.get("image")) in images:
-                    comp = ids.get("component") or info.kind[i].rsplit("-", 1)[-1]
-                    comps.setdefault(str(comp), []).append(i)
+            rows = sorted(i for j in {str(j) for j in spec["images"]}
+                          for i in self.image_point_rows(j, spec["point"]))
+            for i in rows:
+                comp = info.ids[i].get("component") or info.kind[i].rsplit("-", 1)[-1]
+                comps.setdefault(str(comp), []).append(i)
             return [np.array(comps[c], dtype=np.int64) for c in sorted(comps)]
         if kind == "ap-group":
             images = {str(im["id"]) for im in self.images if str(im.get("camera")) == str(spec["camera"])}
@@ -523,10 +525,44 @@ class State(param.Parameterized):
 
     @property
     def obs_points(self) -> list[list[int]]:
-        if getattr(self, "_obs_points_for", None) is not self.problem:
-            self._obs_points = observation_points(self.problem)
-            self._obs_points_for = self.problem
-        return self._obs_points
+        return self.problem_index()["obs_points"]
+
+    def problem_index(self) -> dict:
+        """Index arrays of the current problem, built once per problem (the problem is
+        immutable): the observation-point incidence (``inc_obs``, ``inc_pt``: observation i
+        names point k), the network lines (``line_obs``, ``line_from``, ``line_to``), the short
+        observation labels, and the rows of each (image, point) of a block."""
+        if getattr(self, "_index_for", None) is self.problem:
+            return self._index
+        p = self.problem
+        obs_points = observation_points(p)
+        inc_obs = np.repeat(np.arange(p.n), [len(pp) for pp in obs_points])
+        inc_pt = np.fromiter((k for pp in obs_points for k in pp), dtype=np.int64, count=inc_obs.size)
+        lines = [(i, pp[0], k) for i, pp in enumerate(obs_points)
+                 if len(pp) >= 2 and not p.info.kind[i].startswith("image") for k in pp[1:]]
+        lines = np.array(lines, dtype=np.int64).reshape(-1, 3)
+        image_rows: dict = {}
+        for i, ids in enumerate(p.info.ids):
+            if "image" in ids and "point" in ids:
+                image_rows.setdefault((str(ids["image"]), str(ids["point"])), []).append(i)
+        self._index = {"obs_points": obs_points, "inc_obs": inc_obs, "inc_pt": inc_pt,
+                       "line_obs": lines[:, 0], "line_from": lines[:, 1], "line_to": lines[:, 2],
+                       "labels": [observation_label(p, i).split(" ", 2)[-1] for i in range(p.n)],
+                       "image_rows": image_rows, "factor": display_factor(p)}
+        self._index_for = p
+        return self._index
+
+    def display_factor(self) -> tuple[np.ndarray, tuple[str, ...]]:
+        """:func:`display_factor` of the current problem (computed once)."""
+        return self.problem_index()["factor"]
+
+    def image_point_rows(self, image, point) -> list[int]:
+        """Full indices of the observations of ``point`` in ``image`` (a block's image point)."""
+        return self.problem_index()["image_rows"].get((str(image), str(point)), [])
+
+    def images_of_point(self, point) -> list[str]:
+        """The images in which ``point`` is measured (sorted ids)."""
+        return sorted(im for im, pid in self.problem_index()["image_rows"] if pid == str(point))
 
     def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
         """``(observations, points)`` tables of the current results (cached until they change).
@@ -541,7 +577,8 @@ class State(param.Parameterized):
         if self._frames is not None and self._frames[0] is self.results:
             return self._frames[1], self._frames[2]
         p, adj = self.problem, self.results
-        factor, units = display_factor(p)
+        index = self.problem_index()
+        factor, units = self.display_factor()
         sig_si = p.cov.sigma()
         aposteriori = self.sigma0_mode == "aposteriori"
         w = self.expand(adj.w)
@@ -551,9 +588,11 @@ class State(param.Parameterized):
         else:
             rejected = np.nan_to_num(np.abs(w)) > adj.critical_w
         mdb = self.expand(adj.mdb)
+        excluded = np.zeros(p.n, dtype=bool)
+        excluded[sorted(self.excluded)] = True
         obs = pd.DataFrame({
             "kind": list(p.info.kind),
-            "ids": [observation_label(p, i).split(" ", 2)[-1] for i in range(p.n)],
+            "ids": index["labels"],
             "v": self.expand(adj.v) * factor,
             "w": w,
             "tau": tau,
@@ -563,36 +602,31 @@ class State(param.Parameterized):
             "ext": self.expand(adj.external),
             "unit": list(units),
             "rejected": rejected,
-            "excluded": np.isin(np.arange(p.n), sorted(self.excluded)),
+            "excluded": excluded,
             "robust_w": self.expand(self.robust.weights) if self.robust is not None else np.full(p.n, np.nan),
         })
         obs.index.name = "index"
         coords = adj.coordinates
         east, north, _, _ = display_xy(p, coords)
         m = len(p.points.ids)
-        min_r = np.full(m, np.nan)
-        max_w = np.full(m, np.nan)
-        max_ext = np.full(m, np.nan)
-        max_mdb = np.full(m, np.nan)
-        n_obs = np.zeros(m, dtype=int)
-        r_all, aw, ext_all, ms = obs["r"].to_numpy(), np.abs(w), obs["ext"].to_numpy(), obs["mdb_sigma"].to_numpy()
-        for i, pts in enumerate(self.obs_points):
-            if obs["excluded"].iat[i]:
-                continue
-            for k in pts:
-                n_obs[k] += 1
-                min_r[k] = np.fmin(min_r[k], r_all[i])
-                max_w[k] = np.fmax(max_w[k], aw[i])
-                max_ext[k] = np.fmax(max_ext[k], ext_all[i])
-                max_mdb[k] = np.fmax(max_mdb[k], ms[i])
+        live = ~excluded[index["inc_obs"]]
+        io, ip = index["inc_obs"][live], index["inc_pt"][live]
+
+        def extreme(ufunc, values):
+            out = np.full(m, np.nan)
+            ufunc.at(out, ip, values[io])
+            return out
+
         sig = adj.point_sigma * 1000.0
         pts = pd.DataFrame({
             "id": list(p.points.ids), "status": list(p.points.status),
             "x": east, "y": north,
             "sx_mm": sig[:, 0], "sy_mm": sig[:, 1], "sz_mm": sig[:, 2],
-            "n_obs": n_obs, "min_r": min_r, "max_w": max_w,
-            "max_ext": np.where(np.isfinite(max_ext), max_ext, np.nan),
-            "max_mdb_sigma": np.where(np.isfinite(max_mdb), max_mdb, np.nan),
+            "n_obs": np.bincount(ip, minlength=m),
+            "min_r": extreme(np.fmin, obs["r"].to_numpy()),
+            "max_w": extreme(np.fmax, np.abs(w)),
+            "max_ext": extreme(np.fmax, obs["ext"].to_numpy()),
+            "max_mdb_sigma": extreme(np.fmax, obs["mdb_sigma"].to_numpy()),
         })
         self._frames = (self.results, obs, pts)
         return obs, pts
@@ -602,20 +636,11 @@ class State(param.Parameterized):
 
     def segments(self) -> pd.DataFrame:
         """One line per (observation, other point) of the network observations: from → to."""
-        obs, pts = self.frames()
-        rows = []
-        for i, pp in enumerate(self.obs_points):
-            if len(pp) < 2 or self.problem.info.kind[i].startswith("image"):
-                continue
-            for k in pp[1:]:
-                rows.append((i, pp[0], k))
-        if not rows:
-            return pd.DataFrame(columns=["obs", "x0", "y0", "x1", "y1"])
-        a = np.array(rows)
-        seg = pd.DataFrame({"obs": a[:, 0], "x0": pts["x"].to_numpy()[a[:, 1]],
-                            "y0": pts["y"].to_numpy()[a[:, 1]], "x1": pts["x"].to_numpy()[a[:, 2]],
-                            "y1": pts["y"].to_numpy()[a[:, 2]]})
-        return seg
+        _, pts = self.frames()
+        index = self.problem_index()
+        x, y = pts["x"].to_numpy(), pts["y"].to_numpy()
+        a, b = index["line_from"], index["line_to"]
+        return pd.DataFrame({"obs": index["line_obs"], "x0": x[a], "y0": y[a], "x1": x[b], "y1": y[b]})
 
     def deformation_field(self, index: int | None = None) -> np.ndarray:
         """∇0x of an error of MDB size in observation ``index`` (full; default the selected one)
@@ -805,7 +830,7 @@ class State(param.Parameterized):
         if self.snoop is None:
             return pd.DataFrame(columns=cols)
         obs, _ = self.frames()
-        factor, units = display_factor(self.problem)
+        factor, units = self.display_factor()
         rows = []
         for k, st in enumerate(self.snoop.steps, 1):
             i = int(self.kept[st.removed])
@@ -974,7 +999,7 @@ class State(param.Parameterized):
         crit = new.critical_tau if aposteriori else new.critical_w
         top = int(np.argmax(stat))
         group = next((g for g in new.groups if k in g["members"]), None)
-        factor, units = display_factor(self.problem)
+        factor, units = self.display_factor()
         out = {"index": int(index), "size": float(size), "unit": unit,
                "error": float(e[k] * factor[index]), "error_unit": units[index],
                "statistic": "τ" if aposteriori else "w",
@@ -1002,7 +1027,8 @@ class State(param.Parameterized):
         return self._readjust()
 
     def observations_of_point(self, k: int) -> list[int]:
-        return [i for i, pts in enumerate(self.obs_points) if k in pts]
+        index = self.problem_index()
+        return sorted(set(index["inc_obs"][index["inc_pt"] == k].tolist()))
 
     def _auto_exaggeration(self) -> float:
         """Image residual vectors: the 90th percentile of |v| drawn 4 % of the image width long

@@ -71,27 +71,31 @@ def extent(pts: pd.DataFrame) -> float:
 
 
 def block_context(state) -> hv.Overlay:
-    """Footprints, projection centres and strips of a block; empty layers for a network."""
+    """Footprints, projection centres and strips of a block; empty layers for a network.
+
+    The footprints are drawn as their edges (one columnar ``Segments`` element): a thousand
+    polygons would make every update of the map recompute their ranges.
+    """
     images = state.images
-    polys, centres, strips = [], [], {}
+    edges, centres, strips = [], [], {}
     for im in images:
         fp = im.get("footprint")
         if fp:
             fp = np.asarray(fp, dtype=float)
-            polys.append({"x": fp[:, 0], "y": fp[:, 1], "image": str(im.get("id")),
-                          "strip": str(im.get("strip", ""))})
+            edges.append(np.hstack([fp, np.roll(fp, -1, axis=0)]))
         if "X0" in im and "Y0" in im:
             centres.append((float(im["X0"]), float(im["Y0"]), str(im.get("id")), str(im.get("strip", ""))))
             strips.setdefault(str(im.get("strip", "")), []).append((float(im["X0"]), float(im["Y0"])))
-    footprints = hv.Polygons(polys, vdims=["image", "strip"], label="footprints" if polys else "").opts(
-        fill_alpha=0.04, line_alpha=0.35, line_color="#555555", color="#888888",
-        nonselection_fill_alpha=0.04, nonselection_line_alpha=0.35, tools=[])
+    edges = np.vstack(edges) if edges else np.zeros((0, 4))
+    footprints = hv.Segments(edges, ["x0", "y0", "x1", "y1"], label="footprints" if len(edges) else "").opts(
+        color="#555555", line_alpha=0.35, line_width=1, nonselection_alpha=0.35, tools=[])
     cdf = pd.DataFrame(centres, columns=["x", "y", "image", "strip"])
     proj = hv.Points(cdf, ["x", "y"], ["image", "strip"], label="projection centres" if centres else "").opts(
-        marker="triangle", size=9, color="#444444", nonselection_alpha=1, tools=["hover"])
+        marker="triangle", size=9 if len(centres) <= 100 else 4, color="#444444", nonselection_alpha=1,
+        tools=["hover"])
     paths = [np.array(v) for v in strips.values() if len(v) > 1]
     strip_path = hv.Path(paths, label="strips" if paths else "").opts(color="#999999", line_dash="dashed",
-                                                      nonselection_alpha=1)
+                                                                      nonselection_alpha=1)
     return footprints * strip_path * proj
 
 
@@ -135,7 +139,8 @@ def on_tap(state):
 
 
 def selection_layer(state) -> hv.Overlay:
-    """Rings around the selected point and the selected observation's points and line."""
+    """Rings around the selected point and the selected observation's points and line (the
+    options are set by the map: ``selection_opts``)."""
     obs, pts = state.frames()
     ring = pts.iloc[[]]
     line = []
@@ -147,16 +152,13 @@ def selection_layer(state) -> hv.Overlay:
         if len(k) >= 2:
             line = [np.array([[pts["x"].iat[k[0]], pts["y"].iat[k[0]]], [pts["x"].iat[j], pts["y"].iat[j]]])
                     for j in k[1:]]
-    rings = hv.Points(ring, ["x", "y"], ["id"]).opts(
-        size=22, fill_alpha=0, line_color="#e6007e", line_width=3, nonselection_alpha=1, tools=[])
-    sel_line = hv.Path(line).opts(color="#e6007e", line_width=4,
-                                                                  nonselection_alpha=1)
-    return suspects_layer(state) * sel_line * rings
+    return hv.Path(line) * hv.Points(ring, ["x", "y"], ["id"])
 
 
 def suspects_layer(state) -> hv.Overlay:
-    """The robust suspects: their lines (network observations) and points, in orange."""
-    obs, pts = state.frames()
+    """The robust suspects: their lines (network observations) and points (the options, orange,
+    are set by the map: ``suspect_opts``)."""
+    _, pts = state.frames()
     sus = state.suspect_observations()
     lines, marks = [], set()
     for i in sus:
@@ -165,9 +167,4 @@ def suspects_layer(state) -> hv.Overlay:
         if len(k) >= 2 and not state.problem.info.kind[i].startswith("image"):
             lines += [np.array([[pts["x"].iat[k[0]], pts["y"].iat[k[0]]], [pts["x"].iat[j], pts["y"].iat[j]]])
                       for j in k[1:]]
-    path = hv.Path(lines).opts(color="#ff7f0e", line_width=6, alpha=0.6,
-                                                             line_dash="dotted", nonselection_alpha=0.6)
-    points = hv.Points(pts.iloc[sorted(marks)], ["x", "y"], ["id"]).opts(
-        marker="diamond", size=20, fill_alpha=0, line_color="#ff7f0e", line_width=3,
-        nonselection_alpha=1, tools=[])
-    return path * points
+    return hv.Path(lines) * hv.Points(pts.iloc[sorted(marks)], ["x", "y"], ["id"])

@@ -11,7 +11,7 @@ import param
 
 from baarda.bundle import AP_GROUPS, APTest
 
-from ..state import State, display_factor
+from ..state import State
 
 KINDS = {
     "observation": "one observation",
@@ -188,7 +188,7 @@ class HypothesisPanel(pn.viewable.Viewer):
     def frame(self) -> pd.DataFrame:
         """One row per hypothesis with the core's test results (∇ŝ in the file's σ units)."""
         s = self.state
-        factor, units = display_factor(s.problem)
+        factor, units = s.display_factor()
         rows = []
         for spec, h in zip(s.hypotheses, s.hyp_results + [None] * (len(s.hypotheses) - len(s.hyp_results))):
             row = {"active": bool(spec.get("active", True)), "hypothesis": spec.get("label", ""),
@@ -234,7 +234,7 @@ class HypothesisPanel(pn.viewable.Viewer):
                      + ", ".join(f"{x:.3g}" for x in h.ellipsoid_axes))
         elif h is not None and not isinstance(h, str):
             spec = s.hypotheses[k]
-            factor, units = display_factor(s.problem)
+            factor, units = s.display_factor()
             first = s.hypothesis_rows(spec)[0]
             f = factor[int(first[0])] if len(first) else 1.0
             u = units[int(first[0])] if len(first) else ""

@@ -1,12 +1,18 @@
 """The map views: layout, redundancy, residuals / w, external reliability, MDB, precision.
 
-Each view is one HoloViews DynamicMap over the state (``hv.streams.Params``) returning an
-overlay of a fixed set of layers (block context, the view's own layers, the selection), so that
-Bokeh updates its data sources in place. A click on the map goes through a ``Tap`` stream into
-the state (:func:`baarda.dashboard.views.common.on_tap`).
+Each map is an overlay of layers, and each layer is its own HoloViews DynamicMap over only the
+state parameters it shows (``hv.streams.Params``): the block context (static), the view's data
+layers (``results``), a hypothesis layer (the lower-bound ellipse, the deformation field), the
+robust suspects and the selection. A change redraws only the layers that depend on it; the
+others return their memoized element and Bokeh keeps their data sources as they are. The title
+is set on the Bokeh figure after every update (:meth:`MapView._hook`). A click on the map goes
+through a ``Tap`` stream into the state (:func:`baarda.dashboard.views.common.on_tap`).
 """
 
 from __future__ import annotations
+
+import functools
+import operator
 
 import holoviews as hv
 import numpy as np
@@ -19,9 +25,36 @@ from baarda.hypotheses import HypothesisTest
 
 from ..state import State, display_matrix
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
-                     round_scale, selection_layer)
+                     round_scale, selection_layer, suspects_layer)
 
 HOVER_OBS = ["obs", "kind", "ids"]
+
+
+
+def selection_opts() -> tuple:
+    """Options of the selection layer: rings and the selected line (magenta)."""
+    return (hv.opts.Points(size=22, fill_alpha=0, line_color="#e6007e", line_width=3, nonselection_alpha=1,
+                           tools=[]),
+            hv.opts.Path(color="#e6007e", line_width=4, nonselection_alpha=1))
+
+
+def suspect_opts() -> tuple:
+    """Options of the robust suspects' layer (orange diamonds and dotted lines)."""
+    return (hv.opts.Points(marker="diamond", size=20, fill_alpha=0, line_color="#ff7f0e", line_width=3,
+                           nonselection_alpha=1, tools=[]),
+            hv.opts.Path(color="#ff7f0e", line_width=6, alpha=0.6, line_dash="dotted", nonselection_alpha=0.6))
+
+
+#: The state parameters behind each kind of layer (one ``Params`` stream per kind and view).
+STREAMS = {
+    "solution": ["solution"],
+    "results": ["results"],
+    "selection": ["selected_point", "selected_obs"],
+    "robust": ["robust"],
+    "hypothesis": ["hyp_results", "selected_hypothesis"],
+    "field": ["hyp_results", "selected_hypothesis", "selected_obs", "field_source"],
+    "sbase": ["sbase"],
+}
 
 
 def tips(columns) -> list:
@@ -29,48 +62,114 @@ def tips(columns) -> list:
     return [(c, f"@{{{c}}}") for c in columns]
 
 
-def ellipse_xy(cov2: np.ndarray, n: int = 49) -> np.ndarray:
-    """Points of the standard ellipse of a 2 × 2 covariance (n × 2, centred at 0)."""
-    lam, V = np.linalg.eigh(0.5 * (cov2 + cov2.T))
+def ellipses_xy(cov2: np.ndarray, n: int = 49) -> np.ndarray:
+    """Points of the standard ellipses of m 2 × 2 covariances (m × n × 2, centred at 0)."""
+    lam, V = np.linalg.eigh(0.5 * (cov2 + np.swapaxes(cov2, 1, 2)))
     t = np.linspace(0, 2 * np.pi, n)
-    return (V @ (np.sqrt(np.maximum(lam, 0.0))[:, None] * np.vstack([np.cos(t), np.sin(t)]))).T
+    return np.einsum("mij,mj,jn->mni", V, np.sqrt(np.maximum(lam, 0.0)), np.vstack([np.cos(t), np.sin(t)]))
+
+
+def joined(paths: np.ndarray) -> list[np.ndarray]:
+    """m paths (m × n × 2) as one path broken by NaN rows: Bokeh draws one glyph instead of m."""
+    if len(paths) == 0:
+        return []
+    gap = np.full((len(paths), 1, 2), np.nan)
+    return [np.concatenate([paths, gap], axis=1).reshape(-1, 2)[:-1]]
+
+
+def log_clim(values, low: float | None = None) -> tuple[float, float]:
+    """Colour limits of a log scale: from ``low`` (default the smallest positive value, at
+    least 10⁻⁴ of the largest) to the largest finite value."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    hi = float(v.max()) if v.size else 1.0
+    lo = float(low) if low is not None else (float(v.min()) if v.size else 0.1 * hi)
+    lo = max(lo, 1e-4 * hi)
+    return (lo, hi) if hi > lo * 1.01 else (lo, 10 * lo)
+
+
+def _same(a, b) -> bool:
+    """The same object, or equal numbers / strings (a cache key compares results by identity)."""
+    return a is b or (isinstance(a, (int, float, str)) and type(a) is type(b) and a == b)
+
+
+def point_size(pts: pd.DataFrame) -> int:
+    """Marker size of the data points: smaller on large blocks, so that they do not merge."""
+    return 12 if len(pts) <= 500 else 6
 
 
 class MapView(pn.viewable.Viewer):
-    """Base class: subclasses give ``name_`` and ``layers()``; the title comes from ``title()``."""
+    """Base class: subclasses give ``key``, ``layers()`` and ``title()``."""
 
     state = param.ClassSelector(class_=State)
-    depends = ("results", "selected_point", "selected_obs", "robust")
+    key = "map"
 
     def __init__(self, **params):
         super().__init__(**params)
-        self.dmap = hv.DynamicMap(self._render, streams=[hv.streams.Params(self.state, list(self.depends))])
+        self._streams = {}
+        self._memo = {}
         # A Tap stream with the overlay as its source receives no events in HoloViews 1.23, so
         # the figure's Bokeh Tap event is forwarded to the stream by a plot hook.
         self.tap = hv.streams.Tap(x=None, y=None)
         self.tap.add_subscriber(on_tap(self.state))
         self._hooked = set()
+        s = self.state
+        self._layers = [*self.layers(),
+                        self.layer(self._suspects, "solution", "robust", opts=suspect_opts()),
+                        self.layer(self._selection, "solution", "selection", opts=selection_opts())]
+        dmaps = [hv.DynamicMap(lambda render=render, **_: render(),
+                               streams=[self._stream(k) for k in kinds]).opts(*opts)
+                 for render, kinds, opts in self._layers]
+        self.dmap = functools.reduce(operator.mul, [block_context(s), *dmaps]).opts(self._overlay_opts())
         self._pane = pn.pane.HoloViews(self.dmap, css_classes=[f"map-{self.key}"], linked_axes=False)
 
-    key = "map"
+    def _overlay_opts(self):
+        xl, yl = self.state.map_labels()
+        return hv.opts.Overlay(title=self.title(), xlabel=xl, ylabel=yl, legend_position="bottom", legend_cols=4,
+                               show_legend=self.key == "layout", hooks=[self._hook],
+                               **frame_size(self.points(), self.state.images), **formatters(), **MAP_OPTS)
 
-    def _render(self, **_):
-        s = self.state
-        xl, yl = s.map_labels()
-        overlay = block_context(s)
-        for layer in self.layers():
-            overlay = overlay * layer
-        return (overlay * selection_layer(s)).opts(
-            hv.opts.Overlay(title=self.title(), xlabel=xl, ylabel=yl, legend_position="bottom", legend_cols=4,
-                            show_legend=self.key == "layout", hooks=[self._hook],
-                            **frame_size(self.points(), s.images), **formatters(), **MAP_OPTS))
+    @staticmethod
+    def layer(render, *kinds, opts=()) -> tuple:
+        """A layer: ``render()`` gives its element, redrawn when the parameters of ``kinds``
+        (:data:`STREAMS`) change, and the options ``opts`` (``hv.opts.*``) set once on the
+        layer (cheaper than on every element of a layer that changes often)."""
+        return render, kinds, tuple(opts)
+
+    def _stream(self, kind) -> hv.streams.Params:
+        """The view's one ``Params`` stream of a kind of layer (shared by its layers)."""
+        if kind not in self._streams:
+            self._streams[kind] = hv.streams.Params(self.state, STREAMS[kind])
+        return self._streams[kind]
+
+    def static(self) -> hv.Overlay:
+        """The map as it is now, as a plain overlay (for the HTML report)."""
+        overlay = functools.reduce(operator.mul, [block_context(self.state),
+                                                  *(r().opts(*o) for r, _, o in self._layers)])
+        return overlay.opts(self._overlay_opts()).opts(hv.opts.Overlay(title=self.title(), hooks=[]))
+
+    def cached(self, name: str, key: tuple, compute):
+        """``compute()``, kept until ``key`` changes (shared by a layer and the title)."""
+        hit = self._memo.get(name)
+        if hit is not None and len(hit[0]) == len(key) and all(map(_same, hit[0], key)):
+            return hit[1]
+        value = compute()
+        self._memo[name] = (key, value)
+        return value
 
     def _hook(self, plot, element):
         fig = plot.state
+        fig.title.text = self.title()
         if fig.id in self._hooked:
             return
         self._hooked.add(fig.id)
         fig.on_event(Tap, lambda event: self.tap.event(x=event.x, y=event.y))
+
+    def _suspects(self):
+        return suspects_layer(self.state)
+
+    def _selection(self):
+        return selection_layer(self.state)
 
     def title(self) -> str:
         return self.key
@@ -106,7 +205,6 @@ class LayoutMap(MapView):
     """Points coloured by status, observation lines by kind; block footprints, centres, strips."""
 
     key = "layout"
-    depends = ("results", "selected_point", "selected_obs", "robust", "hyp_results", "selected_hypothesis")
 
     def title(self):
         s = self.state
@@ -137,19 +235,25 @@ class LayoutMap(MapView):
         return f"{h.label} (×{scale:g})", [xy]
 
     def layers(self):
-        seg = self.segments()
-        lines = hv.Segments(seg, ["x0", "y0", "x1", "y1"], HOVER_OBS, label="observations").opts(
+        return [self.layer(self._lines, "solution"), self.layer(self._points, "solution"),
+                self.layer(self._ellipse, "solution", "hypothesis", opts=[hv.opts.Path(
+                    color="#e6007e", line_dash="dashed", line_width=2, nonselection_alpha=1)]),
+                self.layer(self.labels, "solution")]
+
+    def _lines(self):
+        return hv.Segments(self.segments(), ["x0", "y0", "x1", "y1"], HOVER_OBS, label="observations").opts(
             hover_tooltips=tips(HOVER_OBS),
             color="kind", cmap="Category10", line_width=2, alpha=0.7, tools=["hover"],
             nonselection_alpha=0.7, show_legend=False)
-        pts = self.points()
-        points = hv.Points(pts, ["x", "y"], ["id", "status", "n_obs"]).opts(
-            color="status", cmap=STATUS_COLORS, size=10, tools=["hover", "tap"], line_color="white",
-            nonselection_alpha=1, show_legend=True)
+
+    def _points(self):
+        return hv.Points(self.points(), ["x", "y"], ["id", "status", "n_obs"]).opts(
+            color="status", cmap=STATUS_COLORS, size=10 if len(self.points()) <= 500 else 5,
+            tools=["hover", "tap"], line_color="white", nonselection_alpha=1, show_legend=True)
+
+    def _ellipse(self):
         _, ell = self._hypothesis_ellipse()
-        ellipse = hv.Path(ell, label="lower bound").opts(color="#e6007e", line_dash="dashed",
-                                                         line_width=2, nonselection_alpha=1)
-        return [lines, points, ellipse, self.labels()]
+        return hv.Path(ell, label="lower bound")
 
 
 class RedundancyMap(MapView):
@@ -161,17 +265,20 @@ class RedundancyMap(MapView):
         return "Redundancy r_i (red < 0.1 uncontrolled, orange < 0.3 weak)"
 
     def layers(self):
-        seg = self.segments(["r"])
-        lines = hv.Segments(seg, ["x0", "y0", "x1", "y1"], [*HOVER_OBS, "r"]).opts(
+        return [self.layer(self._lines, "solution"), self.layer(self._points, "solution"),
+                self.layer(self.labels, "solution")]
+
+    def _lines(self):
+        return hv.Segments(self.segments(["r"]), ["x0", "y0", "x1", "y1"], [*HOVER_OBS, "r"]).opts(
             hover_tooltips=tips([*HOVER_OBS, "r"]),
             color="r", cmap=R_COLORS, color_levels=R_LEVELS, clim=(0, 1), line_width=3,
             tools=["hover"], nonselection_alpha=1)
-        pts = self.points()
-        points = hv.Points(pts, ["x", "y"], ["id", "status", "min_r", "n_obs"]).opts(
+
+    def _points(self):
+        return hv.Points(self.points(), ["x", "y"], ["id", "status", "min_r", "n_obs"]).opts(
             color="min_r", cmap=R_COLORS, color_levels=R_LEVELS, clim=(0, 1), colorbar=True,
-            size=12, line_color="#333333", tools=["hover", "tap"], nonselection_alpha=1,
-            clipping_colors={"NaN": "#cccccc"}, clabel="r")
-        return [lines, points, self.labels()]
+            size=point_size(self.points()), line_color="#333333", tools=["hover", "tap"], nonselection_alpha=1,
+            clipping_colors={"NaN": "#cccccc"}, clabel="r (red < 0.1, orange < 0.3)")
 
 
 class ResidualMap(MapView):
@@ -186,23 +293,39 @@ class ResidualMap(MapView):
         return f"|w| of observations and points (critical |{stat}| = {crit:.2f})"
 
     def layers(self):
+        return [self.layer(self._rejected, "results"), self.layer(self._lines, "results"),
+                self.layer(self._points, "results"), self.layer(self.labels, "solution")]
+
+    def _segments(self):
+        return self.cached("segments", (self.state.results,), lambda: self._segments_now())
+
+    def _segments_now(self):
         seg = self.segments(["w", "v", "unit", "rejected"])
-        seg = seg.assign(abs_w=np.abs(seg["w"].astype(float))) if len(seg) else seg.assign(abs_w=[])
-        crit = max(self.state.results.critical_w, float(np.nanmax(seg["abs_w"], initial=0.0)) if len(seg) else 0)
-        lines = hv.Segments(seg, ["x0", "y0", "x1", "y1"], [*HOVER_OBS, "w", "v", "unit", "abs_w"]).opts(
+        return seg.assign(abs_w=np.abs(seg["w"].astype(float))) if len(seg) else seg.assign(abs_w=[])
+
+    def _clim(self):
+        seg = self._segments()
+        top = float(np.nanmax(seg["abs_w"], initial=0.0)) if len(seg) else 0.0
+        return (0, max(self.state.results.critical_w, top))
+
+    def _lines(self):
+        return hv.Segments(self._segments(), ["x0", "y0", "x1", "y1"], [*HOVER_OBS, "w", "v", "unit", "abs_w"]).opts(
             hover_tooltips=tips([*HOVER_OBS, "w", "v", "unit", "abs_w"]),
-            color="abs_w", cmap="YlOrRd", clim=(0, crit), line_width=3, tools=["hover"],
+            color="abs_w", cmap="YlOrRd", clim=self._clim(), line_width=3, tools=["hover"],
             nonselection_alpha=1)
+
+    def _rejected(self):
+        seg = self._segments()
         rej = seg[seg["rejected"].astype(bool)] if len(seg) else seg
-        rejected = hv.Segments(rej, ["x0", "y0", "x1", "y1"], HOVER_OBS, label="rejected").opts(
+        return hv.Segments(rej, ["x0", "y0", "x1", "y1"], HOVER_OBS, label="rejected").opts(
             hover_tooltips=tips(HOVER_OBS),
             color="#b2182b", line_width=7, alpha=0.8, nonselection_alpha=0.8)
-        pts = self.points()
-        points = hv.Points(pts, ["x", "y"], ["id", "status", "max_w"]).opts(
-            color="max_w", cmap="YlOrRd", clim=(0, crit), colorbar=True, size=12, line_color="#333333",
-            tools=["hover", "tap"], nonselection_alpha=1, clipping_colors={"NaN": "#cccccc"},
-            clabel="max |w|")
-        return [rejected, lines, points, self.labels()]
+
+    def _points(self):
+        return hv.Points(self.points(), ["x", "y"], ["id", "status", "max_w"]).opts(
+            color="max_w", cmap="YlOrRd", clim=self._clim(), colorbar=True, size=point_size(self.points()),
+            line_color="#333333", tools=["hover", "tap"], nonselection_alpha=1,
+            clipping_colors={"NaN": "#cccccc"}, clabel="max |w|")
 
 
 class ExternalMap(MapView):
@@ -211,10 +334,13 @@ class ExternalMap(MapView):
     bound (the core's hypotheses.deformation) as vectors."""
 
     key = "external"
-    depends = ("results", "selected_point", "selected_obs", "robust", "hyp_results", "selected_hypothesis",
-               "field_source")
 
     def _field(self):
+        s = self.state
+        key = (s.results, s.hyp_results, s.selected_hypothesis, s.selected_obs, s.field_source)
+        return self.cached("field", key, self._field_now)
+
+    def _field_now(self):
         s = self.state
         pts = self.points()
         label, shifts = s.external_field()
@@ -234,25 +360,34 @@ class ExternalMap(MapView):
                 f"max {1000 * size.max(initial=0):.3g} mm, ×{scale:g}")
 
     def layers(self):
+        return [self.layer(self._context, "solution"), self.layer(self._points, "results"),
+                self.layer(self._vectors, "results", "field", opts=[
+                    hv.opts.Segments(hover_tooltips=tips(["id", "shift_mm"]), color="#e6007e", line_width=3,
+                                     tools=["hover"], nonselection_alpha=1),
+                    hv.opts.Points(color="#e6007e", size=6, marker="circle", nonselection_alpha=1)]),
+                self.layer(self.labels, "solution")]
+
+    def _points(self):
         pts = self.points()
-        points = hv.Points(pts, ["x", "y"], ["id", "status", "max_ext"]).opts(
-            color="max_ext", cmap="viridis", colorbar=True, size=12, line_color="#333333",
-            tools=["hover", "tap"], nonselection_alpha=1, clipping_colors={"NaN": "#cccccc"},
-            clabel="δ̄0")
+        return hv.Points(pts, ["x", "y"], ["id", "status", "max_ext"]).opts(
+            color="max_ext", cmap="viridis", logz=True, clim=log_clim(pts["max_ext"]), colorbar=True,
+            size=point_size(pts), line_color="#333333", tools=["hover", "tap"], nonselection_alpha=1,
+            clipping_colors={"NaN": "#cccccc"}, clabel="δ̄0, largest per point (log scale)")
+
+    def _context(self):
+        return hv.Segments(self.segments(), ["x0", "y0", "x1", "y1"], HOVER_OBS).opts(
+            color="#cccccc", line_width=1, nonselection_alpha=1)
+
+    def _vectors(self):
+        pts = self.points()
         _, d, size, scale = self._field()
         keep = size > 0
         vec = pd.DataFrame({"x0": pts["x"][keep], "y0": pts["y"][keep],
                             "x1": pts["x"][keep] + scale * d[keep, 0],
                             "y1": pts["y"][keep] + scale * d[keep, 1],
                             "id": pts["id"][keep], "shift_mm": 1000 * size[keep]})
-        vectors = hv.Segments(vec, ["x0", "y0", "x1", "y1"], ["id", "shift_mm"], label="∇0x").opts(
-            hover_tooltips=tips(["id", "shift_mm"]),
-            color="#e6007e", line_width=3, tools=["hover"], nonselection_alpha=1)
-        heads = hv.Points(vec, ["x1", "y1"], ["id", "shift_mm"]).opts(
-            color="#e6007e", size=6, marker="circle", nonselection_alpha=1)
-        context = hv.Segments(self.segments(), ["x0", "y0", "x1", "y1"], HOVER_OBS).opts(
-            color="#cccccc", line_width=1, nonselection_alpha=1)
-        return [context, points, vectors, heads, self.labels()]
+        return (hv.Segments(vec, ["x0", "y0", "x1", "y1"], ["id", "shift_mm"], label="∇0x")
+                * hv.Points(vec, ["x1", "y1"], ["id", "shift_mm"]))
 
 
 class MDBMap(MapView):
@@ -264,33 +399,35 @@ class MDBMap(MapView):
         return f"Minimal detectable bias ∇0l / σ (δ0 = {self.state.results.delta0:.2f})"
 
     def layers(self):
+        return [self.layer(self._lines, "results"), self.layer(self._points, "results"),
+                self.layer(self.labels, "solution")]
+
+    def _lines(self):
         seg = self.segments(["mdb", "unit", "mdb_sigma", "r"])
-        top = self._clim()
-        lines = hv.Segments(seg, ["x0", "y0", "x1", "y1"], [*HOVER_OBS, "mdb", "unit", "mdb_sigma", "r"]).opts(
+        return hv.Segments(seg, ["x0", "y0", "x1", "y1"], [*HOVER_OBS, "mdb", "unit", "mdb_sigma", "r"]).opts(
             hover_tooltips=tips([*HOVER_OBS, "mdb", "unit", "mdb_sigma", "r"]),
-            color="mdb_sigma", cmap="plasma", clim=top, line_width=3, tools=["hover"],
+            color="mdb_sigma", cmap="plasma", logz=True, clim=self._clim(), line_width=3, tools=["hover"],
             nonselection_alpha=1)
+
+    def _points(self):
         pts = self.points()
-        points = hv.Points(pts, ["x", "y"], ["id", "status", "max_mdb_sigma"]).opts(
-            color="max_mdb_sigma", cmap="plasma", clim=top, colorbar=True, size=12, line_color="#333333",
-            tools=["hover", "tap"], nonselection_alpha=1, clipping_colors={"NaN": "#cccccc"},
-            clabel="MDB / σ")
-        return [lines, points, self.labels()]
+        return hv.Points(pts, ["x", "y"], ["id", "status", "max_mdb_sigma"]).opts(
+            color="max_mdb_sigma", cmap="plasma", logz=True, clim=self._clim(), colorbar=True,
+            size=point_size(pts), line_color="#333333", tools=["hover", "tap"], nonselection_alpha=1,
+            clipping_colors={"NaN": "#cccccc"}, clabel="MDB / σ, largest per point (log scale)")
 
     def _clim(self):
+        """From δ0 (r = 1) to the largest MDB / σ: a log scale does not saturate on the
+        near-uncontrolled observations (r ≈ 1e-4 gives MDB / σ ≈ 100 δ0)."""
         obs, _ = self.state.frames()
         d0 = self.state.results.delta0
-        vals = obs["mdb_sigma"].to_numpy(dtype=float)
-        vals = vals[np.isfinite(vals)]
-        hi = float(np.percentile(vals, 98)) if vals.size else 3 * d0
-        return (d0, max(hi, 1.5 * d0))
+        return log_clim(obs["mdb_sigma"].to_numpy(dtype=float), low=d0)
 
 
 class PrecisionMap(MapView):
     """Standard error ellipses from the core's point covariances (σ0 as chosen), exaggerated."""
 
     key = "precision"
-    depends = ("results", "selected_point", "selected_obs", "robust", "sbase")
 
     def __init__(self, **params):
         super().__init__(**params)
@@ -303,7 +440,7 @@ class PrecisionMap(MapView):
             sizing_mode="stretch_width", visible=s.problem.points.dim > 1)
         self.sbase.param.watch(lambda e: setattr(s, "sbase", list(e.new)), "value")
         s.param.watch(lambda e: setattr(self.sbase, "value", list(e.new)), "sbase")
-        self.note = pn.pane.Markdown(pn.bind(lambda *_: s.sbase_check(), s.param.results, s.param.sbase),
+        self.note = pn.pane.Markdown(pn.bind(lambda *_: s.sbase_check(), s.param.solution, s.param.sbase),
                                      css_classes=["sbase-note"], sizing_mode="stretch_width",
                                      visible=s.problem.points.dim > 1)
 
@@ -312,15 +449,19 @@ class PrecisionMap(MapView):
 
     def _ellipses(self):
         s = self.state
+        return self.cached("ellipses", (s.solution, s.sbase), self._ellipses_now)
+
+    def _ellipses_now(self):
+        s = self.state
         pts = self.points()
         M = display_matrix(s.problem)
         C = np.einsum("ij,mjk,lk->mil", M, s.point_cov2(), M)
         axis = np.sqrt(np.maximum(np.linalg.eigvalsh(C)[:, -1], 0.0))
         big = axis.max(initial=0.0)
         scale = round_scale(0.05 * extent(pts) / big) if big > 0 else 1.0
-        paths = [ellipse_xy(C[k]) * scale + np.array([pts["x"].iat[k], pts["y"].iat[k]])
-                 for k in range(len(pts)) if axis[k] > 0]
-        return paths, scale, big
+        centre = pts[["x", "y"]].to_numpy(dtype=float)[:, None, :]
+        paths = (ellipses_xy(C) * scale + centre)[axis > 0]
+        return joined(paths), scale, big
 
     def title(self):
         s = self.state
@@ -332,16 +473,20 @@ class PrecisionMap(MapView):
         return f"Standard ellipses ({sig}, {base}) ×{scale:g}, largest {1000 * big:.3g} mm"
 
     def layers(self):
-        pts = self.points()
+        return [self.layer(self._ellipse_layer, "solution", "sbase"), self.layer(self._points, "solution"),
+                self.layer(self.labels, "solution")]
+
+    def _ellipse_layer(self):
         paths, _, _ = self._ellipses() if self.state.problem.points.dim > 1 else ([], 1, 0)
-        ell = hv.Path(paths, label="ellipses").opts(color="#1f4e9c", line_width=2, nonselection_alpha=1)
-        cdim = "sz_mm" if self.state.problem.points.dim == 1 else "sx_mm"
-        points = hv.Points(pts, ["x", "y"], ["id", "status", "sx_mm", "sy_mm", "sz_mm"]).opts(
-            color=cdim if self.state.problem.points.dim == 1 else "status",
-            cmap="viridis" if self.state.problem.points.dim == 1 else STATUS_COLORS,
-            colorbar=self.state.problem.points.dim == 1, size=9, tools=["hover", "tap"],
+        return hv.Path(paths, label="ellipses").opts(color="#1f4e9c", line_width=2, nonselection_alpha=1)
+
+    def _points(self):
+        level = self.state.problem.points.dim == 1
+        pts = self.points()
+        return hv.Points(pts, ["x", "y"], ["id", "status", "sx_mm", "sy_mm", "sz_mm"]).opts(
+            color="sz_mm" if level else "status", cmap="viridis" if level else STATUS_COLORS,
+            colorbar=level, clabel="σ height [mm]", size=9 if len(pts) <= 500 else 4, tools=["hover", "tap"],
             nonselection_alpha=1, show_legend=False)
-        return [ell, points, self.labels()]
 
 
 class ImageResidualView(pn.viewable.Viewer):
@@ -352,31 +497,40 @@ class ImageResidualView(pn.viewable.Viewer):
     def __init__(self, **params):
         super().__init__(**params)
         self.dmap = hv.DynamicMap(self._render, streams=[hv.streams.Params(
-            self.state, ["results", "selected_image", "exaggeration", "selected_point"])])
+            self.state, ["results", "selected_image", "exaggeration"])])
         self._pane = pn.pane.HoloViews(self.dmap, css_classes=["map-image"], linked_axes=False)
+        self._by_image = None
+
+    def image_points(self, image) -> list[tuple[str, int, int]]:
+        """(point, row of x, row of y) of every image point of ``image`` (full indices)."""
+        if self._by_image is None:
+            p = self.state.problem
+            by_image: dict = {}
+            for (im, pid), rows in self.state.problem_index()["image_rows"].items():
+                comp = {str(p.info.ids[i].get("component") or p.info.kind[i].rsplit("-", 1)[-1]): i for i in rows}
+                if "x" in comp and "y" in comp:
+                    by_image.setdefault(im, []).append((pid, comp["x"], comp["y"]))
+            self._by_image = by_image
+        return self._by_image.get(str(image), [])
 
     def data(self) -> pd.DataFrame:
         """Observed image coordinates (file units) and residuals of the selected image's points."""
         s = self.state
-        p = s.problem
         obs, _ = s.frames()
-        rows = {}
-        for i, ids in enumerate(p.info.ids):
-            if str(ids.get("image")) != str(s.selected_image) or obs["excluded"].iat[i]:
-                continue
-            comp = str(ids.get("component") or p.info.kind[i].rsplit("-", 1)[-1])
-            rows.setdefault(str(ids.get("point")), {})[comp] = i
-        recs = []
+        cols = ["point", "x", "y", "x1", "y1", "vx", "vy", "abs_w", "obs"]
+        pts = [t for t in self.image_points(s.selected_image)
+               if not (obs["excluded"].iat[t[1]] or obs["excluded"].iat[t[2]])]
+        if not pts:
+            return pd.DataFrame(columns=cols)
+        ix = np.array([t[1] for t in pts])
+        iy = np.array([t[2] for t in pts])
+        value = np.asarray(s.problem.info.value_file, dtype=float)
+        v, w = obs["v"].to_numpy(dtype=float), obs["w"].to_numpy(dtype=float)
         ex = s.exaggeration
-        for pid, d in rows.items():
-            if "x" not in d or "y" not in d:
-                continue
-            ix, iy = d["x"], d["y"]
-            x, y = float(p.info.value_file[ix]), float(p.info.value_file[iy])
-            vx, vy = obs["v"].iat[ix], obs["v"].iat[iy]
-            aw = np.nanmax(np.abs([obs["w"].iat[ix], obs["w"].iat[iy]]))
-            recs.append((pid, x, y, x + ex * vx, y + ex * vy, vx, vy, aw, ix))
-        return pd.DataFrame(recs, columns=["point", "x", "y", "x1", "y1", "vx", "vy", "abs_w", "obs"])
+        return pd.DataFrame({"point": [t[0] for t in pts], "x": value[ix], "y": value[iy],
+                             "x1": value[ix] + ex * v[ix], "y1": value[iy] + ex * v[iy],
+                             "vx": v[ix], "vy": v[iy], "abs_w": np.fmax(np.abs(w[ix]), np.abs(w[iy])),
+                             "obs": ix}, columns=cols)
 
     def _render(self, **_):
         s = self.state

@@ -223,8 +223,10 @@ def test_alpha_changes_delta0_and_mdb_data(page, network_app, screenshots):
 
 
 def _ellipses(page):
-    return [np.asarray(x, dtype=float) for col in page.evaluate(JS_COLUMN, "xs") for x in col
-            if len(x) == 49]
+    """The 49-point standard ellipses in the page (one path, broken by NaN between ellipses)."""
+    from test_dashboard_state import split_paths
+
+    return [e for col in page.evaluate(JS_COLUMN, "xs") for x in col for e in split_paths(x) if len(e) == 49]
 
 
 def test_sbase_and_robust_selector(page, network_app, screenshots):
