@@ -257,6 +257,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                      timings={"solve": t_solve}, solver="schur" if st is not None else "generic")
     if st is not None:
         adj.__dict__["schur_structure"] = st
+    adj.__dict__["damped"] = lm_mode          # Levenberg-Marquardt took over from Gauss-Newton
     return adj
 
 

@@ -451,15 +451,62 @@ class Adjustment:
         g_sorted = gid[order]
         starts = np.flatnonzero(np.r_[True, g_sorted[1:] != g_sorted[:-1]])
         ends = np.r_[starts[1:], g_sorted.size]
+        fast = self._cluster_group_tests()
         for s, e in zip(starts, ends):
             if g_sorted[s] < 0:
                 continue
             members = np.sort(order[s:e])
+            key = int(g_sorted[s])
+            if key in fast:
+                T, q, alpha, crit, nabla = fast[key]
+                out.append({"group": key, "members": members, "T": T, "dimension": q,
+                            "redundancy": float(self.r[members].sum()), "critical": crit,
+                            "rejected": bool(q > 0 and T > crit), "alpha": alpha, "nabla": nabla})
+                continue
             h = test(self, selection(self.n, members), label=f"group {g_sorted[s]}")
-            out.append({"group": int(g_sorted[s]), "members": members, "T": h.T,
+            out.append({"group": key, "members": members, "T": h.T,
                         "dimension": h.q, "redundancy": float(self.r[members].sum()),
                         "critical": h.critical_T, "rejected": h.rejected_T,
                         "alpha": h.alpha, "nabla": h.nabla})
+        return out
+
+    def _cluster_group_tests(self) -> dict:
+        """Tests of the groups that are exactly one covariance cluster (an image point, a GNSS
+        vector), all at once from the cluster blocks of C_vv: W = P_c C_vv P_c, T = gᵀW⁺g with
+        g = (Pv)_c, ∇ŝ = −W⁺g — the formulas of :func:`baarda.hypotheses.test` with H the
+        selection of the cluster, without a solve per group. Returns {group: (T, q, α, T_crit, ∇ŝ)}.
+        """
+        gid = self.problem.info.group
+        o = self.options
+        Pv = self.Pv
+        out = {}
+        for members, C, Cvv in self.cluster_cvv():
+            g0 = gid[members]
+            same = (g0 >= 0).all(axis=1) & (g0 == g0[:, :1]).all(axis=1)
+            counts = np.bincount(gid[gid >= 0])
+            same &= counts[np.maximum(g0[:, 0], 0)] == members.shape[1]
+            if not same.any():
+                continue
+            mem, Cs, Cv = members[same], C[same], Cvv[same]
+            Pc = np.linalg.inv(Cs)
+            Pc = 0.5 * (Pc + np.swapaxes(Pc, 1, 2))
+            W = Pc @ Cv @ Pc
+            W = 0.5 * (W + np.swapaxes(W, 1, 2))
+            lam, V = np.linalg.eigh(W)
+            tol = 1e-10 * np.maximum(np.maximum(lam.max(axis=1), np.abs(np.diagonal(Pc, axis1=1, axis2=2)).max(axis=1)), 1e-300)
+            pos = lam > tol[:, None]
+            inv = np.where(pos, 1.0 / np.where(pos, lam, 1.0), 0.0)
+            Winv = np.einsum("kij,kj,klj->kil", V, inv, V)
+            g = Pv[mem]
+            nabla = -np.einsum("kij,kj->ki", Winv, g)
+            T = np.einsum("ki,ki->k", g, -nabla)
+            q = pos.sum(axis=1)
+            for qq in np.unique(q):
+                alpha = stats.alpha_b_method(o.alpha, o.beta, int(qq)) if (o.b_method and qq) else o.alpha
+                crit = stats.critical_chi2(alpha, int(qq)) if qq else float("inf")
+                for k in np.flatnonzero(q == qq):
+                    out[int(gid[mem[k, 0]])] = (float(T[k]), int(qq), alpha, crit,
+                                                nabla[k][np.argsort(mem[k])])   # sorted members
         return out
 
     # -- covariance of the unknowns -----------------------------------------------------------

@@ -142,6 +142,31 @@ def test_hat_blocks_with_round_off_are_recomputed_by_solves(make):
     np.testing.assert_allclose(Ht2, Ht, atol=1e-10 * max(np.abs(Ht).max(), 1e-300))
 
 
+@pytest.mark.parametrize("b_method", [False, True])
+def test_group_tests_from_cluster_blocks_equal_the_general_test(b_method):
+    """Groups that are one covariance cluster (image points) are tested from the cluster blocks
+    of C_vv at once; the general test with H the selection gives the same T, q, ∇ŝ."""
+    from baarda.bundle import build_block_problem
+    from baarda.hypotheses import test
+    from baarda.simulate import simulate_block
+
+    block, _ = simulate_block(strips=3, images_per_strip=6, seed=4)
+    adj = adjust(build_block_problem(block), Options(b_method=b_method))
+    groups = adj.groups
+    fast = adj._cluster_group_tests()
+    sizes = np.array([m.size for m in adj.problem.cov.members])
+    one_cluster = [g for g in groups
+                   if sizes[adj.problem.cov.cluster[g["members"][0]]] == g["members"].size
+                   and np.unique(adj.problem.cov.cluster[g["members"]]).size == 1]
+    assert len(fast) == len(one_cluster) > 150
+    assert {1, 2} <= {g["dimension"] for g in one_cluster}     # 2-ray points: rank-deficient W
+    for g in groups[:: max(1, len(groups) // 60)]:
+        h = test(adj, selection(adj.n, g["members"]))
+        assert g["dimension"] == h.q and g["alpha"] == h.alpha and g["critical"] == h.critical_T
+        assert abs(g["T"] - h.T) <= 1e-9 * max(1.0, h.T)
+        np.testing.assert_allclose(g["nabla"], h.nabla, rtol=1e-8, atol=1e-12)
+
+
 # -- identities ---------------------------------------------------------------------------------
 
 def test_error_of_mdb_size_gives_w_equal_delta0():

@@ -53,7 +53,17 @@ def summary(adj) -> dict:
             "upper": _num(g["upper"]), "conf_pr": g["conf_pr"], "passed": g["passed"],
         },
         "timings": {k: round(float(v), 6) for k, v in adj.timings.items()},
+        "far_points": far_point_ids(adj),
     }
+
+
+def far_point_ids(adj) -> list[str]:
+    """Points near infinity at the solution (:func:`baarda.datum.far_points`): their depth is
+    hardly determined; a free block leaves them out of its default S-base."""
+    from ..datum import far_points
+
+    ids = adj.problem.points.ids
+    return [str(ids[i]) for i in np.flatnonzero(far_points(adj.problem, adj.x))]
 
 
 def observations(adj) -> list[dict]:
@@ -147,7 +157,12 @@ def text_summary(adj, top: int = 8) -> str:
     lines.append(f"  observations {s['n_observations']}, unknowns {s['n_unknowns']}, datum defect "
                  f"{s['datum_defect']} ({s['datum']}), redundancy {s['dof']}")
     conv = "converged" if s["converged"] else "NOT converged"
-    lines.append(f"  Gauss-Newton {conv} in {s['iterations']} iterations")
+    method = "Levenberg-Marquardt" if getattr(adj, "damped", False) else "Gauss-Newton"
+    lines.append(f"  {method} {conv} in {s['iterations']} iterations")
+    if s["far_points"]:
+        far = s["far_points"]
+        lines.append(f"  {len(far)} point(s) near infinity (depth hardly determined, not in the default "
+                     f"S-base): {', '.join(far[:10])}{' ...' if len(far) > 10 else ''}")
     if g["passed"] is None:
         lines.append("  global test: not applicable (no redundancy)")
     else:
