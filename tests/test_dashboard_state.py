@@ -755,3 +755,51 @@ def test_radial_variance_model_matches_core_and_refusal_is_a_message(block_probl
     st2.variance_model = "radial"
     assert not st2.run_variance()
     assert "radial variance model needs a block" in st2.analysis_error and panel2.message.visible
+
+
+# --------------------------------------------------------------------------------------------
+# colour scales and large blocks
+# --------------------------------------------------------------------------------------------
+def test_mdb_and_external_maps_use_log_colour_scales(block_problem):
+    """δ̄0 and MDB / σ span orders of magnitude on a block (r ≈ 1e-5 at its edges): their colour
+    mappers are logarithmic up to the largest value (no saturation); the r map keeps its
+    0.1 / 0.3 levels."""
+    from bokeh.models import ColorBar, LinearColorMapper, LogColorMapper
+
+    from baarda.dashboard.views import ExternalMap, MDBMap, RedundancyMap
+
+    st = State(problem=block_problem)
+    obs, pts = st.frames()
+    for view, values, low in ((MDBMap, obs["mdb_sigma"], st.results.delta0), (ExternalMap, pts["max_ext"], None)):
+        root = pn.panel(view(state=st)).get_root(Document())
+        mappers = list(root.select({"type": LogColorMapper}))
+        assert mappers, view.__name__
+        finite = values.to_numpy(dtype=float)
+        top = float(np.max(finite[np.isfinite(finite)]))
+        assert top > 100 * (low or 1.0) or view is ExternalMap
+        assert [m.high for m in mappers] == pytest.approx([top] * len(mappers))
+        if low is not None:
+            assert [m.low for m in mappers] == pytest.approx([low] * len(mappers))
+        assert any("log scale" in str(b.title) for b in root.select({"type": ColorBar}))
+    root = pn.panel(RedundancyMap(state=st)).get_root(Document())
+    (r_map,) = [m for m in root.select({"type": LinearColorMapper}) if m.high == 1]
+    assert r_map.low == 0 and len(r_map.palette) >= 10       # 0.1 / 0.3 / 0.6 steps of the levels
+
+
+def test_teaching_mdb_plot_thins_large_blocks_but_keeps_every_cell():
+    import pandas as pd
+
+    from baarda.dashboard.views.teaching import MAX_POINTS, thinned
+
+    rng = np.random.default_rng(4)
+    r = rng.uniform(1e-4, 1, 30_000)
+    obs = pd.DataFrame({"r": r, "mdb_sigma": 4.13 / np.sqrt(r),
+                        "kind": rng.choice(["image-x", "image-y", "control-z"], r.size)})
+    small = obs.iloc[:MAX_POINTS]
+    assert thinned(small) is small
+    few = thinned(obs)
+    assert len(few) < len(obs) / 5 and set(few["kind"]) == set(obs["kind"])
+    cells = lambda d: {(k, int(a * 400), int(b)) for k, a, b in  # noqa: E731
+                       zip(d["kind"], np.clip(d["r"], 0, 1), 400 * (np.log(d["mdb_sigma"]) - np.log(obs["mdb_sigma"]).min())
+                           / np.ptp(np.log(obs["mdb_sigma"])))}
+    assert cells(few) == cells(obs)

@@ -106,7 +106,8 @@ class SelectionPanel(pn.viewable.Viewer):
         self.excluded.object = ("Excluded: " + ", ".join(str(i) for i in sorted(s.excluded))
                                 if s.excluded else "")
         images = [str(im.get("id")) for im in s.images]
-        self.image.options = images
+        if self.image.options != images:       # a thousand options are not sent again on every click
+            self.image.options = images
         self.image.visible = bool(images)
         self.exaggeration.visible = bool(images)
         if images and str(s.selected_image) in images:

@@ -18,6 +18,7 @@ import panel as pn
 import param
 
 from ..state import State, display_matrix, display_xy
+from .common import formatters
 
 KINDS = ["linear", "logarithmic", "exponential"]
 #: Length of the longest pattern arrow as a share of the network's extent.
@@ -79,7 +80,9 @@ class CriterionView(pn.viewable.Viewer):
             self.info.object = (
                 f"{'Fitted' if c['fitted'] else 'Given'} {c['kind']} criterion in S-base "
                 f"{', '.join(c['sbase'])}: C1 = {c['C1']:.4g} m²/m, C2 = {c['C2']:.4g} m  \n"
-                f"λmax = {c['lam_max']:.4g}, λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}: {verdict}")
+                f"λmax = {c['lam_max']:.4g}, λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}: {verdict}  \n"
+                "The map: the S-base points as squares, the eigenvector of λmax as arrows (the direction "
+                "in which the network is weakest relative to the criterion).")
         self.plot.object = self._map()
 
     def _map(self):
@@ -90,7 +93,7 @@ class CriterionView(pn.viewable.Viewer):
         c = s.criterion
         title = "Eigenvector of λmax (M84 §2.3)"
         if c is None:
-            return pts.opts(title=title, responsive=True, height=520, data_aspect=1)
+            return pts.opts(title=title, responsive=True, height=460, data_aspect=1, **formatters())
         d = (display_matrix(s.problem) @ c["pattern"].T).T
         extent = max(float(np.ptp(e)), float(np.ptp(n)), 1e-9)
         scale = ARROW_SHARE * extent / max(float(np.hypot(*d.T).max()), 1e-300)
@@ -102,9 +105,9 @@ class CriterionView(pn.viewable.Viewer):
         sb = hv.Points((e[base], n[base]), [xl, yl], label="S-base").opts(
             color="black", marker="square", size=10, fill_alpha=0)
         return (pts * sb * arrows * tips).opts(
-            title=f"{title}: λmax = {c['lam_max']:.3g} (arbitrary scale, largest arrow "
-                  f"{ARROW_SHARE:.0%} of the extent)", responsive=True, height=520, data_aspect=1,
-            xlabel=xl, ylabel=yl, fontscale=0.9)
+            title=f"Eigenvector of λmax = {c['lam_max']:.3g} (M84 §2.3), longest arrow {ARROW_SHARE:.0%} "
+                  "of the extent", responsive=True, height=460, data_aspect=1, show_legend=False,
+            xlabel=xl, ylabel=yl, fontscale=0.9, **formatters())
 
     def __panel__(self):
         if self.reason:

@@ -79,12 +79,12 @@ def joined(paths: np.ndarray) -> list[np.ndarray]:
 
 def log_clim(values, low: float | None = None) -> tuple[float, float]:
     """Colour limits of a log scale: from ``low`` (default the smallest positive value, at
-    least 10⁻⁴ of the largest) to the largest finite value."""
+    least 10⁻⁶ of the largest) to the largest finite value; infinite values (r = 0) take the
+    top colour."""
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v) & (v > 0)]
     hi = float(v.max()) if v.size else 1.0
-    lo = float(low) if low is not None else (float(v.min()) if v.size else 0.1 * hi)
-    lo = max(lo, 1e-4 * hi)
+    lo = float(low) if low is not None else max(float(v.min()) if v.size else 0.1 * hi, 1e-6 * hi)
     return (lo, hi) if hi > lo * 1.01 else (lo, 10 * lo)
 
 
@@ -424,6 +424,12 @@ class MDBMap(MapView):
         return log_clim(obs["mdb_sigma"].to_numpy(dtype=float), low=d0)
 
 
+#: The S-base list opens in the page flow (pushing the map down) instead of over the map.
+INLINE_DROPDOWN = (".choices__list--dropdown, .choices__list[aria-expanded] "
+                   "{ position: relative; max-height: 180px; }"
+                   ".choices__list--dropdown .choices__list { max-height: 170px; }")
+
+
 class PrecisionMap(MapView):
     """Standard error ellipses from the core's point covariances (σ0 as chosen), exaggerated."""
 
@@ -437,7 +443,7 @@ class PrecisionMap(MapView):
             name="S-base (empty: the problem's datum" + (f" — {', '.join(datum)})" if datum else
                                                         ", its fixed / weighted points)"),
             options=list(s.problem.points.ids), value=list(s.sbase), css_classes=["sbase-choice"],
-            sizing_mode="stretch_width", visible=s.problem.points.dim > 1)
+            sizing_mode="stretch_width", visible=s.problem.points.dim > 1, stylesheets=[INLINE_DROPDOWN])
         self.sbase.param.watch(lambda e: setattr(s, "sbase", list(e.new)), "value")
         s.param.watch(lambda e: setattr(self.sbase, "value", list(e.new)), "sbase")
         self.note = pn.pane.Markdown(pn.bind(lambda *_: s.sbase_check(), s.param.solution, s.param.sbase),

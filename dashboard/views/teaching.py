@@ -20,6 +20,24 @@ from baarda import stats
 from ..state import State
 
 
+#: Above this many observations the MDB plot shows one point per occupied cell of a fine grid.
+MAX_POINTS = 2000
+
+
+def thinned(obs, cells: int = 400):
+    """The rows of ``obs`` to plot in (r, MDB/σ): all of them up to :data:`MAX_POINTS`, else
+    the first of each kind in every cell of a ``cells`` × ``cells`` grid over r and
+    log(MDB/σ) — the same picture with far fewer glyphs (a block has tens of thousands)."""
+    if len(obs) <= MAX_POINTS:
+        return obs
+    r = obs["r"].to_numpy(dtype=float)
+    m = np.log(obs["mdb_sigma"].to_numpy(dtype=float))
+    cell_r = np.floor(np.clip(r, 0, 1) * cells)
+    cell_m = np.floor((m - m.min()) / max(np.ptp(m), 1e-12) * cells)
+    key = obs.assign(_r=cell_r, _m=cell_m)[["kind", "_r", "_m"]]
+    return obs[~key.duplicated().to_numpy()]
+
+
 class TeachingView(pn.viewable.Viewer):
     state = param.ClassSelector(class_=State)
     q = param.Integer(default=1, bounds=(1, 6), doc="Dimension of the test shown.")
@@ -65,7 +83,7 @@ class TeachingView(pn.viewable.Viewer):
         obs, _ = self.state.frames()
         r = np.linspace(0.02, 1.0, 200)
         d0 = adj.delta0
-        live = obs[~obs["excluded"] & np.isfinite(obs["mdb_sigma"])]
+        live = thinned(obs[~obs["excluded"] & np.isfinite(obs["mdb_sigma"])])
         return (hv.Curve((r, d0 / np.sqrt(r)), "r", "mdb_sigma", label="δ0 / √r").opts(color="black")
                 * hv.Points(live, ["r", "mdb_sigma"], ["kind", "ids"]).opts(
                     color="kind", cmap="Category10", size=7, tools=["hover"], alpha=0.8, show_legend=False)

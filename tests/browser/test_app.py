@@ -41,6 +41,18 @@ JS_FIGURE_PIXELS = """([prefix, xs, ys]) => {
   return xs.map((x, i) => [rect.left + pv.frame.x_scale.compute(x), rect.top + pv.frame.y_scale.compute(ys[i])]);
 }"""
 
+JS_FIGURE_RECT = """(prefix) => {
+  const views = [];
+  const walk = (v) => { views.push(v); const c = v.children ? Array.from(v.children()) : []; c.forEach(walk); };
+  for (const r of Object.values(Bokeh.index)) walk(r);
+  const pv = views.find(v => v.model.constructor.__name__ === 'Figure' && v.model.title
+                        && String(v.model.title.text).startsWith(prefix) && v.el.isConnected
+                        && v.el.getBoundingClientRect().width > 0);
+  if (!pv) return null;
+  const r = pv.el.getBoundingClientRect();
+  return {top: r.top, bottom: r.bottom, left: r.left, right: r.right};
+}"""
+
 JS_TABLE_SELECTION = """() => {
   for (const doc of Bokeh.documents) for (const m of doc.all_models)
     if (m.constructor.__name__ === 'DataTabulator' && m.css_classes.includes('tests-table'))
@@ -251,6 +263,12 @@ def test_sbase_and_robust_selector(page, network_app, screenshots):
     assert wait_until(lambda: any(t.startswith("Standard ellipses") and "S-base" in t
                                   for t in page.evaluate(JS_TITLES)), 30)
     page.wait_for_timeout(1000)
+    # the open S-base list pushes the map down instead of covering it
+    dropdown = page.locator(".sbase-choice .choices__list--dropdown.is-active").first
+    assert dropdown.is_visible()
+    box = dropdown.bounding_box()
+    figure = page.evaluate(JS_FIGURE_RECT, "Standard ellipses")
+    assert box and figure and box["y"] + box["height"] <= figure["top"] + 1, (box, figure)
     after = _ellipses(page)
     # the fixed points, outside the new S-base, get ellipses too
     assert len(after) >= len(before)
@@ -261,7 +279,7 @@ def test_sbase_and_robust_selector(page, network_app, screenshots):
 
     page.locator(".robust-select select").first.select_option("danish")
     assert wait_until(lambda: state.robust is not None and state.robust.method == "danish", 60)
-    page.wait_for_timeout(800)            # known: the Choices.js dropdown may still cover the map here
+    page.wait_for_timeout(800)
     page.screenshot(path=str(screenshots / "network-precision-sbase.png"))
     click_tab(page, "Find errors")
     page.wait_for_timeout(1000)
@@ -302,3 +320,35 @@ def test_block_robust_suspects_and_injection(page, block_app, screenshots):
     assert page.locator(".inject-result").get_by_text("a copy of the data").count() >= 1
     page.screenshot(path=str(screenshots / "block-inject.png"))
     assert state.injection["index"] == i and real_errors(errors) == []
+
+
+def test_criterion_tab_fits_and_shows_lambda(page, network_app, screenshots):
+    """The Criterion tab renders with the fit made when it opened; a new fit (linear) runs in
+    the core and its λmax, λmin and the arrows of the worst pattern reach the page (issue 4)."""
+    from baarda.dashboard.state import display_matrix, display_xy
+    from baarda.dashboard.views.criterion import ARROW_SHARE
+
+    state, errors = open_app(page, network_app)
+    click_tab(page, "Criterion")
+    wait_for_title(page, "Eigenvector of λmax")
+    c = state.criterion
+    assert c is not None and c["fitted"] and c["kind"] == "logarithmic"
+    info = page.locator(".criterion-info")
+    assert info.get_by_text(f"λmin = {c['lam_min']:.4g}").count() >= 1
+    page.locator(".criterion-kind select").first.select_option("linear")
+    page.get_by_role("button", name="Fit C1, C2").click()
+    assert wait_until(lambda: state.criterion is not None and state.criterion["kind"] == "linear", 60)
+    c = state.criterion
+    assert c["lam_max"] == pytest.approx(1.0, rel=1e-9) and c["lam_min"] < 1
+    page.wait_for_timeout(1500)
+    assert info.get_by_text(f"Fitted linear criterion").count() >= 1
+    assert info.get_by_text(f"λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}").count() >= 1
+    assert any(t.startswith("Eigenvector of λmax") and f"λmax = {c['lam_max']:.3g}" in t
+               for t in page.evaluate(JS_TITLES))
+    e, n, _, _ = display_xy(state.problem, state.results.coordinates)
+    d = (display_matrix(state.problem) @ c["pattern"].T).T
+    scale = ARROW_SHARE * max(np.ptp(e), np.ptp(n)) / np.hypot(*d.T).max()
+    ends = [np.asarray(x, dtype=float) for x in page.evaluate(JS_COLUMN, "x1") if len(x) == len(e)]
+    assert any(np.allclose(x, e + scale * d[:, 0]) for x in ends), "pattern arrows not in the page"
+    page.screenshot(path=str(screenshots / "network-criterion.png"))
+    assert real_errors(errors) == []
