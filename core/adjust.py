@@ -78,21 +78,21 @@ class Options:
 
 
 def _regularised(A, P, free, plan):
-    keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
-    Ar = A[:, keep]
+    mask = np.ones(free.size, dtype=bool)
+    mask[plan.eliminate] = False
+    keep = np.flatnonzero(mask)
+    Ar = A[:, keep] if keep.size < free.size else A
     return keep, Ar
 
 
 def weight_matrix(cov) -> sp.csr_matrix:
     """P = C⁻¹ block by block: :meth:`baarda.problem.Covariance.weight`, vectorised per cluster
     size (the same batched inverses, so the same numbers)."""
-    from .result import size_groups
+    from .result import size_groups, size_weights
 
     n = cov.cluster.size
     rows, cols, vals = [], [], []
-    for m, _, members, C in size_groups(cov):
-        W = np.linalg.inv(C)
-        W = 0.5 * (W + np.swapaxes(W, 1, 2))
+    for (m, _, members, C), W in zip(size_groups(cov), size_weights(cov)):
         rows.append(np.repeat(members, m, axis=1).ravel())
         cols.append(np.tile(members, (1, m)).ravel())
         vals.append(W.ravel())

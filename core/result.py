@@ -110,6 +110,33 @@ def size_groups(cov) -> tuple:
     return tuple(out)
 
 
+@functools.lru_cache(maxsize=8)
+def size_weights(cov) -> tuple:
+    """P_c = C_c⁻¹ (symmetrised) of every cluster, stacked as :func:`size_groups` stacks C."""
+    out = []
+    for _, _, _, C in size_groups(cov):
+        W = np.linalg.inv(C)
+        W = 0.5 * (W + np.swapaxes(W, 1, 2))
+        W.setflags(write=False)
+        out.append(W)
+    return tuple(out)
+
+
+def _mm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Stacked small-matrix products (compiled loops when numba is there)."""
+    from .schur import _bmm
+
+    return _bmm(np.ascontiguousarray(X), np.ascontiguousarray(Y))
+
+
+@functools.lru_cache(maxsize=8)
+def _cluster_sizes(cov) -> np.ndarray:
+    sizes = np.zeros(len(cov.members), dtype=np.int64)
+    for m, cl, _, _ in size_groups(cov):
+        sizes[cl] = m
+    return sizes
+
+
 def _by_size(cov):
     """Clusters grouped by their size: yields (m, cluster ids (k,), members (k, m))."""
     for m, cl, members, _ in size_groups(cov):
@@ -151,7 +178,9 @@ class Adjustment:
 
     @cached_property
     def keep(self) -> np.ndarray:
-        return np.setdiff1d(np.arange(self.A.shape[1]), self.plan.eliminate)
+        mask = np.ones(self.A.shape[1], dtype=bool)
+        mask[self.plan.eliminate] = False
+        return np.flatnonzero(mask)
 
     @cached_property
     def Ar(self) -> sp.csr_matrix:
@@ -172,11 +201,11 @@ class Adjustment:
         import time
 
         t0 = time.perf_counter()
-        labels = np.asarray(self.problem.params.labels)[self.problem.params.free][self.keep]
         if self.schur_structure is not None:
             from .schur import SchurFactor
             f = SchurFactor(self.schur_structure, self.Ar, self.P, backend=getattr(self.options, "backend", None))
         else:
+            labels = np.asarray(self.problem.params.labels)[self.problem.params.free][self.keep]
             N = (self.Ar.T @ self.P @ self.Ar).tocsr()
             f = SPDFactor(N, labels=labels)
         self.timings.setdefault("factor", time.perf_counter() - t0)
@@ -258,15 +287,15 @@ class Adjustment:
         """
         H, Ht = H.copy(), Ht.copy()
         pos, fixed = 0, 0
-        for m, _, members, C in size_groups(self.problem.cov):
+        cov = self.problem.cov
+        for (m, _, members, C), Pc in zip(size_groups(cov), size_weights(cov)):
             k = members.shape[0]
             sl = slice(pos, pos + k * m * m)
             pos += k * m * m
             Hm, Htm = H[sl].reshape(k, m, m), Ht[sl].reshape(k, m, m)
-            Pc = np.linalg.inv(C)
-            r = np.diagonal((C - Hm) @ Pc, axis1=1, axis2=2)
-            hr = np.diagonal(Hm @ Pc, axis1=1, axis2=2)
-            asym = np.abs(Hm - np.swapaxes(Hm, 1, 2)).max(axis=(1, 2))
+            hr = np.diagonal(_mm(Hm, Pc), axis1=1, axis2=2)
+            r = 1.0 - hr
+            asym = np.abs(Hm - np.swapaxes(Hm, 1, 2)).max(axis=(1, 2)) if m > 1 else np.zeros(k)
             scale = np.abs(C).max(axis=(1, 2))
             if m == 1:
                 out_of_range = (r[:, 0] < -1e-9) | (hr[:, 0] < -1e-9)
@@ -317,17 +346,17 @@ class Adjustment:
         H, Ht = self._hat_blocks
         n = self.n
         r, pcp, php, phkp, uk = (np.empty(n) for _ in range(5))
-        for (m, members, C, Hc), (_, _, _, Htc) in zip(_cluster_blocks(cov, H), _cluster_blocks(cov, Ht)):
-            Pc = np.linalg.inv(C)
-            Pc = 0.5 * (Pc + np.swapaxes(Pc, 1, 2))
-            Cvv = C - Hc
-            Hk = Hc - Htc
+        for (m, members, C, Hc), (_, _, _, Htc), Pc in zip(_cluster_blocks(cov, H), _cluster_blocks(cov, Ht),
+                                                         size_weights(cov)):
             diag = lambda X: np.diagonal(X, axis1=1, axis2=2)  # noqa: E731
-            r[members] = diag(Cvv @ Pc)
-            pcp[members] = diag(Pc @ Cvv @ Pc)
-            php[members] = diag(Pc @ Hc @ Pc)
-            phkp[members] = diag(Pc @ Hk @ Pc)
-            uk[members] = diag(Hk @ Pc)
+            HP = _mm(Hc, Pc)
+            HkP = HP - _mm(Htc, Pc)
+            r[members] = 1.0 - diag(HP)                   # (C_vv P)_ii = 1 − (H P)_ii
+            PHP = _mm(Pc, HP)
+            php[members] = diag(PHP)
+            pcp[members] = diag(Pc) - diag(PHP)           # P C_vv P = P − P H P
+            phkp[members] = diag(_mm(Pc, HkP))
+            uk[members] = diag(HkP)
         self.timings.setdefault("reliability", time.perf_counter() - t0)
         return r, pcp, php, phkp, uk
 
@@ -352,8 +381,7 @@ class Adjustment:
         reported as computed.
         """
         raw = self._cluster_stats[0].copy()
-        sizes = np.array([m.size for m in self.problem.cov.members])
-        single = sizes[self.problem.cov.cluster] == 1
+        single = _cluster_sizes(self.problem.cov)[self.problem.cov.cluster] == 1
         raw[single] = np.clip(raw[single], 0.0, 1.0)
         return raw
 

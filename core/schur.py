@@ -428,6 +428,93 @@ def _gather_kernel(ent_ptr, ent_size, cl_sn, cl_off, sn_size, sn_t, bptr, bcol, 
                                             SAt[c, ag + i, r] += st * a[c, r, bh + j]
 
 
+# -- the common case, specialised: every cluster sees one supernode of n unknowns (the
+# orientation of its image, with its camera constants when they are the image's own),
+# and E = Q (the square-root elimination). Entities are split in chunks that run in parallel (prange), each scattering into
+# its own copy of S (no races; the copies are summed in a fixed order, so the result does not
+# depend on the thread count). Half the pairs suffice: Q_c' Q_cᵀ = (Q_c Q_c'ᵀ)ᵀ.
+SCATTER_CHUNKS = 2
+
+
+def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, Q, a, Pc, S_parts, U_parts):
+    """S_parts[k] −= Σ_{c ≤ c' ∈ j} Q_c Q_c'ᵀ (and its transpose) and U_parts[k, g] +=
+    a_cᵀ P_c a_c (the diagonal blocks of U = A_cᵀPA_c, per supernode g) for the entities of
+    chunk k."""
+    nchunk = S_parts.shape[0]
+    ne = ent_ptr.size - 1
+    M = a.shape[1]
+    n = a.shape[2]
+    for k in numba.prange(nchunk):
+        S = S_parts[k]
+        for e in range(k * ne // nchunk, (k + 1) * ne // nchunk):
+            c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+            for c in range(c0, c1):
+                g = cl_sn[c, 0]
+                for r in range(M):
+                    for r2 in range(M):
+                        p = Pc[c, r, r2]
+                        if p == 0.0:
+                            continue
+                        for i in range(n):
+                            pa = p * a[c, r, i]
+                            for j in range(n):
+                                U_parts[k, g, i * n + j] += pa * a[c, r2, j]
+            if ent_size[e] == 0:
+                continue
+            for c in range(c0, c1):
+                g = cl_sn[c, 0]
+                for c2 in range(c, c1):
+                    h = cl_sn[c2, 0]
+                    b1 = bstart[_find_block(bptr, bcol, g, h)]
+                    b2 = bstart[_find_block(bptr, bcol, h, g)]
+                    for i in range(n):
+                        q0, q1, q2 = Q[c, i, 0], Q[c, i, 1], Q[c, i, 2]
+                        for j in range(n):
+                            y = q0 * Q[c2, j, 0] + q1 * Q[c2, j, 1] + q2 * Q[c2, j, 2]
+                            S[b1 + i * n + j] -= y
+                            if c2 != c:
+                                S[b2 + j * n + i] -= y
+
+
+def _gather6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, Sig, Sigt, Gc, SA, SAt):
+    """_gather_kernel for one supernode of n unknowns per cluster, in parallel over entities."""
+    M = a.shape[1]
+    n = a.shape[2]
+    for e in numba.prange(ent_ptr.size - 1):
+        c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+        schur = ent_size[e] > 0
+        for c in range(c0, c1):
+            g = cl_sn[c, 0]
+            if schur:
+                for c2 in range(c0, c1):
+                    h = cl_sn[c2, 0]
+                    base = bstart[_find_block(bptr, bcol, g, h)]
+                    for i in range(n):
+                        s0 = 0.0
+                        s1 = 0.0
+                        s2 = 0.0
+                        for j in range(n):
+                            sg = Sig[base + i * n + j]
+                            s0 += sg * Q[c2, j, 0]
+                            s1 += sg * Q[c2, j, 1]
+                            s2 += sg * Q[c2, j, 2]
+                        Gc[c, i, 0] -= s0
+                        Gc[c, i, 1] -= s1
+                        Gc[c, i, 2] -= s2
+            base = bstart[_find_block(bptr, bcol, g, g)]
+            tt = sn_t[g]
+            for i in range(n):
+                for r in range(M):
+                    acc = 0.0
+                    acct = 0.0
+                    for j in range(n):
+                        acc += Sig[base + i * n + j] * a[c, r, j]
+                        acct += Sigt[base + i * n + j] * a[c, r, j]
+                    SA[c, i, r] = acc
+                    if tt:
+                        SAt[c, i, r] = acct
+
+
 _KERNELS = {}
 
 
@@ -436,7 +523,18 @@ def _kernels():
     if "scatter" not in _KERNELS:
         _KERNELS["scatter"] = numba.njit(cache=True)(_scatter_kernel)
         _KERNELS["gather"] = numba.njit(cache=True)(_gather_kernel)
+        _KERNELS["scatter6"] = numba.njit(cache=True, parallel=True)(_scatter6_kernel)
+        _KERNELS["gather6"] = numba.njit(cache=True, parallel=True)(_gather6_kernel)
     return _KERNELS
+
+
+def _uniform6(st) -> bool:
+    """Every cluster sees exactly one supernode, of K unknowns, at local column 0."""
+    if st.G != 1 or st.cl_sn.size == 0:
+        return False
+    sn_size = np.diff(st.sn_ptr)
+    used = st.cl_sn[:, 0]
+    return bool((used >= 0).all() and (sn_size[used] == st.K).all() and (st.cl_off[:, 0] == 0).all())
 
 
 if numba is not None:       # the kernels call the compiled search (numba resolves globals)
@@ -533,8 +631,45 @@ def _gather_np(st, Q, a, Sig, Sigt):
 # ------------------------------------------------------------------------------------------
 # small dense helpers
 # ------------------------------------------------------------------------------------------
+def _givens_kernel(Bw, ent_ptr, extra, R):
+    """R_e of the rows of entity e (whitened cluster rows, then the rows diag(extra_e)), one
+    Givens rotation per non-zero: the upper triangular factor of a QR decomposition."""
+    M = Bw.shape[1]
+    for e in numba.prange(ent_ptr.size - 1):
+        r00 = r01 = r02 = r11 = r12 = r22 = 0.0
+        last = ent_ptr[e + 1] * M
+        for k in range(ent_ptr[e] * M, last + 3):
+            if k < last:
+                v0, v1, v2 = Bw[k // M, k % M, 0], Bw[k // M, k % M, 1], Bw[k // M, k % M, 2]
+            else:
+                v0 = extra[e, 0] if k == last else 0.0
+                v1 = extra[e, 1] if k == last + 1 else 0.0
+                v2 = extra[e, 2] if k == last + 2 else 0.0
+            if v0 != 0.0:
+                rr = np.hypot(r00, v0)
+                cs, sn = r00 / rr, v0 / rr
+                r00 = rr
+                t = cs * r01 + sn * v1
+                v1 = cs * v1 - sn * r01
+                r01 = t
+                t = cs * r02 + sn * v2
+                v2 = cs * v2 - sn * r02
+                r02 = t
+            if v1 != 0.0:
+                rr = np.hypot(r11, v1)
+                cs, sn = r11 / rr, v1 / rr
+                r11 = rr
+                t = cs * r12 + sn * v2
+                v2 = cs * v2 - sn * r12
+                r12 = t
+            if v2 != 0.0:
+                r22 = np.hypot(r22, v2)
+        R[e, 0, 0], R[e, 0, 1], R[e, 0, 2] = r00, r01, r02
+        R[e, 1, 1], R[e, 1, 2], R[e, 2, 2] = r11, r12, r22
+
+
 def _point_roots(b: np.ndarray, Pc: np.ndarray, ent_ptr: np.ndarray, ent_size: np.ndarray,
-                 dC: np.ndarray, damping: float, tol: float):
+                 damping: float, tol: float, backend: str = "numpy"):
     """Square roots R_j (upper triangular, C_j = R_jᵀR_j) of the point blocks, from a QR
     decomposition of each point's whitened rows — never from C_j itself.
 
@@ -545,34 +680,45 @@ def _point_roots(b: np.ndarray, Pc: np.ndarray, ent_ptr: np.ndarray, ent_size: n
     ε·cond(B_j) = ε·√cond(C_j), and with p̃ = R_j p as the point unknowns the point blocks are the
     identity, so no product in the elimination is formed through C_j⁻¹ (the "square-root"
     elimination: Demmel, N. et al. (2021), Square root bundle adjustment for large-scale
-    reconstruction, CVPR).
+    reconstruction, CVPR). Givens rotations row by row (numba) or stacked Householder QR per
+    track length (numpy) give the same R to round-off.
 
-    ``dC`` (ne, 3) holds the diagonals of C_j (padded coordinates 1); a padded coordinate gets a
-    unit row, ``damping`` λ adds the rows √(λ C_ii) of Levenberg-Marquardt. Returns (R, bad),
-    bad the first coordinate whose pivot R_ii² ≤ tol · C_ii, −1 where all pass.
+    A padded coordinate gets a unit row, ``damping`` λ adds the rows √(λ C_ii) of
+    Levenberg-Marquardt. Returns (R, bad, dC): bad the first coordinate whose pivot
+    R_ii² ≤ tol · C_ii (−1 where all pass), dC the diagonals of C_j (padded: 1).
     """
     nc, M, _ = b.shape
     ne = ent_size.size
     eyeM = np.eye(M)
     d = np.diagonal(Pc, axis1=1, axis2=2)
-    L = np.linalg.cholesky(Pc + eyeM * (d <= 0)[:, None, :])           # padded rows: unit weight
-    Bw = np.matmul(_T(L), b)                                          # whitened rows (nc, M, 3)
+    if M == 1 or not np.any(Pc - d[:, :, None] * eyeM):        # uncorrelated rows: √p_r
+        Bw = np.sqrt(np.maximum(d, 0.0))[:, :, None] * b
+    else:
+        L = np.linalg.cholesky(Pc + eyeM * (d <= 0)[:, None, :])       # padded rows: unit weight
+        Bw = np.matmul(_T(L), b)                                      # whitened rows (nc, M, 3)
     pad = np.arange(3)[None, :] >= ent_size[:, None]
+    dC = _segment_sum((Bw * Bw).sum(axis=1), ent_ptr)                 # diag C_j = Σ rows²
+    dC[pad] = 1.0
     extra = np.where(pad, 1.0, np.sqrt(damping * np.maximum(dC, 0.0)))  # (ne, 3)
     R = np.zeros((ne, 3, 3))
-    count = np.diff(ent_ptr)
-    for n in np.unique(count):
-        ents = np.flatnonzero(count == n)
-        pos = ent_ptr[ents][:, None] + np.arange(n)[None, :]
-        X = np.concatenate([Bw[pos].reshape(ents.size, n * M, 3),
-                            extra[ents][:, :, None] * np.eye(3)[None]], axis=1)
-        R[ents] = np.linalg.qr(X, mode="r")[:, :3, :]
-    sign = np.where(np.diagonal(R, axis1=1, axis2=2) < 0, -1.0, 1.0)
-    R *= sign[:, :, None]                                             # positive diagonal
+    if backend == "numba" and numba is not None:
+        if "givens" not in _KERNELS:
+            _KERNELS["givens"] = numba.njit(cache=True, parallel=True)(_givens_kernel)
+        _KERNELS["givens"](np.ascontiguousarray(Bw), ent_ptr, extra, R)
+    else:
+        count = np.diff(ent_ptr)
+        for n in np.unique(count):
+            ents = np.flatnonzero(count == n)
+            pos = ent_ptr[ents][:, None] + np.arange(n)[None, :]
+            X = np.concatenate([Bw[pos].reshape(ents.size, n * M, 3),
+                                extra[ents][:, :, None] * np.eye(3)[None]], axis=1)
+            R[ents] = np.linalg.qr(X, mode="r")[:, :3, :]
+        sign = np.where(np.diagonal(R, axis1=1, axis2=2) < 0, -1.0, 1.0)
+        R *= sign[:, :, None]                                         # positive diagonal
     piv = np.diagonal(R, axis1=1, axis2=2) ** 2
     fail = ~(piv > tol * np.where(pad, 1.0, np.maximum(dC, 1e-300)))
     bad = np.where(fail.any(axis=1), fail.argmax(axis=1), -1)
-    return R, bad
+    return R, bad, dC
 
 
 def _upper3_inverse(R: np.ndarray) -> np.ndarray:
@@ -698,25 +844,35 @@ class SchurFactor:
         self.a, self.b = a.reshape(nc, M, K), b.reshape(nc, M, 3)
         Pc = self._cluster_weights(st, self.P)
         self.Pc = Pc
-        # diagonal of C_j = Σ_c b_cᵀ P_c b_c (convergence measure, damping, pivot test)
-        Cb = _bmm(_T(self.b), _bmm(Pc, self.b))
-        dC = np.diagonal(_segment_sum(Cb, st.ent_ptr), axis1=1, axis2=2).copy()
-        pad = np.arange(3)[None, :] >= st.ent_size[:, None]
-        dC[pad] = 1.0
-        R, bad = _point_roots(self.b, Pc, st.ent_ptr, st.ent_size, dC, damping,
-                              min(pivot_tol, POINT_PIVOT_TOL))
+        R, bad, dC = _point_roots(self.b, Pc, st.ent_ptr, st.ent_size, damping,
+                                  min(pivot_tol, POINT_PIVOT_TOL), self.backend)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
         # point unknowns p̃ = R_j p: the point blocks become I, b_c becomes b_c R_j⁻¹
         self.R, self.Ri = R, _upper3_inverse(R)
         self.b = _bmm(self.b, self.Ri[st.cl_ent])
-        Pb = _bmm(Pc, self.b)
+        Pd = np.diagonal(Pc, axis1=1, axis2=2)
+        Pb = Pd[:, :, None] * self.b if (st.M == 1 or not np.any(Pc - Pd[:, :, None] * np.eye(st.M))) \
+            else _bmm(Pc, self.b)
         self.E = _bmm(_T(self.a), Pb)           # E_c = a_cᵀ P_c b̃_c
         self.Q = self.E                         # E_c C̃⁻¹ with C̃ = I
         nnz = int(st.bstart[-1])
         sn_size = np.diff(st.sn_ptr)
-        if self.backend == "numba":
+        if self.backend == "numba" and _uniform6(st):
+            S_parts = np.zeros((SCATTER_CHUNKS, nnz))
+            n_sn = st.sn_ptr.size - 1
+            U_parts = np.zeros((SCATTER_CHUNKS, n_sn, K * K))
+            _kernels()["scatter6"](st.ent_ptr, st.ent_size, st.cl_sn, st.bptr, st.bcol, st.bstart,
+                                   self.Q, self.a, Pc, S_parts, U_parts)
+            # U = Σ_c a_cᵀ P_c a_c: diagonal blocks only, one per supernode
+            used = np.unique(st.cl_sn[:, 0])
+            diag_pos = np.array([st.bstart[_find_block(st.bptr, st.bcol, int(x), int(x))] for x in used],
+                                dtype=np.int64)
+            U = np.zeros(nnz)
+            U[(diag_pos[:, None] + np.arange(K * K)[None, :]).ravel()] = U_parts.sum(axis=0)[used].ravel()
+            S = S_parts.sum(axis=0) + U
+        elif self.backend == "numba":
             S, U = np.zeros(nnz), np.zeros(nnz)
             _kernels()["scatter"](st.ent_ptr, st.ent_size, st.cl_sn, st.cl_off, sn_size, st.bptr,
                                   st.bcol, st.bstart, self.a, Pc, self.Q, self.E, S, U)
@@ -846,7 +1002,11 @@ class SchurFactor:
             self._nuisance = _Permuted(T, np.argsort(red))
         nc, M, K = self.a.shape
         sn_size = np.diff(st.sn_ptr)
-        if self.backend == "numba":
+        if self.backend == "numba" and _uniform6(st):
+            Gc, SA, SAt = np.zeros((nc, K, 3)), np.zeros((nc, K, M)), np.zeros((nc, K, M))
+            _kernels()["gather6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol,
+                                  st.bstart, self.Q, self.a, Sig, Sigt, Gc, SA, SAt)
+        elif self.backend == "numba":
             Gc, SA, SAt = np.zeros((nc, K, 3)), np.zeros((nc, K, M)), np.zeros((nc, K, M))
             _kernels()["gather"](st.ent_ptr, st.ent_size, st.cl_sn, st.cl_off, sn_size, st.sn_t, st.bptr,
                                  st.bcol, st.bstart, self.Q, self.a, Sig, Sigt, Gc, SA, SAt)
