@@ -280,8 +280,15 @@ class CollinearitySet:
         """Ideal image coordinates x̄, ȳ (m,), the image vector (U, V, W) and the rotation."""
         P = x[self.ipt]
         X0 = x[self.ieo[:, :3]]
-        a = x[self.ieo[:, 3:]]
-        R, Rw, Rp, Rk = R_opk_derivatives(a[:, 0], a[:, 1], a[:, 2])
+        # rotations once per image, then spread over its observations
+        img = self.__dict__.get("_img")
+        if img is None:
+            img = np.unique(self.ieo[:, 3:], axis=0, return_inverse=True)
+            img = (img[0], np.asarray(img[1]).ravel())
+            self.__dict__["_img"] = img
+        ang, inv = img
+        a = x[ang]
+        R, Rw, Rp, Rk = (M[inv] for M in R_opk_derivatives(a[:, 0], a[:, 1], a[:, 2]))
         d = P - X0
         UVW = np.einsum("mji,mj->mi", R, d)
         c, _, _ = self._interior(x)
@@ -355,12 +362,13 @@ class CollinearitySet:
                 cols.append(np.full(m, idx[0]))
                 gxs.append(xb / c)
                 gys.append(yb / c)
-        # chain through the distortion: ∂(x, y)/∂θ = J ∂(x̄, ȳ)/∂θ
-        GX = np.stack(gxs, 1)
-        GY = np.stack(gys, 1)
-        vx = J[:, 0, 0, None] * GX + J[:, 0, 1, None] * GY
-        vy = J[:, 1, 0, None] * GX + J[:, 1, 1, None] * GY
-        C = np.stack(cols, 1)
+        # chain through the distortion: ∂(x, y)/∂θ = J ∂(x̄, ȳ)/∂θ; laid out column by column
+        # ((ncol, m): contiguous copies, the CSR conversion sorts the entries anyway)
+        GX = np.stack(gxs, 0)
+        GY = np.stack(gys, 0)
+        vx = J[None, :, 0, 0] * GX + J[None, :, 0, 1] * GY
+        vy = J[None, :, 1, 0] * GX + J[None, :, 1, 1] * GY
+        C = np.stack(cols, 0)
         extra_c, extra_x, extra_y = [], [], []
         for name, idx in self.ap:
             if name == "io":
@@ -374,12 +382,12 @@ class CollinearitySet:
                     extra_x.append(Fx[:, k])
                     extra_y.append(Fy[:, k])
         if extra_c:
-            C = np.hstack([C, np.stack(extra_c, 1)])
-            vx = np.hstack([vx, np.stack(extra_x, 1)])
-            vy = np.hstack([vy, np.stack(extra_y, 1)])
-        ncol = C.shape[1]
+            C = np.vstack([C, np.stack(extra_c, 0)])
+            vx = np.vstack([vx, np.stack(extra_x, 0)])
+            vy = np.vstack([vy, np.stack(extra_y, 0)])
+        ncol = C.shape[0]
         lr = np.arange(m)
-        jrows = np.concatenate([np.repeat(2 * lr, ncol), np.repeat(2 * lr + 1, ncol)])
+        jrows = np.concatenate([np.tile(2 * lr, ncol), np.tile(2 * lr + 1, ncol)])
         jcols = np.concatenate([C.ravel(), C.ravel()])
         jvals = np.concatenate([vx.ravel(), vy.ravel()])
         return f, jrows, jcols, jvals

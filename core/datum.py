@@ -180,6 +180,17 @@ class DatumPlan:
         return K
 
 
+def normal_diagonal(A: sp.csr_matrix, P: sp.csr_matrix) -> np.ndarray:
+    """diag(AᵀPA) without forming it (P diagonal: Σ_i p_i a_ij²)."""
+    P = sp.csr_matrix(P)
+    rows = np.repeat(np.arange(P.shape[0]), np.diff(P.indptr))
+    if not np.any(P.data[rows != P.indices]):              # diagonal (stored zeros aside)
+        A = sp.csr_matrix(A)
+        Pd = np.repeat(P.diagonal(), np.diff(A.indptr))
+        return np.bincount(A.indices, weights=Pd * A.data ** 2, minlength=A.shape[1])
+    return np.asarray((A.multiply(P @ A)).sum(axis=0)).ravel()
+
+
 def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray):
     """Null directions of the design matrix among similarity transformations.
 
@@ -191,8 +202,7 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
     t = np.flatnonzero(kind == "t")
     k = np.flatnonzero(kind != "t")
     G[t] = 0.0
-    Ak = A[:, k]
-    R = Ak @ G[k]
+    R = A @ G                                   # = A_k G_k (G_t = 0)
     if t.size:
         At = A[:, t]
         Ntt = (At.T @ P @ At).tocsr()
@@ -203,7 +213,7 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
         G = G.copy()
         G[t] = Gt.reshape(t.size, -1)
         R = A @ G
-    diagN = np.asarray((A.multiply(P @ A)).sum(axis=0)).ravel()
+    diagN = normal_diagonal(A, P)
     num = R.T @ (P @ R)
     Gk = G[k]
     den = Gk.T @ (Gk * diagN[k, None])      # size of each combination by the point motion alone
@@ -297,7 +307,7 @@ def plan(problem, x, A, P, free) -> DatumPlan:
     # but they decide its conditioning: hold points that many observations determine (a 2-ray
     # point next to a camera, or a point near infinity, makes the regularised system needlessly
     # ill-conditioned), spread so that they fix the transformations best (pivoted QR of G)
-    nobs = np.diff(A.tocsc().indptr)[cand]
+    nobs = np.bincount(sp.csr_matrix(A).indices, minlength=A.shape[1])[cand]
     dist, ref = point_distances(problem, x)
     strong = (nobs >= np.quantile(nobs, 0.9)) & (dist[point_of[cand]] <= ref)
     def equilibrated(rows):

@@ -476,8 +476,12 @@ def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, Q, a, Pc, S_p
                                 S[b2 + j * n + i] -= y
 
 
-def _gather6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, Sig, Sigt, Gc, SA, SAt):
-    """_gather_kernel for one supernode of n unknowns per cluster, in parallel over entities."""
+def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Sig, Sigt,
+                 Gc, SA, SAt, H, Ht, Spp):
+    """_gather_kernel for one supernode of n unknowns per cluster, fused with what follows it,
+    per entity (in parallel): Σ̃_pp = I − Σ_c
+    Q_cᵀ G_c and the cluster blocks H_c = a Σ_kk aᵀ + a G b̃ᵀ + b̃ Gᵀ aᵀ + b̃ Σ̃_pp b̃ᵀ, Ht_c =
+    a Σt_kk aᵀ (the formulas of :meth:`SchurFactor._selected`)."""
     M = a.shape[1]
     n = a.shape[2]
     for e in numba.prange(ent_ptr.size - 1):
@@ -513,6 +517,36 @@ def _gather6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, Si
                     SA[c, i, r] = acc
                     if tt:
                         SAt[c, i, r] = acct
+        for q in range(3):
+            for q2 in range(3):
+                acc = 1.0 if q == q2 else 0.0
+                if schur:
+                    for c in range(c0, c1):
+                        for i in range(n):
+                            acc -= Q[c, i, q] * Gc[c, i, q2]
+                Spp[e, q, q2] = acc
+        for c in range(c0, c1):
+            for r in range(M):
+                for r2 in range(M):
+                    hv = 0.0
+                    ht = 0.0
+                    for i in range(n):
+                        hv += a[c, r, i] * SA[c, i, r2]
+                        ht += a[c, r, i] * SAt[c, i, r2]
+                    if schur:
+                        for q in range(3):
+                            f1 = 0.0
+                            f2 = 0.0
+                            for i in range(n):
+                                f1 += a[c, r, i] * Gc[c, i, q]
+                                f2 += a[c, r2, i] * Gc[c, i, q]
+                            hv += f1 * b[c, r2, q] + f2 * b[c, r, q]
+                            sb = 0.0
+                            for q2 in range(3):
+                                sb += Spp[e, q, q2] * b[c, r2, q2]
+                            hv += b[c, r, q] * sb
+                    H[c, r, r2] = hv
+                    Ht[c, r, r2] = ht
 
 
 _KERNELS = {}
@@ -524,7 +558,7 @@ def _kernels():
         _KERNELS["scatter"] = numba.njit(cache=True)(_scatter_kernel)
         _KERNELS["gather"] = numba.njit(cache=True)(_gather_kernel)
         _KERNELS["scatter6"] = numba.njit(cache=True, parallel=True)(_scatter6_kernel)
-        _KERNELS["gather6"] = numba.njit(cache=True, parallel=True)(_gather6_kernel)
+        _KERNELS["hat6"] = numba.njit(cache=True, parallel=True)(_hat6_kernel)
     return _KERNELS
 
 
@@ -1004,9 +1038,13 @@ class SchurFactor:
         sn_size = np.diff(st.sn_ptr)
         if self.backend == "numba" and _uniform6(st):
             Gc, SA, SAt = np.zeros((nc, K, 3)), np.zeros((nc, K, M)), np.zeros((nc, K, M))
-            _kernels()["gather6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol,
-                                  st.bstart, self.Q, self.a, Sig, Sigt, Gc, SA, SAt)
-        elif self.backend == "numba":
+            H, Ht = np.empty((nc, M, M)), np.empty((nc, M, M))
+            Spp = np.empty((st.ent_size.size, 3, 3))
+            _kernels()["hat6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol,
+                               st.bstart, self.Q, self.a, self.b, Sig, Sigt, Gc, SA, SAt, H, Ht, Spp)
+            self._blocks = (H, Ht, _bmm(_bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
+            return self._blocks
+        if self.backend == "numba":
             Gc, SA, SAt = np.zeros((nc, K, 3)), np.zeros((nc, K, M)), np.zeros((nc, K, M))
             _kernels()["gather"](st.ent_ptr, st.ent_size, st.cl_sn, st.cl_off, sn_size, st.sn_t, st.bptr,
                                  st.bcol, st.bstart, self.Q, self.a, Sig, Sigt, Gc, SA, SAt)
