@@ -21,7 +21,7 @@ R_LEVELS = [0.0, R_UNCONTROLLED, R_WEAK, 0.6, 1.0]
 R_COLORS = ["#d7191c", "#fdae61", "#a6d96a", "#1a9641"]
 
 MAP_OPTS = dict(tools=["tap"], active_tools=["pan", "wheel_zoom", "tap"],
-                toolbar="right", fontscale=1.0, xrotation=0)
+                toolbar="right", fontscale=1.0, fontsize={"title": "10.5pt"}, xrotation=0)
 
 
 def formatters() -> dict:

@@ -254,7 +254,7 @@ class HypothesisPanel(pn.viewable.Viewer):
                 * hv.Points(est, ["s1", "s2"]).opts(color="black", size=10, marker="x", framewise=True)
                 * hv.VLine(0).opts(color="#bbbbbb") * hv.HLine(0).opts(color="#bbbbbb")).opts(
             title=title, xlabel="∇s₁", ylabel="∇s₂", xlim=(-extent, extent), ylim=(-extent, extent),
-            frame_width=220, frame_height=220, framewise=True)
+            frame_width=220, frame_height=220, framewise=True, xticks=5, yticks=5)
 
     def __panel__(self):
         form = pn.FlexBox(self.kind, self.obs_input, self.group, self.point, self.image, self.images,

@@ -211,7 +211,7 @@ class LayoutMap(MapView):
         text = f"Layout: {len(s.problem.points.ids)} points, {s.problem.n} observations"
         h, _ = self._hypothesis_ellipse()
         if h is not None:
-            text = f"Layout; lower-bound ellipse: {h}"
+            text = f"Layout, lower-bound ellipse: {h}"
         return text
 
     def _hypothesis_ellipse(self):
@@ -356,8 +356,8 @@ class ExternalMap(MapView):
         label, d, size, scale = self._field()
         if not label:
             return "External reliability δ̄0 (select an observation or a hypothesis: its ∇0x)"
-        return (f"External reliability δ̄0; ∇0x of {label}: "
-                f"max {1000 * size.max(initial=0):.3g} mm, ×{scale:g}")
+        return (f"External reliability: ∇0x of {label}, "
+                f"max {1000 * size.max(initial=0):.3g} mm ×{scale:g}")
 
     def layers(self):
         return [self.layer(self._context, "solution"), self.layer(self._points, "results"),
@@ -427,6 +427,8 @@ class MDBMap(MapView):
 #: The S-base list opens in the page flow (pushing the map down) instead of over the map.
 INLINE_DROPDOWN = (".choices__list--dropdown, .choices__list[aria-expanded] "
                    "{ position: relative; max-height: 180px; }"
+                   ".choices__list--dropdown:not(.is-active), .choices__list[aria-expanded]:not(.is-active) "
+                   "{ display: none; }"
                    ".choices__list--dropdown .choices__list { max-height: 170px; }")
 
 
@@ -475,8 +477,8 @@ class PrecisionMap(MapView):
         if s.problem.points.dim == 1:
             return f"Precision: σ of the heights [mm] ({sig})"
         _, scale, big = self._ellipses()
-        base = f"S-base {', '.join(s.sbase)}" if s.sbase and not s.sbase_error else "datum of the problem"
-        return f"Standard ellipses ({sig}, {base}) ×{scale:g}, largest {1000 * big:.3g} mm"
+        base = f"S-base {', '.join(s.sbase)}" if s.sbase and not s.sbase_error else "own datum"
+        return f"Standard ellipses ×{scale:g}, max {1000 * big:.3g} mm ({sig}, {base})"
 
     def layers(self):
         return [self.layer(self._ellipse_layer, "solution", "sbase"), self.layer(self._points, "solution"),
