@@ -299,14 +299,25 @@ class CollinearitySet:
     def distortion(self, x, xb, yb):
         """Δx, Δy (m,) and the Jacobian ∂(x, y)/∂(x̄, ȳ) = I + ∂Δ/∂(x̄, ȳ) (m × 2 × 2)."""
         k1, k2, k3, p1, p2 = self.cal
-        cal = np.array([k1, k2, k3, p1, p2, 0.0, 0.0])
-        Fx, Fy, Fxu, Fxv, Fyu, Fyv = brown_basis(xb, yb)
-        dx, dy = Fx @ cal, Fy @ cal
+        # the calibrated distortion: Brown's basis (brown_basis) times (k1, k2, k3, p1, p2, 0, 0),
+        # written out (a calibrated camera needs no m × 7 basis per evaluation)
         J = np.empty(xb.shape + (2, 2))
-        J[:, 0, 0] = 1.0 + Fxu @ cal
-        J[:, 0, 1] = Fxv @ cal
-        J[:, 1, 0] = Fyu @ cal
-        J[:, 1, 1] = 1.0 + Fyv @ cal
+        if k1 == k2 == k3 == p1 == p2 == 0.0:
+            dx = dy = np.zeros_like(xb)
+            J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1] = 1.0, 0.0, 0.0, 1.0
+        else:
+            u, v = xb, yb
+            r2 = u * u + v * v
+            r4 = r2 * r2
+            rad = k1 * r2 + k2 * r4 + k3 * r4 * r2
+            drad = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4            # ∂rad/∂(r²)
+            dx = u * rad + p1 * (r2 + 2 * u * u) + 2 * p2 * u * v
+            dy = v * rad + 2 * p1 * u * v + p2 * (r2 + 2 * v * v)
+            cross = 2 * u * v * drad + 2 * p1 * v + 2 * p2 * u
+            J[:, 0, 0] = 1.0 + rad + 2 * u * u * drad + 6 * p1 * u + 2 * p2 * v
+            J[:, 0, 1] = cross
+            J[:, 1, 0] = cross
+            J[:, 1, 1] = 1.0 + rad + 2 * v * v * drad + 2 * p1 * u + 6 * p2 * v
         s = self.scale
         for name, idx in self.ap:
             if name == "io":
