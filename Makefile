@@ -28,7 +28,9 @@ test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow and not browser"
 
 bench: install
-	$(BIN)/python bench/bench_network.py
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_network.py
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_blocks.py
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_dashboard.py
 
 clean:
 	rm -rf $(VENV) out build *.egg-info
