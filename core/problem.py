@@ -143,17 +143,30 @@ class Covariance:
         return Covariance(self.cluster, self.members, tuple(b * f for b, f in zip(self.blocks, factors)))
 
     def subset(self, keep: np.ndarray) -> "Covariance":
-        """The covariance of the observations ``keep`` (sorted indices), renumbered."""
+        """The covariance of the observations ``keep`` (sorted indices), renumbered.
+
+        Clusters kept whole keep their blocks (the usual case: a few observations left out of
+        a large block); only clusters cut in part get a sub-block."""
         n = self.cluster.size
+        keep = np.asarray(keep, dtype=np.int64)
         new_index = np.full(n, -1, dtype=np.int64)
         new_index[keep] = np.arange(keep.size)
+        ncl = len(self.members)
+        sizes = np.fromiter((idx.size for idx in self.members), dtype=np.int64, count=ncl)
+        kept = np.bincount(self.cluster[keep], minlength=ncl)
+        partial = set(np.flatnonzero((kept > 0) & (kept < sizes)).tolist())
         members, blocks = [], []
-        for idx, b in zip(self.members, self.blocks):
-            m = new_index[idx] >= 0
-            if m.any():
+        for c in np.flatnonzero(kept > 0).tolist():
+            idx, b = self.members[c], self.blocks[c]
+            if c in partial:
+                m = new_index[idx] >= 0
                 members.append(new_index[idx[m]])
                 blocks.append(b[np.ix_(m, m)])
-        return Covariance.from_blocks(keep.size, members, blocks)
+            else:
+                members.append(new_index[idx])
+                blocks.append(b)
+        renum = np.cumsum(kept > 0) - 1
+        return Covariance(renum[self.cluster[keep]], tuple(members), tuple(blocks))
 
 
 def _block_diag(members, blocks, n) -> sp.csr_matrix:
@@ -298,11 +311,13 @@ def _subset_set(s, keep_mask: np.ndarray, new_index: np.ndarray):
     return FilteredSet(s, local, new_index[s.rows[local]])
 
 
-def subset(problem: Problem, keep) -> Problem:
+def subset(problem: Problem, keep, observed: np.ndarray | None = None) -> Problem:
     """The problem with only the observations ``keep`` (indices or a boolean mask).
 
     Used to exclude observations (data snooping, the dashboard's exclude/re-include); the
-    parameters and the datum stay as they are.
+    parameters and the datum stay as they are. ``observed`` (bool per parameter, optional):
+    which parameters the kept observations determine, when the caller knows it (from a
+    Jacobian); otherwise the kept observation sets are evaluated to find out.
     """
     import dataclasses
 
@@ -322,11 +337,12 @@ def subset(problem: Problem, keep) -> Problem:
     # whose directions were all excluded) are held at their values; coordinates are not, so that
     # an undetermined point is diagnosed rather than silently fixed
     params = problem.params
-    observed = np.zeros(params.size, dtype=bool)
-    x = params.x0
-    for s2 in sets:
-        _, _, jc, jv = s2.evaluate(x)
-        observed[jc[jv != 0]] = True
+    if observed is None:
+        observed = np.zeros(params.size, dtype=bool)
+        x = params.x0
+        for s2 in sets:
+            _, _, jc, jv = s2.evaluate(x)
+            observed[jc[jv != 0]] = True
     orphan = (params.kind == "t") & ~params.fixed & ~observed
     if orphan.any():
         params = dataclasses.replace(params, fixed=params.fixed | orphan)

@@ -662,8 +662,14 @@ class Adjustment:
         t0 = time.perf_counter()
         rows = np.unique(np.asarray(rows, dtype=np.int64))
         cov = self.problem.cov
-        keep_obs = np.setdiff1d(np.arange(self.n), rows)
-        problem = subset(self.problem, keep_obs)
+        mask = np.ones(self.n, dtype=bool)
+        mask[rows] = False
+        keep_obs = np.flatnonzero(mask)
+        A = self.A[keep_obs].tocsr()
+        free = self.problem.params.free
+        observed = np.zeros(self.problem.params.size, dtype=bool)
+        observed[free] = np.bincount(A.indices[A.data != 0], minlength=free.size) > 0
+        problem = subset(self.problem, keep_obs, observed=observed)
         if not np.array_equal(problem.params.fixed, self.problem.params.fixed):
             return adjust(problem, self.options, x0=self.x)
         touched = np.unique(cov.cluster[rows])
@@ -672,7 +678,6 @@ class Adjustment:
             method = "woodbury" if Rc.size <= WOODBURY_MAX else "refactor"
         if method not in ("woodbury", "refactor"):
             raise ValueError(f"unknown method {method!r}")
-        A = self.A[keep_obs].tocsr()
         P = weight_matrix(problem.cov)
         new = Adjustment(problem=problem, options=self.options, x=self.x, f=self.f[keep_obs], A=A, P=P,
                          plan=self.plan, converged=True, iterations=0, history=(), timings={},
