@@ -173,6 +173,14 @@ def pycolmap_peer(n_images, n_points, track):
     t0 = time.perf_counter()
     pycolmap.bundle_adjustment(rec, ba)
     t_ba = time.perf_counter() - t0
+    t_cov, ok = pycolmap_covariance(pycolmap, rec, ba)
+    return {"images": n_images, "points": len(rec.points3D), "obs": n_obs, "build": t_build,
+            "solve": t_ba, "cov": t_cov, "ok": ok}
+
+
+def pycolmap_covariance(pycolmap, rec, ba) -> tuple[float, bool]:
+    """Seconds of pycolmap's estimate_ba_covariance (poses; gauge fixed by three points), and
+    whether it succeeded."""
     config = pycolmap.BundleAdjustmentConfig()
     for iid in rec.images:
         config.add_image(iid)
@@ -180,9 +188,7 @@ def pycolmap_peer(n_images, n_points, track):
     t0 = time.perf_counter()
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(ba, config, rec)
     cov = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), rec, adjuster)
-    t_cov = time.perf_counter() - t0
-    return {"images": n_images, "points": len(rec.points3D), "obs": n_obs, "build": t_build,
-            "solve": t_ba, "cov": t_cov, "ok": cov is not None}
+    return time.perf_counter() - t0, cov is not None
 
 
 def bal_as_colmap(block, directory: Path) -> None:
@@ -249,17 +255,10 @@ def ladybug_peers(block, x_solution_cost: float) -> list[str]:
             from baarda.bal import initial_cost
             from baarda.io import read_problem
             cost = initial_cost(read_problem(out, "colmap"))
-            config = pycolmap.BundleAdjustmentConfig()
-            for iid in rec.images:
-                config.add_image(iid)
-            config.fix_gauge(pycolmap.BundleAdjustmentGauge.THREE_POINTS)
-            t0 = time.perf_counter()
-            adjuster = pycolmap.create_default_ceres_bundle_adjuster(ba, config, rec)
-            cov = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), rec, adjuster)
-            t_cov = time.perf_counter() - t0
+            t_cov, ok = pycolmap_covariance(pycolmap, rec, ba)
         rows.append(f"{'':<18} {'pycolmap':<8} {'':>6} {'':>7} {'':>8} {'':>8} {t_ba:>8.2f} {t_cov:>8.2f} "
                     f"{peak_mb():>8.0f}  Ceres BA to cost {cost:,.1f}; estimate_ba_covariance (poses, intrinsics "
-                    f"refined as in the solve) ok={cov is not None}")
+                    f"refined as in the solve) ok={ok}")
     from scipy.optimize import least_squares
 
     from baarda.bal import build_sfm_problem
