@@ -211,7 +211,7 @@ class LayoutMap(MapView):
         text = f"Layout: {len(s.problem.points.ids)} points, {s.problem.n} observations"
         h, _ = self._hypothesis_ellipse()
         if h is not None:
-            text = f"Layout, lower-bound ellipse: {h}"
+            text = f"Lower-bound ellipse {h}"     # short: the figure is narrow
         return text
 
     def _hypothesis_ellipse(self):
@@ -232,7 +232,7 @@ class LayoutMap(MapView):
             e = (display_matrix(s.problem) @ e.T).T
         scale = round_scale(0.08 * extent(pts) / max(np.abs(e).max(), 1e-300))
         xy = e * scale + np.array([pts["x"].iat[pk], pts["y"].iat[pk]])
-        return f"{h.label} (×{scale:g})", [xy]
+        return f"×{scale:g}: {h.label}", [xy]
 
     def layers(self):
         return [self.layer(self._lines, "solution"), self.layer(self._points, "solution"),
