@@ -246,6 +246,69 @@ def ebner_basis(u, v):
 BASES = {"brown": brown_basis, "ebner": ebner_basis}
 
 
+def _collinearity_kernel(ipt, ieo, inv, x, R, Rw, Rp, Rk, c, x0, y0, cal, f, vx, vy):
+    """f and the 9 Jacobian columns (point x, y, z; centre X0, Y0, Z0; ω, φ, κ) of every image
+    point, for a camera without additional parameters: the formulas of
+    :meth:`CollinearitySet.evaluate`, one observation at a time (compiled by numba)."""
+    k1, k2, k3, p1, p2 = cal[0], cal[1], cal[2], cal[3], cal[4]
+    for i in range(ipt.shape[0]):
+        g = inv[i]
+        d0 = x[ipt[i, 0]] - x[ieo[i, 0]]
+        d1 = x[ipt[i, 1]] - x[ieo[i, 1]]
+        d2 = x[ipt[i, 2]] - x[ieo[i, 2]]
+        U = R[g, 0, 0] * d0 + R[g, 1, 0] * d1 + R[g, 2, 0] * d2
+        V = R[g, 0, 1] * d0 + R[g, 1, 1] * d1 + R[g, 2, 1] * d2
+        W = R[g, 0, 2] * d0 + R[g, 1, 2] * d1 + R[g, 2, 2] * d2
+        xb = -c * U / W
+        yb = -c * V / W
+        r2 = xb * xb + yb * yb
+        r4 = r2 * r2
+        rad = k1 * r2 + k2 * r4 + k3 * r4 * r2
+        drad = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4
+        dx = xb * rad + p1 * (r2 + 2 * xb * xb) + 2 * p2 * xb * yb
+        dy = yb * rad + 2 * p1 * xb * yb + p2 * (r2 + 2 * yb * yb)
+        cross = 2 * xb * yb * drad + 2 * p1 * yb + 2 * p2 * xb
+        J00 = 1.0 + rad + 2 * xb * xb * drad + 6 * p1 * xb + 2 * p2 * yb
+        J11 = 1.0 + rad + 2 * yb * yb * drad + 2 * p1 * xb + 6 * p2 * yb
+        f[2 * i] = x0 + xb + dx
+        f[2 * i + 1] = y0 + yb + dy
+        for j in range(3):
+            # ∂(U,V,W)/∂X_j = row j of R; the centre's column is its negative
+            gx = (-c * R[g, j, 0] - xb * R[g, j, 2]) / W
+            gy = (-c * R[g, j, 1] - yb * R[g, j, 2]) / W
+            ax = J00 * gx + cross * gy
+            ay = cross * gx + J11 * gy
+            vx[2 * j, i], vy[2 * j, i] = ax, ay
+            vx[2 * j + 1, i], vy[2 * j + 1, i] = -ax, -ay
+        for j in range(3):
+            if j == 0:
+                D = Rw
+            elif j == 1:
+                D = Rp
+            else:
+                D = Rk
+            a0 = D[g, 0, 0] * d0 + D[g, 1, 0] * d1 + D[g, 2, 0] * d2
+            a1 = D[g, 0, 1] * d0 + D[g, 1, 1] * d1 + D[g, 2, 1] * d2
+            a2 = D[g, 0, 2] * d0 + D[g, 1, 2] * d1 + D[g, 2, 2] * d2
+            gx = (-c * a0 - xb * a2) / W
+            gy = (-c * a1 - yb * a2) / W
+            vx[6 + j, i] = J00 * gx + cross * gy
+            vy[6 + j, i] = cross * gx + J11 * gy
+
+
+_KERNEL = {}
+
+
+def _compiled_collinearity():
+    try:
+        import numba
+    except ImportError:          # pragma: no cover - numba is optional
+        return None
+    if "k" not in _KERNEL:
+        _KERNEL["k"] = numba.njit(cache=True)(_collinearity_kernel)
+    return _KERNEL["k"]
+
+
 @dataclass(frozen=True, eq=False)
 class CollinearitySet:
     """Image measurements of one camera (vectorised collinearity, module docstring).
@@ -281,12 +344,7 @@ class CollinearitySet:
         P = x[self.ipt]
         X0 = x[self.ieo[:, :3]]
         # rotations once per image, then spread over its observations
-        img = self.__dict__.get("_img")
-        if img is None:
-            img = np.unique(self.ieo[:, 3:], axis=0, return_inverse=True)
-            img = (img[0], np.asarray(img[1]).ravel())
-            self.__dict__["_img"] = img
-        ang, inv = img
+        ang, inv = self._images()
         a = x[ang]
         R, Rw, Rp, Rk = (M[inv] for M in R_opk_derivatives(a[:, 0], a[:, 1], a[:, 2]))
         d = P - X0
@@ -337,7 +395,47 @@ class CollinearitySet:
         Fx, Fy, *_ = BASES[name](xb / self.scale, yb / self.scale)
         return Fx, Fy
 
+    def _images(self):
+        img = self.__dict__.get("_img")
+        if img is None:
+            img = np.unique(self.ieo[:, 3:], axis=0, return_inverse=True)
+            img = (img[0], np.asarray(img[1]).ravel())
+            self.__dict__["_img"] = img
+        return img
+
     def evaluate(self, x):
+        kernel = None if self.ap else _compiled_collinearity()
+        if kernel is not None:
+            return self._evaluate_compiled(kernel, x)
+        return self._evaluate_numpy(x)
+
+    def _evaluate_compiled(self, kernel, x):
+        """The same numbers as :meth:`_evaluate_numpy` (a camera without APs), compiled."""
+        m = self.ipt.shape[0]
+        ang, inv = self._images()
+        a = x[ang]
+        R, Rw, Rp, Rk = (np.ascontiguousarray(M) for M in R_opk_derivatives(a[:, 0], a[:, 1], a[:, 2]))
+        f = np.empty(2 * m)
+        vx, vy = np.empty((9, m)), np.empty((9, m))
+        kernel(self.ipt, self.ieo, inv, np.ascontiguousarray(x, dtype=float), R, Rw, Rp, Rk, float(self.c),
+               float(self.x0), float(self.y0), np.asarray(self.cal, dtype=float), f, vx, vy)
+        jr, jc = self._pattern()
+        return f, jr, jc, np.concatenate([vx.ravel(), vy.ravel()])
+
+    def _pattern(self):
+        """Rows and columns of the Jacobian entries of a camera without APs (fixed per set)."""
+        pat = self.__dict__.get("_pat")
+        if pat is None:
+            m = self.ipt.shape[0]
+            C = np.stack([self.ipt[:, 0], self.ieo[:, 0], self.ipt[:, 1], self.ieo[:, 1], self.ipt[:, 2],
+                          self.ieo[:, 2], self.ieo[:, 3], self.ieo[:, 4], self.ieo[:, 5]], 0)
+            lr = np.arange(m)
+            pat = (np.concatenate([np.tile(2 * lr, 9), np.tile(2 * lr + 1, 9)]),
+                   np.concatenate([C.ravel(), C.ravel()]))
+            self.__dict__["_pat"] = pat
+        return pat
+
+    def _evaluate_numpy(self, x):
         m = self.ipt.shape[0]
         xb, yb, UVW, d, (R, Rw, Rp, Rk) = self.ideal(x)
         c, x0, y0 = self._interior(x)

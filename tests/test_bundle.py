@@ -362,3 +362,28 @@ def test_point_seen_by_one_image_is_an_error(tmp_path):
         read_native(path)
     # the line where the point's entry starts (its "{" in this indented layout)
     assert info.value.line == _line_of(write_text, f'"id": "{pid}"') - 1
+
+
+@pytest.mark.parametrize("cal", [(0.0, 0.0, 0.0, 0.0, 0.0), (2e-5, -3e-9, 1e-13, 4e-6, -5e-6)])
+def test_compiled_collinearity_equals_the_numpy_formulas(cal):
+    """The numba kernel of CollinearitySet.evaluate (cameras without APs) against the vectorised
+    numpy formulas: same f and Jacobian, with and without a calibrated distortion."""
+    import dataclasses
+
+    import scipy.sparse as sp
+
+    from baarda.bundle import CollinearitySet, _compiled_collinearity
+
+    if _compiled_collinearity() is None:
+        pytest.skip("numba not installed: only the numpy path exists")
+    block, _ = simulate_block(strips=2, images_per_strip=4, seed=5)
+    pr = build_block_problem(block)
+    s = next(s for s in pr.sets if isinstance(s, CollinearitySet))
+    s = dataclasses.replace(s, cal=cal, x0=0.01, y0=-0.02)
+    x = pr.params.x0 + 1e-4 * np.random.default_rng(1).normal(size=pr.params.size)
+    a, b = s.evaluate(x), s._evaluate_numpy(x)
+    shape = (2 * s.ipt.shape[0], pr.params.size)
+    Ja = sp.csr_matrix((a[3], (a[1], a[2])), shape=shape)
+    Jb = sp.csr_matrix((b[3], (b[1], b[2])), shape=shape)
+    assert np.abs(a[0] - b[0]).max() <= 1e-12 * np.abs(b[0]).max()
+    assert abs(Ja - Jb).max() <= 1e-12 * abs(Jb).max()
