@@ -77,12 +77,28 @@ class Options:
     backend: str | None = None
 
 
+def keep_columns(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
+    """A[:, keep] for sorted ``keep`` by one pass over the entries (scipy's column indexing
+    costs a gather per entry and a re-sort; here the order is kept and so is canonical form)."""
+    A = sp.csr_matrix(A)
+    if keep.size == A.shape[1]:
+        return A
+    colmap = np.full(A.shape[1], -1, dtype=np.int64)
+    colmap[keep] = np.arange(keep.size)
+    new = colmap[A.indices]
+    m = new >= 0
+    cm = np.concatenate([[0], np.cumsum(m)])
+    out = sp.csr_matrix((A.data[m], new[m].astype(A.indices.dtype), cm[A.indptr].astype(A.indptr.dtype)),
+                        shape=(A.shape[0], keep.size))
+    out.has_sorted_indices = A.has_sorted_indices
+    return out
+
+
 def _regularised(A, P, free, plan):
     mask = np.ones(free.size, dtype=bool)
     mask[plan.eliminate] = False
     keep = np.flatnonzero(mask)
-    Ar = A[:, keep] if keep.size < free.size else A
-    return keep, Ar
+    return keep, keep_columns(A, keep)
 
 
 def weight_matrix(cov) -> sp.csr_matrix:

@@ -184,7 +184,8 @@ class Adjustment:
 
     @cached_property
     def Ar(self) -> sp.csr_matrix:
-        return self.A[:, self.keep].tocsr()
+        from .adjust import keep_columns
+        return keep_columns(self.A, self.keep)
 
     @cached_property
     def schur_structure(self):

@@ -80,3 +80,19 @@ def test_far_points_are_left_out_of_the_default_s_base():
     free_pos = np.full(pr.params.size, -1)
     free_pos[pr.params.free] = np.arange(pr.params.free.size)
     assert np.abs(plan.E[free_pos[idx[tie]]]).max() == 0.0     # not in the S-base
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 12), st.integers(1, 12), st.data())
+def test_keep_columns_equals_scipy_column_indexing(n, u, data):
+    from baarda.adjust import keep_columns
+
+    rng = np.random.default_rng(n * 13 + u)
+    A = sp.random(n, u, density=0.4, format="csr", random_state=rng)
+    keep = np.flatnonzero(data.draw(st.lists(st.booleans(), min_size=u, max_size=u)))
+    B = keep_columns(A, keep)
+    ref = A[:, keep].tocsr()
+    assert B.shape == ref.shape and (B != ref).nnz == 0
+    ref.sort_indices()
+    np.testing.assert_array_equal(B.indptr, ref.indptr)
+    np.testing.assert_array_equal(B.indices, ref.indices)
