@@ -476,20 +476,20 @@ def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, Q, a, Pc, S_p
                                 S[b2 + j * n + i] -= y
 
 
-def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Sig, Sigt,
-                 Gc, SA, SAt, H, Ht, Spp):
+def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Sig, Sigt, H, Ht, Spp):
     """_gather_kernel for one supernode of n unknowns per cluster, fused with what follows it,
-    per entity (in parallel): Σ̃_pp = I − Σ_c
-    Q_cᵀ G_c and the cluster blocks H_c = a Σ_kk aᵀ + a G b̃ᵀ + b̃ Gᵀ aᵀ + b̃ Σ̃_pp b̃ᵀ, Ht_c =
-    a Σt_kk aᵀ (the formulas of :meth:`SchurFactor._selected`)."""
+    per entity (in parallel): G_c = −Σ_c' Σ_{k_c k_c'} Q_c', Σ̃_pp = I − Σ_c Q_cᵀ G_c and the
+    cluster blocks H_c = a Σ_kk aᵀ + a G b̃ᵀ + b̃ Gᵀ aᵀ + b̃ Σ̃_pp b̃ᵀ, Ht_c = a Σt_kk aᵀ (the formulas
+    of :meth:`SchurFactor._selected`). G of an entity lives in scratch memory of its own."""
     M = a.shape[1]
     n = a.shape[2]
     for e in numba.prange(ent_ptr.size - 1):
         c0, c1 = ent_ptr[e], ent_ptr[e + 1]
         schur = ent_size[e] > 0
-        for c in range(c0, c1):
-            g = cl_sn[c, 0]
-            if schur:
+        Gc = np.zeros((c1 - c0, n, 3))
+        if schur:
+            for c in range(c0, c1):
+                g = cl_sn[c, 0]
                 for c2 in range(c0, c1):
                     h = cl_sn[c2, 0]
                     base = bstart[_find_block(bptr, bcol, g, h)]
@@ -502,44 +502,42 @@ def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Si
                             s0 += sg * Q[c2, j, 0]
                             s1 += sg * Q[c2, j, 1]
                             s2 += sg * Q[c2, j, 2]
-                        Gc[c, i, 0] -= s0
-                        Gc[c, i, 1] -= s1
-                        Gc[c, i, 2] -= s2
-            base = bstart[_find_block(bptr, bcol, g, g)]
-            tt = sn_t[g]
-            for i in range(n):
-                for r in range(M):
-                    acc = 0.0
-                    acct = 0.0
-                    for j in range(n):
-                        acc += Sig[base + i * n + j] * a[c, r, j]
-                        acct += Sigt[base + i * n + j] * a[c, r, j]
-                    SA[c, i, r] = acc
-                    if tt:
-                        SAt[c, i, r] = acct
+                        Gc[c - c0, i, 0] -= s0
+                        Gc[c - c0, i, 1] -= s1
+                        Gc[c - c0, i, 2] -= s2
         for q in range(3):
             for q2 in range(3):
                 acc = 1.0 if q == q2 else 0.0
                 if schur:
                     for c in range(c0, c1):
                         for i in range(n):
-                            acc -= Q[c, i, q] * Gc[c, i, q2]
+                            acc -= Q[c, i, q] * Gc[c - c0, i, q2]
                 Spp[e, q, q2] = acc
         for c in range(c0, c1):
+            g = cl_sn[c, 0]
+            base = bstart[_find_block(bptr, bcol, g, g)]
+            tt = sn_t[g]
             for r in range(M):
                 for r2 in range(M):
+                    # a Σ_kk aᵀ and a Σt_kk aᵀ
                     hv = 0.0
                     ht = 0.0
                     for i in range(n):
-                        hv += a[c, r, i] * SA[c, i, r2]
-                        ht += a[c, r, i] * SAt[c, i, r2]
+                        sa = 0.0
+                        st = 0.0
+                        for j in range(n):
+                            sa += Sig[base + i * n + j] * a[c, r2, j]
+                            st += Sigt[base + i * n + j] * a[c, r2, j]
+                        hv += a[c, r, i] * sa
+                        if tt:
+                            ht += a[c, r, i] * st
                     if schur:
                         for q in range(3):
                             f1 = 0.0
                             f2 = 0.0
                             for i in range(n):
-                                f1 += a[c, r, i] * Gc[c, i, q]
-                                f2 += a[c, r2, i] * Gc[c, i, q]
+                                f1 += a[c, r, i] * Gc[c - c0, i, q]
+                                f2 += a[c, r2, i] * Gc[c - c0, i, q]
                             hv += f1 * b[c, r2, q] + f2 * b[c, r, q]
                             sb = 0.0
                             for q2 in range(3):
@@ -1037,11 +1035,10 @@ class SchurFactor:
         nc, M, K = self.a.shape
         sn_size = np.diff(st.sn_ptr)
         if self.backend == "numba" and _uniform6(st):
-            Gc, SA, SAt = np.zeros((nc, K, 3)), np.zeros((nc, K, M)), np.zeros((nc, K, M))
             H, Ht = np.empty((nc, M, M)), np.empty((nc, M, M))
             Spp = np.empty((st.ent_size.size, 3, 3))
             _kernels()["hat6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol,
-                               st.bstart, self.Q, self.a, self.b, Sig, Sigt, Gc, SA, SAt, H, Ht, Spp)
+                               st.bstart, self.Q, self.a, self.b, Sig, Sigt, H, Ht, Spp)
             self._blocks = (H, Ht, _bmm(_bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
             return self._blocks
         if self.backend == "numba":
