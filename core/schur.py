@@ -701,7 +701,7 @@ def _givens_kernel(Bw, ent_ptr, extra, R):
 
 
 def _point_roots(b: np.ndarray, Pc: np.ndarray, ent_ptr: np.ndarray, ent_size: np.ndarray,
-                 damping: float, tol: float, backend: str = "numpy"):
+                 damping: float, tol: float, backend: str = "numpy", diagonal: bool | None = None):
     """Square roots R_j (upper triangular, C_j = R_jᵀR_j) of the point blocks, from a QR
     decomposition of each point's whitened rows — never from C_j itself.
 
@@ -723,7 +723,9 @@ def _point_roots(b: np.ndarray, Pc: np.ndarray, ent_ptr: np.ndarray, ent_size: n
     ne = ent_size.size
     eyeM = np.eye(M)
     d = np.diagonal(Pc, axis1=1, axis2=2)
-    if M == 1 or not np.any(Pc - d[:, :, None] * eyeM):        # uncorrelated rows: √p_r
+    if diagonal is None:
+        diagonal = M == 1 or not np.any(Pc - d[:, :, None] * eyeM)
+    if diagonal:                                                # uncorrelated rows: √p_r
         Bw = np.sqrt(np.maximum(d, 0.0))[:, :, None] * b
     else:
         L = np.linalg.cholesky(Pc + eyeM * (d <= 0)[:, None, :])       # padded rows: unit weight
@@ -813,7 +815,16 @@ def _partition_cost(Smat, perm) -> float:
 def _order(Smat, st) -> np.ndarray:
     """Order of S for the block-tridiagonal factor: reverse Cuthill-McKee, or the spectral order
     of the supernode graph (sorted Fiedler vector; Barnard, Pothen & Simon 1995) when its blocks
-    are cheaper — strip blocks are ordered along the block rather than in RCM's diagonal fronts."""
+    are cheaper — strip blocks are ordered along the block rather than in RCM's diagonal fronts.
+    It depends on the pattern only, so it is computed once per structure."""
+    order = st.__dict__.get("_order")
+    if order is None:
+        order = _compute_order(Smat, st)
+        st.__dict__["_order"] = order
+    return order
+
+
+def _compute_order(Smat, st) -> np.ndarray:
     from scipy.sparse.csgraph import laplacian, reverse_cuthill_mckee
     from scipy.sparse.linalg import eigsh
 
@@ -867,26 +878,33 @@ class SchurFactor:
         if self.backend not in BACKENDS or (self.backend == "numba" and numba is None):
             raise ValueError(f"backend {self.backend!r} not available")
         self.st, self.m, self.labels = st, st.u, st.labels
-        self.P = sp.csr_matrix(P)
         nc, M, K = st.cl_id.size, st.M, st.K
         a = np.zeros(nc * M * K)
         a[st.dest_a] = Ar.data[st.nnz_a]
         b = np.zeros(nc * M * 3)
         b[st.dest_b] = Ar.data[st.nnz_b]
         self.a, self.b = a.reshape(nc, M, K), b.reshape(nc, M, 3)
-        Pc = self._cluster_weights(st, self.P)
+        # the cluster weights depend on P only: kept with the structure for the next factor of
+        # the same P (every Gauss-Newton iteration, the reliability at the solution)
+        cached = st.__dict__.get("_weights")
+        if cached is not None and cached[0] is P:
+            _, self.P, Pc, diagonal = cached
+        else:
+            self.P = sp.csr_matrix(P)
+            Pc = self._cluster_weights(st, self.P)
+            Pd = np.diagonal(Pc, axis1=1, axis2=2)
+            diagonal = bool(M == 1 or not np.any(Pc - Pd[:, :, None] * np.eye(M)))
+            st.__dict__["_weights"] = (P, self.P, Pc, diagonal)
         self.Pc = Pc
         R, bad, dC = _point_roots(self.b, Pc, st.ent_ptr, st.ent_size, damping,
-                                  min(pivot_tol, POINT_PIVOT_TOL), self.backend)
+                                  min(pivot_tol, POINT_PIVOT_TOL), self.backend, diagonal)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
         # point unknowns p̃ = R_j p: the point blocks become I, b_c becomes b_c R_j⁻¹
         self.R, self.Ri = R, _upper3_inverse(R)
         self.b = _bmm(self.b, self.Ri[st.cl_ent])
-        Pd = np.diagonal(Pc, axis1=1, axis2=2)
-        Pb = Pd[:, :, None] * self.b if (st.M == 1 or not np.any(Pc - Pd[:, :, None] * np.eye(st.M))) \
-            else _bmm(Pc, self.b)
+        Pb = np.diagonal(Pc, axis1=1, axis2=2)[:, :, None] * self.b if diagonal else _bmm(Pc, self.b)
         self.E = _bmm(_T(self.a), Pb)           # E_c = a_cᵀ P_c b̃_c
         self.Q = self.E                         # E_c C̃⁻¹ with C̃ = I
         nnz = int(st.bstart[-1])
