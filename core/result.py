@@ -509,16 +509,14 @@ class Adjustment:
         o = self.options
         Pv = self.Pv
         out = {}
-        for members, C, Cvv in self.cluster_cvv():
+        counts = np.bincount(gid[gid >= 0])
+        for (members, C, Cvv), Pall in zip(self.cluster_cvv(), size_weights(self.problem.cov)):
             g0 = gid[members]
             same = (g0 >= 0).all(axis=1) & (g0 == g0[:, :1]).all(axis=1)
-            counts = np.bincount(gid[gid >= 0])
             same &= counts[np.maximum(g0[:, 0], 0)] == members.shape[1]
             if not same.any():
                 continue
-            mem, Cs, Cv = members[same], C[same], Cvv[same]
-            Pc = np.linalg.inv(Cs)
-            Pc = 0.5 * (Pc + np.swapaxes(Pc, 1, 2))
+            mem, Cv, Pc = members[same], Cvv[same], Pall[same]     # P_c: the cached cluster weights
             W = Pc @ Cv @ Pc
             W = 0.5 * (W + np.swapaxes(W, 1, 2))
             lam, V = np.linalg.eigh(W)
