@@ -54,7 +54,15 @@ def summary(adj) -> dict:
         },
         "timings": {k: round(float(v), 6) for k, v in adj.timings.items()},
         "far_points": far_point_ids(adj),
+        "local_defects": local_defects(p),
     }
+
+
+def local_defects(problem) -> list[dict]:
+    """The local defects found before the adjustment (:class:`baarda.defects.LocalDefect`,
+    kept in ``problem.extra["local_defects"]`` by networks and blocks alike): points, images,
+    cameras or coordinates the observations do not determine, left out or partly adjusted."""
+    return [d.as_dict() for d in problem.extra.get("local_defects", ())]
 
 
 def far_point_ids(adj) -> list[str]:
@@ -163,6 +171,15 @@ def text_summary(adj, top: int = 8) -> str:
         far = s["far_points"]
         lines.append(f"  {len(far)} point(s) near infinity (depth hardly determined, not in the default "
                      f"S-base): {', '.join(far[:10])}{' ...' if len(far) > 10 else ''}")
+    if s["local_defects"]:
+        defects = adj.problem.extra["local_defects"]
+        lines.append(f"  {len(defects)} local defect(s): not determined by the observations "
+                     f"(--strict makes them an error):")
+        for d in defects[:50]:
+            lines.append(f"    {d.text()}")
+        if len(defects) > 50:
+            rest = ", ".join(f"{d.entity} {d.id}" for d in defects[50:])
+            lines.append(f"    and {len(defects) - 50} more: {rest}")
     if g["passed"] is None:
         lines.append("  global test: not applicable (no redundancy)")
     else:
