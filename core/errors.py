@@ -15,18 +15,22 @@ class InputError(BaardaError):
     """Bad input file: ``str(err)`` is ``"{path}:{line}: {message}"``.
 
     ``line`` is 1-based (0 when the position is unknown); ``field`` optionally names the
-    offending attribute or element.
+    offending attribute or element. In a binary file ``offset`` (bytes from its start) says
+    where: ``str(err)`` is then ``"{path}:byte {offset}: {message}"`` and ``line`` is 0.
     """
 
-    def __init__(self, path, line: int, message: str, field: str | None = None):
+    def __init__(self, path, line: int, message: str, field: str | None = None,
+                 offset: int | None = None):
         self.path = str(path)
         self.line = int(line or 0)
         self.message = message
         self.field = field
-        super().__init__(f"{self.path}:{self.line}: {message}")
+        self.offset = None if offset is None else int(offset)
+        where = self.line if self.offset is None else f"byte {self.offset}"
+        super().__init__(f"{self.path}:{where}: {message}")
 
     def __reduce__(self):
-        return (type(self), (self.path, self.line, self.message, self.field))
+        return (type(self), (self.path, self.line, self.message, self.field, self.offset))
 
 
 class DatumDefectError(BaardaError):
