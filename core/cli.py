@@ -74,6 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="estimate variance components (F80 eq. 9, iterated): a factor per observation "
                          "family (default), or the radial model σ² = a² + b²c²/cos⁴α of image "
                          "observations (F80 §2.1, blocks)")
+    an.add_argument("--strict", action="store_true",
+                    help="local defects (points, images, cameras or coordinates the observations do not "
+                         "determine) are an error instead of being named and left out")
     an.add_argument("--top", type=int, default=8, help="how many entries each summary list shows")
     an.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
     an.add_argument("--debug", action="store_true", help="show tracebacks of errors")
@@ -159,18 +162,20 @@ def _progress(quiet):
 
 
 def cmd_analyze(args) -> int:
-    from .adjust import Options, adjust
+    from .adjust import Options
     from .errors import DatumDefectError, InputError
     from .io import read_problem
     from .io import results
 
     t0 = time.perf_counter()
     problem = read_problem(args.input, args.format, control=args.control, sigma_px=args.sigma_px,
-                           refine_intrinsics=args.refine_intrinsics)
+                           refine_intrinsics=args.refine_intrinsics, strict=args.strict)
     t_read = time.perf_counter() - t0
     options = Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method)
     try:
-        adj = adjust(problem, options, progress=_progress(args.quiet))
+        # blocks: unknowns found undetermined by a few points/images are left out (sfm_defects)
+        from .sfm_defects import adjust_block
+        adj, problem = adjust_block(problem, options, progress=_progress(args.quiet), strict=args.strict)
     except DatumDefectError as err:
         raise InputError(args.input, 0, _defect_message(err, problem)) from None
     if not args.quiet and sys.stderr.isatty():

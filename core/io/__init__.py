@@ -95,17 +95,21 @@ def read_model(path, fmt: str = "auto", sigma_px: float | None = None,
     raise InputError(path, 0, f"unknown format '{fmt}' (known: {', '.join(FORMATS)})")
 
 
-def build(model):
-    """The adjustment problem of a file-level model."""
-    from ..bal import SfmBlock, build_sfm_problem
-    from ..bundle import Block, build_block_problem
+def build(model, strict: bool = False):
+    """The adjustment problem of a file-level model.
+
+    Bundle blocks lose their local defects first (:mod:`baarda.sfm_defects`: points, images,
+    cameras the observations do not determine), listed in ``problem.extra["local_defects"]``;
+    strict: refuse them instead (InputError naming them all).
+    """
+    from ..bal import SfmBlock
+    from ..bundle import Block
     from ..imodel import IModelBlock, build_imodel_problem
     from ..network import Network
 
-    if isinstance(model, SfmBlock):
-        return build_sfm_problem(model)
-    if isinstance(model, Block):
-        return build_block_problem(model)
+    if isinstance(model, (SfmBlock, Block)):
+        from ..sfm_defects import build as build_block
+        return build_block(model, strict=strict)
     if isinstance(model, IModelBlock):
         return build_imodel_problem(model)
     if isinstance(model, Network):
@@ -118,17 +122,17 @@ def build(model):
     raise TypeError(f"cannot build a problem from {type(model).__name__}")
 
 
-def read_problem(path, fmt: str = "auto", control=None, **options):
+def read_problem(path, fmt: str = "auto", control=None, strict: bool = False, **options):
     """Read ``path`` and return a :class:`baarda.problem.Problem` ready to adjust.
 
-    control: optional control-point CSV (:func:`baarda.io.control.add_control`); options go to
-    :func:`read_model`.
+    control: optional control-point CSV (:func:`baarda.io.control.add_control`); strict: local
+    defects are an error (:func:`build`); options go to :func:`read_model`.
     """
     model = read_model(path, fmt, **options)
     if control is not None:
         from .control import add_control
         model = add_control(model, control)
-    return build(model)
+    return build(model, strict=strict)
 
 
 def read_truth(path) -> dict | None:

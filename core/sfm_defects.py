@@ -1,0 +1,457 @@
+"""Local defects of bundle blocks: points, images and cameras the observations do not determine.
+
+A structure-from-motion block (:class:`baarda.bal.SfmBlock`) or a photogrammetric block
+(:class:`baarda.bundle.Block`) may hold entities whose unknowns its image points leave
+undetermined, while the rest of the block is sound: a point seen from two images with the same
+projection centre (zero baseline), a point on a single ray, an image that sees fewer than three
+points, a camera whose refined intrinsics (or APs) get fewer equations than unknowns. Such a
+*local* defect is not the 7-parameter gauge of a free block (that is the datum,
+:mod:`baarda.datum`); baarda names each one (:class:`baarda.defects.LocalDefect`), leaves it out
+and analyses the rest. ``baarda analyze --strict`` refuses the block instead.
+
+The geometric pre-pass (:func:`find_defects`)
+---------------------------------------------
+Repeated until nothing changes (leaving out a point can starve an image; leaving out an image
+can leave a point on one ray):
+
+* **points** (not weighted control, whose coordinates are observed): fewer than two images
+  (rays), or a largest angle γ between its rays so small that its depth is not determined.
+  Two rays with an angular precision σ_θ = σ/f (σ of an image coordinate, f the principal
+  distance in the same unit) meeting at the angle γ at a distance d fix the depth with
+
+  .. math:: σ_d ≈ \\sqrt{2}\\, d\\, σ_θ / γ
+
+  — the normal case of stereo photogrammetry, σ_Z = (Z/B)(Z/c) σ_px with the x-parallax
+  σ_px = √2 σ and γ = B/Z (Kraus 2007, §4.4 eq. 4.4-8; Hartley & Zisserman 2004, §12.6).
+  A point is a defect when σ_d would exceed ``K`` × the block extent L (K = 10⁶ by default,
+  :data:`DEPTH_FACTOR`), i.e. when
+
+  .. math:: γ < \\sqrt{2}\\, d\\, σ_θ / (K L).
+
+  The bound is deliberately extreme: it catches the numerically zero baselines (identical
+  poses, γ ≈ 10⁻¹⁶ rad) that make the normal matrix singular, and never a point that is only
+  weakly determined: such a point keeps its tests (its small r_i say what it is worth; far
+  points are named apart, :func:`baarda.datum.far_points`). L is the larger of the diagonal of
+  the projection centres' bounding box and the median distance of the points from their
+  centroid. γ is the intersection angle atan2(|u×v|, |u·v|) of the rays' lines: accurate near
+  0, and 0 for opposite rays (a point between two centres on their baseline), which fix no
+  depth either.
+* **images**: fewer than 3 distinct points (6 pose unknowns need at least 6 equations).
+* **cameras** whose intrinsics (SfM ``refine_intrinsics``) or additional parameters (native
+  blocks) are estimated: the images of the camera give Σ (2 p_i − 6) equations beyond their
+  poses; fewer than the camera's estimated parameters leave them undetermined: the camera and
+  its images are left out.
+
+Counting is necessary, not sufficient. As a safety net, :func:`adjust_block` catches a
+:class:`baarda.errors.DatumDefectError` whose undetermined unknowns belong to a few points,
+images or cameras (not the whole block: then it is the datum and is raised as before), leaves
+those out, records them and adjusts again (at most :data:`MAX_ROUNDS` times).
+
+The input model is never changed: the returned model is a reduced copy.
+
+References: Kraus, K. (2007), Photogrammetry, 2nd ed., de Gruyter; Hartley, R., Zisserman, A.
+(2004), Multiple View Geometry in Computer Vision, 2nd ed., Cambridge University Press.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .defects import LocalDefect
+from .errors import DatumDefectError, InputError
+
+DEPTH_FACTOR = 1e6   # K: a depth σ beyond K × the block extent is "not determined"
+MIN_POINTS = 3       # points an image needs to fix its 6 pose unknowns
+MAX_ROUNDS = 4       # retries of the safety net in adjust_block
+POSE_SFM = ("rho1", "rho2", "rho3", "tx", "ty", "tz")
+POSE_BLOCK = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+
+
+# --------------------------------------------------------------------------------------------
+# a common view of both block types
+# --------------------------------------------------------------------------------------------
+class _View:
+    """Arrays the pre-pass needs, from an SfmBlock or a Block (read only)."""
+
+    def __init__(self, model):
+        from .bal import CAMERA_MODELS, SfmBlock
+
+        self.model = model
+        self.sfm = isinstance(model, SfmBlock)
+        if self.sfm:
+            b = model
+            self.image_ids = [im.id for im in b.images]
+            self.point_ids = list(b.points)
+            self.camera_ids = [c.id for c in b.cameras]
+            cam_index = {c: k for k, c in enumerate(self.camera_ids)}
+            self.image_camera = np.array([cam_index[im.camera] for im in b.images], dtype=np.int64)
+            self.centres = np.array([im.centre for im in b.images], dtype=float).reshape(-1, 3)
+            self.X = np.asarray(b.X, dtype=float)
+            self.obs_image = np.asarray(b.obs_image, dtype=np.int64)
+            self.obs_point = np.asarray(b.obs_point, dtype=np.int64)
+            f = []
+            self.camera_free = []
+            for c in b.cameras:
+                names, feeds = CAMERA_MODELS[c.model]
+                val = dict(zip(names, c.params))
+                f.append(abs(val[feeds[0]]) if feeds[0] is not None else 0.0)
+                self.camera_free.append(tuple(nm for nm in names if nm not in ("cx", "cy"))
+                                        if b.refine_intrinsics else ())
+            self.focal = np.array(f, dtype=float)
+            self.obs_sigma = np.full(self.obs_image.size, float(b.sigma_px))
+            controlled = {cp.id for cp in b.control}
+            self.controlled = np.array([p in controlled for p in b.points], dtype=bool)
+            self.pose_names = POSE_SFM
+        else:
+            from .bundle import AP_GROUPS
+
+            b = model
+            self.image_ids = [im.id for im in b.images]
+            self.point_ids = [p.id for p in b.points]
+            self.camera_ids = [c.id for c in b.cameras]
+            cam_index = {c: k for k, c in enumerate(self.camera_ids)}
+            self.image_camera = np.array([cam_index[im.camera] for im in b.images], dtype=np.int64)
+            self.centres = np.array([(im.X0, im.Y0, im.Z0) for im in b.images], dtype=float).reshape(-1, 3)
+            self.X = np.array([(p.X, p.Y, p.Z) for p in b.points], dtype=float).reshape(-1, 3)
+            self.obs_image = np.asarray(b.obs.image, dtype=np.int64)
+            self.obs_point = np.asarray(b.obs.point, dtype=np.int64)
+            self.focal = np.array([abs(c.c) for c in b.cameras], dtype=float)
+            self.camera_free = [tuple(f"{g}.{nm}" for g in c.ap for nm in AP_GROUPS.get(g, ()))
+                                for c in b.cameras]
+            cov = np.asarray(b.obs.cov, dtype=float).reshape(-1, 2, 2)
+            self.obs_sigma = np.sqrt(np.maximum(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]), 0.0))
+            self.controlled = np.array([p.status == "control" and b.datum != "free" and bool(p.axes)
+                                        for p in b.points], dtype=bool)
+            self.pose_names = POSE_BLOCK
+
+    def extent(self) -> float:
+        """L of the module docstring."""
+        c = self.centres
+        diag = float(np.linalg.norm(c.max(axis=0) - c.min(axis=0))) if len(c) else 0.0
+        X = self.X[np.isfinite(self.X).all(axis=1)]
+        spread = float(np.median(np.linalg.norm(X - c.mean(axis=0), axis=1))) if len(X) and len(c) else 0.0
+        L = max(diag, spread)
+        return L if L > 0 else 1.0
+
+
+# --------------------------------------------------------------------------------------------
+# the geometric pre-pass
+# --------------------------------------------------------------------------------------------
+def _angle(u, w):
+    """Intersection angles of lines along unit vectors (rows), in [0, π/2] and accurate near 0:
+    atan2(|u×w|, |u·w|) — opposite rays (a point between two centres on their baseline) meet
+    at 0 too: they fix no depth either."""
+    return np.arctan2(np.linalg.norm(np.cross(u, w), axis=-1), np.abs(np.einsum("...i,...i->...", u, w)))
+
+
+def _largest_angles(v: _View, obs: np.ndarray, points: np.ndarray, exact: bool = False):
+    """Per point of ``points`` (sorted indices, each with at least two rays among the
+    observations ``obs``): the largest angle between its rays (rad), the two images spanning
+    it and the mean distance to its centres.
+
+    Without ``exact``, the largest angle of a ray to the point's first ray: a lower bound of
+    the largest angle (cheap, and exact for two rays); with it, the maximum over all pairs."""
+    op, oi = v.obs_point[obs], v.obs_image[obs]
+    sel = np.isin(op, points)
+    op, oi = op[sel], oi[sel]
+    order = np.lexsort((oi, op))
+    op, oi = op[order], oi[order]
+    start = np.searchsorted(op, points)
+    size = np.searchsorted(op, points, side="right") - start
+    ray = v.X[op] - v.centres[oi]
+    norm = np.linalg.norm(ray, axis=1)
+    u = ray / np.where(norm > 0, norm, 1.0)[:, None]
+    first = np.repeat(start, size)
+    to_first = _angle(u, u[first])
+    gamma = np.maximum.reduceat(to_first, start)
+    dist = np.add.reduceat(norm, start) / size
+    pair = np.full((points.size, 2), -1, dtype=np.int64)
+    for j in range(points.size) if exact else ():
+        s, e = start[j], start[j] + size[j]
+        U = u[s:e]
+        G = _angle(U[:, None, :], U[None, :, :])
+        G[oi[s:e, None] == oi[None, s:e]] = -1.0      # pairs of rays from two distinct images
+        a, b = np.unravel_index(int(np.argmax(G)), G.shape)
+        gamma[j] = G[a, b]
+        pair[j] = oi[s + a], oi[s + b]
+    return gamma, pair, dist
+
+
+def find_defects(model, factor: float = DEPTH_FACTOR):
+    """The local defects of a block and the block without them (module docstring).
+
+    Returns ``(reduced, defects)``: ``reduced`` is ``model`` itself when there is nothing to
+    leave out, otherwise a new block (the input is not changed); ``defects`` a list of
+    :class:`baarda.defects.LocalDefect` in the order they were found.
+    """
+    v = _View(model)
+    ni, npt, ncam = len(v.image_ids), len(v.point_ids), len(v.camera_ids)
+    L = v.extent()
+    obs_on = np.ones(v.obs_image.size, dtype=bool)
+    point_on = np.ones(npt, dtype=bool)
+    image_on = np.ones(ni, dtype=bool)
+    camera_on = np.ones(ncam, dtype=bool)
+    left_images: list[str] = []
+    defects: list[LocalDefect] = []
+    sig_theta = v.obs_sigma / np.maximum(v.focal[v.image_camera[v.obs_image]], 1e-300)
+    while True:
+        changed = False
+        idx = np.flatnonzero(obs_on)
+        # distinct (point, image) pairs: duplicate keypoints are one ray
+        pairs = np.unique(v.obs_point[idx] * max(ni, 1) + v.obs_image[idx])
+        rays = np.bincount(pairs // max(ni, 1), minlength=npt)
+        cand = point_on & ~v.controlled
+        few = np.flatnonzero(cand & (rays < 2))
+        for p in few:
+            seen = v.obs_image[idx[v.obs_point[idx] == p]]
+            after = f" once image(s) {', '.join(left_images[:8])} were left out" if left_images else ""
+            if rays[p] == 0:
+                reason = "no ray left: all its images were left out"
+            else:
+                reason = f"single ray: seen only from image {v.image_ids[seen[0]]}{after}"
+            defects.append(LocalDefect("point", str(v.point_ids[p]), ("x", "y", "z"), reason))
+        two = np.flatnonzero(cand & (rays >= 2))
+        if two.size:
+            st = np.bincount(v.obs_point[idx], weights=sig_theta[idx], minlength=npt)
+            cnt = np.bincount(v.obs_point[idx], minlength=npt)
+            sth = st[two] / np.maximum(cnt[two], 1)
+            # the limit of the module docstring; the cheap lower bound of γ clears almost every
+            # point, the few left get the exact largest angle
+            gamma, pair, dist = _largest_angles(v, idx, two)
+            limit = math.sqrt(2.0) * dist * sth / (factor * L)
+            flat = np.flatnonzero(gamma < limit)
+            if flat.size:
+                g2, p2, _ = _largest_angles(v, idx, two[flat], exact=True)
+                gamma[flat], pair[flat] = g2, p2
+                flat = flat[g2 < limit[flat]]
+            for j in flat:
+                p = two[j]
+                a, b = pair[j]
+                same = np.array_equal(v.centres[a], v.centres[b])
+                how = (f"images {v.image_ids[a]}, {v.image_ids[b]} have the same centre" if same else
+                       f"its rays meet at {gamma[j]:.2g} rad (largest angle; the depth σ would exceed "
+                       f"{factor:.0e} × the block extent)")
+                defects.append(LocalDefect("point", str(v.point_ids[p]), ("x", "y", "z"),
+                                           f"zero baseline: {how}"))
+            few = np.concatenate([few, two[flat]])
+        if few.size:
+            point_on[few] = False
+            obs_on &= point_on[v.obs_point]
+            changed = True
+        # images
+        idx = np.flatnonzero(obs_on)
+        pairs = np.unique(v.obs_image[idx] * max(npt, 1) + v.obs_point[idx])
+        pts = np.bincount(pairs // max(npt, 1), minlength=ni)
+        starved = np.flatnonzero(image_on & (pts < MIN_POINTS))
+        for k in starved:
+            defects.append(LocalDefect("image", str(v.image_ids[k]), v.pose_names,
+                                       f"sees {pts[k]} point{'' if pts[k] == 1 else 's'}; at least "
+                                       f"{MIN_POINTS} are needed to fix its pose"))
+        image_on[starved] = False
+        left_images += [v.image_ids[k] for k in starved]
+        # cameras with estimated intrinsics or APs
+        for c in range(ncam):
+            if not camera_on[c]:
+                continue
+            mine = np.flatnonzero(image_on & (v.image_camera == c))
+            had = np.flatnonzero(v.image_camera == c)
+            if mine.size == 0:
+                camera_on[c] = False
+                if had.size == 0 and v.camera_free[c]:
+                    defects.append(LocalDefect("camera", str(v.camera_ids[c]), v.camera_free[c],
+                                               "no image uses it; its parameters are estimated"))
+                continue
+            nfree = len(v.camera_free[c])
+            if nfree == 0:
+                continue
+            surplus = int((2 * pts[mine] - 6).sum())
+            if surplus < nfree:
+                ids = [v.image_ids[k] for k in mine]
+                defects.append(LocalDefect(
+                    "camera", str(v.camera_ids[c]), v.camera_free[c],
+                    f"its images {', '.join(ids[:8])}{' ...' if len(ids) > 8 else ''} give {surplus} "
+                    f"equation(s) beyond their poses for {nfree} estimated parameters",
+                    f"left out with its image{'s' if len(ids) > 1 else ''}"))
+                for k in mine:
+                    defects.append(LocalDefect("image", str(v.image_ids[k]), v.pose_names,
+                                               f"its camera {v.camera_ids[c]} is not determined"))
+                image_on[mine] = False
+                left_images += ids
+                camera_on[c] = False
+                starved = np.concatenate([starved, mine])
+        if starved.size:
+            obs_on &= image_on[v.obs_image]
+            changed = True
+        if not changed:
+            break
+    if not defects:
+        return model, []
+    return _reduce(v, point_on, image_on, camera_on, obs_on), defects
+
+
+def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
+    """A copy of the block with only the kept points, images, cameras and observations."""
+    model = v.model
+    new_point = np.cumsum(point_on) - 1
+    new_image = np.cumsum(image_on) - 1
+    keep = np.flatnonzero(obs_on)
+    used_cams = {v.camera_ids[c] for c in np.unique(v.image_camera[image_on])}
+    pts_kept = np.flatnonzero(point_on)
+    if v.sfm:
+        b = model
+        kept_ids = {b.points[i] for i in pts_kept}
+        extra = dict(b.extra)
+        return b.replace(
+            cameras=tuple(c for c in b.cameras if c.id in used_cams),
+            images=tuple(im for k, im in enumerate(b.images) if image_on[k]),
+            points=tuple(b.points[i] for i in pts_kept),
+            X=np.array(b.X[pts_kept], dtype=float),
+            point_line=np.array(np.asarray(b.point_line)[pts_kept]),
+            obs_image=new_image[b.obs_image[keep]].astype(np.int64),
+            obs_point=new_point[b.obs_point[keep]].astype(np.int64),
+            xy=np.array(b.xy[keep], dtype=float),
+            obs_line=np.array(np.asarray(b.obs_line)[keep]),
+            control=tuple(cp for cp in b.control if cp.id in kept_ids),
+            extra=extra)
+    from .bundle import ImageObservations
+
+    b = model
+    o = b.obs
+    kept_ids = {b.points[i].id for i in pts_kept}
+    obs = ImageObservations(new_image[o.image[keep]].astype(np.int64), new_point[o.point[keep]].astype(np.int64),
+                            np.array(o.xy[keep], dtype=float), np.array(o.cov[keep], dtype=float),
+                            np.array(np.asarray(o.line)[keep]))
+    return b.replace(cameras=tuple(c for c in b.cameras if c.id in used_cams),
+                     images=tuple(im for k, im in enumerate(b.images) if image_on[k]),
+                     points=tuple(b.points[i] for i in pts_kept), obs=obs,
+                     sbase=tuple(s for s in b.sbase if s in kept_ids), extra=dict(b.extra))
+
+
+def remove(model, points=(), images=(), cameras=()):
+    """A copy of the block without the named points, images and cameras (ids) and their
+    observations (images of a removed camera go too); nothing else is checked."""
+    v = _View(model)
+    point_on = ~np.isin(np.array(v.point_ids, dtype=object), list(points)) if v.point_ids else np.zeros(0, bool)
+    camera_on = ~np.isin(np.array(v.camera_ids, dtype=object), list(cameras))
+    image_on = ~np.isin(np.array(v.image_ids, dtype=object), list(images)) & camera_on[v.image_camera]
+    obs_on = point_on[v.obs_point] & image_on[v.obs_image]
+    return _reduce(v, point_on, image_on, camera_on, obs_on)
+
+
+# --------------------------------------------------------------------------------------------
+# building and adjusting
+# --------------------------------------------------------------------------------------------
+def strict_error(model, defects) -> InputError:
+    """The error ``--strict`` raises: every defect named, at the file."""
+    text = "; ".join(d.text() for d in defects[:30]) + (f"; ... ({len(defects)} in all)" if len(defects) > 30 else "")
+    return InputError(getattr(model, "source", "") or "input", 0,
+                      f"{len(defects)} local defect(s) (--strict): {text}")
+
+
+def build(model, strict: bool = False):
+    """The adjustment problem of a block without its local defects.
+
+    ``problem.extra["local_defects"]`` lists them (:class:`baarda.defects.LocalDefect`),
+    ``problem.extra["local_model"]`` holds the reduced block :func:`adjust_block` reduces further
+    if needed. strict: raise :class:`baarda.errors.InputError` naming all defects instead.
+    """
+    from .bal import SfmBlock, build_sfm_problem
+    from .bundle import build_block_problem
+
+    reduced, defects = find_defects(model)
+    if defects and strict:
+        raise strict_error(model, defects)
+    problem = build_sfm_problem(reduced) if isinstance(reduced, SfmBlock) else build_block_problem(reduced)
+    problem.extra["local_defects"] = list(problem.extra.get("local_defects", [])) + defects
+    problem.extra["local_model"] = reduced
+    return problem
+
+
+def _entities(labels, model):
+    """(points, images, cameras) named by the labels of undetermined unknowns, or None when a
+    label is not one of a point, image or camera of ``model``."""
+    v = _View(model)
+    owner = {}
+    if v.sfm:
+        for pid in v.point_ids:
+            for a in "xyz":
+                owner[f"point {pid}.{a}"] = ("point", pid)
+        for iid in v.image_ids:
+            for nm in POSE_SFM:
+                owner[f"image {iid}.{nm}"] = ("image", iid)
+        for cid, cam in zip(v.camera_ids, model.cameras):
+            from .bal import CAMERA_MODELS
+            for nm in CAMERA_MODELS[cam.model][0]:
+                owner[f"camera {cid}.{nm}"] = ("camera", cid)
+    else:
+        for pid in v.point_ids:
+            for a in "xyz":
+                owner[f"{pid}.{a}"] = ("point", pid)
+        for iid in v.image_ids:
+            for nm in POSE_BLOCK:
+                owner[f"{iid}.{nm}"] = ("image", iid)
+        for cid, free in zip(v.camera_ids, v.camera_free):
+            for nm in free:
+                owner[f"{cid}.{nm}"] = ("camera", cid)
+    out = {"point": [], "image": [], "camera": []}
+    for lab in labels:
+        hit = owner.get(str(lab))
+        if hit is None:
+            return None
+        if hit[1] not in out[hit[0]]:
+            out[hit[0]].append(hit[1])
+    return out
+
+
+def _local(named, model) -> bool:
+    """Whether the named entities are a local part of the block (not its datum): a few points
+    and images, at most a quarter of either."""
+    if named is None or not any(named.values()):
+        return False
+    v = _View(model)
+    return (len(named["point"]) <= max(1, len(v.point_ids) // 4)
+            and len(named["image"]) <= max(0, len(v.image_ids) // 4)
+            and len(named["camera"]) <= max(0, len(v.camera_ids) // 4))
+
+
+def adjust_block(problem, options=None, progress=None, strict: bool = False):
+    """Adjust ``problem``; if it is a block from :func:`build` and the adjustment finds unknowns
+    the observations do not determine that belong to a few points, images or cameras, leave
+    them out (recorded as local defects), rebuild and adjust again (module docstring).
+
+    Returns ``(adjustment, problem)`` — the problem actually adjusted. A defect of the whole
+    block (the datum) raises :class:`baarda.errors.DatumDefectError` as :func:`baarda.adjust.adjust`
+    does; so does any defect with ``strict``.
+    """
+    from .adjust import adjust
+
+    first = None
+    for _ in range(MAX_ROUNDS + 1):
+        try:
+            return adjust(problem, options, progress=progress), problem
+        except DatumDefectError as err:
+            first = first or err
+            model = problem.extra.get("local_model")
+            if model is None or strict:
+                raise
+            named = _entities(err.undetermined, model)
+            if not _local(named, model):
+                raise first from None
+            found = []
+            for kind in ("point", "image", "camera"):
+                for ident in named[kind]:
+                    vw = _View(model)
+                    what = {"point": ("x", "y", "z"), "image": vw.pose_names}.get(kind) or \
+                        vw.camera_free[vw.camera_ids.index(ident)] or ("intrinsics",)
+                    found.append(LocalDefect(kind, str(ident), what,
+                                             "the adjustment finds its unknowns undetermined "
+                                             "(singular normal equations)",
+                                             "left out" if kind != "camera" else "left out with its images"))
+            reduced = remove(model, named["point"], named["image"], named["camera"])
+            reduced, more = find_defects(reduced)
+            old = list(problem.extra.get("local_defects", []))
+            problem = build(reduced)
+            problem.extra["local_defects"] = old + found + more
+    raise first

@@ -1,0 +1,243 @@
+"""Local defects of bundle blocks (core/sfm_defects.py): every planted defect is named, the rest
+is adjusted, and its r and w equal those of the same block with the defective entities removed
+by hand (an independent reference: the block built without them from the start)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from baarda.adjust import adjust
+from baarda.bal import SfmCamera, SfmImage, build_sfm_problem
+from baarda.errors import DatumDefectError, InputError
+from baarda.io import build, read_model
+from baarda.sfm_defects import adjust_block, find_defects
+from extdata import EXTDATA, require_extdata
+
+BALBIANELLO = EXTDATA / "bal" / "Balbianello.out"
+
+
+def project(block, image_idx, point_idx):
+    """Pixel coordinates of points in images (the block's own camera model, via its problem)."""
+    m = len(image_idx)
+    trial = block.replace(obs_image=np.asarray(image_idx, dtype=np.int64),
+                          obs_point=np.asarray(point_idx, dtype=np.int64),
+                          xy=np.zeros((m, 2)), obs_line=np.zeros(m, dtype=np.int64), control=())
+    pr = build_sfm_problem(trial)
+    f, _ = pr.evaluate(pr.params.x0)
+    return f[: 2 * m].reshape(m, 2)
+
+
+def add(block, images=(), cameras=(), points=(), X=None, obs=()):
+    """The block with extra cameras, images, points (ids and m × 3 coordinates) and image
+    points [(image id, point id)] measured without error; a new object, the input unchanged."""
+    cams = block.cameras + tuple(cameras)
+    imgs = block.images + tuple(images)
+    pts = block.points + tuple(points)
+    XX = np.vstack([block.X, np.asarray(X, dtype=float).reshape(-1, 3)]) if len(points) else block.X
+    big = block.replace(cameras=cams, images=imgs, points=pts, X=XX,
+                        point_line=np.concatenate([block.point_line, np.zeros(len(points), dtype=np.int64)]))
+    if not obs:
+        return big
+    iidx = {im.id: k for k, im in enumerate(imgs)}
+    pidx = {p: k for k, p in enumerate(pts)}
+    oi = np.array([iidx[a] for a, _ in obs], dtype=np.int64)
+    op = np.array([pidx[b] for _, b in obs], dtype=np.int64)
+    xy = project(big, oi, op)
+    return big.replace(obs_image=np.concatenate([block.obs_image, oi]),
+                       obs_point=np.concatenate([block.obs_point, op]),
+                       xy=np.vstack([block.xy, xy]),
+                       obs_line=np.concatenate([block.obs_line, np.zeros(len(obs), dtype=np.int64)]))
+
+
+def seen_by(block, image_idx):
+    return [block.points[p] for p in np.unique(block.obs_point[block.obs_image == image_idx])]
+
+
+def in_front(block, k, n, depth=1.0, spread=0.05, seed=0):
+    """n points in front of image k (inside its view), in world coordinates."""
+    im = block.images[k]
+    s = -1.0 if block.convention in ("bal", "bundler") else 1.0
+    rng = np.random.default_rng(seed)
+    P = np.column_stack([rng.uniform(-spread, spread, n), rng.uniform(-spread, spread, n), np.full(n, s * depth)])
+    return (P - np.asarray(im.t)) @ im.R          # X = Rᵀ (P − t)
+
+
+def duplicate_image(block, k, new_id="dup"):
+    """An image (and its camera) with the very pose of image k, measuring the points k measures."""
+    im = block.images[k]
+    cam = next(c for c in block.cameras if c.id == im.camera)
+    ncam = SfmCamera(f"{cam.id}-dup", cam.model, cam.params, cam.width, cam.height)
+    nim = SfmImage(new_id, ncam.id, im.rodrigues, im.t, name="duplicate")
+    return add(block, images=[nim], cameras=[ncam], obs=[(new_id, p) for p in seen_by(block, k)])
+
+
+@pytest.fixture(scope="module")
+def balbianello():
+    require_extdata(BALBIANELLO)
+    return read_model(BALBIANELLO)
+
+
+@pytest.fixture(scope="module")
+def planted(balbianello):
+    """Balbianello (real, Bundler) with a duplicated image 0 and planted defects.
+
+    Returns (reference block, planted block, planted defects {(entity, id)}).
+    """
+    ref = duplicate_image(balbianello, 0)
+    ids = [im.id for im in ref.images]
+    k0 = 0
+    # zero baseline: four points seen only by image 0 and its duplicate (the issue's real case)
+    zb = [f"zb{j}" for j in range(4)]
+    b = add(ref, points=zb, X=in_front(ref, k0, 4, seed=1),
+            obs=[(i, p) for p in zb for i in ("0", "dup")])
+    # single rays: three points seen by image 2 only
+    sr = [f"sr{j}" for j in range(3)]
+    b = add(b, points=sr, X=in_front(b, 2, 3, seed=2), obs=[("2", p) for p in sr])
+    # a starved image: it sees one old point and one new point that image 3 sees too; once the
+    # image is left out, the new point is left on a single ray (the pre-pass must iterate)
+    cam3 = next(c for c in b.cameras if c.id == b.images[3].camera)
+    scam = SfmCamera("starved-cam", cam3.model, cam3.params)
+    im3 = b.images[3]
+    simg = SfmImage("starved", scam.id, im3.rodrigues, tuple(np.asarray(im3.t) + [0.05, 0.0, 0.0]))
+    b = add(b, images=[simg], cameras=[scam], points=["casc"], X=in_front(b, 3, 1, seed=3))
+    old = seen_by(b, 3)[0]
+    b = add(b, obs=[("starved", old), ("starved", "casc"), ("3", "casc")])
+    want = ({("point", p) for p in zb + sr + ["casc"]} | {("image", "starved")})
+    assert ids[-1] == "dup"
+    return ref, b, want
+
+
+def test_every_planted_defect_is_named(planted):
+    ref, b, want = planted
+    X_before, xy_before = b.X.copy(), b.xy.copy()
+    reduced, defects = find_defects(b)
+    named = {(d.entity, d.id) for d in defects}
+    assert want <= named, want - named
+    # the camera of the starved image (refined intrinsics) goes with it; nothing else
+    assert named - want <= {("camera", "starved-cam")}
+    reasons = {d.id: d.reason for d in defects}
+    assert "images 0, dup have the same centre" in reasons["zb0"]
+    assert reasons["sr1"].startswith("single ray")
+    assert "starved" in reasons["casc"]                # named after the image was left out
+    # the input is not changed; the reduced block is the reference's structure
+    assert np.array_equal(b.X, X_before) and np.array_equal(b.xy, xy_before)
+    assert reduced is not b
+    assert reduced.points == ref.points and [im.id for im in reduced.images] == [im.id for im in ref.images]
+    assert np.array_equal(reduced.obs_image, ref.obs_image) and np.array_equal(reduced.obs_point, ref.obs_point)
+
+
+def test_the_rest_adjusts_as_the_block_without_them(planted):
+    ref, b, want = planted
+    with pytest.raises(DatumDefectError):
+        adjust(build_sfm_problem(b))                   # today's behaviour without the pre-pass
+    problem = build(b)
+    adj, used = adjust_block(problem)
+    assert adj.converged
+    assert {(d["entity"], d["id"]) for d in _summary(adj)["local_defects"]} >= want
+    reference = adjust(build_sfm_problem(ref))
+    assert reference.converged
+    key = [tuple(d.values()) for d in reference.problem.info.ids]
+    assert [tuple(d.values()) for d in adj.problem.info.ids] == key
+    np.testing.assert_allclose(adj.r, reference.r, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(adj.w, reference.w, rtol=1e-6, atol=1e-6)
+    assert adj.dof == reference.dof
+
+
+def _summary(adj):
+    from baarda.io import results
+    return results.summary(adj)
+
+
+def test_clean_block_is_untouched(balbianello):
+    reduced, defects = find_defects(balbianello)
+    assert reduced is balbianello and defects == []
+
+
+def test_opposite_rays_fix_no_depth(balbianello):
+    """A point between two centres on their baseline: its rays are opposite (angle π)."""
+    b = balbianello
+    C0, C1 = b.images[0].centre, b.images[1].centre
+    X = 0.5 * (C0 + C1)
+    b2 = add(b, points=["mid"], X=X[None, :])
+    b2 = b2.replace(obs_image=np.concatenate([b2.obs_image, [0, 1]]),
+                    obs_point=np.concatenate([b2.obs_point, [len(b2.points) - 1] * 2]),
+                    xy=np.vstack([b2.xy, [[1.0, 2.0], [3.0, 4.0]]]),
+                    obs_line=np.concatenate([b2.obs_line, [0, 0]]))
+    _, defects = find_defects(b2)
+    assert [(d.entity, d.id) for d in defects] == [("point", "mid")]
+    assert "zero baseline" in defects[0].reason
+
+
+def test_safety_net_collinear_points(balbianello):
+    """An image whose three points lie on one line: counting passes it, the normal equations
+    do not (its pose can turn about that line). The safety net names it and goes on."""
+    b = read_model(BALBIANELLO, refine_intrinsics=False)
+    ref = b
+    # three collinear new points in front of image 1, each also seen by images 0 and 1
+    X = in_front(b, 1, 1, seed=5)[0]
+    d = in_front(b, 1, 1, seed=6)[0] - X
+    line = np.array([X + t * d for t in (-1.0, 0.0, 1.0)])
+    cl = ["l0", "l1", "l2"]
+    ref = add(b, points=cl, X=line, obs=[(i, p) for p in cl for i in ("0", "1")])
+    im1 = b.images[1]
+    cam1 = next(c for c in b.cameras if c.id == im1.camera)
+    ncam = SfmCamera("lone-cam", cam1.model, cam1.params)
+    nim = SfmImage("lone", ncam.id, im1.rodrigues, tuple(np.asarray(im1.t) + [0.1, 0.02, 0.0]))
+    blk = add(ref, images=[nim], cameras=[ncam], obs=[("lone", p) for p in cl])
+    _, pre = find_defects(blk)
+    assert pre == []                                   # counting cannot see it
+    adj, used = adjust_block(build(blk))
+    named = {(d.entity, d.id) for d in used.extra["local_defects"]}
+    assert ("image", "lone") in named
+    assert not any(e == "point" for e, _ in named)
+    reference = adjust(build_sfm_problem(ref))
+    np.testing.assert_allclose(adj.r, reference.r, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(adj.w, reference.w, rtol=1e-6, atol=1e-6)
+
+
+def test_strict_refuses_naming_all(planted):
+    _, b, want = planted
+    with pytest.raises(InputError) as err:
+        build(b, strict=True)
+    msg = str(err.value)
+    for _, ident in want:
+        assert ident in msg
+
+
+def test_cli_names_zero_baseline_points_and_strict_refuses(balbianello, tmp_path, capsys):
+    """The issue's case as a file: two images with identical poses and four points seen by them
+    only. `baarda analyze` names all four (text and JSON) and analyses the rest; --strict exits 2."""
+    import jsonschema
+    from importlib import resources
+
+    from baarda.cli import main
+    from baarda.io.bal import write_bal
+
+    b = duplicate_image(balbianello, 0)
+    zb = [f"zb{j}" for j in range(4)]
+    b = add(b, points=zb, X=in_front(b, 0, 4, seed=1), obs=[(i, p) for p in zb for i in ("0", "dup")])
+    src = tmp_path / "zero-baseline.txt"
+    write_bal(b, src)
+    ids = [str(len(b.points) - 4 + j) for j in range(4)]          # BAL numbers its points
+    out = tmp_path / "out.json"
+    assert main(["analyze", str(src), "--json", str(out), "--top", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "4 local defect(s)" in text
+    for i in ids:
+        assert f"point {i} (x, y, z): zero baseline" in text
+    doc = json.loads(out.read_text())
+    schema = json.loads(resources.files("baarda").joinpath("schema/analysis.schema.json").read_text())
+    jsonschema.validate(doc, schema)
+    named = doc["summary"]["local_defects"]
+    assert [d["id"] for d in named] == ids
+    assert all(d["entity"] == "point" and d["action"] == "left out" for d in named)
+    assert doc["summary"]["converged"]
+    assert doc["summary"]["n_observations"] == 2 * (b.obs_image.size - 8)
+    assert main(["analyze", str(src), "--strict", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--strict" in err
+    for i in ids:
+        assert f"point {i} " in err
