@@ -9,16 +9,21 @@ first Gama network under ``data/`` (``demo-levelling.gkf`` preferred).
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import holoviews as hv
 import panel as pn
 
 from .state import State
+from .views.controls import MAX_UPLOAD_MB
 from .views import (MAP_VIEWS, AnalysisPanel, Controls, CriterionView, FilePanel, HypothesisPanel, ImageResidualView,
-                    RiskView, SelectionPanel, SummaryHeader, TeachingView, TestsTable, InjectPanel)
+                    RiskView, SelectionPanel, SummaryHeader, TaskPanel, TeachingView, TestsTable, InjectPanel)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
+#: The server's websocket message limit: above the upload limit of the app (uploads come in
+#: chunks far smaller anyway), so that a large file gets the app's own message.
+WEBSOCKET_MAX_MB = 2 * MAX_UPLOAD_MB
 TAB_NAMES = {"layout": "Layout", "redundancy": "Redundancy", "residuals": "w",
              "external": "External", "mdb": "MDB", "precision": "Precision"}
 
@@ -46,42 +51,80 @@ class Fast(pn.theme.fast.Fast):
 
 
 def _extensions():
-    pn.extension("tabulator", notifications=False, sizing_mode="stretch_width")
+    pn.extension("tabulator", "filedropper", notifications=False, sizing_mode="stretch_width")
     hv.extension("bokeh", logo=False)
 
 
-def create_app(path=None, problem=None):
-    """The dashboard for ``path`` (or an already read ``problem``) as a Panel template."""
+#: Views of different sessions are built one at a time: a session being built holds the
+#: interpreter for a second or two, and the event loop (pages of new sessions, clicks in
+#: others) competes with one builder instead of twenty.
+_BUILD_LOCK = threading.Lock()
+
+
+def _served() -> bool:
+    doc = pn.state.curdoc
+    return doc is not None and doc.session_context is not None
+
+
+def create_app(path=None, problem=None, background: bool | None = None):
+    """The dashboard for ``path`` (or an already read ``problem``) as a Panel template.
+
+    Served (``background`` defaults to True in a server session), the page comes up at once
+    with the sidebar and the summary area; the file is read and adjusted on a worker thread
+    once the page has loaded (a file read before comes from the server's cache), the summary
+    appears as soon as the adjustment is there, and the maps and tables are built after it.
+    """
     _extensions()
+    background = _served() if background is None else bool(background)
     if problem is not None:
         state = State(problem=problem, path=path)
     else:
         path = path or default_path()
-        state = State(path) if path else State()
+        state = State()
         if path is None:
             state.error = ("No file given and no demo file under data/ (demo-block.json or a .gkf); "
                            "upload a file.")
+        elif not background:
+            state.load(path)
+    state.background = background
     template = pn.template.FastListTemplate(title="baarda", accent="#1f4e9c", header_background="#1f4e9c",
                                             sidebar_width=290, main_layout=None, theme_toggle=False,
                                             design=Fast, font="system-ui, sans-serif")
     files = FilePanel(state=state)
     template.sidebar.append(files)
-    content = pn.Column(_main(state) if state.results is not None else pn.pane.Markdown("Upload a file (sidebar)."),
-                        sizing_mode="stretch_width")
-    template.main.append(content)
+    waiting = pn.pane.HTML("<i>Reading and adjusting the file…</i>" if (path and state.results is None
+                                                                       and not state.error)
+                           else "<i>Upload a file (sidebar).</i>", css_classes=["main-waiting"])
+    content = pn.Column(waiting, sizing_mode="stretch_width")
 
     def rebuild(*_):
         # a new problem gets new views (map extents, frame sizes and widgets depend on it)
-        content.objects = [_main(state)]
+        with _BUILD_LOCK:
+            main = _main(state)
+        content.objects = [main]
 
+    if state.results is not None:
+        rebuild()
     state.param.watch(rebuild, "problem")
-    template.sidebar.extend([Controls(state=state), SelectionPanel(state=state)])
+    template.main.append(pn.Column(SummaryHeader(state=state), content, sizing_mode="stretch_width"))
+    template.sidebar.extend([TaskPanel(state=state), Controls(state=state), SelectionPanel(state=state)])
+    if background:
+        if path is not None and state.results is None and not state.error:
+            shown = Path(str(path)).name
+            pn.state.onload(lambda: state.submit(f"reading {shown}", state.load, path))
+
+        def destroyed(_context):
+            state.cancel()
+            files.cleanup()
+        pn.state.on_session_destroyed(destroyed)
     template.state = state
+    template.files = files
     return template
 
 
 def _main(state):
-    """Summary on top; the maps in tabs on the left, table / hypotheses / teaching on the right."""
+    """The maps in tabs on the left, table / hypotheses / teaching on the right (the summary
+    is above them, built once per session)."""
     maps = []
     for V in MAP_VIEWS:
         view = V(state=state)
@@ -97,9 +140,7 @@ def _main(state):
                                            RiskView(state=state), scroll=True, height=640,
                                            sizing_mode="stretch_width")),
                     dynamic=True, sizing_mode="fixed", width=590, height=660, css_classes=["right-tabs"])
-    main = pn.Column(SummaryHeader(state=state),
-                     pn.Row(map_tabs, right, sizing_mode="stretch_width"),
-                     sizing_mode="stretch_width")
+    main = pn.Row(map_tabs, right, sizing_mode="stretch_width")
     main.loading = state.busy
     state.param.watch(lambda e: setattr(main, "loading", e.new), "busy")
     return main
@@ -112,6 +153,7 @@ def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = 
     """
     url = f"http://{address}:{port}/"
     print(f"baarda dashboard: {url}", flush=True)
+    kwargs.setdefault("websocket_max_message_size", WEBSOCKET_MAX_MB * 1024 * 1024)
     return pn.serve({"/": lambda: create_app(path)}, port=port, address=address, show=show,
                     websocket_origin=[f"{address}:{port}", f"localhost:{port}"] if address in
                     ("127.0.0.1", "localhost") else [f"{address}:{port}"],

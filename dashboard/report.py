@@ -18,6 +18,8 @@ from pathlib import Path
 import holoviews as hv
 import numpy as np
 
+from .text import html_text
+
 MAX_ROWS = 500
 
 
@@ -31,7 +33,7 @@ def _figures(state) -> list[tuple[str, object]]:
         obj = view.static().opts(hv.opts.Overlay(responsive=False, frame_width=760, frame_height=560,
                                                            min_height=None))
         fig = hv.render(obj, backend="bokeh")
-        figs.append((view.title(), fig))
+        figs.append((view.title(), fig))     # view.title() is text; escaped where it is used
     return figs
 
 
@@ -73,6 +75,7 @@ def report_html(adj, state=None) -> str:
     from bokeh.embed import components
 
     from baarda.io.results import text_summary
+    from baarda.text import printable_lines
 
     from .state import State
     from .views.summary import summary_html
@@ -82,12 +85,12 @@ def report_html(adj, state=None) -> str:
     figs = _figures(state)
     script, divs = components([f for _, f in figs])
     s = state.summary()
-    title = html.escape(s["title"] or Path(s["source"]).name or "baarda report")
-    plots = "".join(f"<h3>{html.escape(t)}</h3>{d}" for (t, _), d in zip(figs, divs))
+    title = html_text(s["title"] or Path(s["source"]).name or "baarda report")
+    plots = "".join(f"<h3>{html_text(t)}</h3>{d}" for (t, _), d in zip(figs, divs))
     groups = ""
     if adj.groups:
         rows = "".join(
-            f"<tr><td>{g['group']}</td><td>{g['dimension']}</td><td>{g['T']:.4g}</td><td>{g['critical']:.4g}</td>"
+            f"<tr><td>{html_text(g['group'])}</td><td>{g['dimension']}</td><td>{g['T']:.4g}</td><td>{g['critical']:.4g}</td>"
             f"<td>{'REJECTED' if g['rejected'] else 'accepted'}</td></tr>" for g in adj.groups[:MAX_ROWS])
         groups = ("<h2>Group tests</h2><table class='obs'><tr><th>group</th><th>q</th><th>T</th>"
                   f"<th>critical</th><th>decision</th></tr>{rows}</table>")
@@ -103,10 +106,10 @@ def report_html(adj, state=None) -> str:
 {script}
 </head><body>
 <h1>baarda — {title}</h1>
-<p>Source: <code>{html.escape(str(s['source']))}</code>; written {_dt.datetime.now().isoformat(timespec='seconds')}.</p>
+<p>Source: <code>{html_text(Path(str(s['source'])).name)}</code>; written {_dt.datetime.now().isoformat(timespec='seconds')}.</p>
 {summary_html(s)}
 {excluded}
-<h2>Summary</h2><pre>{html.escape(text_summary(adj))}</pre>
+<h2>Summary</h2><pre>{html.escape(printable_lines(text_summary(adj)))}</pre>
 <h2>Maps</h2>{plots}
 {_hypotheses_html(state)}
 {groups}

@@ -32,6 +32,9 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -50,6 +53,7 @@ from baarda.errors import BaardaError
 from baarda.hypotheses import HypothesisTest, common_error, deformation, selection
 
 from .subset import without
+from .text import plain
 
 #: Results of the adjustment that do not depend on α0, β0 or the B-method; they are carried
 #: over when only those options change, so that δ0 and the MDBs update without a new solve.
@@ -66,6 +70,40 @@ LOO_SUSPECTS = 5
 #: Redundancy numbers below these are flagged: uncontrolled, weak (the dashboard's colour scale).
 R_UNCONTROLLED = 0.1
 R_WEAK = 0.3
+
+#: Long computations (reading and adjusting a file, snooping, robust reweighting, variance
+#: components) of every session run on these threads, off the server's event loop; the numerical
+#: work releases the GIL, so other sessions keep answering.
+TASKS = ThreadPoolExecutor(max_workers=4, thread_name_prefix="baarda-task")
+
+
+class Cancelled(Exception):
+    """Raised inside a background computation whose session asked to stop it."""
+
+
+#: Files already read and adjusted, shared by the sessions of a server: key (resolved path,
+#: mtime, size, α0, β0, B-method) → (problem, adjustment, kept, index, frames). A second
+#: session opens the file without reading or adjusting it again. Bounded (oldest dropped).
+_LOADED: dict = {}
+_LOADED_LOCKS: dict = {}
+_LOADED_GUARD = threading.Lock()
+LOADED_MAX = 8
+
+
+def _file_key(path, options) -> tuple | None:
+    try:
+        st = os.stat(path)
+        return (str(Path(path).resolve()), st.st_mtime_ns, st.st_size,
+                options.alpha, options.beta, options.b_method)
+    except OSError:
+        return None
+
+
+def clear_cache() -> None:
+    """Forget every cached file (tests; a server frees the memory)."""
+    with _LOADED_GUARD:
+        _LOADED.clear()
+        _LOADED_LOCKS.clear()
 
 
 def with_options(adj, options: Options):
@@ -203,6 +241,10 @@ class State(param.Parameterized):
     kept = param.Array(default=np.zeros(0, dtype=np.int64), doc="Full index of each reduced observation.")
     error = param.String(default="", doc="A message for the user (bad file, failed exclusion).")
     busy = param.Boolean(default=False, doc="True while a computation runs.")
+    task = param.String(default="", doc="The background computation running now ('' = none).")
+    progress = param.String(default="", doc="What the background computation has done so far.")
+    background = param.Boolean(default=False, doc="Run long computations on a worker thread "
+                               "(set by the served app; scripts and tests compute in place).")
     timings = param.Dict(default={}, doc="Seconds of the last recomputations.")
     sbase = param.List(default=[], doc="S-base (point ids) of the precision view; [] = the problem's datum.")
     sbase_error = param.String(default="", doc="Why the chosen S-base cannot be used.")
@@ -226,6 +268,7 @@ class State(param.Parameterized):
         super().__init__(**params)
         self._frames = None
         self._cov = None
+        self._cancel = threading.Event()
         if problem is not None:
             self.set_problem(problem, source=str(path or problem.source))
         elif path is not None:
@@ -244,24 +287,130 @@ class State(param.Parameterized):
             st.selected_image = images[0]["id"] if images else None
         return st
 
+    # -- background computations ----------------------------------------------------------------
+    def submit(self, label: str, fn, *args):
+        """Run ``fn(*args)`` on a worker thread (:data:`TASKS`) with ``task = label``; with
+        ``background`` off (scripts, tests) run it here. One computation per session at a time:
+        returns None (and does nothing) while another runs, else the Future (or the result)."""
+        if not self.background:
+            return fn(*args)
+        if self.task:
+            return None
+        self._cancel = threading.Event()
+        self.param.update(task=label, progress="")
+
+        def run():
+            try:
+                return fn(*args)
+            except Cancelled:
+                self.progress = "cancelled"
+                return False
+            finally:
+                self.task = ""
+        return TASKS.submit(run)
+
+    def cancel(self) -> None:
+        """Ask the running background computation to stop: snooping stops after its current
+        step; the other computations finish on their thread but their result is dropped."""
+        if self.task:
+            self._cancel.set()
+            self.progress = "cancelling…"
+
+    def _check_cancel(self) -> None:
+        """Raise :class:`Cancelled` in a background computation whose session cancelled it."""
+        if self._cancel.is_set() and threading.current_thread().name.startswith("baarda-task"):
+            raise Cancelled()
+
     # -- loading --------------------------------------------------------------------------------
-    def load(self, path) -> bool:
-        """Read and adjust a file; on failure keep the current problem and set ``error``."""
+    def load(self, path, name: str | None = None) -> bool:
+        """Read and adjust a file; on failure keep the current problem and set ``error``.
+
+        name: the file's name to show (an upload's own name); messages never show ``path``
+        when a name is given. A file read before by this server (same path, modification time,
+        size and test options) is taken from the cache without reading or adjusting it again.
+        """
         from baarda.io import read_problem
 
-        try:
-            with self._busy():
-                problem = read_problem(path)
-        except BaardaError as err:
-            self.error = f"Cannot read {Path(str(path)).name}: {err}"
-            return False
-        except Exception as err:  # noqa: BLE001 - the app must show a message, never a traceback
-            self.error = f"Cannot read {Path(str(path)).name}: {type(err).__name__}: {err}"
-            return False
-        return self.set_problem(problem, source=str(path))
+        shown = plain(name if name is not None else Path(str(path)).name)
 
-    def set_problem(self, problem, source: str = "") -> bool:
-        """Make ``problem`` current (clears exclusions, hypotheses and selections) and adjust it."""
+        def message(err) -> str:
+            text = str(err)
+            for p in {str(path), str(Path(str(path)).resolve()), str(Path(str(path)).parent)}:
+                if p and p not in (".", "/"):
+                    text = text.replace(p, shown)
+            return plain(text)
+
+        key = _file_key(path, self.options()) if name is None else None
+        lock = None
+        if key is not None:
+            with _LOADED_GUARD:
+                lock = _LOADED_LOCKS.setdefault(key, threading.Lock())
+        with (lock or contextlib.nullcontext()):
+            hit = _LOADED.get(key) if key is not None else None
+            if hit is not None:
+                self._check_cancel()
+                return self._set_loaded(hit, source=str(path))
+            try:
+                with self._busy():
+                    self.progress = f"reading {shown}"
+                    problem = read_problem(path)
+            except BaardaError as err:
+                self.error = f"Cannot read {shown}: {message(err)}"
+                return False
+            except Exception as err:  # noqa: BLE001 - the app must show a message, never a traceback
+                self.error = f"Cannot read {shown}: {type(err).__name__}: {message(err)}"
+                return False
+            self._check_cancel()
+            if name is not None:
+                problem = replace(problem, source=str(name))
+            self.progress = f"adjusting {shown}"
+            ok = self.set_problem(problem, source=str(name if name is not None else path), error_name=shown,
+                                  error_path=str(path))
+            if ok and key is not None:
+                self.frames()
+                with _LOADED_GUARD:
+                    while len(_LOADED) >= LOADED_MAX:
+                        _LOADED.pop(next(iter(_LOADED)))
+                    _LOADED[key] = (self.problem, self.results, self.kept, self.problem_index(),
+                                    self._frames)
+            return ok
+
+    def _set_loaded(self, hit, source: str) -> bool:
+        """Make a cached (problem, adjustment, …) current without adjusting again."""
+        problem, adj, kept, index, frames = hit
+        if self.sigma0_mode != (problem.sigma_act if problem.sigma_act in ("apriori", "aposteriori")
+                                else "apriori"):
+            return self.set_problem(problem, source=source)
+        with param.parameterized.discard_events(self):
+            self.problem = problem
+            self.excluded = frozenset()
+            self.sbase, self.sbase_error, self.hypotheses, self.hyp_results = [], "", [], []
+            self.selected_point = self.selected_obs = self.selected_hypothesis = None
+            images = self.images
+            self.selected_image = images[0]["id"] if images else None
+            self.kept = kept
+            self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
+            self.components, self.criterion, self.criterion_error, self.analysis_error = None, None, "", ""
+            self.robust = None
+        self._index, self._index_for = index, problem
+        self._frames = frames if self.robust_method == "none" else None
+        self._cov = None
+        with param.parameterized.batch_call_watchers(self):
+            self.results = adj
+            self.solution += 1
+            self._run_robust()
+        self.source = source
+        self.exaggeration = self._auto_exaggeration()
+        self.error = ""
+        self.param.trigger("problem")
+        return True
+
+    def set_problem(self, problem, source: str = "", error_name: str | None = None,
+                    error_path: str | None = None) -> bool:
+        """Make ``problem`` current (clears exclusions, hypotheses and selections) and adjust it.
+
+        error_path: a server path (an upload's temporary file) that a failure message shows as
+        ``error_name`` instead."""
         old = (self.problem, self.results, self.kept, self.excluded, self.hypotheses, self.hyp_results)
         mode = problem.sigma_act if problem.sigma_act in ("apriori", "aposteriori") else "apriori"
         with param.parameterized.discard_events(self):
@@ -277,10 +426,13 @@ class State(param.Parameterized):
             self.sigma0_mode = mode
             images = self.images
             self.selected_image = images[0]["id"] if images else None
-        if not self._readjust():
+        if not self._readjust() or (self._cancel.is_set() and self.task):
             with param.parameterized.discard_events(self):
                 (self.problem, self.results, self.kept, self.excluded, self.hypotheses,
                  self.hyp_results) = old
+            if error_path and error_name:
+                self.error = self.error.replace(error_path, error_name)
+            self._check_cancel()
             return False
         self.source = source or problem.source
         self.exaggeration = self._auto_exaggeration()
@@ -290,6 +442,11 @@ class State(param.Parameterized):
 
     @contextlib.contextmanager
     def _busy(self):
+        """``busy`` (the main area's loading overlay) around a computation in place; a
+        background computation shows its progress instead (``task``, ``progress``)."""
+        if self.task:
+            yield
+            return
         self.busy = True
         try:
             yield
@@ -547,7 +704,7 @@ class State(param.Parameterized):
                 image_rows.setdefault((str(ids["image"]), str(ids["point"])), []).append(i)
         self._index = {"obs_points": obs_points, "inc_obs": inc_obs, "inc_pt": inc_pt,
                        "line_obs": lines[:, 0], "line_from": lines[:, 1], "line_to": lines[:, 2],
-                       "labels": [observation_label(p, i).split(" ", 2)[-1] for i in range(p.n)],
+                       "labels": [plain(observation_label(p, i).split(" ", 2)[-1]) for i in range(p.n)],
                        "image_rows": image_rows, "factor": display_factor(p)}
         self._index_for = p
         return self._index
@@ -619,7 +776,7 @@ class State(param.Parameterized):
 
         sig = adj.point_sigma * 1000.0
         pts = pd.DataFrame({
-            "id": list(p.points.ids), "status": list(p.points.status),
+            "id": [plain(i) for i in p.points.ids], "status": list(p.points.status),
             "x": east, "y": north,
             "sx_mm": sig[:, 0], "sy_mm": sig[:, 1], "sz_mm": sig[:, 2],
             "n_obs": np.bincount(ip, minlength=m),
@@ -768,17 +925,26 @@ class State(param.Parameterized):
         import time
 
         t0 = time.perf_counter()
+        adj, method = self.results, self.robust_method
         try:
             with self._busy():
-                self.robust = robust.estimate(self.results.problem, self.robust_method, self.options())
+                rr = robust.estimate(adj.problem, method, self.options())
         except (BaardaError, np.linalg.LinAlgError) as err:
             self.robust = None
-            self.analysis_error = f"Robust estimation ({self.robust_method}) failed: {err}"
+            self.analysis_error = plain(f"Robust estimation ({method}) failed: {err}")
+            return
+        self._check_cancel()
+        if self.results is not adj or self.robust_method != method:    # stale
+            return
+        self.robust = rr
         self.timings = {**self.timings, "robust": time.perf_counter() - t0}
 
     @param.depends("robust_method", watch=True)
     def _robust_changed(self):
-        self._run_robust()
+        if self.background and self.results is not None and self.robust_method != "none":
+            self.submit(f"robust reweighting ({self.robust_method})", self._run_robust)
+        else:
+            self._run_robust()
 
     @param.depends("robust", watch=True)
     def _robust_done(self):
@@ -812,13 +978,22 @@ class State(param.Parameterized):
         w (σ0 a priori) or τ (a posteriori), and σ̂0 with each of the ``LOO_SUSPECTS`` largest
         |w| left out in turn (:func:`baarda.snooping.leave_one_out`)."""
         adj = self.results
+
+        def step(k, st):
+            self._check_cancel()       # a cancelled run stops after the step it is in
+            self.progress = f"step {k}: removed obs {int(self.kept[st.removed])} (|w| = {st.statistic:.2f})"
+
         try:
             with self._busy():
-                res = snooping.iterate(adj.problem, self.options(), use_tau=self.sigma0_mode == "aposteriori")
+                res = snooping.iterate(adj.problem, self.options(), use_tau=self.sigma0_mode == "aposteriori",
+                                       progress=step)
+                self._check_cancel()
                 top = np.argsort(-np.abs(np.nan_to_num(adj.w)), kind="stable")[:LOO_SUSPECTS]
                 loo = snooping.leave_one_out(adj, [int(i) for i in top])
         except (BaardaError, np.linalg.LinAlgError) as err:
-            self.analysis_error = f"Data snooping failed: {err}"
+            self.analysis_error = plain(f"Data snooping failed: {err}")
+            return False
+        if self.results is not adj:     # the problem changed meanwhile: the result is stale
             return False
         self.param.update(snoop=res, snoop_loo=loo, analysis_error="")
         return True
@@ -869,11 +1044,18 @@ class State(param.Parameterized):
                     sig2 = float(np.median(problem.cov.sigma()[image]) ** 2) if image.any() else 1.0
                     est = variance.estimate_components(problem, comps, theta0=[sig2 / 2, sig2 / 2, 1.0],
                                                        options=self.options())
+                    self._check_cancel()
+                    if self.results.problem is not problem:
+                        return False
                     self.param.update(components=est, variance=None, analysis_error="")
                     return True
                 vc = variance.estimate(problem, options=self.options())
+                self._check_cancel()
         except (BaardaError, np.linalg.LinAlgError) as err:
-            self.param.update(variance=None, components=None, analysis_error=f"Variance components: {err}")
+            self.param.update(variance=None, components=None,
+                              analysis_error=plain(f"Variance components: {err}"))
+            return False
+        if self.results.problem is not problem:
             return False
         self.param.update(variance=vc, components=None, analysis_error="")
         return True

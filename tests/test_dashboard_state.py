@@ -378,16 +378,64 @@ def test_bad_upload_gives_a_message(tmp_path):
     st = network_state("gama-local.gkf")
     adj = st.results
     fp = FilePanel(state=st)
-    fp.upload.filename = "broken.gkf"
-    fp.upload.value = b"<gama-local><network><points-observations><obs"
+    fp.upload.value = {"broken.gkf": b"<gama-local><network><points-observations><obs"}
     assert st.error.startswith("Cannot read broken.gkf") and "Traceback" not in st.error
-    assert fp.alert.visible and st.results is adj
-    fp.upload.filename = "photo.png"
-    fp.upload.value = b"\x89PNG\r\n"
+    assert "baarda-upload-" not in st.error and "/tmp" not in st.error
+    assert fp.alert.visible and st.results is adj and fp.upload.value == {}
+    fp.receive("photo.png", b"\x89PNG\r\n")
     assert "Cannot read photo.png" in st.error
-    fp.upload.filename = "ok.gkf"
-    fp.upload.value = (require_extdata(GAMA) / "triangle-1.gkf").read_bytes()
+    fp.receive("ok.gkf", (require_extdata(GAMA) / "triangle-1.gkf").read_bytes())
     assert st.error == "" and not fp.alert.visible and st.results is not adj
+
+
+def test_upload_limits_and_odd_names(tmp_path, monkeypatch):
+    """Empty, whitespace-only and too large files get a message; odd names (., .., paths,
+    control characters, markup) are read under a name of the server's own and shown as text;
+    no temporary directory is left behind."""
+    import glob
+    import tempfile
+
+    from baarda.dashboard.views import FilePanel
+    from baarda.dashboard.views import controls
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    st = network_state("gama-local.gkf")
+    adj = st.results
+    fp = FilePanel(state=st)
+    assert not fp.receive("e.gkf", b"") and st.error == "e.gkf is empty (0 bytes)."
+    assert not fp.receive("w.json", b" \n\t" * 1400) and "only whitespace" in st.error
+    monkeypatch.setattr(controls, "MAX_UPLOAD_MB", 1)
+    assert not fp.receive("big.gkf", b"x" * (1024 * 1024 + 1)) and "larger than 1 MB" in st.error
+    assert fp.upload.max_file_size == f"{controls.MAX_UPLOAD_MB}MB" or fp.upload.max_file_size.endswith("MB")
+    good = (require_extdata(GAMA) / "triangle-1.gkf").read_bytes()
+    for name in (".", "..", "../../etc/passwd.gkf", "a/b.gkf", "x\x1b[2J\ny.gkf", "<b>b</b>.gkf"):
+        assert controls.upload_name(name) not in (".", "..") and "/" not in controls.upload_name(name)
+        fp.receive(name, b"<gama-local>broken")
+        assert st.error.startswith("Cannot read ") and "\x1b" not in st.error and "\n" not in st.error
+        assert str(tmp_path) not in st.error and "baarda-upload-" not in st.error
+        assert st.results is adj
+    assert fp.receive("<iframe srcdoc=x>.gkf", good) and st.results is not adj
+    assert st.source == "<iframe srcdoc=x>.gkf" and "<iframe" not in fp.source.object
+    assert glob.glob(str(tmp_path / "baarda-upload-*")) == []
+
+
+def test_messages_and_selection_are_text_not_markup():
+    """Ids with markup, Markdown and control characters reach every pane as text."""
+    from baarda.dashboard.text import html_text, md_text
+    from baarda.dashboard.views import SelectionPanel
+
+    evil = '<iframe srcdoc="<script>parent.alert(1)</script>"> **b** [l](javascript:x) \x1b[31m\nz'
+    assert "<" not in html_text(evil) and "\x1b" not in html_text(evil) and "\\x1b" in html_text(evil)
+    md = md_text(evil)
+    rendered = pn.pane.Markdown(md)._transform_object(md)["object"]
+    import html as _html
+    out = _html.unescape(rendered)           # what the browser gets as HTML
+    assert "<iframe" not in out and "<strong>" not in out and "<a " not in out and "\x1b" not in out
+    assert "&lt;iframe" in out and "**b**" in out
+    st = network_state("gama-local.gkf")
+    sp = SelectionPanel(state=st)
+    st.selected_point = 0
+    assert "<b>Point " in sp.info.object and isinstance(sp.info, pn.pane.HTML)
 
 
 def test_report_is_standalone(tmp_path, block_problem):

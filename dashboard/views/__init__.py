@@ -2,7 +2,7 @@
 
 from .analysis import AnalysisPanel, InjectPanel
 from .criterion import CriterionView, RiskView
-from .controls import Controls, FilePanel, SelectionPanel
+from .controls import Controls, FilePanel, SelectionPanel, TaskPanel
 from .hypotheses import HypothesisPanel
 from .maps import (MAP_VIEWS, ExternalMap, ImageResidualView, LayoutMap, MDBMap, PrecisionMap,
                    RedundancyMap, ResidualMap)
@@ -12,4 +12,4 @@ from .teaching import TeachingView
 
 __all__ = ["AnalysisPanel", "InjectPanel", "Controls", "FilePanel", "SelectionPanel", "HypothesisPanel", "MAP_VIEWS", "ExternalMap",
            "ImageResidualView", "LayoutMap", "MDBMap", "PrecisionMap", "RedundancyMap", "ResidualMap",
-           "SummaryHeader", "TestsTable", "TeachingView", "CriterionView", "RiskView"]
+           "SummaryHeader", "TaskPanel", "TestsTable", "TeachingView", "CriterionView", "RiskView"]

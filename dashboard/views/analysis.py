@@ -13,6 +13,7 @@ import panel as pn
 import param
 
 from ..state import State, observation_label
+from ..text import md_text
 
 TABLE = dict(show_index=False, disabled=True, sizing_mode="stretch_width", layout="fit_data_stretch",
              stylesheets=[".tabulator { font-size: 12px; }"])
@@ -49,9 +50,9 @@ class AnalysisPanel(pn.viewable.Viewer):
                                                           css_classes=["variance-model"])
         self.variance_model.link(s, value="variance_model")
         self.variance_table = _table("variance-table", 110)
-        self.snoop_button.on_click(lambda e: s.run_snooping())
+        self.snoop_button.on_click(lambda e: s.submit("iterative data snooping", s.run_snooping))
         self.accept.on_click(lambda e: s.accept_snooping())
-        self.variance_button.on_click(lambda e: s.run_variance())
+        self.variance_button.on_click(lambda e: s.submit("variance components", s.run_variance))
         s.param.watch(self._robust, ["robust", "robust_method", "results"])
         s.param.watch(self._snoop, ["snoop", "snoop_loo", "results"])
         s.param.watch(self._variance, ["variance", "components", "results"])
@@ -61,7 +62,7 @@ class AnalysisPanel(pn.viewable.Viewer):
         self._variance()
 
     def _message(self, *_):
-        self.message.object = self.state.analysis_error
+        self.message.object = md_text(self.state.analysis_error)
         self.message.visible = bool(self.state.analysis_error)
 
     def _robust(self, *_):
@@ -73,7 +74,7 @@ class AnalysisPanel(pn.viewable.Viewer):
             self.robust_info.object = "*Robust reweighting is off (choose a method in the sidebar).*"
             return
         if rr is None:
-            self.robust_info.object = f"*{s.robust_method}: no result.*"
+            self.robust_info.object = f"*{md_text(s.robust_method)}: no result.*"
             return
         obs, _ = s.frames()
         rejected = obs.index[obs["rejected"] & ~obs["excluded"]].tolist()
@@ -157,8 +158,8 @@ class InjectPanel(pn.viewable.Viewer):
         obs, _ = s.frames()
         r = obs.loc[s.selected_obs]
         self.run.disabled = bool(r.excluded)
-        self.target.object = (f"**{observation_label(s.problem, s.selected_obs)}**: σ-scaled MDB = "
-                              f"{r.mdb_sigma:.2f} σ ({r.mdb:.4g} {r.unit}), r = {r.r:.3f}")
+        self.target.object = (f"**{md_text(observation_label(s.problem, s.selected_obs))}**: σ-scaled MDB = "
+                              f"{r.mdb_sigma:.2f} σ ({r.mdb:.4g} {md_text(r.unit)}), r = {r.r:.3f}")
 
     def _run(self, *_):
         s = self.state
@@ -168,7 +169,7 @@ class InjectPanel(pn.viewable.Viewer):
     def _show(self, *_):
         s = self.state
         inj = s.injection
-        self.message.object = s.analysis_error
+        self.message.object = md_text(s.analysis_error)
         self.message.visible = bool(s.analysis_error) and s.analysis_error.startswith("Cannot inject")
         self.keep.disabled = inj is None
         if inj is None:
@@ -179,9 +180,9 @@ class InjectPanel(pn.viewable.Viewer):
         group = ("" if inj["group_T"] is None else
                  f"  \nT of its group = {inj['group_T']:.2f} (critical {inj['group_critical']:.2f})")
         where = ("the same observation" if inj["largest_index"] == inj["index"]
-                 else f"obs {inj['largest_label']}")
+                 else f"obs {md_text(inj['largest_label'])}")
         self.result.object = (
-            f"Error of {inj['size']:g} {unit} = {inj['error']:.4g} {inj['error_unit']} "
+            f"Error of {inj['size']:g} {unit} = {inj['error']:.4g} {md_text(inj['error_unit'])} "
             f"in obs {inj['index']} (a copy of the data):  \n"
             f"{st} of that observation: {inj['w_before']:.3f} → **{inj['w_after']:.3f}** "
             f"(critical {inj['critical']:.3f}): **{'REJECTED' if inj['rejected'] else 'not rejected'}**  \n"

@@ -10,6 +10,7 @@ import pandas as pd
 from bokeh.models import NumeralTickFormatter
 
 from ..state import R_UNCONTROLLED, R_WEAK
+from ..text import plain
 
 STATUS_COLORS = {
     "fixed": "#111111", "adjusted": "#1f77b4", "constrained": "#9467bd",
@@ -84,7 +85,7 @@ def block_context(state) -> hv.Overlay:
             fp = np.asarray(fp, dtype=float)
             edges.append(np.hstack([fp, np.roll(fp, -1, axis=0)]))
         if "X0" in im and "Y0" in im:
-            centres.append((float(im["X0"]), float(im["Y0"]), str(im.get("id")), str(im.get("strip", ""))))
+            centres.append((float(im["X0"]), float(im["Y0"]), plain(im.get("id")), plain(im.get("strip", ""))))
             strips.setdefault(str(im.get("strip", "")), []).append((float(im["X0"]), float(im["Y0"])))
     edges = np.vstack(edges) if edges else np.zeros((0, 4))
     footprints = hv.Segments(edges, ["x0", "y0", "x1", "y1"], label="footprints" if len(edges) else "").opts(

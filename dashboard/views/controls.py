@@ -4,13 +4,17 @@ re-include, the image and exaggeration of block views, file upload and report ex
 from __future__ import annotations
 
 import io
+import re
+import shutil
 import tempfile
+import threading
 from pathlib import Path
 
 import panel as pn
 import param
 
 from ..state import ROBUST_METHODS, State, observation_label
+from ..text import html_text, md_text, plain
 
 ALPHAS = [1e-5, 1e-4, 2e-4, 5e-4, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1]
 MAX_UPLOAD_MB = 50
@@ -68,7 +72,7 @@ class SelectionPanel(pn.viewable.Viewer):
     def __init__(self, **params):
         super().__init__(**params)
         s = self.state
-        self.info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["selection-info"])
+        self.info = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["selection-info"])
         self.exclude = pn.widgets.Button(name="Exclude", button_type="warning", width=80)
         self.include = pn.widgets.Button(name="Re-include", width=90)
         self.test = pn.widgets.Button(name="Test it", width=70)
@@ -91,23 +95,26 @@ class SelectionPanel(pn.viewable.Viewer):
         if s.results is None:
             return
         obs, pts = s.frames()
-        text = "*Click a point or line on a map, or a row of the table.*"
+        # HTML built here; every string of the file goes through html_text (text, never markup)
+        text = "<i>Click a point or line on a map, or a row of the table.</i>"
         if s.selected_obs is not None:
             r = obs.loc[s.selected_obs]
-            text = (f"**Observation {observation_label(s.problem, s.selected_obs)}**  \n"
-                    f"v = {r.v:.4g} {r.unit}, w = {r.w:.3f}, τ = {r.tau:.3f}, r = {r.r:.3f}  \n"
-                    f"MDB = {r.mdb:.4g} {r.unit}, δ̄0 = {r.ext:.3g}"
-                    + ("  \n**excluded**" if r.excluded else ""))
+            unit = html_text(r.unit)
+            text = (f"<b>Observation {html_text(observation_label(s.problem, s.selected_obs))}</b><br>"
+                    f"v = {r.v:.4g} {unit}, w = {r.w:.3f}, τ = {r.tau:.3f}, r = {r.r:.3f}<br>"
+                    f"MDB = {r.mdb:.4g} {unit}, δ̄0 = {r.ext:.3g}"
+                    + ("<br><b>excluded</b>" if r.excluded else ""))
         elif s.selected_point is not None:
             p = pts.iloc[s.selected_point]
-            text = (f"**Point {p.id}** ({p.status}), {int(p.n_obs)} observations  \n"
+            text = (f"<b>Point {html_text(p.id)}</b> ({html_text(p.status)}), {int(p.n_obs)} observations<br>"
                     f"min r = {p.min_r:.3f}, max |w| = {p.max_w:.3f}, max δ̄0 = {p.max_ext:.3g}")
         self.info.object = text
         self.excluded.object = ("Excluded: " + ", ".join(str(i) for i in sorted(s.excluded))
                                 if s.excluded else "")
         images = [str(im.get("id")) for im in s.images]
-        if self.image.options != images:       # a thousand options are not sent again on every click
-            self.image.options = images
+        if list(self.image.options.values() if isinstance(self.image.options, dict) else self.image.options) \
+                != images:                     # a thousand options are not sent again on every click
+            self.image.options = {plain(i): i for i in images}
         self.image.visible = bool(images)
         self.exaggeration.visible = bool(images)
         if images and str(s.selected_image) in images:
@@ -132,41 +139,116 @@ class SelectionPanel(pn.viewable.Viewer):
                          sizing_mode="stretch_width")
 
 
+#: An uploaded file keeps its own name on the server only if the name is this simple.
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._ -]{0,100}")
+SAFE_SUFFIX = re.compile(r"\.[A-Za-z0-9]{1,8}")
+#: Uploads travel in chunks of this size (well under the server's websocket message limit).
+UPLOAD_CHUNK = 4 * 1024 * 1024
+
+
+def upload_name(name) -> str:
+    """A file name for an upload on the server: its own name when it is plain
+    (:data:`SAFE_NAME`; never ``.``, ``..``, a path or control characters), else ``upload``
+    with the name's extension if that is plain (the format is recognised by it)."""
+    name = str(name or "")
+    base = name.replace("\\", "/").rsplit("/", 1)[-1]
+    if SAFE_NAME.fullmatch(base) and base not in (".", ".."):
+        return base
+    suffix = Path(base).suffix if base not in (".", "..") else ""
+    return "upload" + (suffix.lower() if SAFE_SUFFIX.fullmatch(suffix) else "")
+
+
 class FilePanel(pn.viewable.Viewer):
-    """Upload a problem file (size limit, errors shown as a message) and export the report."""
+    """Upload a problem file and export the report.
+
+    The upload widget (:class:`panel.widgets.FileDropper`) refuses a file above
+    :data:`MAX_UPLOAD_MB` in the browser, before anything is sent, and sends the others in
+    chunks (:data:`UPLOAD_CHUNK`); the server checks the size again, refuses empty and
+    whitespace-only files with a message, and writes the file under a name of its own
+    (:func:`upload_name`) into a temporary directory that is removed as soon as the file has
+    been read (and, for a read still running, when the session ends: :meth:`cleanup`).
+    Messages show the upload's own name as text, never the server's path.
+    """
 
     state = param.ClassSelector(class_=State)
 
     def __init__(self, **params):
         super().__init__(**params)
         s = self.state
-        self.upload = pn.widgets.FileInput(accept=".gkf,.xml,.json", multiple=False,
-                                           sizing_mode="stretch_width", css_classes=["file-input"])
+        self.upload = pn.widgets.FileDropper(max_file_size=f"{MAX_UPLOAD_MB}MB", multiple=False, previews=[],
+                                             chunk_size=UPLOAD_CHUNK, layout="compact",
+                                             sizing_mode="stretch_width", css_classes=["file-input"])
         self.upload.param.watch(self._uploaded, "value")
+        self.limit = pn.pane.HTML(f"<small>Gama .gkf, baarda .json, Bundler .out, BAL; at most "
+                                  f"{MAX_UPLOAD_MB} MB</small>", sizing_mode="stretch_width")
         self.alert = pn.pane.Alert("", alert_type="danger", visible=False, sizing_mode="stretch_width",
                                    css_classes=["error-alert"])
         s.param.watch(self._show_error, "error")
         self.download = pn.widgets.FileDownload(callback=self._report, filename="baarda-report.html",
                                                 label="Download HTML report", button_type="success",
                                                 sizing_mode="stretch_width")
-        self.source = pn.pane.Markdown(pn.bind(lambda src: f"File: `{Path(src).name}`" if src else "",
-                                               s.param.source), sizing_mode="stretch_width")
+        self.source = pn.pane.HTML(pn.bind(lambda src: f"File: <code>{html_text(Path(src).name)}</code>"
+                                           if src else "", s.param.source),
+                                   sizing_mode="stretch_width", css_classes=["file-source"])
+        self._dirs: list[Path] = []
+        self._lock = threading.Lock()
         self._show_error()
 
     def _uploaded(self, event):
-        data = event.new
-        name = Path(self.upload.filename or "upload").name
-        if data is None:
+        if not event.new:
             return
+        name, data = list(event.new.items())[-1]
+        self.upload.param.update(value={}, mime_type={})   # the bytes are not kept in the session
+        self.receive(name, data)
+
+    def receive(self, name, data) -> bool:
+        """Check an uploaded file and read it (on a worker thread when served); False and a
+        message in ``state.error`` if it is refused."""
+        shown = plain(name) if name not in (None, "") else "the upload"
+        if isinstance(data, str):
+            data = data.encode("utf-8")
+        data = b"" if data is None else bytes(data)
         if len(data) > MAX_UPLOAD_MB * 1024 * 1024:
-            self.state.error = f"{name} is larger than {MAX_UPLOAD_MB} MB; run `baarda` on it instead."
-            return
-        tmp = Path(tempfile.mkdtemp(prefix="baarda-upload-")) / name
+            self.state.error = f"{shown} is larger than {MAX_UPLOAD_MB} MB; run `baarda` on it instead."
+            return False
+        if not data:
+            self.state.error = f"{shown} is empty (0 bytes)."
+            return False
+        if not data.strip():
+            self.state.error = f"{shown} contains only whitespace ({len(data)} bytes)."
+            return False
+        folder = Path(tempfile.mkdtemp(prefix="baarda-upload-"))
+        with self._lock:
+            self._dirs.append(folder)
+        tmp = folder / upload_name(name)
         tmp.write_bytes(data)
-        self.state.load(tmp)
+
+        def read():
+            try:
+                return self.state.load(tmp, name=shown)
+            finally:
+                self._remove(folder)
+
+        started = self.state.submit(f"reading {shown}", read)
+        if started is None:
+            self._remove(folder)
+            self.state.error = f"{shown}: wait until the running computation ends, or cancel it."
+            return False
+        return bool(started) if isinstance(started, bool) else True
+
+    def _remove(self, folder: Path) -> None:
+        shutil.rmtree(folder, ignore_errors=True)
+        with self._lock:
+            if folder in self._dirs:
+                self._dirs.remove(folder)
+
+    def cleanup(self, *_) -> None:
+        """Remove every temporary upload directory of this panel (session ended)."""
+        for folder in list(self._dirs):
+            self._remove(folder)
 
     def _show_error(self, *_):
-        self.alert.object = self.state.error
+        self.alert.object = md_text(self.state.error)
         self.alert.visible = bool(self.state.error)
 
     def _report(self):
@@ -175,5 +257,33 @@ class FilePanel(pn.viewable.Viewer):
         return io.StringIO(report_html(self.state.results, state=self.state))
 
     def __panel__(self):
-        return pn.Column("### File", self.source, self.upload, self.alert, self.download,
+        return pn.Column("### File", self.source, self.upload, self.limit, self.alert, self.download,
                          sizing_mode="stretch_width")
+
+
+class TaskPanel(pn.viewable.Viewer):
+    """The background computation of the session: what runs, how far it is, and Cancel."""
+
+    state = param.ClassSelector(class_=State)
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        s = self.state
+        self.bar = pn.indicators.Progress(active=True, value=-1, sizing_mode="stretch_width", height=12,
+                                          css_classes=["task-progress"])
+        self.text = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["task-text"])
+        self.cancel = pn.widgets.Button(name="Cancel", button_type="danger", width=90, css_classes=["task-cancel"])
+        self.cancel.on_click(lambda e: s.cancel())
+        self.box = pn.Column(self.bar, self.text, self.cancel, sizing_mode="stretch_width", visible=False,
+                             css_classes=["task-panel"])
+        s.param.watch(self._show, ["task", "progress"])
+        self._show()
+
+    def _show(self, *_):
+        s = self.state
+        self.box.visible = bool(s.task)
+        self.text.object = (f"<b>{html_text(s.task)}</b>" + (f"<br>{html_text(s.progress)}" if s.progress else "")
+                            if s.task else "")
+
+    def __panel__(self):
+        return self.box

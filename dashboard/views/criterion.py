@@ -18,6 +18,7 @@ import panel as pn
 import param
 
 from ..state import State, display_matrix, display_xy
+from ..text import labels, md_text, plain
 from .common import formatters
 
 KINDS = ["linear", "logarithmic", "exponential"]
@@ -38,7 +39,7 @@ class CriterionView(pn.viewable.Viewer):
         self.reason = s.criterion_reason()
         self.kind = pn.widgets.Select(name="structure", options=KINDS, value="logarithmic", width=150,
                                       css_classes=["criterion-kind"])
-        self.sbase = pn.widgets.MultiChoice(name="S-base", options=list(s.problem.points.ids),
+        self.sbase = pn.widgets.MultiChoice(name="S-base", options=labels(s.problem.points.ids),
                                             value=s.criterion_base(), css_classes=["criterion-sbase"])
         self.fit = pn.widgets.Button(name="Fit C1, C2", button_type="primary", width=120,
                                      css_classes=["criterion-fit"])
@@ -69,7 +70,7 @@ class CriterionView(pn.viewable.Viewer):
 
     def _show(self, *_):
         s = self.state
-        self.message.object = s.criterion_error
+        self.message.object = md_text(s.criterion_error)
         self.message.visible = bool(s.criterion_error)
         c = s.criterion
         if c is None:
@@ -79,7 +80,7 @@ class CriterionView(pn.viewable.Viewer):
                        "**satisfied** (λmax < 1)" if c["satisfied"] else "**NOT satisfied** (λmax ≥ 1)")
             self.info.object = (
                 f"{'Fitted' if c['fitted'] else 'Given'} {c['kind']} criterion in S-base "
-                f"{', '.join(c['sbase'])}: C1 = {c['C1']:.4g} m²/m, C2 = {c['C2']:.4g} m  \n"
+                f"{md_text(', '.join(c['sbase']))}: C1 = {c['C1']:.4g} m²/m, C2 = {c['C2']:.4g} m  \n"
                 f"λmax = {c['lam_max']:.4g}, λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}: {verdict}  \n"
                 "The map: the S-base points as squares, the eigenvector of λmax as arrows (the direction "
                 "in which the network is weakest relative to the criterion).")
@@ -88,7 +89,7 @@ class CriterionView(pn.viewable.Viewer):
     def _map(self):
         s = self.state
         e, n, xl, yl = display_xy(s.problem, s.results.coordinates)
-        pts = hv.Points((e, n, list(s.problem.points.ids)), [xl, yl], ["id"]).opts(
+        pts = hv.Points((e, n, [plain(i) for i in s.problem.points.ids]), [xl, yl], ["id"]).opts(
             color="#1f4e9c", size=6, tools=["hover"])
         c = s.criterion
         title = "Eigenvector of λmax (M84 §2.3)"
@@ -146,7 +147,7 @@ class RiskView(pn.viewable.Viewer):
             rc = self.state.risk_curve(float(self.p.value), float(self.L1.value), float(self.L2.value),
                                        float(self.lam.value))
         except (TypeError, ValueError) as err:
-            self.info.object = f"**Risk:** {err}"
+            self.info.object = f"**Risk:** {md_text(err)}"
             return
         self.rc = rc
         self.info.object = (f"C = **{rc['C']:.4f}** (closed form), α_C = {rc['alpha']:.3g}, "

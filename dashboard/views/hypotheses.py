@@ -11,7 +11,20 @@ import param
 
 from baarda.bundle import AP_GROUPS, APTest
 
-from ..state import State
+from ..state import State, observation_label
+from ..text import labels, md_text, plain
+
+
+def text_options(values) -> dict:
+    """Select options showing each value as text (control characters escaped); a label two
+    values would share gets a numbered suffix."""
+    out: dict = {}
+    for v in values:
+        label, k = plain(v), 2
+        while label in out:
+            label, k = f"{plain(v)} ({k})", k + 1
+        out[label] = v
+    return out
 
 KINDS = {
     "observation": "one observation",
@@ -82,6 +95,14 @@ class HypothesisPanel(pn.viewable.Viewer):
         block = self.state.block
         return [str(c["id"]) for c in block.get("cameras", [])] if isinstance(block, dict) else []
 
+    def _group_firsts(self) -> dict:
+        """First observation (full index) of every test group, in the order of the groups."""
+        g = np.asarray(self.state.problem.info.group)
+        groups, first = np.unique(g, return_index=True)
+        keep = groups >= 0
+        order = np.argsort(first[keep], kind="stable")
+        return {int(k): int(i) for k, i in zip(groups[keep][order], first[keep][order])}
+
     def _ap_options(self) -> dict:
         """AP groups: the estimated ones (``extra["ap_groups"]``) first, then the others."""
         est = self.state.problem.extra.get("ap_groups", {})
@@ -99,11 +120,10 @@ class HypothesisPanel(pn.viewable.Viewer):
         self.kind.options = self._available()
         self.obs_input.end = p.n - 1
         groups = {}
-        for i, g in enumerate(p.info.group):
-            if g >= 0 and int(g) not in groups.values():
-                groups[f"{int(g)}: " + self.state.describe({"kind": "group", "group": int(g)})] = int(g)
+        for g, i in self._group_firsts().items():     # one pass (a block has thousands of groups)
+            groups[plain(f"{g}: group {g} ({observation_label(p, i).split(' ', 2)[-1]})")] = g
         self.group.options = groups
-        self.camera.options = self._cameras()
+        self.camera.options = text_options(self._cameras())
         self.ap_group.options = self._ap_options()
         self._kind_changed()
 
@@ -117,7 +137,7 @@ class HypothesisPanel(pn.viewable.Viewer):
             pts = sorted({str(ids["id"]) for ids in p.info.ids if "id" in ids}, key=lambda x: (len(x), x))
         else:
             pts = []
-        self.point.options = pts
+        self.point.options = text_options(pts)
         self._point_changed()
         self.obs_input.visible = kind == "observation"
         self.group.visible = kind == "group"
@@ -130,8 +150,8 @@ class HypothesisPanel(pn.viewable.Viewer):
         p = self.state.problem
         ims = sorted({str(ids["image"]) for ids in p.info.ids
                       if str(ids.get("point")) == str(self.point.value) and "image" in ids})
-        self.image.options = ims
-        self.images.options = ims
+        self.image.options = text_options(ims)
+        self.images.options = labels(ims)
         self.images.value = ims[:2] if len(ims) >= 2 else ims
 
     def _follow_selection(self, *_):
@@ -140,7 +160,8 @@ class HypothesisPanel(pn.viewable.Viewer):
             self.obs_input.value = int(s.selected_obs)
         if s.selected_point is not None:
             pid = s.problem.points.ids[s.selected_point]
-            if pid in self.point.options:
+            if pid in (self.point.options.values() if isinstance(self.point.options, dict)
+                        else self.point.options):
                 self.point.value = pid
 
     def spec(self) -> dict:
@@ -168,7 +189,7 @@ class HypothesisPanel(pn.viewable.Viewer):
             self.state.add_hypothesis(spec)
             self.message.visible = False
         except (ValueError, KeyError, TypeError) as err:
-            self.message.object = f"Cannot build this hypothesis: {err}"
+            self.message.object = md_text(f"Cannot build this hypothesis: {err}")
             self.message.visible = True
 
     def _remove(self, *_):
@@ -191,11 +212,11 @@ class HypothesisPanel(pn.viewable.Viewer):
         factor, units = s.display_factor()
         rows = []
         for spec, h in zip(s.hypotheses, s.hyp_results + [None] * (len(s.hypotheses) - len(s.hyp_results))):
-            row = {"active": bool(spec.get("active", True)), "hypothesis": spec.get("label", ""),
+            row = {"active": bool(spec.get("active", True)), "hypothesis": plain(spec.get("label", "")),
                    "q": None, "T": None, "critical T": None, "R": None, "decision": "",
                    "∇ŝ": "", "σ∇ŝ": "", "δ0'max": None}
             if isinstance(h, str):
-                row["decision"] = h
+                row["decision"] = plain(h)
             elif isinstance(h, APTest):
                 row.update({"q": h.q, "T": round(h.T, 3), "critical T": round(h.critical, 3),
                             "decision": "SIGNIFICANT" if h.significant else "not significant",

@@ -24,6 +24,7 @@ from bokeh.events import Tap
 from baarda.hypotheses import HypothesisTest
 
 from ..state import State, display_matrix
+from ..text import labels, md_text, plain
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
                      round_scale, selection_layer, suspects_layer)
 
@@ -125,7 +126,7 @@ class MapView(pn.viewable.Viewer):
 
     def _overlay_opts(self):
         xl, yl = self.state.map_labels()
-        return hv.opts.Overlay(title=self.title(), xlabel=xl, ylabel=yl, legend_position="bottom", legend_cols=4,
+        return hv.opts.Overlay(title=plain(self.title()), xlabel=xl, ylabel=yl, legend_position="bottom", legend_cols=4,
                                show_legend=self.key == "layout", hooks=[self._hook],
                                **frame_size(self.points(), self.state.images), **formatters(), **MAP_OPTS)
 
@@ -146,7 +147,7 @@ class MapView(pn.viewable.Viewer):
         """The map as it is now, as a plain overlay (for the HTML report)."""
         overlay = functools.reduce(operator.mul, [block_context(self.state),
                                                   *(r().opts(*o) for r, _, o in self._layers)])
-        return overlay.opts(self._overlay_opts()).opts(hv.opts.Overlay(title=self.title(), hooks=[]))
+        return overlay.opts(self._overlay_opts()).opts(hv.opts.Overlay(title=plain(self.title()), hooks=[]))
 
     def cached(self, name: str, key: tuple, compute):
         """``compute()``, kept until ``key`` changes (shared by a layer and the title)."""
@@ -159,7 +160,7 @@ class MapView(pn.viewable.Viewer):
 
     def _hook(self, plot, element):
         fig = plot.state
-        fig.title.text = self.title()
+        fig.title.text = plain(self.title())
         if fig.id in self._hooked:
             return
         self._hooked.add(fig.id)
@@ -442,13 +443,13 @@ class PrecisionMap(MapView):
         s = self.state
         datum = s.datum_points()
         self.sbase = pn.widgets.MultiChoice(
-            name="S-base (empty: the problem's datum" + (f" — {', '.join(datum)})" if datum else
+            name="S-base (empty: the problem's datum" + (f" — {plain(', '.join(datum))})" if datum else
                                                         ", its fixed / weighted points)"),
-            options=list(s.problem.points.ids), value=list(s.sbase), css_classes=["sbase-choice"],
+            options=labels(s.problem.points.ids), value=list(s.sbase), css_classes=["sbase-choice"],
             sizing_mode="stretch_width", visible=s.problem.points.dim > 1, stylesheets=[INLINE_DROPDOWN])
         self.sbase.param.watch(lambda e: setattr(s, "sbase", list(e.new)), "value")
         s.param.watch(lambda e: setattr(self.sbase, "value", list(e.new)), "sbase")
-        self.note = pn.pane.Markdown(pn.bind(lambda *_: s.sbase_check(), s.param.solution, s.param.sbase),
+        self.note = pn.pane.Markdown(pn.bind(lambda *_: md_text(s.sbase_check()), s.param.solution, s.param.sbase),
                                      css_classes=["sbase-note"], sizing_mode="stretch_width",
                                      visible=s.problem.points.dim > 1)
 
@@ -477,7 +478,7 @@ class PrecisionMap(MapView):
         if s.problem.points.dim == 1:
             return f"Precision: σ of the heights [mm] ({sig})"
         _, scale, big = self._ellipses()
-        base = f"S-base {', '.join(s.sbase)}" if s.sbase and not s.sbase_error else "own datum"
+        base = f"S-base {plain(', '.join(s.sbase))}" if s.sbase and not s.sbase_error else "own datum"
         return f"Standard ellipses ×{scale:g}, max {1000 * big:.3g} mm ({sig}, {base})"
 
     def layers(self):
@@ -535,7 +536,7 @@ class ImageResidualView(pn.viewable.Viewer):
         value = np.asarray(s.problem.info.value_file, dtype=float)
         v, w = obs["v"].to_numpy(dtype=float), obs["w"].to_numpy(dtype=float)
         ex = s.exaggeration
-        return pd.DataFrame({"point": [t[0] for t in pts], "x": value[ix], "y": value[iy],
+        return pd.DataFrame({"point": [plain(t[0]) for t in pts], "x": value[ix], "y": value[iy],
                              "x1": value[ix] + ex * v[ix], "y1": value[iy] + ex * v[iy],
                              "vx": v[ix], "vy": v[iy], "abs_w": np.fmax(np.abs(w[ix]), np.abs(w[iy])),
                              "obs": ix}, columns=cols)
@@ -562,8 +563,8 @@ class ImageResidualView(pn.viewable.Viewer):
         if len(df):
             unit = s.frames()[0]["unit"].iat[int(df["obs"].iat[0])]
         return (border * vec * pts).opts(
-            hv.opts.Overlay(title=f"Image {s.selected_image}: residual vectors ×{s.exaggeration:g} "
-                                  f"(image units {unit}), colour |w|",
+            hv.opts.Overlay(title=f"Image {plain(s.selected_image)}: residual vectors ×{s.exaggeration:g} "
+                                  f"(image units {plain(unit)}), colour |w|",
                             xlabel=f"x [{unit}]", ylabel=f"y [{unit}]", frame_width=480, frame_height=480,
                             data_aspect=1, legend_position="top_left"))
 

@@ -3,13 +3,13 @@ block the images and strips."""
 
 from __future__ import annotations
 
-import html
 from pathlib import Path
 
 import panel as pn
 import param
 
 from ..state import State
+from ..text import html_text
 
 
 def summary_html(s: dict) -> str:
@@ -26,7 +26,7 @@ def summary_html(s: dict) -> str:
          + (f" ∈ [{g['lower']:.4g}, {g['upper']:.4g}]" if g["lower"] is not None else "")),
         ("σ0", f"a priori {s['sigma0_apriori']:.4g}<br>σ̂0 = " + ("–" if post is None else f"{post:.4g}")
          + f" (uses {s['sigma0_used']})"),
-        ("Model", f"n = {s['n_observations']}, u = {s['n_unknowns']}, r = {s['dof']}<br>{html.escape(s['datum'])}"),
+        ("Model", f"n = {s['n_observations']}, u = {s['n_unknowns']}, r = {s['dof']}<br>{html_text(s['datum'])}"),
         ("Tests", f"α0 = {s['alpha0']:g}, β0 = {s['beta0']:g}, δ0 = {s['delta0']:.3f}<br>"
          f"<b class='{'bad' if s['n_rejected'] else 'ok'}'>{s['n_rejected']} rejected</b>"),
         ("Reliability", f"{s['n_uncontrolled']} with r &lt; 0.1, {s['n_weak']} with r &lt; 0.3<br>"
@@ -48,14 +48,14 @@ class SummaryHeader(pn.viewable.Viewer):
 
     def __init__(self, **params):
         super().__init__(**params)
-        self.pane = pn.pane.HTML(pn.bind(self._html, self.state.param.results), sizing_mode="stretch_width",
-                                 css_classes=["summary"])
+        self.pane = pn.pane.HTML(pn.bind(self._html, self.state.param.results, self.state.param.task),
+                                 sizing_mode="stretch_width", css_classes=["summary"])
 
-    def _html(self, adj):
+    def _html(self, adj, task=""):
         if adj is None:
-            return "<i>No problem loaded.</i>"
+            return f"<i>{html_text(task)}…</i>" if task else "<i>No problem loaded.</i>"
         s = self.state.summary()
-        title = html.escape(s["title"] or Path(s["source"]).name)
+        title = html_text(s["title"] or Path(s["source"]).name)
         return f"<div style='font-size:15px;margin-bottom:4px'><b>{title}</b></div>" + summary_html(s)
 
     def __panel__(self):

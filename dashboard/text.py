@@ -1,0 +1,54 @@
+"""Strings from files and users made safe for the dashboard's panes: text, never markup.
+
+A point id, an image id, a title, a strip name, a hypothesis label or an upload's file name is
+written by whoever made the file. The dashboard shows such strings literally:
+
+- :func:`plain` shows control and other invisible characters as escapes (``\\n``, ``\\x1b``,
+  :func:`baarda.text.printable`), for Bokeh titles, labels and table cells (drawn as text);
+- :func:`html_text` also escapes ``<``, ``>``, ``&`` and quotes, for HTML panes, the HTML
+  report and widget labels that the browser renders as HTML (Choices.js in ``MultiChoice``);
+- :func:`md_text` escapes HTML and neutralises Markdown syntax (``*``, ``_``, ``[``, `` ` ``,
+  ``#`` …), for the few Markdown panes (``Alert``) that show a message with such strings.
+"""
+
+from __future__ import annotations
+
+import html
+import re
+
+from baarda.text import printable
+
+#: ASCII punctuation that CommonMark lets a backslash escape (``&``, ``<``, ``>`` become
+#: entities instead, so that no tag or entity is ever formed).
+_MD_SPECIAL = re.compile(r"([\\`*_{}\[\]()#+\-.!|~=:$'\"^%@/,?])")
+
+
+def plain(s) -> str:
+    """``s`` as one line of text: every non-printable character shown as an escape."""
+    return printable("" if s is None else s)
+
+
+def html_text(s) -> str:
+    """``s`` as HTML text: :func:`plain`, then ``< > & " '`` escaped."""
+    return html.escape(plain(s), quote=True)
+
+
+def md_text(s) -> str:
+    """``s`` as Markdown text that renders literally (no emphasis, link, code, heading, list
+    or HTML): :func:`plain`, ``& < >`` as entities and other punctuation backslash-escaped."""
+    t = _MD_SPECIAL.sub(r"\\\1", plain(s))
+    return t.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def labels(values) -> dict:
+    """``{html_text(v): v}`` for widget options whose labels the browser renders as HTML
+    (``MultiChoice``); a label two values would share gets a numbered suffix."""
+    out: dict = {}
+    for v in values:
+        label = html_text(v)
+        k = 2
+        while label in out:
+            label = f"{html_text(v)} ({k})"
+            k += 1
+        out[label] = v
+    return out
