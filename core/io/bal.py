@@ -29,19 +29,13 @@ from scipy.sparse.csgraph import connected_components
 
 from ..bal import SfmBlock, SfmCamera, SfmImage
 from ..errors import InputError
+from .source import Numbers, Truncated, open_binary
+from .source import read_text as _read_text
 
 
 def read_text(path) -> str:
-    """The text of ``path`` (UTF-8), or InputError."""
-    try:
-        data = Path(path).read_bytes()
-    except OSError as err:
-        raise InputError(path, 0, f"cannot read: {err.strerror}") from None
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as err:
-        line = data[:err.start].count(b"\n") + 1
-        raise InputError(path, line, f"not UTF-8 text (byte {err.start})") from None
+    """The text of ``path`` (UTF-8, decompressed when it is compressed), or InputError."""
+    return _read_text(path)
 
 
 class Tokens:
@@ -104,10 +98,10 @@ class Tokens:
         """k non-negative integers."""
         start = self.pos
         raw = self.take(k, what)
-        ok = all(t.isdigit() and len(t) < 18 for t in raw)
+        ok = all(t.isascii() and t.isdigit() and len(t) < 18 for t in raw)   # not '²', '①' (isdigit)
         if not ok:
             for j, t in enumerate(raw):
-                if not t.isdigit():
+                if not (t.isascii() and t.isdigit()):
                     self.fail(f"{what}: '{t[:40]}' is not a non-negative integer", self.lines[start + j])
                 if len(t) >= 18:
                     self.fail(f"{what}: {t[:40]} is too large", self.lines[start + j])
@@ -211,69 +205,91 @@ def read_bal(path, sigma_px: float = 1.0, refine_intrinsics: bool = True, check:
     sigma_px: σ of each image coordinate (pixels). refine_intrinsics: estimate f, k1, k2 of
     every camera (BAL's definition; False holds them at the file's values). check: apply
     :func:`check_block` (False reads blocks that cannot be adjusted, e.g. to evaluate a cost).
+
+    The file (plain or compressed, :mod:`baarda.io.source`) is read in chunks straight into
+    the arrays of the block: a header announcing more numbers than the file's size can hold is
+    refused before any number is read, and a file that ends early or goes on past the last
+    point is refused where it does.
     """
-    tk = Tokens(path, read_text(path))
-    if not tk.toks:
-        tk.fail("empty file: expected the header 'num_cameras num_points num_observations'", 1)
-    head_line = tk.line
-    ncam, npt, nobs = tk.ints(3, "header 'num_cameras num_points num_observations'")
-    if tk.lines[2] != head_line:
-        tk.fail("the header must be 'num_cameras num_points num_observations' on one line", head_line)
-    if ncam == 0 or npt == 0 or nobs == 0:
-        tk.fail(f"empty block: {ncam} cameras, {npt} points, {nobs} observations", head_line)
-    need = 4 * nobs + 9 * ncam + 3 * npt
-    if need > tk.left:
-        tk.fail(f"the header announces {nobs} observations, {ncam} cameras and {npt} points "
-                f"({need} numbers) but the file holds {tk.left} numbers after it", head_line)
-    start = tk.pos
-    raw = tk.take(4 * nobs, f"{nobs} observation lines 'camera point x y'")
-    lines = np.asarray(tk.lines[start:start + 4 * nobs], dtype=np.int64).reshape(nobs, 4)
-    split = np.flatnonzero(lines[:, 0] != lines[:, 3])
-    if split.size:
-        tk.fail(f"observation {split[0] + 1} must be one line 'camera point x y'", lines[split[0], 0])
-    tk.pos = start
-    idx = np.empty((nobs, 2), dtype=np.int64)
-    xy = np.empty((nobs, 2))
-    cols = np.array(raw, dtype=object).reshape(nobs, 4)
-    if all(t.isdigit() and len(t) < 18 for t in cols[:, :2].ravel()):
-        idx[:] = cols[:, :2].astype(np.int64)
-    else:
-        for k in range(nobs):
-            tk.pos = start + 4 * k
-            tk.ints(2, f"observation {k + 1}: camera and point index")
-    tk.pos = start
+    with open_binary(path) as f:
+        block = _read_bal(path, Numbers(path, f), getattr(f, "source", None), sigma_px, refine_intrinsics)
+    return check_block(path, block) if check else block
+
+
+def _read_bal(path, num: Numbers, src, sigma_px, refine_intrinsics) -> SfmBlock:
+    head_what = "header 'num_cameras num_points num_observations'"
     try:
-        xy[:] = cols[:, 2:].astype(float)
-        ok = bool(np.isfinite(xy).all())
-    except ValueError:
-        ok = False
-    if not ok:
-        for k in range(nobs):
-            tk.pos = start + 4 * k + 2
-            tk.floats(2, f"observation {k + 1}: image coordinates")
-    tk.pos = start + 4 * nobs
-    obs_line = tk.lines_of(start, nobs, 4)
+        h, hl, hlast = num.take(3, 3)
+    except Truncated as t:
+        if t.have == 0:
+            raise InputError(path, 1, f"empty file: expected the {head_what}") from None
+        raise InputError(path, num.line, f"the file ends early: expected {head_what} ({t.have} of 3 "
+                         "numbers present)") from None
+    head_line = int(hl[0])
+    num.check_ints(h, np.full(3, head_line), lambda j: j, lambda j: head_what)
+    if hlast[0] != head_line:
+        raise InputError(path, head_line, "the header must be 'num_cameras num_points num_observations' "
+                         "on one line")
+    ncam, npt, nobs = (int(v) for v in h)
+    if ncam == 0 or npt == 0 or nobs == 0:
+        raise InputError(path, head_line, f"empty block: {ncam} cameras, {npt} points, {nobs} observations")
+    need = 4 * nobs + 9 * ncam + 3 * npt
+    announce = f"the header announces {nobs} observations, {ncam} cameras and {npt} points ({need} numbers)"
+    size = getattr(src, "size", None)
+    if size is not None and need > (size + 1) // 2:
+        raise InputError(path, head_line, f"{announce} but the file of {size} bytes cannot hold them "
+                         f"(at most {(size + 1) // 2})")
+
+    def truncated(before: int, t: Truncated):
+        return InputError(path, head_line, f"{announce} but the file holds {before + t.have} numbers after it")
+
+    try:
+        v, first, last = num.take(4 * nobs, 4)
+    except Truncated as t:
+        raise truncated(0, t) from None
+    split = np.flatnonzero(first != last)
+    if split.size:
+        k = int(split[0])
+        raise InputError(path, int(first[k]), f"observation {k + 1} must be one line 'camera point x y'")
+    v = v.reshape(nobs, 4)
+    num.check_ints(v[:, :2].ravel(), first, lambda j: 3 + 4 * (j // 2) + j % 2,
+                   lambda j: f"observation {j // 2 + 1}: camera and point index")
+    num.check_finite(v[:, 2:].ravel(), first, lambda j: 5 + 4 * (j // 2) + j % 2,
+                     lambda j: f"observation {j // 2 + 1}: image coordinates")
+    idx = v[:, :2].astype(np.int64)
+    xy = np.ascontiguousarray(v[:, 2:])
+    del v
+    obs_line = first
     bad = np.flatnonzero(idx[:, 0] >= ncam)
     if bad.size:
         k = bad[0]
-        tk.fail(f"camera index {idx[k, 0]} out of range (the header has {ncam} cameras)", obs_line[k])
+        raise InputError(path, int(obs_line[k]), f"camera index {idx[k, 0]} out of range (the header has "
+                         f"{ncam} cameras)")
     bad = np.flatnonzero(idx[:, 1] >= npt)
     if bad.size:
         k = bad[0]
-        tk.fail(f"point index {idx[k, 1]} out of range (the header has {npt} points)", obs_line[k])
-    cam_start = tk.pos
-    cams = tk.floats(9 * ncam, f"9 parameters for each of the {ncam} cameras").reshape(ncam, 9)
-    cam_line = tk.lines_of(cam_start, ncam, 9)
-    pt_start = tk.pos
-    X = tk.floats(3 * npt, f"3 coordinates for each of the {npt} points").reshape(npt, 3)
-    pt_line = tk.lines_of(pt_start, npt, 3)
-    tk.end("the last point")
+        raise InputError(path, int(obs_line[k]), f"point index {idx[k, 1]} out of range (the header has "
+                         f"{npt} points)")
+    base = 3 + 4 * nobs
+    try:
+        cams, cl, _ = num.take(9 * ncam)
+    except Truncated as t:
+        raise truncated(4 * nobs, t) from None
+    num.check_finite(cams, cl, lambda j: base + j, lambda j: f"9 parameters for each of the {ncam} cameras")
+    cams = cams.reshape(ncam, 9)
+    base += 9 * ncam
+    try:
+        X, pl, _ = num.take(3 * npt)
+    except Truncated as t:
+        raise truncated(4 * nobs + 9 * ncam, t) from None
+    num.check_finite(X, pl, lambda j: base + j, lambda j: f"3 coordinates for each of the {npt} points")
+    X = X.reshape(npt, 3)
+    num.end("the last point")
     bad = np.flatnonzero(cams[:, 6] <= 0)
     if bad.size:
-        c = bad[0]
-        tk.fail(f"camera {c}: focal length f = {cams[c, 6]:g} must be > 0", int(cam_line[c]) + 6)
-    block = bal_block(cams, X, idx, xy, obs_line, cam_line, pt_line, "bal", path, sigma_px, refine_intrinsics)
-    return check_block(path, block) if check else block
+        c = int(bad[0])
+        raise InputError(path, int(cl[9 * c + 6]), f"camera {c}: focal length f = {cams[c, 6]:g} must be > 0")
+    return bal_block(cams, X, idx, xy, obs_line, cl[::9], pl[::3].copy(), "bal", path, sigma_px, refine_intrinsics)
 
 
 def bal_block(cams, X, idx, xy, obs_line, cam_line, pt_line, convention, path, sigma_px,

@@ -22,7 +22,8 @@ import numpy as np
 from ..bal import SfmBlock
 from ..errors import InputError
 from ..rotation import rodrigues_from_R
-from .bal import Tokens, bal_block, check_block, check_rotation, read_text
+from .bal import bal_block, check_block, check_rotation
+from .source import Numbers, open_binary
 
 HEADER = "# Bundle file v0.3"
 
@@ -32,73 +33,174 @@ def looks_like_bundler(head: str) -> bool:
 
 
 def read_bundler(path, sigma_px: float = 1.0, refine_intrinsics: bool = True, check: bool = True) -> SfmBlock:
-    """Read a Bundler v0.3 file into an :class:`baarda.bal.SfmBlock` (module docstring)."""
-    text = read_text(path)
-    first = text.lstrip().splitlines()[0].strip() if text.strip() else ""
-    if first.startswith("# Bundle file") and first != HEADER:
-        raise InputError(path, 1, f"unsupported Bundler version '{first[2:]}' (supported: v0.3)")
-    tk = Tokens(path, text, comment="#")
-    if not tk.toks:
-        tk.fail("empty file: expected 'num_cameras num_points'", 1)
-    head_line = tk.line
-    ncam, npt = tk.ints(2, "header 'num_cameras num_points'")
+    """Read a Bundler v0.3 file into an :class:`baarda.bal.SfmBlock` (module docstring).
+
+    The file (plain or compressed) is read in chunks into one array of numbers
+    (:class:`baarda.io.source.Numbers`); the structure (cameras, then points with their
+    views) is then found by one pass over the points, and every check is vectorised.
+    """
+    with open_binary(path) as f:
+        ln, prefix = 0, b""
+        while True:
+            raw = f.readline()
+            if not raw:
+                break
+            ln += 1
+            if raw.strip():
+                first = raw.decode("utf-8", "replace").strip()
+                if first.startswith("# Bundle file") and first != HEADER:
+                    raise InputError(path, ln, f"unsupported Bundler version '{first[2:]}' (supported: v0.3)")
+                if not first.startswith("#"):
+                    prefix = raw
+                    ln -= 1
+                break
+        num = Numbers(path, f, first_line=ln + 1, comment="#", prefix=prefix)
+        vals, lines = num.take_rest()
+    block = _bundler_block(path, num, vals, lines, sigma_px, refine_intrinsics)
+    return check_block(path, block) if check else block
+
+
+def _bundler_block(path, num, vals, lines, sigma_px, refine_intrinsics) -> SfmBlock:
+    n = vals.size
+    end_line = num.last_line
+    if n == 0:
+        raise InputError(path, 1, "empty file: expected 'num_cameras num_points'")
+    if n < 2:
+        raise InputError(path, end_line, "the file ends early: expected header 'num_cameras num_points' "
+                         "(1 of 2 numbers present)")
+    head_line = int(lines[0])
+    num.check_ints(vals[:2], lines[:2], lambda j: j, lambda j: "header 'num_cameras num_points'")
+    ncam, npt = int(vals[0]), int(vals[1])
     if ncam == 0 or npt == 0:
-        tk.fail(f"empty block: {ncam} cameras, {npt} points", head_line)
-    if 15 * ncam + 7 * npt > tk.left:
-        tk.fail(f"the header announces {ncam} cameras and {npt} points (at least {15 * ncam + 7 * npt} "
-                f"numbers) but the file holds {tk.left} numbers after it", head_line)
-    cams = np.empty((ncam, 9))
-    rho = np.empty((ncam, 3))
-    cam_line = np.empty(ncam, dtype=np.int64)
-    valid = np.ones(ncam, dtype=bool)
-    for c in range(ncam):
-        cam_line[c] = tk.line
-        fk = tk.floats(3, f"camera {c}: f k1 k2")
-        R = tk.floats(9, f"camera {c}: rotation matrix (3 lines of 3)").reshape(3, 3)
-        t = tk.floats(3, f"camera {c}: translation")
-        if fk[0] == 0 and not R.any():
-            valid[c] = False
-            cams[c] = 0.0
-            rho[c] = 0.0
-            continue
-        if fk[0] <= 0:
-            tk.fail(f"camera {c}: focal length f = {fk[0]:g} must be > 0", int(cam_line[c]))
-        check_rotation(path, int(cam_line[c]) + 1, R, f"camera {c}")
-        rho[c] = rodrigues_from_R(R)
-        cams[c] = np.r_[0.0, 0.0, 0.0, t, fk]
-    X = np.empty((npt, 3))
-    pt_line = np.empty(npt, dtype=np.int64)
-    idx, xy, obs_line = [], [], []
-    for p in range(npt):
-        pt_line[p] = tk.line
-        X[p] = tk.floats(3, f"point {p}: X Y Z")
-        tk.floats(3, f"point {p}: colour R G B")
-        n_line = tk.line
-        (nv,) = tk.ints(1, f"point {p}: number of views")
-        if nv > ncam:
-            tk.fail(f"point {p}: {nv} views but only {ncam} cameras", n_line)
-        for _ in range(nv):
-            line = tk.line
-            c, _key = tk.ints(2, f"point {p}: view 'camera key x y'")
-            if c >= ncam:
-                tk.fail(f"point {p}: camera index {c} out of range (the header has {ncam} cameras)", line)
-            if not valid[c]:
-                tk.fail(f"point {p}: camera {c} was not reconstructed (all zeros) but has a view", line)
-            idx.append((c, p))
-            xy.append(tk.floats(2, f"point {p}: view image coordinates"))
-            obs_line.append(line)
-    tk.end("the last point")
-    idx = np.array(idx, dtype=np.int64).reshape(-1, 2)
-    xy = np.array(xy, dtype=float).reshape(-1, 2)
+        raise InputError(path, head_line, f"empty block: {ncam} cameras, {npt} points")
+    if 15 * ncam + 7 * npt > n - 2:
+        raise InputError(path, head_line, f"the header announces {ncam} cameras and {npt} points (at least "
+                         f"{15 * ncam + 7 * npt} numbers) but the file holds {n - 2} numbers after it")
+    # cameras: f k1 k2 / R (9) / t (3)
+    field = ("f k1 k2",) * 3 + ("rotation matrix (3 lines of 3)",) * 9 + ("translation",) * 3
+    C = vals[2:2 + 15 * ncam]
+    num.check_finite(C, lines[2:2 + 15 * ncam], lambda j: 2 + j, lambda j: f"camera {j // 15}: {field[j % 15]}")
+    C = C.reshape(ncam, 15)
+    cam_line = lines[2:2 + 15 * ncam:15]
+    fk, R, t = C[:, :3], C[:, 3:12].reshape(ncam, 3, 3), C[:, 12:]
+    valid = ~((fk[:, 0] == 0) & ~R.reshape(ncam, 9).any(axis=1))
+    rho = np.zeros((ncam, 3))
+    cams = np.zeros((ncam, 9))
+    for c in np.flatnonzero(valid):
+        if fk[c, 0] <= 0:
+            raise InputError(path, int(cam_line[c]), f"camera {c}: focal length f = {fk[c, 0]:g} must be > 0")
+        check_rotation(path, int(lines[2 + 15 * c + 3]), R[c], f"camera {c}")
+        rho[c] = rodrigues_from_R(R[c])
+        cams[c] = np.r_[0.0, 0.0, 0.0, t[c], fk[c]]
+    # points: X Y Z / R G B / n, then n × (camera key x y); one pass finds where each starts
+    offs, nview, stop, err = _point_offsets(vals, 2 + 15 * ncam, npt, ncam)
+    # the first bad number before the structure broke (in file order) comes first
+    span = slice(2 + 15 * ncam, stop)
+    seg = vals[span]
+    bad_at = None
+    nonfinite = np.flatnonzero(~np.isfinite(seg))
+    if nonfinite.size:
+        bad_at = int(nonfinite[0]) + span.start
+    view_start = np.repeat(offs[:len(nview)] + 7, nview) + 4 * _ranks(nview)
+    int_pos = np.concatenate([view_start, view_start + 1])
+    int_pos.sort()
+    iv = vals[int_pos]
+    not_int = np.flatnonzero(~(np.isfinite(iv) & (iv >= 0) & (iv == np.floor(iv)) & (iv < 1e17)))
+    if not_int.size and (bad_at is None or int_pos[not_int[0]] < bad_at):
+        bad_at = int(int_pos[not_int[0]])
+    if err is not None and err[1] is None and (bad_at is None or err[0] < bad_at):
+        bad_at = err[0]                     # a number of views that is not a count
+    if bad_at is not None and (err is None or bad_at < err[0]):
+        p, what = _describe(bad_at, offs, nview)
+        if np.isfinite(vals[bad_at]) or what.endswith("number of views"):
+            num.check_ints(vals[bad_at:bad_at + 1], lines[bad_at:bad_at + 1], lambda j: bad_at, lambda j: what)
+        num.check_finite(vals[bad_at:bad_at + 1], lines[bad_at:bad_at + 1], lambda j: bad_at, lambda j: what)
+    if err is not None:
+        raise InputError(path, int(lines[err[0]]) if err[0] < n else end_line, err[1])
+    cam_of = vals[view_start].astype(np.int64)
+    obs_pt = np.repeat(np.arange(npt), nview)
+    bad = np.flatnonzero(cam_of >= ncam)
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(path, int(lines[view_start[k]]), f"point {obs_pt[k]}: camera index {cam_of[k]} out of "
+                         f"range (the header has {ncam} cameras)")
+    bad = np.flatnonzero(~valid[cam_of])
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(path, int(lines[view_start[k]]), f"point {obs_pt[k]}: camera {cam_of[k]} was not "
+                         "reconstructed (all zeros) but has a view")
+    if stop < n:
+        t0 = num.text(stop, float(vals[stop]))
+        raise InputError(path, int(lines[stop]), f"unexpected '{t0[:40]}' after the last point (the counts in "
+                         "the header do not match the file)")
+    X = vals[offs[:, None] + np.arange(3)]
+    xy = np.c_[vals[view_start + 2], vals[view_start + 3]]
+    obs_line = lines[view_start]
+    pt_line = lines[offs]
     keep = np.flatnonzero(valid)
     renumber = np.full(ncam, -1, dtype=np.int64)
     renumber[keep] = np.arange(keep.size)
-    block = bal_block(cams[keep], X, np.c_[renumber[idx[:, 0]], idx[:, 1]], xy, np.array(obs_line, dtype=np.int64),
-                      cam_line[keep], pt_line, "bundler", path, sigma_px, refine_intrinsics, rodrigues=rho[keep])
+    block = bal_block(cams[keep], X, np.c_[renumber[cam_of], obs_pt], xy, obs_line, cam_line[keep], pt_line,
+                      "bundler", path, sigma_px, refine_intrinsics, rodrigues=rho[keep])
     if keep.size < ncam:
         ids = [str(c) for c in keep]
         block = block.replace(cameras=tuple(c.__class__(ids[k], c.model, c.params, line=c.line)
                                             for k, c in enumerate(block.cameras)),
                               images=tuple(im.__class__(ids[k], ids[k], im.rodrigues, im.t, line=im.line)
                                            for k, im in enumerate(block.images)))
-    return check_block(path, block) if check else block
+    return block
+
+
+def _ranks(counts: np.ndarray) -> np.ndarray:
+    """0, 1, ..., counts[0] − 1, 0, 1, ... (the rank of each view within its point)."""
+    total = int(counts.sum())
+    starts = np.repeat(np.cumsum(counts) - counts, counts)
+    return np.arange(total) - starts
+
+
+def _point_offsets(vals, pos: int, npt: int, ncam: int):
+    """Start of each point's numbers, its number of views, the position after the last point,
+    and (position, message) of the first structural error or None."""
+    n = vals.size
+    offs = np.empty(npt, dtype=np.int64)
+    nviews = []
+    for p in range(npt):
+        offs[p] = pos
+        if pos + 7 > n:
+            have = n - pos
+            what = (f"point {p}: X Y Z ({have} of 3" if have < 3 else
+                    f"point {p}: colour R G B ({have - 3} of 3" if have < 6 else
+                    f"point {p}: number of views (0 of 1")
+            return offs[:p + 1], np.array(nviews, dtype=np.int64), n, \
+                (n, f"the file ends early: expected {what} numbers present)")
+        nv = vals[pos + 6]
+        if not (nv < 1e17 and nv >= 0 and nv == np.floor(nv)):
+            return offs[:p + 1], np.array(nviews, dtype=np.int64), pos + 6, (pos + 6, None)
+        nv = int(nv)
+        if nv > ncam:
+            return offs[:p + 1], np.array(nviews, dtype=np.int64), pos + 6, \
+                (pos + 6, f"point {p}: {nv} views but only {ncam} cameras")
+        if pos + 7 + 4 * nv > n:
+            have = n - pos - 7
+            k, r = divmod(have, 4)
+            what = (f"point {p}: view 'camera key x y' ({r} of 2" if r < 2 else
+                    f"point {p}: view image coordinates ({r - 2} of 2")
+            nviews.append(k)
+            return offs[:p + 1], np.array(nviews, dtype=np.int64), n, \
+                (n, f"the file ends early: expected {what} numbers present)")
+        nviews.append(nv)
+        pos += 7 + 4 * nv
+    return offs, np.array(nviews, dtype=np.int64), pos, None
+
+
+def _describe(at: int, offs, nview) -> tuple[int, str]:
+    """(point, what) of the number at position ``at``."""
+    p = int(np.searchsorted(offs, at, side="right")) - 1
+    r = at - int(offs[p])
+    if r < 3:
+        return p, f"point {p}: X Y Z"
+    if r < 6:
+        return p, f"point {p}: colour R G B"
+    if r == 6:
+        return p, f"point {p}: number of views"
+    return p, (f"point {p}: view 'camera key x y'" if (r - 7) % 4 < 2 else f"point {p}: view image coordinates")

@@ -1,0 +1,374 @@
+"""Opening input files: transparent decompression and chunked reading of numbers.
+
+Every reader opens its file through :func:`open_binary`, :func:`read_bytes` or
+:func:`read_text`, so each format may come compressed with gzip (``.gz``), bzip2 (``.bz2``)
+or xz (``.xz``). The compression is recognised by the file's first bytes (gzip ``1f 8b``,
+bzip2 ``BZh``, xz ``fd 37 7a 58 5a 00``), so a ``problem.txt`` that is really bzip2 reads too;
+a file whose extension says compressed but whose content is not is refused. Errors name the
+file as the user gave it (``problem.txt.bz2:12: ...``) with the line of the decompressed text;
+corrupt or truncated compressed data is an :class:`~baarda.errors.InputError`.
+
+:class:`Numbers` reads the whitespace-separated numbers of a text stream in chunks of a few
+megabytes, parsed by numpy, so that a reader never holds the file's text and its numbers at
+the same time: only the numbers asked for (float64) and the line of each group of them.
+"""
+
+from __future__ import annotations
+
+import bz2
+import gzip
+import io
+import lzma
+import re
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+#: compression → (first bytes, file extension, name used in messages)
+COMPRESSIONS = {"gzip": (b"\x1f\x8b", ".gz"), "bzip2": (b"BZh", ".bz2"), "xz": (b"\xfd7zXZ\x00", ".xz")}
+EXTENSIONS = {ext: name for name, (_, ext) in COMPRESSIONS.items()}
+_OPENERS = {"gzip": gzip.GzipFile, "bzip2": bz2.BZ2File, "xz": lzma.LZMAFile}
+_CORRUPT = (OSError, EOFError, lzma.LZMAError, zlib.error)
+
+
+def compression(path) -> str | None:
+    """``"gzip"``, ``"bzip2"``, ``"xz"`` or None for a plain file, from its first bytes.
+
+    InputError when the file cannot be read, or when its extension names a compression its
+    content does not have."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            magic = f.read(6)
+    except OSError as err:
+        raise InputError(path, 0, f"cannot read: {err.strerror or err}") from None
+    for name, (head, _) in COMPRESSIONS.items():
+        if magic.startswith(head):
+            return name
+    claimed = EXTENSIONS.get(p.suffix.lower())
+    if claimed is not None:
+        raise InputError(path, 1, f"the name says {claimed}-compressed ({p.suffix}) but the content is not")
+    return None
+
+
+def logical_path(path) -> Path:
+    """The path without a compression extension: ``problem.txt.bz2`` → ``problem.txt``."""
+    p = Path(path)
+    return p.with_suffix("") if p.suffix.lower() in EXTENSIONS else p
+
+
+class Source(io.RawIOBase):
+    """A readable binary stream of a file's (decompressed) content.
+
+    Read errors of the decompressor become InputError naming the file; ``nread`` counts the
+    decompressed bytes delivered so far; ``size`` is the file's size in bytes when it is not
+    compressed (None otherwise)."""
+
+    def __init__(self, path, kind: str | None):
+        super().__init__()
+        self.path = str(path)
+        self.kind = kind
+        self.nread = 0
+        try:
+            raw = open(path, "rb")
+        except OSError as err:
+            raise InputError(path, 0, f"cannot read: {err.strerror or err}") from None
+        self.size = None if kind else Path(path).stat().st_size
+        self._f = raw if kind is None else _OPENERS[kind](fileobj=raw, mode="rb")
+        self._raw = raw
+
+    def readable(self):
+        return True
+
+    def readinto(self, b):
+        try:
+            n = self._f.readinto(b)
+        except _CORRUPT as err:
+            what = f"{self.kind} data" if self.kind else "file"
+            raise InputError(self.path, 0, f"corrupt or truncated {what} after {self.nread} bytes of "
+                             f"decompressed text ({err})") from None
+        self.nread += n or 0
+        return n
+
+    def close(self):
+        if not self.closed:
+            try:
+                if self._f is not self._raw:
+                    self._f.close()
+            finally:
+                self._raw.close()
+        super().close()
+
+
+def open_binary(path) -> io.BufferedReader:
+    """The content of ``path`` as a buffered binary stream, decompressed (module docstring)."""
+    src = Source(path, compression(path))
+    buf = io.BufferedReader(src, buffer_size=1 << 20)
+    buf.source = src
+    return buf
+
+
+def read_bytes(path) -> bytes:
+    """The whole (decompressed) content of ``path``."""
+    with open_binary(path) as f:
+        return f.read()
+
+
+def head(path, n: int = 4096) -> bytes:
+    """The first ``n`` bytes of the (decompressed) content of ``path``."""
+    with open_binary(path) as f:
+        return f.read(n)
+
+
+def decode(path, data: bytes, first_line: int = 1) -> str:
+    """``data`` as UTF-8 text, or InputError at the line of the first bad byte."""
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = first_line + data[:err.start].count(b"\n")
+        raise InputError(path, line, f"not UTF-8 text (byte {err.start})") from None
+
+
+def read_text(path) -> str:
+    """The (decompressed) text of ``path`` as UTF-8, or InputError."""
+    return decode(path, read_bytes(path))
+
+
+# --------------------------------------------------------------------------------------------
+# numbers in chunks
+# --------------------------------------------------------------------------------------------
+class Truncated(Exception):
+    """The stream ended before the numbers asked for: ``have`` of them were there."""
+
+    def __init__(self, have: int):
+        super().__init__(have)
+        self.have = have
+
+
+_TOKEN_END = re.compile(rb"[ \t\n\r\x0b\x0c]")
+_WS = np.zeros(256, dtype=bool)
+_WS[[9, 10, 11, 12, 13, 32]] = True
+
+
+class Numbers:
+    """Whitespace-separated numbers of a binary text stream, read in chunks (module docstring).
+
+    Each chunk (whole lines, about ``chunk`` bytes) is parsed at once by numpy; only a chunk
+    numpy refuses (a word, a comment, bad UTF-8) goes through Python token by token, where an
+    unreadable token becomes NaN and its text is kept for the message. ``comment``: lines
+    starting with it (after blanks) are skipped. ``line`` is the line of the next number.
+    """
+
+    def __init__(self, path, stream, first_line: int = 1, comment: str | None = None, chunk: int = 1 << 22,
+                 prefix: bytes = b""):
+        self.path = str(path)
+        self.stream = stream
+        self.comment = comment
+        self.chunk = chunk
+        self.next_line = first_line      # line number at the start of the next chunk
+        self.last_line = max(first_line - 1, 1)
+        self.tail = prefix               # text read ahead by the caller
+        self.eof = False
+        self.consumed = 0                # numbers taken so far
+        self.odd = {}                    # global index → text of a non-finite or unreadable token
+        self._set_chunk(np.zeros(0), np.zeros(0, dtype=np.int64), [])
+
+    # -- chunks ------------------------------------------------------------------------------
+    def _set_chunk(self, vals, lines, texts, buf=b"", starts=None):
+        self.vals, self.lines, self.texts, self.i = vals, lines, texts, 0
+        self.base = self.consumed        # global index of vals[0]
+        self.buf, self.starts = buf, starts
+
+    def _read_chunk(self) -> bool:
+        """Parse the next chunk of whole lines; False at the end of the stream."""
+        while True:
+            if self.eof:
+                return False
+            data = self.stream.read(self.chunk)
+            if not data:
+                self.eof = True
+                buf, self.tail = self.tail, b""
+            else:
+                data = self.tail + data
+                cut = data.rfind(b"\n")
+                if cut < 0:
+                    self.tail = data
+                    continue
+                buf, self.tail = data[:cut + 1], data[cut + 1:]
+            if not buf:
+                return False
+            first = self.next_line
+            nl = buf.count(b"\n")
+            self.next_line += nl
+            self.last_line = first + nl - (1 if buf.endswith(b"\n") else 0)
+            self._parse(buf, first)
+            if self.vals.size:
+                return True
+
+    def _parse(self, buf: bytes, first: int):
+        b = np.frombuffer(buf, dtype=np.uint8)
+        ws = _WS[b]
+        start = ~ws
+        start[1:] &= ws[:-1]
+        starts = np.flatnonzero(start)
+        vals = None
+        if starts.size and (self.comment is None or self.comment.encode() not in buf):
+            try:
+                vals = np.fromstring(buf, dtype=float, sep=" ")
+            except ValueError:
+                vals = None
+            if vals is not None and vals.size != starts.size:
+                vals = None
+        if vals is None and starts.size:
+            self._parse_slow(buf, first)
+            return
+        lines = first + np.searchsorted(np.flatnonzero(b == 10), starts)
+        vals = np.zeros(0) if vals is None else vals
+        self._set_chunk(vals, lines.astype(np.int64), None, buf, starts)
+        if not np.isfinite(vals).all():
+            for j in np.flatnonzero(~np.isfinite(vals))[:1000]:
+                self._note(self.base + int(j), self._raw(int(j)))
+
+    def _raw(self, j: int) -> str:
+        """Text of token j of the current (fast-parsed) chunk."""
+        a = int(self.starts[j])
+        m = _TOKEN_END.search(self.buf, a)
+        return self.buf[a:m.start() if m else len(self.buf)].decode("utf-8", "replace")
+
+    def _note(self, index, text):
+        if len(self.odd) < 10000:
+            self.odd[index] = text
+
+    def _parse_slow(self, buf: bytes, first: int):
+        text = decode(self.path, buf, first)
+        vals, lines, texts = [], [], []
+        for ln, s in enumerate(text.split("\n"), first):
+            if self.comment and s.lstrip().startswith(self.comment):
+                continue
+            for t in s.split():
+                try:
+                    v = float(t)
+                except ValueError:
+                    v = float("nan")
+                vals.append(v)
+                lines.append(ln)
+                texts.append(t)
+        self._set_chunk(np.array(vals, dtype=float), np.array(lines, dtype=np.int64), texts)
+        for j, v in enumerate(self.vals):
+            if not np.isfinite(v):
+                self._note(self.base + j, texts[j])
+
+    # -- reading -----------------------------------------------------------------------------
+    @property
+    def line(self) -> int:
+        """Line of the next number (the last line at the end of the stream)."""
+        if self.i < self.vals.size or self._read_chunk():
+            return int(self.lines[self.i])
+        return self.last_line
+
+    def text(self, index: int, value: float | None = None) -> str:
+        """The text of number ``index`` (global) as the file has it, as far as it is known."""
+        if index in self.odd:
+            return self.odd[index]
+        j = index - self.base
+        if 0 <= j < self.vals.size:
+            return self.texts[j] if self.texts is not None else self._raw(j)
+        return "" if value is None else f"{value:.17g}".replace("e+", "e")
+
+    def take(self, n: int, group: int = 1):
+        """The next ``n`` numbers: (values (n,), the line of the first and of the last number of
+        each group of ``group``, (n // group,) each). Raises :class:`Truncated` at the end."""
+        pieces, firsts, lasts = [], [], []
+        got = 0
+        while got < n:
+            if self.i >= self.vals.size and not self._read_chunk():
+                raise Truncated(got)
+            k = min(n - got, self.vals.size - self.i)
+            sl = slice(self.i, self.i + k)
+            pos = got + np.arange(k) if group > 1 else None
+            pieces.append(self.vals[sl])
+            if group == 1:
+                firsts.append(self.lines[sl])
+            else:
+                lines = self.lines[sl]
+                firsts.append(lines[pos % group == 0])
+                lasts.append(lines[pos % group == group - 1])
+            self.i += k
+            self.consumed += k
+            got += k
+        vals = pieces[0] if len(pieces) == 1 else np.concatenate(pieces) if pieces else np.zeros(0)
+        first = np.concatenate(firsts) if firsts else np.zeros(0, dtype=np.int64)
+        last = first if group == 1 else (np.concatenate(lasts) if lasts else np.zeros(0, dtype=np.int64))
+        return vals, first, last
+
+    def take_rest(self):
+        """All numbers left: (values, line of each)."""
+        pieces, lines = [], []
+        while self.i < self.vals.size or self._read_chunk():
+            pieces.append(self.vals[self.i:])
+            lines.append(self.lines[self.i:])
+            self.consumed += self.vals.size - self.i
+            self.i = self.vals.size
+        if not pieces:
+            return np.zeros(0), np.zeros(0, dtype=np.int64)
+        return np.concatenate(pieces), np.concatenate(lines)
+
+    def peek(self) -> tuple[str, int] | None:
+        """(text, line) of the next number, or None at the end of the stream."""
+        if self.i >= self.vals.size and not self._read_chunk():
+            return None
+        return self.text(self.consumed), int(self.lines[self.i])
+
+    def count_rest(self) -> int:
+        """How many numbers are left (reads, and drops, them all)."""
+        n = self.vals.size - self.i
+        self.consumed += n
+        self.i = self.vals.size
+        while self._read_chunk():
+            n += self.vals.size
+            self.consumed += self.vals.size
+            self.i = self.vals.size
+        return n
+
+    def end(self, what: str):
+        """InputError unless the stream has no more numbers."""
+        nxt = self.peek()
+        if nxt is not None:
+            raise InputError(self.path, nxt[1], f"unexpected '{nxt[0][:40]}' after {what} (the counts in "
+                             "the header do not match the file)")
+
+    # -- checks on what was taken --------------------------------------------------------------
+    def check_finite(self, vals, lines, where, what):
+        """InputError at the first non-finite value of ``vals``. lines: the line of each value,
+        or of each group of len(vals) // len(lines); where(j): the global index of value j;
+        what(j): what value j is."""
+        bad = ~np.isfinite(vals)
+        if bad.any():
+            self._fail(vals, lines, where, what, int(np.flatnonzero(bad)[0]), "finite")
+
+    def check_ints(self, vals, lines, where, what):
+        """InputError at the first value that is not a non-negative integer below 10¹⁷."""
+        ok = np.isfinite(vals) & (vals >= 0) & (vals == np.floor(vals)) & (vals < 1e17)
+        if not ok.all():
+            self._fail(vals, lines, where, what, int(np.flatnonzero(~ok)[0]), "int")
+
+    def _fail(self, vals, lines, where, what, j, kind):
+        v = float(vals[j])
+        t = self.text(int(where(j)), v)
+        group = max(vals.size // max(lines.size, 1), 1)
+        line = int(lines[j // group])
+        if kind == "int":
+            if np.isfinite(v) and v >= 1e17:
+                raise InputError(self.path, line, f"{what(j)}: {t[:40]} is too large")
+            raise InputError(self.path, line, f"{what(j)}: '{t[:40]}' is not a non-negative integer")
+        if np.isnan(v) and t.strip().lower() not in ("nan", "+nan", "-nan"):
+            raise InputError(self.path, line, f"{what(j)}: '{t[:40]}' is not a number")
+        raise InputError(self.path, line, f"{what(j)}: {t[:40]} is not a finite number")
+
+
+def numbers(path, comment: str | None = None, chunk: int = 1 << 22) -> Numbers:
+    """A :class:`Numbers` reader of ``path`` (close it with ``.stream.close()``)."""
+    return Numbers(path, open_binary(path), comment=comment, chunk=chunk)
