@@ -48,6 +48,13 @@ def _circular_mean(angles) -> float:
     return math.atan2(sum(math.sin(a) for a in angles), sum(math.cos(a) for a in angles))
 
 
+def _median(values) -> float:
+    """Median of a short list, the same number as ``np.median`` (mean of the middle two)."""
+    v = sorted(values)
+    n = len(v)
+    return float(v[n // 2]) if n % 2 else float((v[n // 2 - 1] + v[n // 2]) / 2.0)
+
+
 def _median_point(cands):
     arr = np.asarray(cands, dtype=float)
     return tuple(np.median(arr, axis=0))
@@ -96,6 +103,8 @@ class _Approx:
                 v = self.vec[o.group_key or f"#{k}"]
                 v["from"], v["to"] = p
                 v[o.kind[1]] = o.value
+                if o.kind == "dz":  # Δz between the marks (the vector joins the antennas)
+                    v["z"] = o.value - o.to_dh + o.from_dh
             elif o.kind.startswith("coordinate-"):
                 self.cobs[p[0]][o.kind[-1]].append(o.value)
 
@@ -111,7 +120,15 @@ class _Approx:
         return xa + d * math.cos(phi), ya + d * math.sin(phi)
 
     def horizontal_distances(self) -> dict:
-        """Horizontal distances between point pairs (frozenset) from all distance-like data."""
+        """Horizontal distances between point pairs (frozenset) from all distance-like data.
+
+        They depend on the known heights only (slope distances without a zenith angle are
+        reduced with them), so the table is kept until a height is added.
+        """
+        key = len(self.z)
+        cached = getattr(self, "_hd_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
         out = defaultdict(list)
         for a, b, d in self.hdist:
             out[frozenset((a, b))].append(d)
@@ -127,7 +144,9 @@ class _Approx:
                 out[key].append(math.sqrt(max(s * s - dz * dz, 0.0)))
             elif key not in out:
                 out[key].append(s)  # crude: better than nothing for flat networks
-        return {k: float(np.median(v)) for k, v in out.items()}
+        hd = {k: _median(v) for k, v in out.items()}
+        self._hd_cache = (key, hd)
+        return hd
 
     # -- heights ---------------------------------------------------------------------------
     def heights_sweep(self) -> bool:
@@ -164,6 +183,90 @@ class _Approx:
             cand[a].append(self.z[b] - diff)
 
     # -- bearings ------------------------------------------------------------------------
+    def bearing_index(self):
+        """Which direction sets and angles each (from, to) pair enters, and each point's pairs.
+
+        Built once: :meth:`bearings` and :meth:`extend_bearings` then touch only the sets and
+        angles a new bearing can orient or carry, not the whole network.
+        """
+        self.set_rank = {sid: k for k, sid in enumerate(self.sets)}
+        self.pair_sets = defaultdict(list)
+        for sid, dirs in self.sets.items():
+            for a, b, _ in dirs:
+                for key in ((a, b), (b, a)):
+                    if not self.pair_sets[key] or self.pair_sets[key][-1] != sid:
+                        self.pair_sets[key].append(sid)
+        self.pair_angles = defaultdict(list)
+        for k, (f, l, r, _) in enumerate(self.angles):
+            for t in (l, r):
+                for key in ((f, t), (t, f)):
+                    if not self.pair_angles[key] or self.pair_angles[key][-1] != k:
+                        self.pair_angles[key].append(k)
+        pairs = {(a, b) for st in self.sets.values() for a, b, _ in st}
+        pairs |= {(f, t) for f, l, r, _ in self.angles for t in (l, r)}
+        pairs |= {(a, b) for a, b, _ in self.hdist}
+        self.point_pairs = defaultdict(list)
+        for a, b in sorted(pairs):
+            self.point_pairs[a].append((a, b))
+            self.point_pairs[b].append((a, b))
+        self.neighbours = defaultdict(set)  # every pair a bearing or a distance can join
+        for tup in (pairs, self.azimuths, self.sdist, self.zenith):
+            for t in tup:
+                self.neighbours[t[0]].add(t[1])
+                self.neighbours[t[1]].add(t[0])
+        self.sets_at = defaultdict(list)  # direction sets by standpoint
+        for sid, dirs in self.sets.items():
+            for a in dict.fromkeys(a for a, _, _ in dirs):
+                self.sets_at[a].append(sid)
+        self.angles_at = defaultdict(list)
+        for f, l, r, al in self.angles:
+            self.angles_at[f].append((l, r, al))
+
+    def known_neighbours(self, pid) -> list:
+        """Points of known position joined to ``pid`` by a bearing or distance (sorted)."""
+        if not hasattr(self, "neighbours"):
+            self.bearing_index()
+        return sorted(s for s in self.neighbours.get(pid, ()) if s in self.xy)
+
+    @staticmethod
+    def _put(B, a, b, beta, depth, src=-1) -> bool:
+        if (a, b) not in B:
+            B[(a, b)] = (beta, depth, src)
+            B[(b, a)] = (beta + math.pi, depth, src)
+            return True
+        return False
+
+    def _propagate(self, B, orient, level, depth):
+        """Carry the bearings ``level`` (pairs new at ``depth``) through sets and angles.
+
+        Breadth-first, one depth per orientation or angle transfer; at each depth only the
+        sets and angles that contain a bearing new at that depth are looked at.
+        """
+        while level:
+            sids, angs = set(), set()
+            for key in level:
+                sids.update(s for s in self.pair_sets.get(key, ()) if s not in orient)
+                angs.update(self.pair_angles.get(key, ()))
+            new = []
+            for sid in sorted(sids, key=self.set_rank.__getitem__):
+                dirs = self.sets[sid]
+                known = [B[(a, b)][0] - d for a, b, d in dirs
+                         if (a, b) in B and B[(a, b)][1] == depth]
+                if known:
+                    orient[sid] = (_circular_mean(known), depth)
+                    new.extend((a, b, orient[sid][0] + d, sid) for a, b, d in dirs)
+            for k in sorted(angs):
+                f, l, r, alpha = self.angles[k]
+                if (f, l) in B and B[(f, l)][1] == depth:
+                    new.append((f, r, B[(f, l)][0] + alpha, -1))
+                if (f, r) in B and B[(f, r)][1] == depth:
+                    new.append((f, l, B[(f, r)][0] - alpha, -1))
+            level = []
+            for a, b, beta, src in new:
+                if self._put(B, a, b, beta, depth + 1, src):
+                    level.append((a, b))
+            depth += 1
+
     def bearings(self):
         """Close the bearings known from coordinates, azimuths, oriented sets and angles.
 
@@ -173,53 +276,42 @@ class _Approx:
         set is oriented on the shallowest (most direct) bearings available and a bearing
         carried along a long traverse never replaces a direct one.
         """
+        if not hasattr(self, "pair_sets"):
+            self.bearing_index()
         B: dict = {}
         orient: dict = {}
-
-        def put(a, b, beta, depth, src=-1):
-            if (a, b) not in B:
-                B[(a, b)] = (beta, depth, src)
-                B[(b, a)] = (beta + math.pi, depth, src)
-                return True
-            return False
-
+        level = []
         for a, b, beta in self.azimuths:
-            put(a, b, beta, 0)
-        pairs = {(a, b) for st in self.sets.values() for a, b, _ in st}
-        pairs |= {(f, t) for f, l, r, _ in self.angles for t in (l, r)}
-        pairs |= {(a, b) for a, b, _ in self.hdist}
-        for a, b in pairs:
-            if a in self.xy and b in self.xy and (a, b) not in B:
-                put(a, b, self.bearing_xy(a, b), 0)
-        depth = 0
-        while True:
-            new = []
-            for sid, dirs in self.sets.items():
-                if sid in orient:
-                    continue
-                known = [B[(a, b)][0] - d for a, b, d in dirs
-                         if (a, b) in B and B[(a, b)][1] == depth]
-                if known:
-                    orient[sid] = (_circular_mean(known), depth)
-                    new.extend((a, b, orient[sid][0] + d, sid) for a, b, d in dirs)
-            for f, l, r, alpha in self.angles:
-                if (f, l) in B and B[(f, l)][1] == depth:
-                    new.append((f, r, B[(f, l)][0] + alpha, -1))
-                if (f, r) in B and B[(f, r)][1] == depth:
-                    new.append((f, l, B[(f, r)][0] - alpha, -1))
-            added = False
-            for a, b, beta, src in new:
-                added |= put(a, b, beta, depth + 1, src)
-            if not added:
-                break
-            depth += 1
+            if self._put(B, a, b, beta, 0):
+                level.append((a, b))
+        done = set()
+        for p in self.xy:
+            for a, b in self.point_pairs.get(p, ()):
+                if (a, b) not in done and a in self.xy and b in self.xy:
+                    done.add((a, b))
+                    if self._put(B, a, b, self.bearing_xy(a, b), 0):
+                        level.append((a, b))
+        self._propagate(B, orient, level, 0)
         return B, orient
+
+    def extend_bearings(self, B, orient, pid):
+        """Add the bearings that the newly located point ``pid`` makes known (in place).
+
+        The bearings between ``pid`` and the known points enter at depth 0 and are carried
+        on as in :meth:`bearings`; bearings already known are kept (so the whole closure is
+        not recomputed after every located point, which made large networks slow).
+        """
+        level = []
+        for a, b in self.point_pairs.get(pid, ()):
+            if a in self.xy and b in self.xy and self._put(B, a, b, self.bearing_xy(a, b), 0):
+                level.append((a, b))
+        self._propagate(B, orient, level, 0)
 
     # -- plan ------------------------------------------------------------------------------
     def plan_sweep(self, wanted: set) -> tuple[bool, dict]:
         """Try to locate every wanted point once; returns (progress, ambiguous reasons)."""
         B, orient = self.bearings()
-        hd = self.horizontal_distances()
+        hd = self.horizontal_distances()  # depends on heights only, fixed during the sweep
         progress, ambiguous = False, {}
         for pid in sorted(wanted - set(self.xy)):
             pos = self.direct(pid, B, hd)
@@ -231,8 +323,7 @@ class _Approx:
                     continue
             self.xy[pid] = pos
             progress = True
-            B, orient = self.bearings()  # new point: new bearings for the next ones
-            hd = self.horizontal_distances()
+            self.extend_bearings(B, orient, pid)  # new point: new bearings for the next ones
         return progress, ambiguous
 
     def direct(self, pid, B, hd):
@@ -251,7 +342,7 @@ class _Approx:
                     cands.append((xb - v["x"], yb - v["y"]))
         if cands:
             return _median_point(cands)
-        polar = [(B[(s, pid)][1], s) for s in self.xy
+        polar = [(B[(s, pid)][1], s) for s in self.known_neighbours(pid)
                  if (s, pid) in B and frozenset((s, pid)) in hd]
         if polar:
             dmin = min(d for d, _ in polar)
@@ -262,23 +353,62 @@ class _Approx:
     def constraints(self, pid, B, orient, hd):
         """Equations touching ``pid`` whose other points are known (for :meth:`fit`)."""
         resect = []  # (set index, target, direction) of sets at pid, orientation unknown
-        for sid, dirs in self.sets.items():
-            known = [(b, d) for a, b, d in dirs if a == pid and b in self.xy]
+        if not hasattr(self, "sets_at"):
+            self.bearing_index()
+        for sid in self.sets_at.get(pid, ()):
+            known = [(b, d) for a, b, d in self.sets[sid] if a == pid and b in self.xy]
             if len(known) >= 2 or (known and sid not in orient):
                 resect.extend((sid, b, d) for b, d in known)
         rsets = {sid for sid, _, _ in resect}
         # rays from known stations, except those that came from a set at pid itself (that set
         # is solved as a resection instead of trusting an orientation carried from afar)
-        rays = [(s, B[(s, pid)][0]) for s in self.xy
+        near = self.known_neighbours(pid)
+        rays = [(s, B[(s, pid)][0]) for s in near
                 if (s, pid) in B and B[(s, pid)][2] not in rsets]
-        dists = [(s, hd[frozenset((s, pid))]) for s in self.xy if frozenset((s, pid)) in hd]
-        angles = [(l, r, al) for f, l, r, al in self.angles
-                  if f == pid and l in self.xy and r in self.xy]
+        dists = [(s, hd[frozenset((s, pid))]) for s in near if frozenset((s, pid)) in hd]
+        angles = [(l, r, al) for l, r, al in self.angles_at.get(pid, ())
+                  if l in self.xy and r in self.xy]
         return rays, dists, resect, angles
+
+    def free_station(self, rays, dists, resect, angles):
+        """Closed-form free station: one direction set at the point, a distance to each target.
+
+        The targets' polar coordinates in the set's frame (direction, distance) are mapped onto
+        their known coordinates by a rigid 2D transformation (rotation = the set's orientation,
+        translation = the station), fitted by least squares in closed form (complex-number
+        Procrustes: c = Σ (T−T̄)·conj(u−ū) normalised to |c| = 1, P = T̄ − c·ū). Used only when
+        those are all the constraints, with ≥ 2 targets, and accepted only when the residuals
+        are small; otherwise :meth:`fit` takes the general path. Unique by construction (the
+        directions fix the sense of rotation, so there is no mirror solution).
+        """
+        if rays or angles or len(resect) < 2 or len({sid for sid, _, _ in resect}) != 1:
+            return None
+        dist = dict(dists)
+        targets = [b for _, b, _ in resect]
+        if len(dist) != len(dists) or set(dist) != set(targets) or len(set(targets)) != len(targets):
+            return None
+        u = np.array([dist[b] * complex(math.cos(self.sign * (d - self.offset)),
+                                        math.sin(self.sign * (d - self.offset)))
+                      for _, b, d in resect])
+        t = np.array([complex(*self.xy[b]) for b in targets])
+        du, dt = u - u.mean(), t - t.mean()
+        c = np.sum(dt * np.conj(du))
+        if abs(c) < 1e-12 * max(float(np.sum(np.abs(du) ** 2)), 1e-300):
+            return None
+        c /= abs(c)
+        p = t.mean() - c * u.mean()
+        L = max(max(dist.values()), 1.0)
+        rms = math.sqrt(float(np.mean(np.abs(t - p - c * u) ** 2)))
+        if not np.isfinite(p) or rms > 1e-3 * L + 0.05:
+            return None
+        return float(p.real), float(p.imag)
 
     def fit(self, pid, B, orient, hd):
         """Least-squares location from all constraints, from several starts; unique or None."""
         rays, dists, resect, angles = self.constraints(pid, B, orient, hd)
+        free = self.free_station(rays, dists, resect, angles)
+        if free is not None:
+            return free, ""
         sids = sorted({sid for sid, _, _ in resect})
         n_eq = len(rays) + len(dists) + len(resect) + len(angles)
         if n_eq < 2 + len(sids) or (not rays and not dists and not resect and not angles):
