@@ -11,7 +11,13 @@ and ``azimuth_offset`` c.
 - azimuth    a = bearing
 - slope distance s = √(Δx² + Δy² + Δz'²), Δz' = (z_to + h_to) − (z_from + h_from)
 - zenith angle   z = atan2(√(Δx² + Δy²), Δz')
-- height difference Δz; vector components Δx, Δy, Δz; coordinate observations x, y or z.
+- height difference Δz; coordinate observations x, y or z.
+- vector components Δx, Δy and Δz' = Δz + h_to − h_from: a vector joins the instrument
+  (antenna) positions, ``from_dh``/``to_dh`` above the marks. (gama-local reads these
+  heights but leaves them out of its vector equations; baarda applies them.)
+
+Instrument and target heights have no effect on horizontal distances, directions, angles and
+azimuths (they are horizontal quantities). ``<obs orientation>`` only starts the iteration.
 """
 
 from __future__ import annotations
@@ -141,6 +147,7 @@ class LinearSet:
     rows: np.ndarray
     i_from: np.ndarray    # parameter index, -1 for coordinate observations
     i_to: np.ndarray
+    offset: np.ndarray | None = None  # h_to − h_from of Δz vector components, else None
 
     @property
     def angular(self):
@@ -150,7 +157,10 @@ class LinearSet:
         n = self.rows.size
         if (self.i_from < 0).all():
             return x[self.i_to].copy(), np.arange(n), self.i_to.copy(), np.ones(n)
-        return x[self.i_to] - x[self.i_from], *_coo(n, [self.i_to, self.i_from], [np.ones(n), -np.ones(n)])
+        f = x[self.i_to] - x[self.i_from]
+        if self.offset is not None:
+            f = f + self.offset
+        return f, *_coo(n, [self.i_to, self.i_from], [np.ones(n), -np.ones(n)])
 
 
 def _point_axes(net: Network) -> list[str]:
@@ -248,12 +258,19 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
             else:
                 i_from = np.array([pidx(obs[r].points[0], a) for r in rows])
                 i_to = np.array([pidx(obs[r].points[1], a) for r in rows])
-            sets.append(LinearSet(kd, rows, i_from, i_to))
+            offset = None
+            if kd == "dz":
+                h = np.array([obs[r].to_dh - obs[r].from_dh for r in rows], dtype=float)
+                offset = h if h.any() else None
+            sets.append(LinearSet(kd, rows, i_from, i_to, offset))
     l = np.array([o.value for o in obs], dtype=float)
     # initial orientations: circular mean of bearing − direction over each set
     params = Parameters(x0, tuple(labels), np.array(kind), np.array(fixed), np.array(point), np.array(axis))
     if set_ids:
         _init_orientations(sets, params, l, ori_index)
+        for s_id, value in (net.extra.get("orientations") or {}).items():
+            if s_id in ori_index:  # <obs orientation>: the file's own starting value
+                params.x0[ori_index[s_id]] = value
     cov = Covariance.from_blocks(n, [c.indices for c in net.clusters], [c.cov for c in net.clusters])
     group = _groups(net)
     roles_of = {"angle": ("from", "left", "right")}

@@ -64,7 +64,7 @@ _ANGULAR = {"direction", "angle", "azimuth", "z-angle"}
 _OBS_ATTRS = {
     "direction": {"from", "to", "val", "stdev", "from_dh", "to_dh", "extern"},
     "distance": {"from", "to", "val", "stdev", "from_dh", "to_dh", "extern"},
-    "angle": {"from", "bs", "fs", "val", "stdev", "from_dh", "extern"},
+    "angle": {"from", "bs", "fs", "val", "stdev", "from_dh", "bs_dh", "fs_dh", "extern"},
     "azimuth": {"from", "to", "val", "stdev", "from_dh", "to_dh", "extern"},
     "s-distance": {"from", "to", "val", "stdev", "from_dh", "to_dh", "extern"},
     "z-angle": {"from", "to", "val", "stdev", "from_dh", "to_dh", "extern"},
@@ -218,6 +218,7 @@ class _Reader:
         self.descriptions: list[str] = []
         self.extra: dict = {}
         self.n_sets = 0
+        self.orientations: dict[int, float] = {}  # set id -> approximate orientation (rad)
 
     # -- errors and numbers ---------------------------------------------------------------
     def error(self, line, message, field=None):
@@ -426,15 +427,28 @@ class _Reader:
         return items, cov
 
     def read_obs(self, node: _Node, defaults: dict):
-        """One ``<obs>``: a direction set (own orientation) plus any other observations."""
-        self.check_attrs(node, {"from"})
+        """One ``<obs>``: a direction set (own orientation) plus any other observations.
+
+        Attributes (manual §2.8, gama-local.xsd): ``from`` (the standpoint, inherited by the
+        observations), ``from_dh`` (the instrument height of every observation inside that
+        does not give its own ``from_dh``) and ``orientation`` (an approximate value of the
+        set's orientation unknown, an angle like the directions: gon or d-m-s; it only starts
+        the iteration, the orientation is estimated).
+        """
+        self.check_attrs(node, {"from", "from_dh", "orientation"})
         items, cov = self.split_cov(node, set(_OBS_KINDS), "obs")
         station = node.attrs.get("from", "").strip() or None
-        set_from_dh = 0.0
+        set_from_dh = self.opt_number(node, "from_dh", 0.0)
         set_id = -1
         if any(c.tag == "direction" for c in items):
             set_id = self.n_sets
             self.n_sets += 1
+            if "orientation" in node.attrs:
+                self.orientations[set_id] = self.angle(node, "orientation")[0]
+        elif "orientation" in node.attrs:
+            raise self.error(node.line, "<obs orientation> given but the <obs> holds no "
+                             "<direction> (only direction sets have an orientation)",
+                             "orientation")
         first = len(self.pending)
         for c in items:
             self.read_observation(c, defaults, station, set_id, set_from_dh, cov is not None)
@@ -495,6 +509,9 @@ class _Reader:
                              "in <points-observations>, no <cov-mat>)", "stdev")
         from_dh = self.opt_number(node, "from_dh", set_from_dh if tag != "dh" else 0.0)
         to_dh = self.opt_number(node, "to_dh", 0.0)
+        if tag == "angle":  # heights of the two targets: no effect on a horizontal angle
+            to_dh = self.opt_number(node, "bs_dh", 0.0)
+            self.opt_number(node, "fs_dh", 0.0)  # checked as a number, like gama-local
         self.pending.append(_Pending(
             kind=_OBS_KINDS[tag], points=ids, value=value, value_file=vfile, unit=unit,
             line=node.line, set_id=set_id if tag == "direction" else -1, from_dh=from_dh,
@@ -647,6 +664,9 @@ class _Reader:
         extra["parameters"] = dict(self.params)
         extra["sigma_apr"] = sigma_apr
         extra["n_direction_sets"] = len(set_map)
+        if self.orientations:
+            extra["orientations"] = {set_map[s]: v for s, v in self.orientations.items()
+                                     if s in set_map}
         return Network(points=points, observations=tuple(observations), clusters=tuple(clusters),
                        sigma0=sigma_apr, sigma_act=sigma_act, conf_pr=conf_pr,
                        tol_abs=tol_abs * MM, angle_sign=sign, azimuth_offset=offset, axes_xy=axes,
