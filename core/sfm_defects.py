@@ -146,37 +146,77 @@ def _angle(u, w):
     return np.arctan2(np.linalg.norm(np.cross(u, w), axis=-1), np.abs(np.einsum("...i,...i->...", u, w)))
 
 
-def _largest_angles(v: _View, obs: np.ndarray, points: np.ndarray, exact: bool = False):
-    """Per point of ``points`` (sorted indices, each with at least two rays among the
-    observations ``obs``): the largest angle between its rays (rad), the two images spanning
-    it and the mean distance to its centres.
-
-    Without ``exact``, the largest angle of a ray to the point's first ray: a lower bound of
-    the largest angle (cheap, and exact for two rays); with it, the maximum over all pairs."""
+def _bound_angles(v: _View, obs: np.ndarray, npt: int):
+    """Per point (all ``npt``) from the observations ``obs``: the largest angle of a ray to the
+    point's first ray — a lower bound of the largest angle between its rays, and exact for two
+    rays — and the mean distance from its centres. No sorting: linear in the observations."""
     op, oi = v.obs_point[obs], v.obs_image[obs]
-    sel = np.isin(op, points)
-    op, oi = op[sel], oi[sel]
+    first = np.zeros(npt, dtype=np.int64)
+    first[op[::-1]] = oi[::-1]                          # the image of each point's first ray
+    # one gather of a 6-column table per point (X and its first ray): random row access is
+    # what costs on millions of image points
+    T = np.empty((npt, 6))
+    T[:, :3] = v.X
+    T[:, 3:] = v.X - v.centres[first]
+    T = T[op]
+    u = T[:, :3] - v.centres[oi]
+    w = T[:, 3:]
+    del T
+    norm = np.sqrt(np.einsum("ij,ij->i", u, u))
+    u /= np.where(norm > 0, norm, 1.0)[:, None]
+    w /= np.maximum(np.sqrt(np.einsum("ij,ij->i", w, w)), 1e-300)[:, None]
+    # tan of the intersection angle, |u×w| / |u·w| (monotone in the angle: its maximum per
+    # point is that of the angle), column by column to spare temporaries
+    c = np.square(u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1])
+    c += np.square(u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2])
+    c += np.square(u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0])
+    np.sqrt(c, out=c)
+    d = np.abs(np.einsum("ij,ij->i", u, w))
+    del u, w
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tan = np.where(d > 0, c / d, np.inf)
+    tan[c == 0] = 0.0
+    gamma = np.zeros(npt)
+    np.maximum.at(gamma, op, tan)
+    gamma = np.arctan(gamma)
+    cnt = np.bincount(op, minlength=npt)
+    dist = np.bincount(op, weights=norm, minlength=npt) / np.maximum(cnt, 1)
+    return gamma, dist
+
+
+def _exact_angles(v: _View, obs: np.ndarray, points: np.ndarray):
+    """For a few ``points`` (each with rays from two images at least among ``obs``): the
+    largest intersection angle over all pairs of rays from distinct images, and the pair."""
+    sel = np.isin(v.obs_point[obs], points)
+    op, oi = v.obs_point[obs][sel], v.obs_image[obs][sel]
     order = np.lexsort((oi, op))
     op, oi = op[order], oi[order]
     start = np.searchsorted(op, points)
-    size = np.searchsorted(op, points, side="right") - start
-    ray = v.X[op] - v.centres[oi]
-    norm = np.linalg.norm(ray, axis=1)
-    u = ray / np.where(norm > 0, norm, 1.0)[:, None]
-    first = np.repeat(start, size)
-    to_first = _angle(u, u[first])
-    gamma = np.maximum.reduceat(to_first, start)
-    dist = np.add.reduceat(norm, start) / size
+    stop = np.searchsorted(op, points, side="right")
+    gamma = np.zeros(points.size)
     pair = np.full((points.size, 2), -1, dtype=np.int64)
-    for j in range(points.size) if exact else ():
-        s, e = start[j], start[j] + size[j]
-        U = u[s:e]
+    for j, p in enumerate(points):
+        mine = oi[start[j]:stop[j]]
+        U = v.X[p] - v.centres[mine]
+        U /= np.maximum(np.linalg.norm(U, axis=1), 1e-300)[:, None]
         G = _angle(U[:, None, :], U[None, :, :])
-        G[oi[s:e, None] == oi[None, s:e]] = -1.0      # pairs of rays from two distinct images
+        G[mine[:, None] == mine[None, :]] = -1.0      # pairs of rays from two distinct images
         a, b = np.unravel_index(int(np.argmax(G)), G.shape)
         gamma[j] = G[a, b]
-        pair[j] = oi[s + a], oi[s + b]
-    return gamma, pair, dist
+        pair[j] = mine[a], mine[b]
+    return gamma, pair
+
+
+def _distinct(key: np.ndarray) -> np.ndarray:
+    """The distinct values of an integer array, sorted (a sort and a comparison: faster than
+    np.unique's hashing on millions of keys)."""
+    s = np.sort(key)
+    if s.size < 2:
+        return s
+    keep = np.empty(s.size, dtype=bool)
+    keep[0] = True
+    np.not_equal(s[1:], s[:-1], out=keep[1:])
+    return s[keep]
 
 
 def find_defects(model, factor: float = DEPTH_FACTOR):
@@ -200,50 +240,48 @@ def find_defects(model, factor: float = DEPTH_FACTOR):
         changed = False
         idx = np.flatnonzero(obs_on)
         # distinct (point, image) pairs: duplicate keypoints are one ray
-        pairs = np.unique(v.obs_point[idx] * max(ni, 1) + v.obs_image[idx])
+        pairs = _distinct(v.obs_point[idx] * max(ni, 1) + v.obs_image[idx])
         rays = np.bincount(pairs // max(ni, 1), minlength=npt)
         cand = point_on & ~v.controlled
         few = np.flatnonzero(cand & (rays < 2))
+        seen = np.full(npt, -1, dtype=np.int64)
+        seen[v.obs_point[idx]] = v.obs_image[idx]
+        after = f" once image(s) {', '.join(left_images[:8])} were left out" if left_images else ""
         for p in few:
-            seen = v.obs_image[idx[v.obs_point[idx] == p]]
-            after = f" once image(s) {', '.join(left_images[:8])} were left out" if left_images else ""
             if rays[p] == 0:
                 reason = "no ray left: all its images were left out"
             else:
-                reason = f"single ray: seen only from image {v.image_ids[seen[0]]}{after}"
+                reason = f"single ray: seen only from image {v.image_ids[seen[p]]}{after}"
             defects.append(LocalDefect("point", str(v.point_ids[p]), ("x", "y", "z"), reason))
         two = np.flatnonzero(cand & (rays >= 2))
         if two.size:
             st = np.bincount(v.obs_point[idx], weights=sig_theta[idx], minlength=npt)
             cnt = np.bincount(v.obs_point[idx], minlength=npt)
-            sth = st[two] / np.maximum(cnt[two], 1)
             # the limit of the module docstring; the cheap lower bound of γ clears almost every
             # point, the few left get the exact largest angle
-            gamma, pair, dist = _largest_angles(v, idx, two)
-            limit = math.sqrt(2.0) * dist * sth / (factor * L)
-            flat = np.flatnonzero(gamma < limit)
-            if flat.size:
-                g2, p2, _ = _largest_angles(v, idx, two[flat], exact=True)
-                gamma[flat], pair[flat] = g2, p2
-                flat = flat[g2 < limit[flat]]
-            for j in flat:
-                p = two[j]
-                a, b = pair[j]
+            gamma, dist = _bound_angles(v, idx, npt)
+            limit = math.sqrt(2.0) * dist * st / np.maximum(cnt, 1) / (factor * L)
+            low = two[gamma[two] < limit[two]]
+            flat_pts = low[:0]
+            if low.size:
+                g2, p2 = _exact_angles(v, idx, low)
+                keep = g2 < limit[low]
+                flat_pts, g2, p2 = low[keep], g2[keep], p2[keep]
+            for p, gam, (a, b) in zip(flat_pts, g2 if low.size else (), p2 if low.size else ()):
                 same = np.array_equal(v.centres[a], v.centres[b])
                 how = (f"images {v.image_ids[a]}, {v.image_ids[b]} have the same centre" if same else
-                       f"its rays meet at {gamma[j]:.2g} rad (largest angle; the depth σ would exceed "
+                       f"its rays meet at {gam:.2g} rad (largest angle; the depth σ would exceed "
                        f"{factor:.0e} × the block extent)")
                 defects.append(LocalDefect("point", str(v.point_ids[p]), ("x", "y", "z"),
                                            f"zero baseline: {how}"))
-            few = np.concatenate([few, two[flat]])
+            few = np.concatenate([few, flat_pts])
         if few.size:
             point_on[few] = False
             obs_on &= point_on[v.obs_point]
             changed = True
-        # images
-        idx = np.flatnonzero(obs_on)
-        pairs = np.unique(v.obs_image[idx] * max(npt, 1) + v.obs_point[idx])
-        pts = np.bincount(pairs // max(npt, 1), minlength=ni)
+        # images: distinct points per image, from the pairs of the points kept
+        pairs = pairs[point_on[pairs // max(ni, 1)]]
+        pts = np.bincount(pairs % max(ni, 1), minlength=ni)
         starved = np.flatnonzero(image_on & (pts < MIN_POINTS))
         for k in starved:
             defects.append(LocalDefect("image", str(v.image_ids[k]), v.pose_names,
