@@ -13,7 +13,8 @@ import time
 from pathlib import Path
 
 from . import __version__
-from .errors import BaardaError
+from .errors import BaardaError, InputError
+from .text import number, printable, printable_lines, shorten
 
 
 def _add_test_options(p):
@@ -162,6 +163,19 @@ def _progress(quiet):
 
 
 def cmd_analyze(args) -> int:
+    """``baarda analyze``; an error of the analysis that is the file's fault (a singular normal
+    matrix found while computing reliability, ...) is reported against the file."""
+    try:
+        return _analyze(args)
+    except InputError:
+        raise
+    except BaardaError as err:
+        if str(err).startswith("--"):          # a bad option value (--sbase, --criterion)
+            raise
+        raise InputError(args.input, 0, str(err)) from None
+
+
+def _analyze(args) -> int:
     from .adjust import Options
     from .errors import DatumDefectError, InputError
     from .io import read_problem
@@ -272,19 +286,19 @@ def cmd_analyze(args) -> int:
         if snoop is not None:
             info = problem.info
             print(f"  iterative data snooping: {len(snoop.steps)} observation(s) removed, σ̂0 "
-                  f"{adj.sigma0_post:.4g} → {snoop.adjustment.sigma0_post:.4g}")
+                  f"{number(adj.sigma0_post)} → {number(snoop.adjustment.sigma0_post)}")
             for k, st in enumerate(snoop.steps, 1):
-                ids = " ".join(f"{a}={b}" for a, b in info.ids[st.removed].items())
+                ids = printable(" ".join(f"{a}={b}" for a, b in info.ids[st.removed].items()))
                 print(f"    {k:>2d}. #{st.removed:<5d} {info.kind[st.removed]:<15s} {ids:<40s} "
                       f"|w| = {st.statistic:7.2f} > {st.critical:.2f}  ∇̂ = {st.nabla:+.4g}")
         for line in prec_lines:
-            print(line)
+            print(printable(line))
         if rob is not None:
             info = problem.info
             print(f"  robust estimation ({rob.method}, {rob.iterations} iterations"
                   f"{'' if rob.converged else ', NOT converged'}): {len(rob.suspects)} suspect(s)")
             for sp in rob.suspects:
-                ids = " ".join(f"{a}={b}" for a, b in sp["ids"].items())
+                ids = printable(" ".join(f"{a}={b}" for a, b in sp["ids"].items()))
                 print(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {sp['size_sigma']:6.1f}σ "
                       f"({sp['class']}), weight {sp['weight']:.3f}")
             if rob.final is not None:
@@ -302,7 +316,7 @@ def cmd_analyze(args) -> int:
                   f"{'passed' if va.global_test['passed'] else 'FAILED'}")
         if findings is not None:
             from . import truth
-            print(truth.text(findings))
+            print(printable_lines(truth.text(findings)))
     return 0
 
 
@@ -460,14 +474,14 @@ def main(argv=None) -> int:
     except BaardaError as err:
         if getattr(args, "debug", False):
             raise
-        print(f"baarda: error: {err}", file=sys.stderr)
+        print(f"baarda: error: {shorten(printable(err))}", file=sys.stderr)   # one line, whatever the file holds
         return 2
     except KeyboardInterrupt:
         return 130
     except Exception as err:  # an internal error: say so in one line, traceback with --debug
         if getattr(args, "debug", False):
             raise
-        print(f"baarda: internal error: {type(err).__name__}: {err} (run with --debug for details)",
+        print(f"baarda: internal error: {type(err).__name__}: {shorten(printable(err))} (run with --debug for details)",
               file=sys.stderr)
         return 3
     return 0

@@ -132,7 +132,11 @@ def read_problem(path, fmt: str = "auto", control=None, strict: bool = False, **
     if control is not None:
         from .control import add_control
         model = add_control(model, control)
-    return build(model, strict=strict)
+    from ..validate import check_model_range, check_numeric_range
+    check_model_range(model, path)                   # values double precision can adjust
+    problem = build(model, strict=strict)
+    check_numeric_range(problem, path, control)      # σ and values double precision can adjust
+    return problem
 
 
 def read_truth(path) -> dict | None:

@@ -110,7 +110,7 @@ def _bundler_block(path, num, vals, lines, sigma_px, refine_intrinsics) -> SfmBl
         bad_at = int(int_pos[not_int[0]])
     if err is not None and err[1] is None and (bad_at is None or err[0] < bad_at):
         bad_at = err[0]                     # a number of views that is not a count
-    if bad_at is not None and (err is None or bad_at < err[0]):
+    if bad_at is not None and (err is None or bad_at < err[0] or (bad_at == err[0] and err[1] is None)):
         p, what = _describe(bad_at, offs, nview)
         if np.isfinite(vals[bad_at]) or what.endswith("number of views"):
             num.check_ints(vals[bad_at:bad_at + 1], lines[bad_at:bad_at + 1], lambda j: bad_at, lambda j: what)

@@ -183,8 +183,10 @@ def _records(path):
 
 def _int(path, line, tok, what, allow_negative=False):
     t = tok[1:] if allow_negative and tok.startswith("-") else tok
-    if not t.isdigit():
+    if not (t.isascii() and t.isdigit()):         # str.isdigit accepts '²' and '①', int() does not
         raise InputError(path, line, f"{what}: '{tok[:40]}' is not an integer")
+    if len(t) > 20:                                  # COLMAP ids are 64-bit at most
+        raise InputError(path, line, f"{what}: {tok[:40]}... is too large")
     return int(tok)
 
 

@@ -9,7 +9,8 @@ since the adjustment linearises at the model's coordinates). The points become w
 inner constraints.
 
 Separators: comma; blank lines and lines starting with ``#`` are skipped; columns are found by
-the header names (case-insensitive, in any order).
+the header names (case-insensitive, in any order). Files as spreadsheets write them are read: a
+UTF-8 byte-order mark, CR, LF or CRLF line ends, quoted fields.
 """
 
 from __future__ import annotations
@@ -20,16 +21,40 @@ import io
 import math
 
 from ..bal import ControlPoint, SfmBlock
-from ..errors import BaardaError, InputError
+from ..errors import InputError
+from ..validate import SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
 from .bal import read_text
 
 COLUMNS = ("id", "x", "y", "z", "sx", "sy", "sz")
 
 
+def _rows(path, text: str) -> list[tuple[int, list[str]]]:
+    """The CSV records of ``text`` with the line each starts on, as spreadsheets write them: a
+    UTF-8 byte-order mark, CR, LF or CRLF line ends, quoted fields (which may hold commas)."""
+    if text.startswith("\ufeff"):
+        text = text[1:]
+    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+    rows, start = [], 1
+    while True:
+        try:
+            r = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as err:        # an unclosed quote, a field over the csv module's limit
+            msg = str(err)
+            if "field larger than field limit" in msg:
+                msg = f"a field longer than {csv.field_size_limit()} characters"
+            raise InputError(path, start, f"not a readable CSV record: {msg}") from None
+        rows.append((start, r))
+        start = reader.line_num + 1
+    return rows
+
+
 def read_control(path) -> list[ControlPoint]:
     """The control points of a CSV file (module docstring); InputError on any bad row."""
     text = read_text(path)
-    rows = [(ln, r) for ln, r in enumerate(csv.reader(io.StringIO(text)), 1)
+    rows = [(ln, r) for ln, r in _rows(path, text)
             if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
     if not rows:
         raise InputError(path, 1, "empty file: expected the header 'id,X,Y,Z,sx,sy,sz'")
@@ -61,6 +86,12 @@ def read_control(path) -> list[ControlPoint]:
                 raise InputError(path, ln, f"point {pid}: {c} = {tok} is not finite", field=c)
             if c.startswith("s") and v <= 0:
                 raise InputError(path, ln, f"point {pid}: {c} = {v:g} must be > 0", field=c)
+            if c.startswith("s") and not SIGMA_MIN <= v <= SIGMA_MAX:
+                raise InputError(path, ln, f"point {pid}: {c} = {v:g} is outside [{SIGMA_MIN:g}, {SIGMA_MAX:g}]: "
+                                 f"its weight 1/σ² cannot be formed in double precision", field=c)
+            if abs(v) > VALUE_LIMIT:
+                raise InputError(path, ln, f"point {pid}: {c} = {v:g} is outside ±{VALUE_LIMIT:g}: too large "
+                                 f"to adjust in double precision", field=c)
             vals[c] = v
         out.append(ControlPoint(pid, (vals["x"], vals["y"], vals["z"]), (vals["sx"], vals["sy"], vals["sz"]), ln))
     if not out:
@@ -94,5 +125,5 @@ def add_control(model, csv_path):
                                         sigma_v=by_id[p.id].sigma[2], axes="xyz", line=by_id[p.id].line)
                     if p.id in by_id else p for p in model.points)
         return model.replace(points=pts, datum="control")
-    raise BaardaError(f"{csv_path}:0: control points can be added to bundle blocks only, "
-                      f"not to a {type(model).__name__}")
+    raise InputError(csv_path, 0, f"control points can be added to bundle blocks only, "
+                     f"not to a {type(model).__name__}")

@@ -170,9 +170,12 @@ def read_native(path):
     except UnicodeDecodeError as err:
         raise InputError(path, 0, f"not UTF-8 text ({err.reason})") from None
     try:
-        doc = json.loads(text)
+        doc = json.loads(text, parse_int=_parse_int)
     except json.JSONDecodeError as err:
         raise InputError(path, err.lineno, f"JSON syntax error: {err.msg} (column {err.colno})") from None
+    except RecursionError:
+        line, depth = _too_deep(text)
+        raise InputError(path, line, f"JSON nested too deeply (more than {depth} levels of [ or {{)") from None
     if not isinstance(doc, dict):
         raise InputError(path, 1, "the document must be a JSON object")
     rd = _Reader(p, text, doc)
@@ -190,6 +193,38 @@ def read_native(path):
     if kind == "imodel":
         return _read_imodel(rd, sigma0)
     return _read_levelling(rd, sigma0)
+
+
+def _parse_int(s: str):
+    """A JSON integer: an int, or (beyond 300 digits, where Python's int-from-string limit and
+    float conversion fail) the float it stands for — ``inf`` when it overflows, which the
+    checks then refuse as not finite."""
+    return int(s) if len(s) <= 300 else float(s)
+
+
+def _too_deep(text: str, limit: int = 200) -> tuple[int, int]:
+    """The line where ``text`` first nests deeper than ``limit`` arrays or objects (strings are
+    skipped), and ``limit``; for the message after the decoder gave up with a RecursionError."""
+    depth, line, in_str, esc = 0, 1, False, False
+    for ch in text:
+        if ch == "\n":
+            line += 1
+        if in_str:
+            if esc:
+                esc = False
+            elif ch == "\\":
+                esc = True
+            elif ch == '"':
+                in_str = False
+        elif ch == '"':
+            in_str = True
+        elif ch in "[{":
+            depth += 1
+            if depth > limit:
+                return line, limit
+        elif ch in "]}":
+            depth -= 1
+    return line, limit
 
 
 def _datum(rd, point_ids):

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..text import number, printable
+
 SCHEMA_VERSION = "1.0"
 
 
@@ -184,11 +186,11 @@ def text_summary(adj, top: int = 8) -> str:
         lines.append("  global test: not applicable (no redundancy)")
     else:
         verdict = "passed" if g["passed"] else "FAILED"
-        lines.append(f"  global test: vᵀPv = {g['statistic']:.4g} in [{g['lower']:.4g}, {g['upper']:.4g}] "
-                     f"at {g['conf_pr']:.3g} → {verdict};  σ0 a priori {s['sigma0_apriori']:.4g}, "
-                     f"a posteriori {s['sigma0_aposteriori'] if s['sigma0_aposteriori'] is None else format(s['sigma0_aposteriori'], '.4g')}")
-    lines.append(f"  α0 = {s['alpha0']}, β0 = {s['beta0']}: δ0 = {s['delta0']:.3f}, critical |w| = "
-                 f"{s['critical_w']:.3f}; {s['n_rejected']} observation(s) rejected")
+        lines.append(f"  global test: vᵀPv = {number(g['statistic'])} in [{number(g['lower'])}, "
+                     f"{number(g['upper'])}] at {number(g['conf_pr'], '.3g')} → {verdict};  σ0 a priori "
+                     f"{number(s['sigma0_apriori'])}, a posteriori {number(s['sigma0_aposteriori'])}")
+    lines.append(f"  α0 = {s['alpha0']}, β0 = {s['beta0']}: δ0 = {number(s['delta0'], '.3f')}, critical |w| = "
+                 f"{number(s['critical_w'], '.3f')}; {s['n_rejected']} observation(s) rejected")
 
     def label(i):
         ids = " ".join(f"{k}={v}" for k, v in info.ids[i].items())
@@ -198,15 +200,22 @@ def text_summary(adj, top: int = 8) -> str:
     lines.append("  largest |w| (data snooping):")
     for i in np.argsort(-w)[:top]:
         flag = "  REJECTED" if adj.rejected[i] else ""
-        lines.append(f"    {label(i):<48s} w = {adj.w[i]:+8.3f}  r = {adj.r[i]:.3f}{flag}")
+        wi = (f"{number(adj.w[i], '+8.3f'):>8s}" if np.isfinite(adj.w[i])
+              else f"{'—':>8s}  ({'r = 0, ' if not adj.r[i] > 1e-12 else ''}not testable)")
+        lines.append(f"    {label(i):<48s} w = {wi}  r = {number(adj.r[i], '.3f')}{flag}")
     lines.append("  weakest redundancy numbers:")
     for i in np.argsort(adj.r)[:top]:
-        lines.append(f"    {label(i):<48s} r = {adj.r[i]:.3f}  MDB = {adj.mdb[i]:.4g}")
+        lines.append(f"    {label(i):<48s} r = {number(adj.r[i], '.3f')}  MDB = {_unbounded(adj.mdb[i], '.4g')}")
     ext = np.where(np.isfinite(adj.external), adj.external, np.inf)
     lines.append("  largest external reliability δ̄0:")
     for i in np.argsort(-ext)[:top]:
-        lines.append(f"    {label(i):<48s} δ̄0 = {adj.external[i]:.3f}  r = {adj.r[i]:.3f}")
+        lines.append(f"    {label(i):<48s} δ̄0 = {_unbounded(adj.external[i], '.3f')}  r = {number(adj.r[i], '.3f')}")
     if adj.groups:
         rej = [g for g in adj.groups if g["rejected"]]
         lines.append(f"  group tests: {len(adj.groups)} groups, {len(rej)} rejected")
-    return "\n".join(lines)
+    return "\n".join(printable(line) for line in lines)     # ids and titles come from the file
+
+
+def _unbounded(x, spec: str) -> str:
+    """An MDB or δ̄0 for printing: ∞ for an uncontrolled observation (r = 0), never inf/nan."""
+    return "∞ (uncontrolled)" if x is not None and np.isposinf(x) else number(x, spec)

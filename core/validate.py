@@ -1,0 +1,152 @@
+"""Numbers a least-squares adjustment in double precision can handle, checked before adjusting.
+
+Every reader checks that its numbers are numbers and finite; what it cannot see alone is whether
+they fit double precision once they meet in the normal equations N = AᵀPA, P = (σ0²Q)⁻¹:
+
+* a standard deviation below ``SIGMA_MIN`` makes its weight 1/σ² (and with it N) overflow or its
+  variance σ² underflow to 0 (σ = 1e-300: σ² = 0, a singular covariance); above ``SIGMA_MAX``
+  the weight underflows;
+* a σ below ``RELATIVE`` × |value| is smaller than the rounding error of the value itself
+  (2⁻⁵³|value|, a few units in the last place): the misclosure l − f(x) is then rounding noise
+  of several σ and the w-test of that observation meaningless;
+* a value or an approximate coordinate beyond ``VALUE_LIMIT`` overflows in the squares and
+  products of the observation equations (1e308: a distance's dx² is inf).
+
+Real networks and blocks are far inside these limits: the Gama examples, the BAL/Bundler/COLMAP
+blocks and the demos have σ from 3e-6 to 5e-2 (SI units: m, rad, px), |values| and coordinates
+up to 7e6 and σ/|value| ≥ 4e-9.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+SIGMA_MIN = 1e-30
+SIGMA_MAX = 1e30
+VALUE_LIMIT = 1e20
+RELATIVE = 2.0 ** -48          # 32 units in the last place of a double
+
+
+def _where(problem, i: int, path, control) -> tuple[str, int]:
+    """The file and line of observation ``i`` (control rows come from the control CSV)."""
+    info = problem.info
+    kind = info.kind[i]
+    line = int(info.line[i]) if info.line is not None and i < len(info.line) else 0
+    if control is not None and kind.startswith("control"):
+        return str(control), line
+    p = Path(path)
+    if p.is_dir():           # a COLMAP model: image points come from images.txt/.bin
+        for name in ("images.txt", "images.bin"):
+            if (p / name).exists() and kind.startswith("image"):
+                return str(p / name), line if name.endswith(".txt") else 0
+        return str(p), 0
+    return str(path), line
+
+
+def _label(problem, i: int) -> str:
+    ids = " ".join(f"{k}={v}" for k, v in problem.info.ids[i].items())
+    return f"{problem.info.kind[i]}{' ' + ids if ids else ''}"
+
+
+def check_numeric_range(problem, path, control=None) -> None:
+    """Refuse (:class:`InputError` naming the file, line and field) a problem whose σ, values or
+    approximate coordinates lie outside what double precision can adjust (module docstring)."""
+    l = np.asarray(problem.l, dtype=float)
+    n = l.size
+    if n == 0 or problem.params.free.size == 0:
+        left = len(problem.extra.get("local_defects", ()) or ())
+        raise InputError(path, 0, f"nothing to adjust: {n} observations for {problem.params.free.size} "
+                         f"unknowns" + (f" after leaving out {left} undetermined points, images or "
+                                        f"cameras" if left else ""))
+    # σ of every observation: the diagonal of its covariance block; the block must be PD
+    sigma = np.full(n, np.nan)
+    not_pd = []                    # first observation of each cluster that is not positive definite
+    for m, clusters, members in problem.cov._by_size():
+        C = np.array([problem.cov.blocks[c] for c in clusters], dtype=float).reshape(clusters.size, m, m)
+        finite = np.isfinite(C).all(axis=(1, 2))
+        with np.errstate(all="ignore"):
+            d = np.sqrt(np.clip(np.diagonal(C, axis1=1, axis2=2), 0.0, None))
+        d[~finite] = np.nan
+        sigma[members] = d
+        if m > 1:
+            Cs = np.where(finite[:, None, None], 0.5 * (C + np.swapaxes(C, 1, 2)), np.eye(m))
+            pd = finite & (np.linalg.eigvalsh(Cs).min(axis=1) > 0)
+            not_pd += [int(members[k, 0]) for k in np.flatnonzero(~pd)[:1]]
+    bad_l = ~np.isfinite(l) | (np.abs(l) > VALUE_LIMIT)
+    if bad_l.any():
+        i = int(np.flatnonzero(bad_l)[0])
+        f, line = _where(problem, i, path, control)
+        raise InputError(f, line, f"{_label(problem, i)}: value {l[i]:.6g} is outside ±{VALUE_LIMIT:.0e}: "
+                         f"too large to adjust in double precision", field="value")
+    with np.errstate(all="ignore"):
+        small = ~(sigma >= SIGMA_MIN) | (sigma < RELATIVE * np.abs(l))
+        large = sigma > SIGMA_MAX
+    if small.any() or large.any():
+        i = int(np.flatnonzero(small | large)[0])
+        f, line = _where(problem, i, path, control)
+        s = sigma[i]
+        if not np.isfinite(s):
+            why = "not a finite number: its variance overflows in double precision"
+        elif large[i]:
+            why = f"above {SIGMA_MAX:.0e}: its weight 1/σ² underflows"
+        elif s >= SIGMA_MIN:
+            why = (f"below the rounding error of the value {l[i]:.6g} in double precision "
+                   f"(σ must be ≥ {RELATIVE:.2g} × |value|)")
+        else:
+            why = f"below {SIGMA_MIN:.0e}: its weight 1/σ² overflows in double precision"
+        shown = f" {s:.6g}" if np.isfinite(s) else ""
+        raise InputError(f, line, f"{_label(problem, i)}: standard deviation{shown} (SI units) is {why}",
+                         field="sigma")
+    if not_pd:                     # correlated blocks: positive definite
+        i = min(not_pd)
+        f, line = _where(problem, i, path, control)
+        raise InputError(f, line, f"{_label(problem, i)}: the covariance matrix of this observation is not "
+                         f"positive definite", field="cov")
+    x0 = np.asarray(problem.params.x0, dtype=float)
+    bad_x = ~np.isfinite(x0) | (np.abs(x0) > VALUE_LIMIT)
+    if bad_x.any():
+        j = int(np.flatnonzero(bad_x)[0])
+        raise InputError(path, 0, f"{problem.params.labels[j]}: coordinate or parameter {x0[j]:.6g} is "
+                         f"outside ±{VALUE_LIMIT:.0e}: too large to adjust in double precision",
+                         field=problem.params.labels[j])
+
+
+def _refuse_large(path, values, lines, what) -> None:
+    """InputError at the first row of ``values`` (n × k) with a number beyond VALUE_LIMIT."""
+    v = np.asarray(values, dtype=float)
+    if v.size == 0:
+        return
+    v = v.reshape(v.shape[0], -1)
+    bad = ~np.isfinite(v).all(axis=1) | (np.abs(v) > VALUE_LIMIT).any(axis=1)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        line = int(lines[k]) if lines is not None and k < len(lines) else 0
+        raise InputError(path, line, f"{what(k)}: {' '.join(f'{x:.6g}' for x in v[k])}: a number outside "
+                         f"±{VALUE_LIMIT:.0e}, too large to adjust in double precision")
+
+
+def check_model_range(model, path) -> None:
+    """Before a bundle block is built (its builder already squares coordinates to find local
+    defects and far points): approximate coordinates, image coordinates and camera parameters
+    within ±VALUE_LIMIT. Networks are checked on their problem only (:func:`check_numeric_range`)."""
+    from .bal import SfmBlock
+    from .bundle import Block
+
+    if isinstance(model, SfmBlock):
+        _refuse_large(path, model.X, model.point_line, lambda k: f"point {model.points[k]}")
+        _refuse_large(path, model.xy, model.obs_line,
+                      lambda k: f"image {model.images[int(model.obs_image[k])].id}: image point")
+        _refuse_large(path, [im.t for im in model.images], [im.line for im in model.images],
+                      lambda k: f"image {model.images[k].id}: translation")
+        for cam in model.cameras:
+            _refuse_large(path, [cam.params], [cam.line], lambda k: f"camera {cam.id}: parameters")
+    elif isinstance(model, Block):
+        lines = [getattr(p, "line", 0) for p in model.points]
+        _refuse_large(path, [(p.X, p.Y, p.Z) for p in model.points], lines, lambda k: f"point {model.points[k].id}")
+        _refuse_large(path, [(im.X0, im.Y0, im.Z0) for im in model.images],
+                      [getattr(im, "line", 0) for im in model.images], lambda k: f"image {model.images[k].id}")
+        _refuse_large(path, model.obs.xy, model.obs.line, lambda k: "image point")

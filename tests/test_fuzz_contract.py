@@ -1,0 +1,342 @@
+"""The bad-input contract of the ``baarda`` command, fuzzed (issue 12).
+
+Every format's valid files (Gama XML, native JSON, BAL, Bundler, COLMAP text and binary, the
+control CSV) are mutated with fixed seeds — byte flips, deleted, duplicated or swapped lines,
+numbers replaced by huge, tiny, long or Unicode digits, control characters, truncation, deep
+nesting, a BOM, CR or CRLF line ends, a 200,000-character field — and run in-process through
+``baarda.cli.main(["analyze", FILE, "--json", OUT])``. The contract for each case:
+
+* exit status 0, 2, or the documented non-convergence status (``EXIT_NOT_CONVERGED``, if the
+  CLI defines one);
+* on 2: exactly one line on stderr, ``baarda: error: FILE:LINE[:FIELD]: what is wrong``, with
+  no control character in it;
+* no warning of any kind (numpy RuntimeWarnings included), no traceback;
+* on 0: no ``nan``/``inf`` in the printed summary, and the JSON written is strict JSON (no
+  ``NaN``/``Infinity``).
+
+The unmarked tests run a fast subset (some hundred cases); ``-m slow`` runs some thousands.
+The minimal cases found this way are kept as files in ``tests/malformed/`` (``test_bad_input.py``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import random
+import re
+import shutil
+import struct
+import warnings
+from pathlib import Path
+
+import pytest
+
+from baarda import cli
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+VALID = HERE / "malformed" / "valid"
+EXTDATA_GAMA = (REPO / ".." / "shared" / "extdata" / "gama").resolve()
+
+OK_CODES = {0, 2} | ({cli.EXIT_NOT_CONVERGED} if hasattr(cli, "EXIT_NOT_CONVERGED") else set())
+ERROR_LINE = re.compile(r"baarda: error: [^\n]*?:\d+(:[^\s:][^\n:]*)?: [^\n]+\n")
+CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069\u2028\u2029]")
+NAN = re.compile(r"\b(nan|inf)\b", re.IGNORECASE)   # "near infinity" is prose
+
+
+# --------------------------------------------------------------------------------------------
+# running one case
+# --------------------------------------------------------------------------------------------
+def run_cli(argv: list[str]) -> tuple[int, str, str, list[str]]:
+    """``cli.main(argv)`` in-process: exit status, stdout, stderr, warnings raised."""
+    out, err = io.StringIO(), io.StringIO()
+    with warnings.catch_warnings(record=True) as caught, contextlib.redirect_stdout(out), \
+            contextlib.redirect_stderr(err):
+        warnings.simplefilter("always")
+        try:
+            code = cli.main(argv)
+        except SystemExit as exc:          # argparse usage errors
+            code = exc.code
+    return code, out.getvalue(), err.getvalue(), [f"{w.category.__name__}: {w.message}" for w in caught]
+
+
+def _strict_json(text: str):
+    def refuse(name):
+        raise ValueError(f"non-standard JSON constant {name}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def check_contract(argv: list[str], json_out: Path | None = None, what: str = "") -> int:
+    """Run ``argv`` and assert the contract (module docstring); returns the exit status."""
+    code, out, err, caught = run_cli(argv)
+    where = f"{what}: exit {code}, stderr {err!r}"
+    assert code in OK_CODES, where
+    assert not caught, f"{where}; warnings {caught}"
+    assert "Traceback" not in err, where
+    if code == 2:
+        assert ERROR_LINE.fullmatch(err), where
+        assert not CONTROL.search(err[:-1]), where
+    if code == 0:
+        assert not NAN.search(out), f"{where}; stdout {out!r}"
+        assert not CONTROL.search(out.replace("\n", "")), f"{where}; stdout {out!r}"
+        if json_out is not None and json_out.exists():
+            _strict_json(json_out.read_text())
+    return code
+
+
+# --------------------------------------------------------------------------------------------
+# seeds: each a dict of files (relative path -> bytes) and how to run it
+# --------------------------------------------------------------------------------------------
+def colmap_binary(directory: Path) -> dict[str, bytes]:
+    """The COLMAP text model in ``directory`` written as cameras.bin, images.bin, points3D.bin
+    (COLMAP's src/colmap/scene/reconstruction_io.cc layout), by hand — no pycolmap needed."""
+    from baarda.io.colmap import CAMERA_MODELS, MODEL_IDS
+
+    ids = {name: k for k, name in MODEL_IDS.items()}
+    cams = [ln.split() for ln in (directory / "cameras.txt").read_text().splitlines()
+            if ln.strip() and not ln.startswith("#")]
+    cb = struct.pack("<Q", len(cams))
+    for c in cams:
+        k = len(CAMERA_MODELS[c[1]][0])
+        cb += struct.pack("<IiQQ", int(c[0]), ids[c[1]], int(c[2]), int(c[3]))
+        cb += struct.pack("<" + "d" * k, *map(float, c[4:4 + k]))
+    lines = [ln for ln in (directory / "images.txt").read_text().splitlines() if not ln.startswith("#")]
+    ib = struct.pack("<Q", len(lines) // 2)
+    for head, pts in zip(lines[0::2], lines[1::2]):
+        h = head.split()
+        ib += struct.pack("<I7dI", int(h[0]), *map(float, h[1:8]), int(h[8])) + h[9].encode() + b"\0"
+        t = pts.split()
+        ib += struct.pack("<Q", len(t) // 3)
+        for j in range(0, len(t), 3):
+            pid = int(t[j + 2])
+            ib += struct.pack("<ddQ", float(t[j]), float(t[j + 1]), pid if pid >= 0 else 2**64 - 1)
+    pts = [ln.split() for ln in (directory / "points3D.txt").read_text().splitlines()
+           if ln.strip() and not ln.startswith("#")]
+    pb = struct.pack("<Q", len(pts))
+    for p in pts:
+        track = list(map(int, p[8:]))
+        pb += struct.pack("<Q3d3BdQ", int(p[0]), *map(float, p[1:4]), *map(int, p[4:7]), float(p[7]),
+                          len(track) // 2)
+        pb += struct.pack("<" + "I" * len(track), *track)
+    return {"cameras.bin": cb, "images.bin": ib, "points3D.bin": pb}
+
+
+def _colmap_text() -> dict[str, bytes]:
+    return {f"model/{f}": (VALID / "colmap-valid" / f).read_bytes()
+            for f in ("cameras.txt", "images.txt", "points3D.txt")}
+
+
+def seeds() -> dict[str, dict]:
+    """name -> {"files": {rel: bytes}, "input": rel, "mutable": [rel, ...], "binary": bool,
+    "control": rel or None}."""
+    s = {}
+
+    def add(name, files, inp, mutable=None, binary=False, control=None):
+        s[name] = {"files": files, "input": inp, "mutable": mutable or [inp], "binary": binary,
+                   "control": control}
+
+    add("gama-levelling", {"a.gkf": (REPO / "data" / "demo-levelling.gkf").read_bytes()}, "a.gkf")
+    add("gama-loop", {"a.gkf": (VALID / "levelling-valid.gkf").read_bytes()}, "a.gkf")
+    for name in ("geodet-pc-123.gkf", "jezerka-ang.gkf", "local_3d.gkf"):
+        if (EXTDATA_GAMA / name).exists():
+            add(f"gama-{name[:-4]}", {"a.gkf": (EXTDATA_GAMA / name).read_bytes()}, "a.gkf")
+    add("native-levelling", {"a.json": (VALID / "levelling-valid.json").read_bytes()}, "a.json")
+    add("native-imodel", {"a.json": (REPO / "data" / "demo-imodel.json").read_bytes()}, "a.json")
+    add("native-block", {"a.json": (REPO / "data" / "demo-block.json").read_bytes()}, "a.json")
+    add("bal", {"a.txt": (VALID / "bal-valid.txt").read_bytes()}, "a.txt")
+    add("bundler", {"a.out": (VALID / "bundler-valid.out").read_bytes()}, "a.out")
+    text = _colmap_text()
+    add("colmap-text", text, "model", mutable=list(text))
+    binary = {f"model/{k}": v for k, v in colmap_binary(VALID / "colmap-valid").items()}
+    add("colmap-binary", binary, "model", mutable=list(binary), binary=True)
+    add("control", {"a.txt": (VALID / "bal-valid.txt").read_bytes(),
+                    "c.csv": (VALID / "control-valid.csv").read_bytes()}, "a.txt", mutable=["c.csv"],
+        control="c.csv")
+    return s
+
+
+SEEDS = seeds()
+
+
+# --------------------------------------------------------------------------------------------
+# mutations
+# --------------------------------------------------------------------------------------------
+NUMBER = re.compile(rb"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+REPLACEMENTS = [b"1e308", b"-1e308", b"1e-300", b"1e-320", b"1e300", b"0", b"-0", b"nan", b"inf", b"-1",
+                b"9" * 400, b"1" + b"0" * 5000, "\u00b2".encode(), "\u2460".encode(), "\u0663".encode(),
+                "1\u00b2".encode(), b"0x10", b"1_000", b"", b"x", b"\"", b"<", b",", b"{", b"]",
+                b"1e1000", b"4.9e-324", b"1.7976931348623157e308", b"-2147483649", b"4294967296",
+                b"18446744073709551616"]
+CONTROLS = [b"\x1b[2J", b"\x1b]0;owned\x07", b"\r", b"\n", b"\x07", "\u202e".encode(), "\u0085".encode(),
+            b"\x00", b"\x7f", "\u2028".encode(), b"\t"]
+
+
+def _lines(b: bytes) -> list[bytes]:
+    return b.split(b"\n")
+
+
+def mutate_text(data: bytes, rng: random.Random, kind: str) -> bytes:
+    """One mutation of a text file."""
+    ops = ["flip", "delete", "duplicate", "swap", "number", "number", "number", "control", "truncate",
+           "span", "bom", "crlf", "cr", "long", "nest"]
+    op = rng.choice(ops)
+    lines = _lines(data)
+    k = rng.randrange(len(lines)) if lines else 0
+    if op == "flip" and data:
+        i = rng.randrange(len(data))
+        return data[:i] + bytes([rng.randrange(256)]) + data[i + 1:]
+    if op == "delete" and lines:
+        del lines[k]
+        return b"\n".join(lines)
+    if op == "duplicate" and lines:
+        lines.insert(k, lines[k])
+        return b"\n".join(lines)
+    if op == "swap" and lines:
+        j = rng.randrange(len(lines))
+        lines[k], lines[j] = lines[j], lines[k]
+        return b"\n".join(lines)
+    if op == "number":
+        found = list(NUMBER.finditer(data))
+        if found:
+            m = rng.choice(found)
+            return data[:m.start()] + rng.choice(REPLACEMENTS) + data[m.end():]
+    if op == "control" and data:
+        # next to an id or a number: ids end up in messages and summaries
+        quote = [m.end() - 1 for m in re.finditer(rb'"[A-Za-z0-9_]+"', data)] if kind in ("json", "xml") else []
+        i = rng.choice(quote) if quote and rng.random() < 0.7 else rng.randrange(len(data))
+        return data[:i] + rng.choice(CONTROLS) + data[i:]
+    if op == "truncate" and data:
+        return data[:rng.randrange(len(data))]
+    if op == "span" and data:
+        i = rng.randrange(len(data))
+        return data[:i] + data[i + rng.randint(1, 32):]
+    if op == "bom":
+        return b"\xef\xbb\xbf" + data
+    if op == "crlf":
+        return data.replace(b"\n", b"\r\n")
+    if op == "cr":
+        return data.replace(b"\n", b"\r")
+    if op == "long" and data:
+        i = rng.randrange(len(data))
+        return data[:i] + rng.choice([b"x", b"7", b" "]) * 200_000 + data[i:]
+    if op == "nest":
+        depth = rng.choice([100, 1000, 5000])
+        if kind == "json":
+            found = list(NUMBER.finditer(data))
+            if found:
+                m = rng.choice(found)
+                return data[:m.start()] + b"[" * depth + m.group() + b"]" * depth + data[m.end():]
+        if kind == "xml":
+            i = data.find(b"<points-observations>")
+            if i >= 0:
+                i += len(b"<points-observations>")
+                return data[:i] + b"<a>" * depth + b"</a>" * depth + data[i:]
+    return data
+
+
+def mutate_binary(data: bytes, rng: random.Random) -> bytes:
+    op = rng.choice(["flip", "flip", "delete", "insert", "truncate", "big"])
+    if not data:
+        return data
+    i = rng.randrange(len(data))
+    if op == "flip":
+        return data[:i] + bytes([rng.randrange(256)]) + data[i + 1:]
+    if op == "delete":
+        return data[:i] + data[i + rng.randint(1, 16):]
+    if op == "insert":
+        return data[:i] + bytes(rng.randrange(256) for _ in range(rng.randint(1, 16))) + data[i:]
+    if op == "truncate":
+        return data[:i]
+    # a double or count replaced by an extreme value
+    i -= i % 8
+    val = rng.choice([struct.pack("<d", v) for v in (1e308, 1e-300, float("nan"), float("inf"), 0.0)]
+                     + [struct.pack("<Q", v) for v in (2**63, 2**32, 0)])
+    return data[:i] + val + data[i + 8:]
+
+
+def _kind(rel: str) -> str:
+    return {"gkf": "xml", "json": "json"}.get(rel.rsplit(".", 1)[-1], "text")
+
+
+def make_case(seed: dict, rng: random.Random) -> dict[str, bytes]:
+    files = dict(seed["files"])
+    for _ in range(rng.choice([1, 1, 1, 2, 3])):
+        rel = rng.choice(seed["mutable"])
+        files[rel] = (mutate_binary(files[rel], rng) if seed["binary"]
+                      else mutate_text(files[rel], rng, _kind(rel)))
+    return files
+
+
+def run_case(name: str, files: dict[str, bytes], tmp: Path, what: str = "") -> int:
+    seed = SEEDS[name]
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    for rel, data in files.items():
+        (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp / rel).write_bytes(data)
+    out = tmp / "result.json"
+    argv = ["analyze", str(tmp / seed["input"]), "--json", str(out), "--top", "3"]
+    if seed["control"]:
+        argv += ["--control", str(tmp / seed["control"])]
+    return check_contract(argv, out, what or name)
+
+
+def fuzz(name: str, n: int, tmp: Path, base_seed: int = 0) -> dict[int, int]:
+    """``n`` mutated cases of seed ``name``; returns how many ended with each exit status."""
+    counts: dict[int, int] = {}
+    for k in range(n):
+        rng = random.Random(f"{name}:{base_seed}:{k}")
+        files = make_case(SEEDS[name], rng)
+        code = run_case(name, files, tmp / "case", what=f"{name} case {k} (seed {base_seed})")
+        counts[code] = counts.get(code, 0) + 1
+    return counts
+
+
+# --------------------------------------------------------------------------------------------
+# tests
+# --------------------------------------------------------------------------------------------
+# cases per seed: the fast subset (unmarked) and the big run (slow); the native bundle block
+# costs ~0.4 s per analysis, the others 10-50 ms
+FAST = {"native-block": 4}
+SLOW = {"native-block": 60}
+
+
+@pytest.mark.parametrize("name", sorted(SEEDS))
+def test_valid_seed_keeps_the_contract(name, tmp_path):
+    assert run_case(name, SEEDS[name]["files"], tmp_path / "case") == 0
+
+
+@pytest.mark.parametrize("name", sorted(SEEDS))
+def test_fuzz_contract_fast(name, tmp_path):
+    counts = fuzz(name, FAST.get(name, 25), tmp_path, base_seed=1)
+    assert sum(counts.values()) == FAST.get(name, 25)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(SEEDS))
+def test_fuzz_contract_slow(name, tmp_path):
+    n = SLOW.get(name, 400)
+    counts = fuzz(name, n, tmp_path, base_seed=2)
+    assert sum(counts.values()) == n
+    assert counts.get(2, 0) > 0          # the mutations do reach the readers' checks
+
+
+if __name__ == "__main__":   # exploration: python tests/test_fuzz_contract.py NAME N [SEED]
+    import sys
+    import tempfile
+
+    name, n = sys.argv[1], int(sys.argv[2])
+    base = int(sys.argv[3]) if len(sys.argv) > 3 else 0
+    fails = 0
+    with tempfile.TemporaryDirectory() as d:
+        for k in range(n):
+            rng = random.Random(f"{name}:{base}:{k}")
+            files = make_case(SEEDS[name], rng)
+            try:
+                run_case(name, files, Path(d) / "case", what=f"{name} case {k} (seed {base})")
+            except AssertionError as e:
+                fails += 1
+                print(str(e)[:400])
+    print(f"{name}: {fails} of {n} broke the contract")
