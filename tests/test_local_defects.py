@@ -241,3 +241,71 @@ def test_cli_names_zero_baseline_points_and_strict_refuses(balbianello, tmp_path
     assert err.count("\n") == 1 and "--strict" in err
     for i in ids:
         assert f"point {i} " in err
+
+
+# --------------------------------------------------------------------------------------------
+# native photogrammetric blocks (baarda.bundle.Block)
+# --------------------------------------------------------------------------------------------
+def add_native(block, images=(), cameras=(), points=(), obs=()):
+    """A native Block with extra cameras, images, points and error-free image points."""
+    from baarda.bundle import ImageObservations, project
+
+    cams = block.cameras + tuple(cameras)
+    imgs = block.images + tuple(images)
+    pts = block.points + tuple(points)
+    iidx = {im.id: k for k, im in enumerate(imgs)}
+    pidx = {p.id: k for k, p in enumerate(pts)}
+    camd = {c.id: c for c in cams}
+    oi = np.array([iidx[a] for a, _ in obs], dtype=np.int64)
+    op = np.array([pidx[b] for _, b in obs], dtype=np.int64)
+    xy = np.array([project(camd[imgs[i].camera], [imgs[i]], [(pts[p].X, pts[p].Y, pts[p].Z)])[0]
+                   for i, p in zip(oi, op)]).reshape(-1, 2)
+    o = block.obs
+    cov = np.broadcast_to(o.cov[0], (len(obs), 2, 2))
+    new = ImageObservations(np.concatenate([o.image, oi]), np.concatenate([o.point, op]),
+                            np.vstack([o.xy, xy]), np.concatenate([o.cov, cov]),
+                            np.concatenate([o.line, np.zeros(len(obs), dtype=np.int64)]))
+    return block.replace(cameras=cams, images=imgs, points=pts, obs=new)
+
+
+def test_native_block(tmp_path):
+    """A simulated aerial block with a duplicated image, zero-baseline and single-ray points, a
+    starved image and a camera with APs on too few points; a single-ray *control* point is
+    determined by its control and stays."""
+    from dataclasses import replace
+
+    from baarda.bundle import Camera, ObjectPoint, build_block_problem
+    from baarda.simulate import simulate_block
+
+    base, _ = simulate_block(strips=2, images_per_strip=4, control="perimeter", seed=1)
+    im0, im3, im5 = base.images[0], base.images[3], base.images[5]
+    seen0 = [base.points[p].id for p in np.unique(base.obs.point[base.obs.image == 0])]
+    seen5 = [base.points[p].id for p in np.unique(base.obs.point[base.obs.image == 5])]
+    Zg = float(np.mean([p.Z for p in base.points]))
+    dup = replace(im0, id="dup")
+    ctrl = ObjectPoint("ctl", im3.X0 + 20.0, im3.Y0 - 15.0, Zg, status="control",
+                       ref=(im3.X0 + 20.0, im3.Y0 - 15.0, Zg), sigma_h=0.05, sigma_v=0.05)
+    ref = add_native(base, images=[dup], points=[ctrl],
+                     obs=[("dup", p) for p in seen0] + [(im3.id, "ctl")])
+    zb = [ObjectPoint(f"zb{j}", im0.X0 + 30.0 * j, im0.Y0 + 10.0, Zg) for j in range(2)]
+    sr = [ObjectPoint("sr", im3.X0 - 10.0, im3.Y0 + 5.0, Zg)]
+    starved = replace(im3, id="starved", X0=im3.X0 + 40.0)
+    apcam = Camera("apcam", c=base.cameras[0].c, unit=base.cameras[0].unit, width=base.cameras[0].width,
+                   height=base.cameras[0].height, ap=("brown",))
+    apimg = replace(im5, id="apimg", camera="apcam", X0=im5.X0 + 25.0)
+    b = add_native(ref, images=[starved, apimg], cameras=[apcam], points=zb + sr,
+                   obs=[(i, p.id) for p in zb for i in (im0.id, "dup")] + [(im3.id, "sr")]
+                   + [("starved", seen0[0]), ("starved", "sr")] + [("apimg", p) for p in seen5[:4]])
+    reduced, defects = find_defects(b)
+    named = {(d.entity, d.id) for d in defects}
+    assert named == {("point", "zb0"), ("point", "zb1"), ("point", "sr"), ("image", "starved"),
+                     ("camera", "apcam"), ("image", "apimg")}, named
+    assert all("same centre" in d.reason for d in defects if d.id.startswith("zb"))
+    with pytest.raises(DatumDefectError):
+        adjust(build_block_problem(b))
+    adj, used = adjust_block(build(b))
+    reference = adjust(build_block_problem(ref))
+    assert [tuple(d.values()) for d in adj.problem.info.ids] == [tuple(d.values()) for d in reference.problem.info.ids]
+    np.testing.assert_allclose(adj.r, reference.r, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(adj.w, reference.w, rtol=1e-6, atol=1e-6)
+    assert "ctl" in [p.id for p in reduced.points]
