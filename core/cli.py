@@ -415,11 +415,12 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_report(args) -> int:
-    from .adjust import Options, adjust
+    from .adjust import Options
     from .io import read_problem
+    from .sfm_defects import adjust_block
 
     problem = read_problem(args.input, args.format)
-    adj = adjust(problem, Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method))
+    adj, problem = adjust_block(problem, Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method))
     out = Path(args.out) if args.out else Path(args.input).with_suffix(".html")
     if out.resolve() == Path(args.input).resolve():
         raise BaardaError(f"{out}: refusing to overwrite the input file")

@@ -22,7 +22,8 @@ can leave a point on one ray):
   .. math:: σ_d ≈ \\sqrt{2}\\, d\\, σ_θ / γ
 
   — the normal case of stereo photogrammetry, σ_Z = (Z/B)(Z/c) σ_px with the x-parallax
-  σ_px = √2 σ and γ = B/Z (Kraus 2007, §4.4 eq. 4.4-8; Hartley & Zisserman 2004, §12.6).
+  σ_px = √2 σ and γ = B/Z (Kraus 2007, the normal case; Hartley & Zisserman 2004, §12.6 on
+  the uncertainty of a triangulated point).
   A point is a defect when σ_d would exceed ``K`` × the block extent L (K = 10⁶ by default,
   :data:`DEPTH_FACTOR`), i.e. when
 
