@@ -309,3 +309,27 @@ def test_native_block(tmp_path):
     np.testing.assert_allclose(adj.r, reference.r, rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(adj.w, reference.w, rtol=1e-6, atol=1e-6)
     assert "ctl" in [p.id for p in reduced.points]
+
+
+def test_real_colmap_model_with_identical_poses():
+    """The issue's case on the real COLMAP model: an image with the very pose of another and
+    four points seen by these two only; plus a point measured twice (two keypoints) in one image
+    only — one ray, not two."""
+    path = require_extdata(EXTDATA / "colmap" / "test_colmap-sparse0")
+    model = read_model(path)
+    ref = duplicate_image(model, 0)
+    zb = [f"zb{j}" for j in range(4)]
+    b = add(ref, points=zb + ["dk"], X=np.vstack([in_front(ref, 0, 4, depth=5.0, seed=1), in_front(ref, 2, 1, seed=4)]),
+            obs=[(i, p) for p in zb for i in (ref.images[0].id, "dup")])
+    k2 = ref.images[2].id
+    b = add(b, obs=[(k2, "dk"), (k2, "dk")])
+    b = b.replace(xy=b.xy.copy())
+    b.xy[-1] += 3.0                                     # the second keypoint elsewhere
+    reduced, defects = find_defects(b)
+    assert {(d.entity, d.id) for d in defects} == {("point", p) for p in zb + ["dk"]}
+    assert next(d for d in defects if d.id == "dk").reason.startswith("single ray")
+    adj, used = adjust_block(build(b))
+    reference = adjust(build_sfm_problem(ref))
+    assert adj.converged and reference.converged
+    np.testing.assert_allclose(adj.r, reference.r, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(adj.w, reference.w, rtol=1e-6, atol=1e-6)
