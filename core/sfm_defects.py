@@ -330,18 +330,35 @@ def find_defects(model, factor: float = DEPTH_FACTOR):
     return _reduce(v, point_on, image_on, camera_on, obs_on), defects
 
 
+def _subset_extra(extra: dict, n_obs: int, keep_obs, n_pts: int, keep_pts, n_img: int, keep_img) -> dict:
+    """``extra`` with its arrays per observation, point or image (e.g. COLMAP's keypoint index
+    per image point, byte offsets of records) cut like the block; other values as they are."""
+    out = {}
+    for k, val in extra.items():
+        if isinstance(val, np.ndarray) and val.ndim >= 1:
+            if val.shape[0] == n_obs:
+                val = val[keep_obs]
+            elif val.shape[0] == n_pts:
+                val = val[keep_pts]
+            elif val.shape[0] == n_img:
+                val = val[keep_img]
+        out[k] = val
+    return out
+
+
 def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
     """A copy of the block with only the kept points, images, cameras and observations."""
     model = v.model
     new_point = np.cumsum(point_on) - 1
     new_image = np.cumsum(image_on) - 1
     keep = np.flatnonzero(obs_on)
+    extra = _subset_extra(model.extra, obs_on.size, keep, point_on.size, np.flatnonzero(point_on),
+                          image_on.size, np.flatnonzero(image_on))
     used_cams = {v.camera_ids[c] for c in np.unique(v.image_camera[image_on])}
     pts_kept = np.flatnonzero(point_on)
     if v.sfm:
         b = model
         kept_ids = {b.points[i] for i in pts_kept}
-        extra = dict(b.extra)
         return b.replace(
             cameras=tuple(c for c in b.cameras if c.id in used_cams),
             images=tuple(im for k, im in enumerate(b.images) if image_on[k]),
@@ -365,7 +382,7 @@ def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
     return b.replace(cameras=tuple(c for c in b.cameras if c.id in used_cams),
                      images=tuple(im for k, im in enumerate(b.images) if image_on[k]),
                      points=tuple(b.points[i] for i in pts_kept), obs=obs,
-                     sbase=tuple(s for s in b.sbase if s in kept_ids), extra=dict(b.extra))
+                     sbase=tuple(s for s in b.sbase if s in kept_ids), extra=extra)
 
 
 def remove(model, points=(), images=(), cameras=()):

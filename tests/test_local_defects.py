@@ -333,3 +333,18 @@ def test_real_colmap_model_with_identical_poses():
     assert adj.converged and reference.converged
     np.testing.assert_allclose(adj.r, reference.r, rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(adj.w, reference.w, rtol=1e-6, atol=1e-6)
+
+
+def test_arrays_in_extra_are_cut_like_the_block(balbianello):
+    """Per-observation, per-point and per-image arrays the readers keep in ``extra`` (COLMAP's
+    keypoint index, byte offsets) follow the reduction; the input's stay as they were."""
+    b = add(balbianello, points=["one"], X=in_front(balbianello, 1, 1, seed=9), obs=[("1", "one")])
+    n, m, k = b.obs_image.size, len(b.points), len(b.images)
+    b = b.replace(extra={"obs_keypoint": np.arange(n) + 1000, "point_offset": np.arange(m) * 10,
+                         "image_offset": np.arange(k) * 7, "note": "kept"})
+    reduced, defects = find_defects(b)
+    assert [(d.entity, d.id) for d in defects] == [("point", "one")]
+    assert np.array_equal(reduced.extra["obs_keypoint"], np.arange(n - 1) + 1000)
+    assert np.array_equal(reduced.extra["point_offset"], np.arange(m - 1) * 10)
+    assert np.array_equal(reduced.extra["image_offset"], np.arange(k) * 7)
+    assert reduced.extra["note"] == "kept" and b.extra["obs_keypoint"].size == n
