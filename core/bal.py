@@ -312,6 +312,15 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     kinds = ["image-x", "image-y"] * m
     ids = [{"image": img_ids[ii[k]], "point": block.points[pp[k]], "component": c}
            for k in range(m) for c in "xy"]
+    kp = block.extra.get("obs_keypoint")
+    if kp is not None and m:
+        # several keypoints of one image on one point (COLMAP): each an observation of its own,
+        # told apart by its keypoint index (POINT2D_IDX)
+        _, inv, cnt = np.unique(ii * len(block.points) + pp, return_inverse=True, return_counts=True)
+        for k in np.flatnonzero(cnt[inv] > 1):
+            for c in (0, 1):
+                ids[2 * k + c] = {"image": img_ids[ii[k]], "point": block.points[pp[k]],
+                                  "keypoint": int(kp[k]), "component": "xy"[c]}
     l = [block.xy.ravel()]
     units = ["px"] * (2 * m)
     sfile = [block.sigma_px] * (2 * m)
@@ -352,7 +361,8 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     return Problem(params=params, sets=tuple(sets), l=lvec, cov=cov, info=info, points=pts, datum=datum,
                    sigma0=1.0, sigma_act="apriori", source=block.source, title=block.title,
                    extra={"block": sfm_geometry(block), "convention": block.convention,
-                          "image_names": {im.id: im.name for im in block.images}})
+                          "image_names": {im.id: im.name for im in block.images},
+                          "duplicate_keypoints": block.extra.get("duplicate_keypoints")})
 
 
 def sfm_geometry(block: SfmBlock) -> dict:

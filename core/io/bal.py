@@ -124,38 +124,74 @@ class Tokens:
 # --------------------------------------------------------------------------------------------
 # checks shared by the SfM readers
 # --------------------------------------------------------------------------------------------
-def check_block(path, block: SfmBlock) -> SfmBlock:
-    """Validate the structure of a block (module docstring); return it or raise InputError."""
+def check_block(path, block: SfmBlock, image_path=None) -> SfmBlock:
+    """Validate the structure of a block (module docstring); return it or raise InputError.
+
+    A COLMAP block (``block.extra["obs_keypoint"]``) may observe a point by several keypoints of
+    one image; only the same keypoint twice is an error there. COLMAP errors name the point's
+    line of ``path`` (points3D) or the image's line of ``image_path`` (images), or, for binary
+    files, the byte offset of the record (``extra["point_offset"]``, ``extra["image_offset"]``).
+    """
     path = str(path)
+    image_path = path if image_path is None else str(image_path)
     ni, npt, n = len(block.images), len(block.points), block.obs_image.size
+    colmap = block.convention == "colmap"
+    p_off, i_off = block.extra.get("point_offset"), block.extra.get("image_offset")
+
+    def at_point(p: int, obs: int | None = None) -> InputError:
+        def err(message):
+            if p_off is not None:
+                return InputError(path, 0, message, offset=int(p_off[p]))
+            if colmap:
+                return InputError(path, int(block.point_line[p]), message)
+            return InputError(path, int(block.obs_line[obs]) if obs is not None else int(block.point_line[p]),
+                              message)
+        return err
+
+    def at_image(k: int):
+        def err(message):
+            if i_off is not None:
+                return InputError(image_path, 0, message, offset=int(i_off[k]))
+            return InputError(image_path, int(block.images[k].line), message)
+        return err
+
     if ni == 0 or npt == 0 or n == 0:
         raise InputError(path, 1, f"empty block: {ni} images, {npt} points, {n} image points")
     ii, pp = block.obs_image, block.obs_point
+    kp = block.extra.get("obs_keypoint")
     key = ii * npt + pp
-    order = np.argsort(key, kind="stable")
-    dup = np.flatnonzero(np.diff(key[order]) == 0)
+    order = np.argsort(key, kind="stable") if kp is None else np.lexsort((kp, key))
+    same = np.diff(key[order]) == 0
+    if kp is not None:
+        same &= np.diff(kp[order]) == 0
+    dup = np.flatnonzero(same)
     if dup.size:
         a, b = order[dup[0]], order[dup[0] + 1]
+        if kp is not None:
+            raise at_point(int(pp[b]))(f"point {block.points[pp[b]]}: its track lists image point {kp[b]} "
+                                       f"of image {block.images[ii[b]].id} twice")
         raise InputError(path, int(block.obs_line[b]),
                          f"point {block.points[pp[b]]} is measured twice in image "
                          f"{block.images[ii[b]].id} (first at line {block.obs_line[a]})")
-    per_point = np.bincount(pp, minlength=npt)
+    # rays per point and points per image count distinct (image, point) pairs
+    first = np.ones(n, dtype=bool)
+    first[order[1:]] = np.diff(key[order]) != 0
+    per_point = np.bincount(pp[first], minlength=npt)
     few = np.flatnonzero(per_point < 2)
     if few.size:
-        p = few[0]
+        p = int(few[0])
         where = np.flatnonzero(pp == p)
-        line = int(block.obs_line[where[0]]) if where.size else int(block.point_line[p])
         more = f" (and {few.size - 1} more points)" if few.size > 1 else ""
-        raise InputError(path, line, f"point {block.points[p]} is seen by {per_point[p]} image"
-                         f"{'' if per_point[p] == 1 else 's'}; at least 2 are needed to intersect it{more}")
-    per_image = np.bincount(ii, minlength=ni)
+        raise at_point(p, int(where[0]) if where.size else None)(
+            f"point {block.points[p]} is seen by {per_point[p]} image{'' if per_point[p] == 1 else 's'}; "
+            f"at least 2 are needed to intersect it{more}")
+    per_image = np.bincount(ii[first], minlength=ni)
     few = np.flatnonzero(per_image < 3)
     if few.size:
-        k = few[0]
+        k = int(few[0])
         more = f" (and {few.size - 1} more images)" if few.size > 1 else ""
-        raise InputError(path, int(block.images[k].line),
-                         f"image {block.images[k].id} sees {per_image[k]} point"
-                         f"{'' if per_image[k] == 1 else 's'}; at least 3 are needed to orient it{more}")
+        raise at_image(k)(f"image {block.images[k].id} sees {per_image[k]} point"
+                          f"{'' if per_image[k] == 1 else 's'}; at least 3 are needed to orient it{more}")
     graph = coo_matrix((np.ones(n), (ii, ni + pp)), shape=(ni + npt, ni + npt))
     nc, label = connected_components(graph, directed=False)
     if nc > 1:
@@ -166,10 +202,9 @@ def check_block(path, block: SfmBlock) -> SfmBlock:
             parts.append(f"images {', '.join(imgs[:6])}{' ...' if len(imgs) > 6 else ''} with {npts} points")
         sizes = np.bincount(label[:ni], minlength=nc)
         small = int(np.argmin(sizes))
-        first = int(np.flatnonzero(label[:ni] == small)[0])
-        raise InputError(path, int(block.images[first].line),
-                         f"the block falls apart into {nc} parts that share no point: "
-                         + "; ".join(parts[:5]) + (" ..." if nc > 5 else ""))
+        k = int(np.flatnonzero(label[:ni] == small)[0])
+        raise at_image(k)(f"the block falls apart into {nc} parts that share no point: "
+                          + "; ".join(parts[:5]) + (" ..." if nc > 5 else ""))
     return block
 
 

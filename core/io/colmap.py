@@ -14,7 +14,8 @@ Text formats (COLMAP documentation, "Output format")::
 Binary formats: little-endian, the same fields; counts as uint64, ids as uint32 (images,
 cameras) and uint64 (points, 2⁶⁴ − 1 meaning none), model ids as int32 (0 SIMPLE_PINHOLE,
 1 PINHOLE, 2 SIMPLE_RADIAL, 3 RADIAL, 4 OPENCV, ...), names null-terminated. Errors in binary
-files report line 0 and the byte offset.
+files name the byte offset of the record at fault (``points3D.bin:byte 812: ...``). Each file may
+be compressed (``images.txt.gz``, :mod:`baarda.io.source`).
 
 Conventions: the pose (q, t) maps world to camera, q = (w, x, y, z) scalar first
 (:func:`baarda.rotation.R_from_quaternion`); the camera looks down +z; pixel coordinates have
@@ -36,7 +37,8 @@ import numpy as np
 from ..bal import CAMERA_MODELS, SfmBlock, SfmCamera, SfmImage
 from ..errors import InputError
 from ..rotation import R_from_quaternion, rodrigues_from_R
-from .bal import check_block, read_text
+from .bal import check_block
+from .source import EXTENSIONS, logical_path, open_binary, read_bytes, read_text
 
 MODEL_IDS = {0: "SIMPLE_PINHOLE", 1: "PINHOLE", 2: "SIMPLE_RADIAL", 3: "RADIAL", 4: "OPENCV",
              5: "OPENCV_FISHEYE", 6: "FULL_OPENCV", 7: "FOV", 8: "SIMPLE_RADIAL_FISHEYE",
@@ -46,41 +48,63 @@ FILES = ("cameras", "images", "points3D")
 INVALID_ID = 2 ** 64 - 1
 
 
-def model_files(path) -> tuple[Path, str] | None:
-    """(directory, ".txt" or ".bin") of the COLMAP model at ``path`` (the directory or one of
-    its files), or None when there is none."""
+def _find(d: Path, name: str, ext: str) -> Path | None:
+    """``d/name.ext``, or the same compressed (``.gz``, ``.bz2``, ``.xz``), if it is a file."""
+    for comp in ("", *EXTENSIONS):
+        f = d / f"{name}{ext}{comp}"
+        if f.is_file():
+            return f
+    return None
+
+
+def model_files(path) -> tuple[Path, str, tuple[Path, Path, Path]] | None:
+    """(directory, ".txt" or ".bin", (cameras, images, points3D) files) of the COLMAP model at
+    ``path`` (the directory or one of its files, each perhaps compressed), or None."""
     p = Path(path)
     d = p if p.is_dir() else p.parent
-    if not p.is_dir() and p.stem not in FILES:
+    if not p.is_dir() and logical_path(p).stem not in FILES:
         return None
     for ext in (".txt", ".bin"):
-        if all((d / f"{name}{ext}").is_file() for name in FILES):
-            return d, ext
+        files = [_find(d, name, ext) for name in FILES]
+        if all(files):
+            return d, ext, tuple(files)
     return None
 
 
 def read_colmap(path, sigma_px: float = 1.0, refine_intrinsics: bool = False, check: bool = True) -> SfmBlock:
-    """Read a COLMAP sparse model (directory or one of its files) into an SfmBlock."""
+    """Read a COLMAP sparse model (directory or one of its files) into an SfmBlock.
+
+    Several keypoints of one image may observe the same 3D point (COLMAP allows it, and real
+    models have it): each is an observation of its own, named by its keypoint index
+    (POINT2D_IDX) in ``block.extra["obs_keypoint"]``; ``block.extra["duplicate_keypoints"]``
+    counts the points concerned and the observations beyond the first.
+    """
     found = model_files(path)
     if found is None:
         p = Path(path)
         d = p if p.is_dir() else p.parent
         have = sorted(f.name for f in d.glob("*")) if d.is_dir() else []
-        ext = ".bin" if any(h.endswith(".bin") for h in have) else ".txt"
-        missing = [f"{n}{ext}" for n in FILES if f"{n}{ext}" not in have]
+        ext = ".bin" if any(".bin" in h for h in have) else ".txt"
+        missing = [f"{n}{ext}" for n in FILES if _find(d, n, ext) is None]
         raise InputError(path, 0, f"not a complete COLMAP model: missing {', '.join(missing) or 'files'} "
                          f"(found: {', '.join(have[:8]) or 'nothing'})")
-    d, ext = found
+    d, ext, (cam_path, img_path, pt_path) = found
     if ext == ".txt":
-        cams = _cameras_txt(d / "cameras.txt")
-        imgs = _images_txt(d / "images.txt")
-        pts = _points_txt(d / "points3D.txt")
+        cams = _cameras_txt(cam_path)
+        imgs = _images_txt(img_path)
+        pts = _points_txt(pt_path)
     else:
-        cams = _cameras_bin(d / "cameras.bin")
-        imgs = _images_bin(d / "images.bin")
-        pts = _points_bin(d / "points3D.bin")
-    block = _assemble(d, ext, cams, imgs, pts, sigma_px, refine_intrinsics)
-    return check_block(d / f"points3D{ext}", block) if check else block
+        cams = _cameras_bin(cam_path)
+        imgs = _images_bin(img_path)
+        pts = _points_bin(pt_path)
+    block = _assemble(d, ext == ".bin", (cam_path, img_path, pt_path), cams, imgs, pts, sigma_px,
+                      refine_intrinsics)
+    return check_block(pt_path, block, image_path=img_path) if check else block
+
+
+def _error(path, where: int, message: str, binary: bool) -> InputError:
+    """InputError at a line of a text file, or at a byte offset of a binary one."""
+    return InputError(path, 0, message, offset=where) if binary else InputError(path, where, message)
 
 
 # --------------------------------------------------------------------------------------------
@@ -116,59 +140,137 @@ def _pose(path, line, iid, q, t) -> tuple:
     return tuple(float(v) for v in rho), tuple(float(v) for v in t)
 
 
-def _assemble(d, ext, cams, imgs, pts, sigma_px, refine) -> SfmBlock:
-    cam_path, img_path, pt_path = (d / f"{name}{ext}" for name in FILES)
-    images, where = [], {}
-    for iid, (line, q, t, cid, name, xy, p3d, pline) in imgs.items():
+class _Images:
+    """Images as read: per image (where, q, t, camera id, name, where of its image points), and
+    all image points in one array (xy, POINT3D_ID or −1), image k's from ``off[k]`` on."""
+
+    def __init__(self):
+        self.ids, self.recs, self.xy, self.p3d, self.counts = [], [], [], [], []
+
+    def add(self, iid, where, q, t, cid, name, xy, p3d, pwhere):
+        self.ids.append(iid)
+        self.recs.append((where, q, t, cid, name, pwhere))
+        self.xy.append(xy)
+        self.p3d.append(p3d)
+        self.counts.append(len(p3d))
+
+    def done(self):
+        self.count = np.asarray(self.counts, dtype=np.int64)
+        self.off = np.concatenate([[0], np.cumsum(self.count)]).astype(np.int64)
+        self.xy = np.concatenate(self.xy).reshape(-1, 2) if self.xy else np.zeros((0, 2))
+        self.p3d = np.concatenate(self.p3d).astype(np.int64) if self.p3d else np.zeros(0, dtype=np.int64)
+        return self
+
+
+class _Points:
+    """Points as read: ids, where, coordinates, and all track elements (image id, POINT2D_IDX)
+    in one array, point k's from ``off[k]`` on."""
+
+    def __init__(self):
+        self.ids, self.where, self.xyz, self.tracks = [], [], [], []
+
+    def add(self, pid, where, xyz, track):
+        self.ids.append(pid)
+        self.where.append(where)
+        self.xyz.append(xyz)
+        self.tracks.append(track)
+
+    def done(self):
+        n = np.array([t.shape[0] for t in self.tracks], dtype=np.int64)
+        self.off = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
+        self.count = n
+        tr = np.concatenate(self.tracks).reshape(-1, 2) if self.tracks else np.zeros((0, 2), dtype=np.int64)
+        self.tracks = None
+        self.t_img, self.t_idx = tr[:, 0].astype(np.int64), tr[:, 1].astype(np.int64)
+        self.pid = np.asarray(self.ids, dtype=np.int64)
+        self.X = np.asarray(self.xyz, dtype=float).reshape(-1, 3)
+        self.xyz = None
+        return self
+
+
+def _assemble(d, binary, paths, cams, imgs: _Images, pts: _Points, sigma_px, refine) -> SfmBlock:
+    cam_path, img_path, pt_path = paths
+    cam_name, img_name, pt_name = (logical_path(p).name for p in paths)
+    images = []
+    for iid, (where, q, t, cid, name, _) in zip(imgs.ids, imgs.recs):
         if cid not in cams:
-            raise InputError(img_path, line, f"image {iid}: camera {cid} is not in {cam_path.name}")
-        rho, tt = _pose(img_path, line, iid, q, t)
-        where[iid] = len(images)
-        images.append(SfmImage(str(iid), str(cid), rho, tt, name, line))
-    used = {imgs[i][3] for i in imgs}
+            raise _error(img_path, where, f"image {iid}: camera {cid} is not in {cam_name}", binary)
+        rho, tt = _pose(img_path, where, iid, q, t) if not binary else _pose_bin(img_path, where, iid, q, t)
+        images.append(SfmImage(str(iid), str(cid), rho, tt, name, 0 if binary else where))
+    used = {rec[3] for rec in imgs.recs}
     cameras = tuple(c for cid, c in cams.items() if cid in used)
-    point_ids, X, point_line = [], [], []
-    oi, op, xy, oline = [], [], [], []
-    for k, (pid, (line, xyz, track)) in enumerate(pts.items()):
-        if not np.isfinite(xyz).all():
-            raise InputError(pt_path, line, f"point {pid}: coordinates are not finite")
-        for iid, idx in track:
-            if iid not in imgs:
-                raise InputError(pt_path, line, f"point {pid}: image {iid} of its track is not in {img_path.name}")
-            rec = imgs[iid]
-            if idx >= len(rec[6]):
-                raise InputError(pt_path, line, f"point {pid}: image {iid} has {len(rec[6])} image points, "
-                                 f"POINT2D_IDX {idx} is out of range")
-            if rec[6][idx] != pid:
-                raise InputError(pt_path, line, f"point {pid}: image point {idx} of image {iid} belongs to "
-                                 f"point {_pid(rec[6][idx])}, not to this one")
-            oi.append(where[iid])
-            op.append(k)
-            xy.append(rec[5][idx])
-            oline.append(rec[7])
-        point_ids.append(str(pid))
-        X.append(xyz)
-        point_line.append(line)
-    n_linked = sum(int(np.sum(np.asarray(r[6]) != -1)) for r in imgs.values())
-    if n_linked != len(oi):
-        for iid, rec in imgs.items():
-            for idx, pid in enumerate(rec[6]):
-                if pid != -1 and (pid not in pts or (iid, idx) not in set(map(tuple, pts[pid][2]))):
-                    raise InputError(img_path, rec[7], f"image {iid}: image point {idx} refers to point "
-                                     f"{pid}, whose track in {pt_path.name} does not list it")
-    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    # track elements → image index and image point (vectorised; errors in the order of the file)
+    img_ids = np.asarray(imgs.ids, dtype=np.int64)
+    order = np.argsort(img_ids, kind="stable")
+    T = pts.t_img.size
+    obs_point = np.repeat(np.arange(len(pts.ids), dtype=np.int64), pts.count)
+    pos = np.searchsorted(img_ids[order], pts.t_img)
+    pos = np.minimum(pos, max(len(order) - 1, 0))
+    known = (img_ids[order][pos] == pts.t_img) if len(order) else np.zeros(T, dtype=bool)
+    img = np.where(known, order[pos] if len(order) else 0, 0)
+    in_range = known & (pts.t_idx < imgs.count[img])
+    slot = np.where(in_range, imgs.off[img] + np.where(in_range, pts.t_idx, 0), 0)
+    belongs = in_range & (imgs.p3d[slot] == pts.pid[obs_point]) if imgs.p3d.size else in_range
+    bad = np.flatnonzero(~belongs)
+    if bad.size:
+        k = int(bad[0])
+        p, iid, idx = int(obs_point[k]), int(pts.t_img[k]), int(pts.t_idx[k])
+        pid, where = pts.ids[p], pts.where[p]
+        if not known[k]:
+            msg = f"point {pid}: image {iid} of its track is not in {img_name}"
+        elif not in_range[k]:
+            msg = (f"point {pid}: image {iid} has {imgs.count[img[k]]} image points, POINT2D_IDX {idx} is "
+                   "out of range")
+        else:
+            msg = (f"point {pid}: image point {idx} of image {iid} belongs to point "
+                   f"{_pid(int(imgs.p3d[slot[k]]))}, not to this one")
+        raise _error(pt_path, where, msg, binary)
+    linked = np.flatnonzero(imgs.p3d != -1)
+    if linked.size != T or not np.array_equal(np.unique(slot), linked):
+        missing = np.setdiff1d(linked, slot)
+        if missing.size:
+            j = int(missing[0])
+            k = int(np.searchsorted(imgs.off, j, side="right")) - 1
+            iid, idx = imgs.ids[k], j - int(imgs.off[k])
+            raise _error(img_path, imgs.recs[k][5], f"image {iid}: image point {idx} refers to point "
+                         f"{int(imgs.p3d[j])}, whose track in {pt_name} does not list it", binary)
+    xy = imgs.xy[slot] if T else np.zeros((0, 2))
     if not np.isfinite(xy).all():
         k = int(np.flatnonzero(~np.isfinite(xy).all(axis=1))[0])
-        raise InputError(img_path, oline[k], f"image {images[oi[k]].id}: image coordinates are not finite")
-    return SfmBlock(cameras=cameras, images=tuple(images), points=tuple(point_ids),
-                    X=np.asarray(X, dtype=float).reshape(-1, 3), point_line=np.asarray(point_line, dtype=np.int64),
-                    obs_image=np.asarray(oi, dtype=np.int64), obs_point=np.asarray(op, dtype=np.int64), xy=xy,
-                    obs_line=np.asarray(oline, dtype=np.int64), convention="colmap", sigma_px=sigma_px,
-                    refine_intrinsics=refine, source=str(d), title=Path(d).name)
+        raise _error(img_path, imgs.recs[img[k]][5], f"image {images[img[k]].id}: image coordinates are "
+                     "not finite", binary)
+    obs_line = np.zeros(T, dtype=np.int64) if binary else \
+        np.asarray([r[5] for r in imgs.recs], dtype=np.int64)[img]
+    point_where = np.asarray(pts.where, dtype=np.int64)
+    extra = {"obs_keypoint": pts.t_idx, "duplicate_keypoints": duplicate_keypoints(img, obs_point, len(pts.ids))}
+    if binary:
+        extra["point_offset"] = point_where
+        extra["image_offset"] = np.asarray([r[0] for r in imgs.recs], dtype=np.int64)
+    return SfmBlock(cameras=cameras, images=tuple(images), points=tuple(str(i) for i in pts.ids),
+                    X=pts.X, point_line=np.zeros(len(pts.ids), dtype=np.int64) if binary else point_where,
+                    obs_image=img.astype(np.int64), obs_point=obs_point, xy=np.ascontiguousarray(xy),
+                    obs_line=obs_line, convention="colmap", sigma_px=sigma_px, refine_intrinsics=refine,
+                    source=str(d), title=Path(d).name, extra=extra)
+
+
+def duplicate_keypoints(obs_image, obs_point, npt: int) -> dict:
+    """How many points are observed by more than one keypoint of some image, and how many
+    observations there are beyond the first of each (image, point) pair."""
+    key = obs_image.astype(np.int64) * max(npt, 1) + obs_point
+    key.sort()
+    dup = np.flatnonzero(np.diff(key) == 0) + 1
+    return {"points": int(np.unique(key[dup] % max(npt, 1)).size), "observations": int(dup.size)}
 
 
 def _pid(p):
     return "none (−1)" if p == -1 else p
+
+
+def _pose_bin(path, at, iid, q, t):
+    try:
+        return _pose(path, 0, iid, q, t)
+    except InputError as err:
+        raise InputError(path, 0, err.message, offset=at) from None
 
 
 # --------------------------------------------------------------------------------------------
@@ -179,6 +281,16 @@ def _records(path):
     text = read_text(path)
     return [(ln, s.split()) for ln, s in enumerate(text.splitlines(), 1)
             if s.strip() and not s.lstrip().startswith("#")], text
+
+
+def _lines(path):
+    """(line number, text) of each line of a (perhaps compressed) text file, read as a stream."""
+    with open_binary(path) as f:
+        for ln, raw in enumerate(f, 1):
+            try:
+                yield ln, raw.decode("utf-8")
+            except UnicodeDecodeError as err:
+                raise InputError(path, ln, f"not UTF-8 text (byte {err.start} of the line)") from None
 
 
 def _int(path, line, tok, what, allow_negative=False):
@@ -209,6 +321,18 @@ def _is_float(t):
         return False
 
 
+def _numbers(s: str) -> np.ndarray | None:
+    """The numbers of a line parsed at once, or None when that fails (the caller then looks
+    for the culprit token by token)."""
+    if not s.strip():
+        return np.zeros(0)
+    try:
+        a = np.fromstring(s, dtype=float, sep=" ")
+    except ValueError:
+        return None
+    return a
+
+
 def _cameras_txt(path) -> dict:
     recs, _ = _records(path)
     cams = {}
@@ -227,64 +351,96 @@ def _cameras_txt(path) -> dict:
     return cams
 
 
-def _images_txt(path) -> dict:
-    text = read_text(path)
-    lines = text.splitlines()
-    imgs = {}
-    k = 0
-    while k < len(lines):
-        s = lines[k]
-        k += 1
+_ID_EXACT = 2.0 ** 53
+
+
+def _images_txt(path) -> _Images:
+    imgs = _Images()
+    first = {}
+    it = _lines(path)
+    for line, s in it:
         if not s.strip() or s.lstrip().startswith("#"):
             continue
-        line = k
         tok = s.split()
         if len(tok) < 10:
             raise InputError(path, line, "expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'")
         iid = _int(path, line, tok[0], "IMAGE_ID")
-        if iid in imgs:
-            raise InputError(path, line, f"duplicate IMAGE_ID {iid} (first at line {imgs[iid][0]})")
+        if iid in first:
+            raise InputError(path, line, f"duplicate IMAGE_ID {iid} (first at line {first[iid]})")
+        first[iid] = line
         pose = _floats(path, line, tok[1:8], f"image {iid}: pose")
         cid = _int(path, line, tok[8], f"image {iid}: CAMERA_ID")
         name = " ".join(tok[9:])
-        if k >= len(lines):
+        nxt = next(it, None)
+        if nxt is None:
             raise InputError(path, line, f"image {iid}: the file ends before its line of image points")
-        pline = k + 1
-        ptok = lines[k].split()
-        k += 1
-        if len(ptok) % 3:
-            raise InputError(path, pline, f"image {iid}: image points must come as 'X Y POINT3D_ID' triples "
-                             f"({len(ptok)} numbers)")
-        m = len(ptok) // 3
-        trip = np.array(ptok, dtype=object).reshape(m, 3)
-        xy = _floats(path, pline, list(trip[:, :2].ravel()), f"image {iid}: image point").reshape(m, 2)
-        p3d = [_int(path, pline, t, f"image {iid}: POINT3D_ID", allow_negative=True) for t in trip[:, 2]]
-        if any(p < -1 for p in p3d):
-            raise InputError(path, pline, f"image {iid}: POINT3D_ID {min(p3d)} is invalid (−1 means none)")
-        imgs[iid] = (line, pose[:4], pose[4:], cid, name, xy, p3d, pline)
-    if not imgs:
+        pline, ps = nxt
+        a = _numbers(ps)
+        ok = (a is not None and a.size % 3 == 0 and np.isfinite(a).all()
+              and np.all(a[2::3] == np.floor(a[2::3])) and np.all(a[2::3] >= -1)
+              and np.all(np.abs(a[2::3]) < _ID_EXACT) and a.size == len(ps.split()))
+        if ok:
+            a = a.reshape(-1, 3)
+            xy, p3d = a[:, :2].copy(), a[:, 2].astype(np.int64)
+        else:
+            xy, p3d = _image_points_slow(path, pline, iid, ps.split())
+        imgs.add(iid, line, pose[:4], pose[4:], cid, name, xy, p3d, pline)
+    if not imgs.ids:
         raise InputError(path, 1, "no images")
-    return imgs
+    return imgs.done()
 
 
-def _points_txt(path) -> dict:
-    recs, _ = _records(path)
-    pts = {}
-    for line, tok in recs:
-        if len(tok) < 8:
-            raise InputError(path, line, "expected 'POINT3D_ID X Y Z R G B ERROR TRACK[]'")
-        pid = _int(path, line, tok[0], "POINT3D_ID")
-        if pid in pts:
-            raise InputError(path, line, f"duplicate POINT3D_ID {pid} (first at line {pts[pid][0]})")
-        xyz = _floats(path, line, tok[1:4], f"point {pid}: X Y Z")
-        track = tok[8:]
-        if len(track) % 2:
-            raise InputError(path, line, f"point {pid}: the track must come as 'IMAGE_ID POINT2D_IDX' pairs")
-        el = [_int(path, line, t, f"point {pid}: track") for t in track]
-        pts[pid] = (line, xyz, [(el[j], el[j + 1]) for j in range(0, len(el), 2)])
-    if not pts:
+def _image_points_slow(path, pline, iid, ptok):
+    if len(ptok) % 3:
+        raise InputError(path, pline, f"image {iid}: image points must come as 'X Y POINT3D_ID' triples "
+                         f"({len(ptok)} numbers)")
+    m = len(ptok) // 3
+    trip = np.array(ptok, dtype=object).reshape(m, 3)
+    xy = _floats(path, pline, list(trip[:, :2].ravel()), f"image {iid}: image point").reshape(m, 2)
+    p3d = [_int(path, pline, t, f"image {iid}: POINT3D_ID", allow_negative=True) for t in trip[:, 2]]
+    if any(p < -1 for p in p3d):
+        raise InputError(path, pline, f"image {iid}: POINT3D_ID {min(p3d)} is invalid (−1 means none)")
+    if any(p >= 2 ** 63 for p in p3d):
+        raise InputError(path, pline, f"image {iid}: POINT3D_ID {max(p3d)} is too large")
+    return xy, np.asarray(p3d, dtype=np.int64)
+
+
+def _points_txt(path) -> _Points:
+    pts = _Points()
+    first = {}
+    for line, s in _lines(path):
+        if not s.strip() or s.lstrip().startswith("#"):
+            continue
+        a = _numbers(s)
+        ok = (a is not None and a.size >= 8 and a.size % 2 == 0 and np.isfinite(a).all()
+              and a[0] >= 0 and a[0] < _ID_EXACT and a[0] == np.floor(a[0])
+              and np.all(a[8:] >= 0) and np.all(a[8:] < _ID_EXACT) and np.all(a[8:] == np.floor(a[8:]))
+              and a.size == len(s.split()))
+        if ok:
+            pid, xyz, track = int(a[0]), a[1:4], a[8:].astype(np.int64).reshape(-1, 2)
+        else:
+            pid, xyz, track = _point_slow(path, line, s.split())
+        if pid in first:
+            raise InputError(path, line, f"duplicate POINT3D_ID {pid} (first at line {first[pid]})")
+        first[pid] = line
+        pts.add(pid, line, xyz, track)
+    if not pts.ids:
         raise InputError(path, 1, "no points")
-    return pts
+    return pts.done()
+
+
+def _point_slow(path, line, tok):
+    if len(tok) < 8:
+        raise InputError(path, line, "expected 'POINT3D_ID X Y Z R G B ERROR TRACK[]'")
+    pid = _int(path, line, tok[0], "POINT3D_ID")
+    xyz = _floats(path, line, tok[1:4], f"point {pid}: X Y Z")
+    track = tok[8:]
+    if len(track) % 2:
+        raise InputError(path, line, f"point {pid}: the track must come as 'IMAGE_ID POINT2D_IDX' pairs")
+    el = [_int(path, line, t, f"point {pid}: track") for t in track]
+    if pid >= 2 ** 63 or any(e >= 2 ** 63 for e in el):
+        raise InputError(path, line, f"point {pid}: an id or index is too large")
+    return pid, xyz, np.asarray(el, dtype=np.int64).reshape(-1, 2)
 
 
 # --------------------------------------------------------------------------------------------
@@ -293,16 +449,16 @@ def _points_txt(path) -> dict:
 class _Bytes:
     def __init__(self, path):
         self.path = path
-        try:
-            self.data = Path(path).read_bytes()
-        except OSError as err:
-            raise InputError(path, 0, f"cannot read: {err.strerror}") from None
+        self.data = read_bytes(path)
         self.pos = 0
+
+    def fail(self, at: int, message: str):
+        raise InputError(self.path, 0, message, offset=at)
 
     def read(self, fmt: str, what: str):
         size = struct.calcsize("<" + fmt)
         if self.pos + size > len(self.data):
-            raise InputError(self.path, 0, f"the file ends early at byte {len(self.data)}: expected {what}")
+            self.fail(len(self.data), f"the file ends early: expected {what}")
         out = struct.unpack_from("<" + fmt, self.data, self.pos)
         self.pos += size
         return out
@@ -310,22 +466,21 @@ class _Bytes:
     def count(self, what: str, item_size: int) -> int:
         (n,) = self.read("Q", f"the number of {what}")
         if n * item_size > len(self.data) - self.pos:
-            raise InputError(self.path, 0, f"byte {self.pos - 8}: {n} {what} cannot fit in the "
-                             f"{len(self.data)}-byte file")
+            self.fail(self.pos - 8, f"{n} {what} cannot fit in the {len(self.data)}-byte file")
         return n
 
     def name(self, what: str) -> str:
         end = self.data.find(b"\0", self.pos)
         if end < 0:
-            raise InputError(self.path, 0, f"the file ends early: expected {what}")
+            self.fail(len(self.data), f"the file ends early: expected {what}")
         raw = self.data[self.pos:end]
         self.pos = end + 1
         return raw.decode("utf-8", "replace")
 
     def end(self):
         if self.pos != len(self.data):
-            raise InputError(self.path, 0, f"{len(self.data) - self.pos} bytes left after the last "
-                             f"record (byte {self.pos}): wrong counts or not a COLMAP file")
+            self.fail(self.pos, f"{len(self.data) - self.pos} bytes left after the last record: wrong counts "
+                      "or not a COLMAP file")
 
 
 def _cameras_bin(path) -> dict:
@@ -336,67 +491,78 @@ def _cameras_bin(path) -> dict:
         cid, mid, w, h = b.read("IiQQ", "a camera record")
         model = MODEL_IDS.get(mid, f"id {mid}")
         if model not in SUPPORTED:
-            raise InputError(path, 0, f"byte {at}: camera {cid}: unknown/unsupported camera model {model} "
-                             f"(supported: {', '.join(SUPPORTED)})")
+            b.fail(at, f"camera {cid}: unknown/unsupported camera model {model} (supported: {', '.join(SUPPORTED)})")
         k = len(CAMERA_MODELS[model][0])
         params = np.array(b.read("d" * k, f"camera {cid}: {k} parameters"))
         if cid in cams:
-            raise InputError(path, 0, f"byte {at}: duplicate CAMERA_ID {cid}")
+            b.fail(at, f"duplicate CAMERA_ID {cid}")
         try:
             cams[cid] = _camera(path, 0, cid, model, w, h, params)
         except InputError as err:
-            raise InputError(path, 0, f"byte {at}: {err.message}") from None
+            b.fail(at, err.message)
     b.end()
     if not cams:
-        raise InputError(path, 0, "no cameras")
+        b.fail(0, "no cameras")
     return cams
 
 
-def _images_bin(path) -> dict:
+_POINT2D = np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<u8")])
+
+
+def _images_bin(path) -> _Images:
     b = _Bytes(path)
-    imgs = {}
+    imgs = _Images()
+    seen = set()
     for _ in range(b.count("images", 64)):
         at = b.pos
         rec = b.read("I7dI", "an image record")
         iid, pose, cid = rec[0], np.array(rec[1:8]), rec[8]
-        if iid in imgs:
-            raise InputError(path, 0, f"byte {at}: duplicate IMAGE_ID {iid}")
+        if iid in seen:
+            b.fail(at, f"duplicate IMAGE_ID {iid}")
+        seen.add(iid)
         name = b.name(f"image {iid}: its name")
         m = b.count(f"image points of image {iid}", 24)
-        arr = np.frombuffer(b.data, dtype=np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<u8")]),
-                            count=m, offset=b.pos)
+        pat = b.pos
+        arr = np.frombuffer(b.data, dtype=_POINT2D, count=m, offset=b.pos)
         b.pos += 24 * m
         xy = np.column_stack([arr["x"], arr["y"]])
-        p3d = [(-1 if p == INVALID_ID else int(p)) for p in arr["id"]]
+        ids = arr["id"]
+        if np.any((ids >= 2 ** 63) & (ids != INVALID_ID)):
+            b.fail(pat, f"image {iid}: a POINT3D_ID is too large")
+        p3d = np.where(ids == INVALID_ID, -1, ids.astype(np.int64, casting="unsafe"))
         if not np.isfinite(pose).all():
-            raise InputError(path, 0, f"byte {at}: image {iid}: the pose has non-finite numbers")
-        imgs[iid] = (0, pose[:4], pose[4:], cid, name, xy, p3d, 0)
+            b.fail(at, f"image {iid}: the pose has non-finite numbers")
+        imgs.add(iid, at, pose[:4], pose[4:], cid, name, xy, p3d, pat)
     b.end()
-    if not imgs:
-        raise InputError(path, 0, "no images")
-    return imgs
+    if not imgs.ids:
+        b.fail(0, "no images")
+    return imgs.done()
 
 
-def _points_bin(path) -> dict:
+def _points_bin(path) -> _Points:
     b = _Bytes(path)
-    pts = {}
+    pts = _Points()
+    seen = set()
     for _ in range(b.count("points", 43)):
         at = b.pos
         rec = b.read("Q3d3BdQ", "a point record")
         pid, xyz, n = rec[0], np.array(rec[1:4]), rec[8]
-        if pid in pts:
-            raise InputError(path, 0, f"byte {at}: duplicate POINT3D_ID {pid}")
+        if pid in seen:
+            b.fail(at, f"duplicate POINT3D_ID {pid}")
+        seen.add(pid)
+        if pid >= 2 ** 63:
+            b.fail(at, f"point {pid}: the id is too large")
         if 8 * n > len(b.data) - b.pos:
-            raise InputError(path, 0, f"byte {at}: point {pid}: a track of {n} elements cannot fit in the file")
+            b.fail(at, f"point {pid}: a track of {n} elements cannot fit in the file")
         tr = np.frombuffer(b.data, dtype="<u4", count=2 * n, offset=b.pos).reshape(n, 2)
         b.pos += 8 * n
         if not np.isfinite(xyz).all():
-            raise InputError(path, 0, f"byte {at}: point {pid}: coordinates are not finite")
-        pts[pid] = (0, xyz, [(int(i), int(j)) for i, j in tr])
+            b.fail(at, f"point {pid}: coordinates are not finite")
+        pts.add(pid, at, xyz, tr.astype(np.int64))
     b.end()
-    if not pts:
-        raise InputError(path, 0, "no points")
-    return pts
+    if not pts.ids:
+        b.fail(0, "no points")
+    return pts.done()
 
 
 # --------------------------------------------------------------------------------------------

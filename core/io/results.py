@@ -57,7 +57,17 @@ def summary(adj) -> dict:
         "timings": {k: round(float(v), 6) for k, v in adj.timings.items()},
         "far_points": far_point_ids(adj),
         "local_defects": local_defects(p),
+        "dropped_observations": list(p.extra.get("dropped_observations", ())),
+        **duplicate_keypoints(p),
     }
+
+
+def duplicate_keypoints(problem) -> dict:
+    """``{"duplicate_keypoints": {"points": …, "observations": …}}`` for a COLMAP block in which
+    some 3D points are observed by several keypoints of one image (each its own observation;
+    ``observations`` counts those beyond the first per image and point), else {}."""
+    d = problem.extra.get("duplicate_keypoints")
+    return {"duplicate_keypoints": dict(d)} if d and d.get("observations") else {}
 
 
 def local_defects(problem) -> list[dict]:
@@ -169,6 +179,10 @@ def text_summary(adj, top: int = 8) -> str:
     conv = "converged" if s["converged"] else "NOT converged"
     method = "Levenberg-Marquardt" if getattr(adj, "damped", False) else "Gauss-Newton"
     lines.append(f"  {method} {conv} in {s['iterations']} iterations")
+    if s.get("duplicate_keypoints"):
+        dk = s["duplicate_keypoints"]
+        lines.append(f"  {dk['points']} point(s) observed by two or more keypoints of one image: "
+                     f"{dk['observations']} extra image point(s), each tested on its own")
     if s["far_points"]:
         far = s["far_points"]
         lines.append(f"  {len(far)} point(s) near infinity (depth hardly determined, not in the default "

@@ -250,7 +250,7 @@ class Numbers:
                 continue
             for t in s.split():
                 try:
-                    v = float(t)
+                    v = float(t) if t.isascii() else float("nan")
                 except ValueError:
                     v = float("nan")
                 vals.append(v)
@@ -361,8 +361,8 @@ class Numbers:
         group = max(vals.size // max(lines.size, 1), 1)
         line = int(lines[j // group])
         if kind == "int":
-            if np.isfinite(v) and v >= 1e17:
-                raise InputError(self.path, line, f"{what(j)}: {t[:40]} is too large")
+            if (np.isfinite(v) and v >= 1e17) or (t.isascii() and t.isdigit()):
+                raise InputError(self.path, line, f"{what(j)}: {t[:40]}{'...' if len(t) > 40 else ''} is too large")
             raise InputError(self.path, line, f"{what(j)}: '{t[:40]}' is not a non-negative integer")
         if np.isnan(v) and t.strip().lower() not in ("nan", "+nan", "-nan"):
             raise InputError(self.path, line, f"{what(j)}: '{t[:40]}' is not a number")
