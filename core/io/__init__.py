@@ -19,25 +19,30 @@ SFM_FORMATS = ("bal", "bundler", "colmap")
 
 
 def detect_format(path) -> str:
-    """The format of a file (or a COLMAP model directory) from its name, then its content."""
+    """The format of a file (or a COLMAP model directory) from its name, then its content.
+
+    A compressed file (``.gz``, ``.bz2``, ``.xz``, or any name with such content) is judged by
+    its name without the compression extension and by its decompressed content
+    (:mod:`baarda.io.source`)."""
     from .bal import looks_like_bal
     from .bundler import looks_like_bundler
+    from .colmap import _find
+    from .source import head as read_head
+    from .source import logical_path
 
     p = Path(path)
-    ext = p.suffix.lower()
+    name = logical_path(p)
+    ext = name.suffix.lower()
     if p.is_dir():
-        if any((p / f"{name}{e}").exists() for name in ("cameras", "images", "points3D") for e in (".txt", ".bin")):
+        if any(_find(p, n, e) for n in ("cameras", "images", "points3D") for e in (".txt", ".bin")):
             return "colmap"
         raise InputError(path, 0, "is a directory but not a COLMAP model (cameras, images, points3D "
                          ".txt or .bin)")
     if ext == ".gkf":
         return "gama"
-    if p.stem in ("cameras", "images", "points3D") and ext in (".txt", ".bin"):
+    if name.stem in ("cameras", "images", "points3D") and ext in (".txt", ".bin"):
         return "colmap"
-    try:
-        head = p.read_bytes()[:4096].decode("utf-8", "replace")
-    except OSError as err:
-        raise InputError(path, 0, f"cannot read: {err.strerror}") from None
+    head = read_head(p, 4096).decode("utf-8", "replace")
     if "<gama-local" in head:
         return "gama"
     if not head.strip():

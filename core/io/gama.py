@@ -133,10 +133,9 @@ def _local(name: str) -> str:
 
 def _parse_xml(path: Path) -> _Node:
     """Parse the file with expat into :class:`_Node` objects carrying 1-based line numbers."""
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise InputError(path, 0, f"cannot read file: {exc.strerror or exc}") from exc
+    from .source import read_bytes
+
+    data = read_bytes(path)             # plain or compressed (gzip, bzip2, xz)
     parser = xml.parsers.expat.ParserCreate()
     parser.buffer_text = False  # each chunk then reports its own starting line
     stack: list[_Node] = []

@@ -162,13 +162,10 @@ class _Reader:
 def read_native(path):
     """Read a native file: a :class:`baarda.bundle.Block`, :class:`baarda.imodel.IModelBlock`
     or (``kind: "levelling"``) a :class:`baarda.network.Network`. Raises InputError."""
+    from .source import read_text
+
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as err:
-        raise InputError(path, 0, f"cannot read: {err.strerror}") from None
-    except UnicodeDecodeError as err:
-        raise InputError(path, 0, f"not UTF-8 text ({err.reason})") from None
+    text = read_text(p)                 # plain or compressed (gzip, bzip2, xz), UTF-8
     try:
         doc = json.loads(text, parse_int=_parse_int)
     except json.JSONDecodeError as err:

@@ -30,7 +30,8 @@ from ..errors import InputError
 #: compression → (first bytes, file extension, name used in messages)
 COMPRESSIONS = {"gzip": (b"\x1f\x8b", ".gz"), "bzip2": (b"BZh", ".bz2"), "xz": (b"\xfd7zXZ\x00", ".xz")}
 EXTENSIONS = {ext: name for name, (_, ext) in COMPRESSIONS.items()}
-_OPENERS = {"gzip": gzip.GzipFile, "bzip2": bz2.BZ2File, "xz": lzma.LZMAFile}
+_OPENERS = {"gzip": lambda f, mode: gzip.GzipFile(fileobj=f, mode=mode), "bzip2": bz2.BZ2File,
+            "xz": lzma.LZMAFile}
 _CORRUPT = (OSError, EOFError, lzma.LZMAError, zlib.error)
 
 
@@ -77,7 +78,7 @@ class Source(io.RawIOBase):
         except OSError as err:
             raise InputError(path, 0, f"cannot read: {err.strerror or err}") from None
         self.size = None if kind else Path(path).stat().st_size
-        self._f = raw if kind is None else _OPENERS[kind](fileobj=raw, mode="rb")
+        self._f = raw if kind is None else _OPENERS[kind](raw, mode="rb")
         self._raw = raw
 
     def readable(self):
