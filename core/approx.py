@@ -558,41 +558,49 @@ class _Approx:
         return need_xy, need_z, ambiguous
 
 
-def approximate_coordinates(net: Network) -> Network:
+def approximate_coordinates(net: Network, missing: str = "error") -> Network:
     """A copy of ``net`` where every fixed/adjusted coordinate has an approximate value.
 
     Given coordinates are kept unchanged; missing ones are computed from the observations
-    (see the module docstring). Raises :class:`~baarda.errors.InputError` naming every point
-    that cannot be determined (at the line of the first of them).
+    (see the module docstring). Points that cannot be determined: ``missing="error"`` raises
+    :class:`~baarda.errors.InputError` naming every one of them (at the line of the first);
+    ``missing="keep"`` leaves their coordinates ``None`` and records them, with the reason, in
+    ``Network.extra["approx_missing"]`` (``{id: (axes, reason)}``) for
+    :func:`baarda.geodetic.build_network` to treat as local defects.
     """
+    if missing not in ("error", "keep"):
+        raise ValueError("missing must be 'error' or 'keep'")
     st = _Approx(net)
     need_xy, need_z, ambiguous = st.run()
-    missing = []
+    undetermined = []
     for p in net.points:
         axes = [a for a in "xyz" if a in p.fixed + p.adjusted and getattr(p, a) is None
                 and (p.id not in (st.xy if a != "z" else st.z))]
         if axes:
-            missing.append((p, axes))
-    if missing:
-        parts = []
-        for p, axes in missing:
-            why = ambiguous.get(p.id, "not connected to points of known position by enough "
-                                "observations")
-            if axes == ["z"]:
-                why = "no height difference, zenith angle, vector or observed height links it"
-            parts.append(f"{p.id} ({''.join(axes)}): {why}")
-        first = missing[0][0]
-        ids = ", ".join(p.id for p, _ in missing)
+            undetermined.append((p, axes))
+    reasons = {}
+    for p, axes in undetermined:
+        why = ambiguous.get(p.id, "not connected to points of known position by enough "
+                            "observations")
+        if axes == ["z"]:
+            why = "no height difference, zenith angle, vector or observed height links it"
+        reasons[p.id] = ("".join(axes), why)
+    if undetermined and missing == "error":
+        parts = [f"{pid} ({axes}): {why}" for pid, (axes, why) in reasons.items()]
+        first = undetermined[0][0]
+        ids = ", ".join(p.id for p, _ in undetermined)
         raise InputError(net.source, first.line, f"no approximate coordinates for point "
                          f"{ids}: " + "; ".join(parts))
     points = []
     for p in net.points:
         upd = {}
-        if p.x is None and "x" in p.fixed + p.adjusted:
+        if p.x is None and "x" in p.fixed + p.adjusted and p.id in st.xy:
             upd["x"] = st.xy[p.id][0]
-        if p.y is None and "y" in p.fixed + p.adjusted:
+        if p.y is None and "y" in p.fixed + p.adjusted and p.id in st.xy:
             upd["y"] = st.xy[p.id][1]
-        if p.z is None and "z" in p.fixed + p.adjusted:
+        if p.z is None and "z" in p.fixed + p.adjusted and p.id in st.z:
             upd["z"] = st.z[p.id]
         points.append(replace(p, **upd) if upd else p)
+    if reasons:
+        return replace(net, points=tuple(points), extra={**net.extra, "approx_missing": reasons})
     return replace(net, points=tuple(points))

@@ -36,6 +36,34 @@ def _add_input_options(p):
                         "Bundler, as they define; no for COLMAP)")
     p.add_argument("--control", metavar="CSV",
                    help="control points id,X,Y,Z,sx,sy,sz to add as weighted observations (bundle blocks)")
+    _add_drop_option(p)
+
+
+def _add_drop_option(p):
+    p.add_argument("--drop-undefined", action="store_true",
+                   help="Gama input: drop observations to points no <point> defines, as gama-local does, "
+                        "with a warning listing them (default: an error naming file and line)")
+
+
+def _warn_dropped(path, model_or_problem, quiet=False):
+    """One warning line on stderr listing the observations dropped by --drop-undefined."""
+    extra = getattr(model_or_problem, "extra", {}) or {}
+    dropped = extra.get("dropped_observations", extra.get("dropped", []))
+    if dropped and not quiet:
+        ids = sorted({pid for d in dropped for pid in d.get("undefined", ())})
+        lines = ", ".join(str(d["line"]) for d in dropped[:20]) + (" ..." if len(dropped) > 20 else "")
+        print(f"baarda: warning: {path}: {len(dropped)} observation(s) to undefined point(s) "
+              f"{', '.join(ids)} dropped (--drop-undefined; line(s) {lines})", file=sys.stderr)
+
+
+def _read_quietly(fn, *a, **kw):
+    """Call a reader with its UndefinedPointsWarning silenced (the CLI prints its own line)."""
+    import warnings
+
+    from .io.gama import UndefinedPointsWarning
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UndefinedPointsWarning)
+        return fn(*a, **kw)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -119,6 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("input", help="the network or block file")
     rp.add_argument("--out", "-o", metavar="HTML", help="the report to write (default: INPUT with .html)")
     rp.add_argument("--format", default="auto", help="input format (see analyze)")
+    _add_drop_option(rp)
     _add_test_options(rp)
     rp.add_argument("--quiet", "-q", action="store_true")
     rp.add_argument("--debug", action="store_true")
@@ -182,8 +211,10 @@ def _analyze(args) -> int:
     from .io import results
 
     t0 = time.perf_counter()
-    problem = read_problem(args.input, args.format, control=args.control, sigma_px=args.sigma_px,
-                           refine_intrinsics=args.refine_intrinsics, strict=args.strict)
+    problem = _read_quietly(read_problem, args.input, args.format, control=args.control,
+                            sigma_px=args.sigma_px, refine_intrinsics=args.refine_intrinsics,
+                            strict=args.strict, drop_undefined=args.drop_undefined)
+    _warn_dropped(args.input, problem, args.quiet)
     t_read = time.perf_counter() - t0
     options = Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method)
     try:
@@ -345,7 +376,9 @@ def cmd_convert(args) -> int:
     from .io import read_model
     from .io.native import write_native
 
-    model = read_model(args.input, args.format, sigma_px=args.sigma_px, refine_intrinsics=args.refine_intrinsics)
+    model = _read_quietly(read_model, args.input, args.format, sigma_px=args.sigma_px,
+                          refine_intrinsics=args.refine_intrinsics, drop_undefined=args.drop_undefined)
+    _warn_dropped(args.input, model, args.quiet)
     if args.control:
         from .io.control import add_control
         model = add_control(model, args.control)
@@ -419,7 +452,8 @@ def cmd_report(args) -> int:
     from .io import read_problem
     from .sfm_defects import adjust_block
 
-    problem = read_problem(args.input, args.format)
+    problem = _read_quietly(read_problem, args.input, args.format, drop_undefined=args.drop_undefined)
+    _warn_dropped(args.input, problem, args.quiet)
     adj, problem = adjust_block(problem, Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method))
     out = Path(args.out) if args.out else Path(args.input).with_suffix(".html")
     if out.resolve() == Path(args.input).resolve():

@@ -292,7 +292,8 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
     return Problem(params=params, sets=tuple(sets), l=l, cov=cov, info=info, points=pts,
                    datum=datum, sigma0=net.sigma0, sigma_act=net.sigma_act, conf_pr=net.conf_pr,
                    source=net.source, title=net.description.strip().splitlines()[0] if net.description.strip() else "",
-                   extra={"tol_abs": net.tol_abs, "axes_xy": net.axes_xy, "angles": net.angles})
+                   extra={"tol_abs": net.tol_abs, "axes_xy": net.axes_xy, "angles": net.angles,
+                          "dropped_observations": [dict(d) for d in net.extra.get("dropped", ())]})
 
 
 def _init_orientations(sets, params, l, ori_index):
@@ -324,3 +325,119 @@ def _groups(net: Network) -> np.ndarray:
 
 def is_angular(kind: str) -> bool:
     return kind in ANGULAR_KINDS
+
+
+def build_network(net: Network, strict: bool = False) -> Problem:
+    """The adjustment problem of a network, its local defects named and set aside.
+
+    Missing approximate coordinates are computed first (:mod:`baarda.approx`). A *local
+    defect* is an adjusted coordinate the observations do not determine on their own:
+
+    - one that no observation involves (a traverse point declared ``adj="xyz"`` without any
+      height difference, zenith angle, slope distance, vector or observed height), or
+    - one for which no approximate value can be computed (not connected to points of known
+      position or height).
+
+    Each is named as a :class:`baarda.defects.LocalDefect` in
+    ``problem.extra["local_defects"]``; the point is adjusted in the components that are
+    determined (as gama-local does for points without height information), or left out when
+    none is, with the observations that need an undetermined coordinate (their lines are
+    named). ``strict`` keeps the former behaviour: an :class:`~baarda.errors.InputError` for a
+    coordinate without an approximate value, and the datum-defect diagnosis of the adjustment
+    for one no observation involves. A defect of the whole network (its datum) is diagnosed by
+    the adjustment as before.
+    """
+    from .approx import approximate_coordinates
+
+    if any(getattr(p, a) is None for p in net.points for a in "xyz"
+           if a in (p.adjusted + p.constrained).lower()):
+        net = approximate_coordinates(net, missing="error" if strict else "keep")
+    if strict:
+        return build_problem(net)
+    net, defects = _set_aside_local_defects(net)
+    problem = build_problem(net)
+    if defects:
+        problem.extra["local_defects"] = list(problem.extra.get("local_defects", ())) + defects
+    return problem
+
+
+def _set_aside_local_defects(net: Network):
+    """``(network, defects)``: undetermined adjusted coordinates removed (see :func:`build_network`)."""
+    from dataclasses import replace
+
+    from .defects import LocalDefect
+
+    reasons = dict(net.extra.get("approx_missing", {}))
+    found: dict[str, dict] = {}   # id -> {"axes": set, "why": [..], "lines": [..]}
+    while True:
+        pindex = net.point_index()
+        touched = _point_axes(net)
+        bad: dict[str, set] = {}
+        for p, used in zip(net.points, touched):
+            for a in sorted(set((p.adjusted + p.constrained).lower())):
+                if a not in used:
+                    why = ("no observation involves its height (no height difference, zenith angle, "
+                           "slope distance, vector or observed height)" if a == "z" else
+                           "no observation involves its position")
+                elif getattr(p, a) is None:
+                    why = reasons.get(p.id, ("", "no approximate coordinates could be computed"))[1]
+                else:
+                    continue
+                bad.setdefault(p.id, set()).add(a)
+                rec = found.setdefault(p.id, {"axes": set(), "why": [], "lines": []})
+                rec["axes"].add(a)
+                if why not in rec["why"]:
+                    rec["why"].append(why)
+        if not bad:
+            break
+        # observations that need a coordinate set aside (only those without a value can be
+        # needed: a coordinate no observation involves is needed by none)
+        keep = []
+        for o in net.observations:
+            drop = [pid for pid in o.points if pid in bad and set(NEEDS[o.kind]) & bad[pid]]
+            keep.append(not drop)
+            for pid in dict.fromkeys(drop):
+                found[pid]["lines"].append(o.line)
+        points = []
+        for p in net.points:
+            if p.id in bad:
+                gone = bad[p.id]
+                p = replace(p, adjusted="".join(a for a in p.adjusted if a.lower() not in gone),
+                            constrained="".join(a for a in p.constrained if a.lower() not in gone))
+            points.append(p)
+        net = _keep_observations(replace(net, points=tuple(points)), keep)
+        del pindex
+    defects = []
+    for p in net.points:
+        if p.id not in found:
+            continue
+        rec = found[p.id]
+        left = "".join(a for a in "xyz" if a in (p.adjusted + p.constrained).lower())
+        lines = sorted(set(rec["lines"]))
+        action = f"adjusted in {', '.join(left)}" if left else "left out"
+        if lines:
+            action += (f", with {len(lines)} observation(s) left out (line(s) "
+                       f"{', '.join(map(str, lines[:20]))}{' ...' if len(lines) > 20 else ''})")
+        defects.append(LocalDefect("point", p.id, tuple(a for a in "xyz" if a in rec["axes"]),
+                                   "; ".join(rec["why"]), action))
+    return net, defects
+
+
+def _keep_observations(net: Network, keep) -> Network:
+    """The network without the observations whose ``keep`` is False (clusters cut to match)."""
+    from dataclasses import replace
+
+    if all(keep):
+        return net
+    new_index = {}
+    for i, k in enumerate(keep):
+        if k:
+            new_index[i] = len(new_index)
+    obs = tuple(o for o, k in zip(net.observations, keep) if k)
+    clusters = []
+    for c in net.clusters:
+        kept = [j for j, i in enumerate(c.indices) if keep[i]]
+        if kept:
+            clusters.append(replace(c, indices=tuple(new_index[c.indices[j]] for j in kept),
+                                    cov=c.cov[np.ix_(kept, kept)]))
+    return replace(net, observations=obs, clusters=tuple(clusters))

@@ -61,11 +61,14 @@ def detect_format(path) -> str:
 
 
 def read_model(path, fmt: str = "auto", sigma_px: float | None = None,
-               refine_intrinsics: bool | None = None):
+               refine_intrinsics: bool | None = None, drop_undefined: bool = False):
     """Read ``path`` into its file-level model (Network, Block, IModelBlock or SfmBlock).
 
     sigma_px (σ of image coordinates, pixels, default 1) and refine_intrinsics (default: True
     for BAL and Bundler, False for COLMAP) apply to structure-from-motion formats only.
+    drop_undefined (Gama input): observations to points no ``<point>`` defines are dropped, as
+    gama-local does, with an :class:`~baarda.io.gama.UndefinedPointsWarning` and a list in
+    ``Network.extra["dropped"]``; by default they are an InputError naming file and line.
     """
     p = Path(path)
     if not p.exists():
@@ -93,7 +96,8 @@ def read_model(path, fmt: str = "auto", sigma_px: float | None = None,
     if fmt == "gama":
         from ..approx import approximate_coordinates
         from .gama import read_gama
-        return approximate_coordinates(read_gama(p))
+        net = read_gama(p, unknown_points="drop" if drop_undefined else "error")
+        return approximate_coordinates(net, missing="keep")  # undetermined ones: build() decides
     if fmt == "native":
         from .native import read_native
         return read_native(p)
@@ -118,12 +122,8 @@ def build(model, strict: bool = False):
     if isinstance(model, IModelBlock):
         return build_imodel_problem(model)
     if isinstance(model, Network):
-        from ..approx import approximate_coordinates
-        from ..geodetic import build_problem
-        if any(getattr(p, a) is None for p in model.points for a in "xyz"
-               if a in (p.adjusted + p.constrained).lower()):
-            model = approximate_coordinates(model)
-        return build_problem(model)
+        from ..geodetic import build_network
+        return build_network(model, strict=strict)
     raise TypeError(f"cannot build a problem from {type(model).__name__}")
 
 

@@ -40,13 +40,17 @@ import numpy as np
 from baarda.errors import InputError
 from baarda.network import Cluster, NetObservation, NetPoint, Network
 
-__all__ = ["read_gama", "bearing_convention", "GON", "CC", "DEG", "ARCSEC", "MM"]
+__all__ = ["read_gama", "bearing_convention", "UndefinedPointsWarning", "GON", "CC", "DEG", "ARCSEC", "MM"]
 
 GON = math.pi / 200.0  #: radians per gon
 CC = GON * 1e-4  #: radians per centicentigon (cc)
 DEG = math.pi / 180.0  #: radians per degree
 ARCSEC = DEG / 3600.0  #: radians per arc second
 MM = 1e-3  #: metres per millimetre
+
+class UndefinedPointsWarning(UserWarning):
+    """Observations to points that no ``<point>`` defines were dropped (``unknown_points="drop"``)."""
+
 
 _DMS = re.compile(r"^([+-]?)(\d+)-(\d+)-(\d+(?:\.\d*)?|\.\d+)$")
 
@@ -688,16 +692,20 @@ class _Reader:
                 continue
             msg = f"{ob.kind} refers to unknown point id {missing[0]!r} (no <point> defines it)"
             if self.unknown_points == "error":
-                raise self.error(ob.line, msg)
+                raise self.error(ob.line, msg + "; --drop-undefined drops such observations "
+                                 "as gama-local does")
             keep[i] = False
-            dropped.append({"line": ob.line, "kind": ob.kind, "points": ob.points,
-                            "reason": msg})
+            dropped.append({"line": ob.line, "kind": ob.kind, "points": list(ob.points),
+                            "undefined": missing, "reason": msg})
         if dropped:
             import warnings
 
             self.extra["dropped"] = dropped
-            warnings.warn(f"{self.path}: {len(dropped)} observation(s) to undefined points "
-                          f"dropped, first at line {dropped[0]['line']}", stacklevel=4)
+            ids = sorted({pid for d in dropped for pid in d["undefined"]})
+            warnings.warn(UndefinedPointsWarning(
+                f"{self.path}: {len(dropped)} observation(s) to undefined point(s) "
+                f"{', '.join(ids)} dropped (line(s) {', '.join(str(d['line']) for d in dropped)})"),
+                stacklevel=4)
         return keep
 
     @staticmethod
