@@ -47,6 +47,17 @@ def _where(problem, i: int, path, control) -> tuple[str, int]:
     return str(path), line
 
 
+def _file_sigma(problem, i: int):
+    """The σ of observation ``i`` as the file gives it (value, unit), or (None, None)."""
+    info = problem.info
+    try:
+        sf = float(info.sigma_file[i])
+        su = str(info.sigma_unit[i] or "")
+    except (TypeError, ValueError, IndexError, AttributeError):
+        return None, None
+    return (sf, su) if np.isfinite(sf) and sf > 0 else (None, None)
+
+
 def _label(problem, i: int) -> str:
     ids = " ".join(f"{k}={v}" for k, v in problem.info.ids[i].items())
     return f"{problem.info.kind[i]}{' ' + ids if ids else ''}"
@@ -97,9 +108,12 @@ def check_numeric_range(problem, path, control=None) -> None:
             why = (f"below the rounding error of the value {l[i]:.6g} in double precision "
                    f"(σ must be ≥ {RELATIVE:.2g} × |value|)")
         else:
-            why = f"below {SIGMA_MIN:.0e}: its weight 1/σ² overflows in double precision"
+            why = f"below {SIGMA_MIN:.0e} (SI units): its weight 1/σ² overflows in double precision"
         shown = f" {s:.6g}" if np.isfinite(s) else ""
-        raise InputError(f, line, f"{_label(problem, i)}: standard deviation{shown} (SI units) is {why}",
+        sf, su = _file_sigma(problem, i)
+        if sf is not None:
+            shown = f" {sf:.6g}{' ' + su if su else ''}" + (f" (SI {s:.6g})" if np.isfinite(s) and s > 0 and su else "")
+        raise InputError(f, line, f"{_label(problem, i)}: standard deviation{shown} is {why}",
                          field="sigma")
     if not_pd:                     # correlated blocks: positive definite
         i = min(not_pd)
@@ -115,7 +129,7 @@ def check_numeric_range(problem, path, control=None) -> None:
                          field=problem.params.labels[j])
 
 
-def _refuse_large(path, values, lines, what) -> None:
+def _refuse_large(path, lines, values, what) -> None:
     """InputError at the first row of ``values`` (n × k) with a number beyond VALUE_LIMIT."""
     v = np.asarray(values, dtype=float)
     if v.size == 0:
@@ -137,16 +151,23 @@ def check_model_range(model, path) -> None:
     from .bundle import Block
 
     if isinstance(model, SfmBlock):
-        _refuse_large(path, model.X, model.point_line, lambda k: f"point {model.points[k]}")
-        _refuse_large(path, model.xy, model.obs_line,
+        def part(name, lines):      # a COLMAP model directory: the file inside it (binary: no lines)
+            d = Path(path)
+            if not d.is_dir():
+                return path, lines
+            if (d / f"{name}.txt").exists():
+                return d / f"{name}.txt", lines
+            return d / f"{name}.bin", None
+        _refuse_large(*part("points3D", model.point_line), model.X, lambda k: f"point {model.points[k]}")
+        _refuse_large(*part("images", model.obs_line), model.xy,
                       lambda k: f"image {model.images[int(model.obs_image[k])].id}: image point")
-        _refuse_large(path, [im.t for im in model.images], [im.line for im in model.images],
+        _refuse_large(*part("images", [im.line for im in model.images]), [im.t for im in model.images],
                       lambda k: f"image {model.images[k].id}: translation")
         for cam in model.cameras:
-            _refuse_large(path, [cam.params], [cam.line], lambda k: f"camera {cam.id}: parameters")
+            _refuse_large(*part("cameras", [cam.line]), [cam.params], lambda k: f"camera {cam.id}: parameters")
     elif isinstance(model, Block):
-        lines = [getattr(p, "line", 0) for p in model.points]
-        _refuse_large(path, [(p.X, p.Y, p.Z) for p in model.points], lines, lambda k: f"point {model.points[k].id}")
-        _refuse_large(path, [(im.X0, im.Y0, im.Z0) for im in model.images],
-                      [getattr(im, "line", 0) for im in model.images], lambda k: f"image {model.images[k].id}")
-        _refuse_large(path, model.obs.xy, model.obs.line, lambda k: "image point")
+        _refuse_large(path, [getattr(p, "line", 0) for p in model.points], [(p.X, p.Y, p.Z) for p in model.points],
+                      lambda k: f"point {model.points[k].id}")
+        _refuse_large(path, [getattr(im, "line", 0) for im in model.images],
+                      [(im.X0, im.Y0, im.Z0) for im in model.images], lambda k: f"image {model.images[k].id}")
+        _refuse_large(path, model.obs.line, model.obs.xy, lambda k: "image point")

@@ -15,12 +15,12 @@ HERE = Path(__file__).resolve().parent / "malformed"
 VALID = HERE / "valid"
 
 
-def corpus() -> list[tuple[str, str, int, str]]:
+def corpus() -> list[tuple[str, str, str, str]]:
     rows = []
     for line in (HERE / "README.md").read_text().splitlines():
-        m = re.match(r"\| (\S+) \| (\S*) \| (\d+) \| .*? \| (.*) \|$", line)
+        m = re.match(r"\| (\S+) \| (\S*) \| (\d+|byte \d+) \| .*? \| (.*) \|$", line)
         if m and m.group(1) != "file":
-            rows.append((m.group(1), m.group(2), int(m.group(3)), m.group(4)))
+            rows.append((m.group(1), m.group(2), m.group(3), m.group(4)))
     return rows
 
 
@@ -42,6 +42,7 @@ def test_corpus_is_complete():
     assert kinds >= {"bal", "bundler", "colmap", "native", "gama", "control"}
 
 
+@pytest.mark.filterwarnings("error")          # no RuntimeWarning on the way to the refusal
 @pytest.mark.parametrize("name,inner,line,needle", CASES, ids=[c[0] for c in CASES])
 def test_corpus_file_is_refused(name, inner, line, needle, capsys):
     path = HERE / name
@@ -81,3 +82,90 @@ def test_bad_sigma_option_is_a_usage_error(capsys):
 def test_sfm_options_on_a_network_are_refused(capsys):
     assert main(["analyze", str(VALID / "levelling-valid.gkf"), "--sigma-px", "2"]) == 2
     assert "apply to bal, bundler, colmap input" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------
+# issue 12: terminal-safe output, control CSV as spreadsheets write it, no nan in the summary
+# --------------------------------------------------------------------------------------------
+def test_printable_escapes_what_repr_escapes():
+    """Second implementation: Python's repr escapes exactly the characters str.isprintable
+    rejects, with the same \\xNN/\\uNNNN/\\UNNNNNNNN forms; printable must agree on every code
+    point except the spaces (Zs), which it keeps, and the quote and backslash, which repr escapes
+    for its own syntax."""
+    import unicodedata
+
+    from baarda.text import printable
+
+    for o in range(0x110000):
+        ch = chr(o)
+        if ch in "\\'" or unicodedata.category(ch) == "Zs":
+            continue
+        assert printable(ch) == repr(ch)[1:-1], hex(o)
+    assert printable("\u00a0a b\u3000") == "\u00a0a b\u3000"
+    assert printable("P1\x1b[2J\r\u202eevil\x85") == "P1\\x1b[2J\\r\\u202eevil\\x85"
+    assert printable("Čáp ∇ δ̄0 σ̂0 ① 点") == "Čáp ∇ δ̄0 σ̂0 ① 点"
+
+
+HOSTILE = "P\x1b]0;owned\x07\x1b[2J\r\u202e\x85\u2028x"
+
+
+def test_hostile_ids_and_title_are_escaped_in_the_summary(tmp_path, capsys):
+    """Point ids and the title with ESC sequences, BEL, CR, C1 NEL, a bidi override and a line
+    separator: the printed summary shows them escaped, every line of it is printable."""
+    import json
+
+    doc = json.loads((VALID / "levelling-valid.json").read_text())
+    doc["title"] = "T" + HOSTILE
+    for p in doc["points"]:
+        p["id"] = p["id"] + HOSTILE
+    for o in doc["observations"]:
+        o["from"] += HOSTILE
+        o["to"] += HOSTILE
+    f = tmp_path / "hostile.json"
+    f.write_text(json.dumps(doc))
+    assert main(["analyze", str(f), "--top", "3"]) == 0
+    out = capsys.readouterr().out
+    assert all(line.isprintable() for line in out.splitlines()), out
+    assert "of TP\\x1b]0;owned\\x07\\x1b[2J\n" in out      # a levelling title: its first line
+    assert "from=A" + "P\\x1b]0;owned" in out
+
+
+@pytest.mark.parametrize("name", ["control-spreadsheet-bom-crlf.csv", "control-spreadsheet-cr-quoted.csv"])
+def test_control_csv_as_spreadsheets_write_it(name, tmp_path, capsys):
+    """A BOM, CRLF or CR-only line ends and quoted fields read exactly like the plain file
+    (the reference), and the analysis with them gives the same numbers."""
+    import json
+
+    from baarda.io.control import read_control
+
+    plain = read_control(VALID / "control-valid.csv")
+    assert read_control(VALID / name) == plain
+    out = {}
+    for csvname in ("control-valid.csv", name):
+        js = tmp_path / f"{csvname}.json"
+        assert main(["analyze", str(VALID / "bal-valid.txt"), "--control", str(VALID / csvname),
+                     "--json", str(js), "--quiet"]) == 0, capsys.readouterr().err
+        out[csvname] = json.loads(js.read_text())["summary"]
+    assert out[name]["sigma0_aposteriori"] == out["control-valid.csv"]["sigma0_aposteriori"]
+    assert out[name]["n_observations"] == out["control-valid.csv"]["n_observations"] == 96 + 12
+
+
+def test_uncontrolled_observation_is_shown_as_not_testable(tmp_path, capsys):
+    """A spur (point D measured by one height difference only) has r = 0 (F80: the observation
+    alone determines D): its w-test does not exist. The summary says so instead of printing
+    nan, the JSON has null."""
+    import json
+
+    gkf = (VALID / "levelling-valid.gkf").read_text()
+    gkf = gkf.replace('<point id="C" z="102" adj="z"/>', '<point id="C" z="102" adj="z"/><point id="D" z="90" adj="z"/>')
+    gkf = gkf.replace("</height-differences>", '<dh from="C" to="D" val="-12.0" stdev="1"/>\n</height-differences>')
+    f = tmp_path / "spur.gkf"
+    f.write_text(gkf)
+    js = tmp_path / "spur.json"
+    assert main(["analyze", str(f), "--json", str(js), "--top", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "nan" not in out.lower() and "inf" not in out.replace("infinity", "").lower()
+    assert "(r = 0, not testable)" in out
+    assert "∞ (uncontrolled)" in out
+    spur = [o for o in json.loads(js.read_text(), parse_constant=float)["observations"] if o.get("to") == "D"]
+    assert spur[0]["w"] is None and abs(spur[0]["redundancy"]) < 1e-9

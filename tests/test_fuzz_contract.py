@@ -40,7 +40,7 @@ VALID = HERE / "malformed" / "valid"
 EXTDATA_GAMA = (REPO / ".." / "shared" / "extdata" / "gama").resolve()
 
 OK_CODES = {0, 2} | ({cli.EXIT_NOT_CONVERGED} if hasattr(cli, "EXIT_NOT_CONVERGED") else set())
-ERROR_LINE = re.compile(r"baarda: error: [^\n]*?:\d+(:[^\s:][^\n:]*)?: [^\n]+\n")
+ERROR_LINE = re.compile(r"baarda: error: [^\n]*?:(\d+|byte \d+)(:[^\s:][^\n:]*)?: [^\n]+\n")
 CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069\u2028\u2029]")
 NAN = re.compile(r"\b(nan|inf)\b", re.IGNORECASE)   # "near infinity" is prose
 

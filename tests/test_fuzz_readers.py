@@ -3,7 +3,8 @@ InputError — never another exception, never a half-loaded problem.
 
 Mutations: delete, duplicate or swap lines; replace a token by garbage, NaN, ±inf, a huge or
 negative number; truncate the file; for binary files flip, delete or insert bytes. About 1,300
-cases in all.
+cases in all. The command's whole contract (exit status, one error line, no warnings, no nan)
+is fuzzed in ``test_fuzz_contract.py``.
 """
 
 from __future__ import annotations
@@ -22,7 +23,10 @@ from baarda.io.control import add_control, read_control
 
 VALID = Path(__file__).resolve().parent / "malformed" / "valid"
 GARBAGE = ["x", "nan", "NaN", "inf", "-inf", "1e308", "-1e308", "1e999", "-1", "0", "1.5", "", "#",
-           "99999999999999999999", "0x10", "{", "\"", "<", ",", "-0", "1e-320"]
+           "99999999999999999999", "0x10", "{", "\"", "<", ",", "-0", "1e-320",
+           # issue 12: Unicode digits (str.isdigit accepts them, int() does not), Python's
+           # int-from-string limit, σ/values beyond double precision, control characters
+           "\u00b2", "\u2460", "9" * 400, "1" + "0" * 5000, "1e-300", "\x1b[2J", "\u202e"]
 FUZZ = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
 
 

@@ -35,7 +35,7 @@ class _Locator:
         self.newlines = [i for i, ch in enumerate(text) if ch == "\n"]
         self.keys: dict[str, int] = {}
         self.elements: dict[str, list[int]] = {}
-        dec = json.JSONDecoder()
+        dec = json.JSONDecoder(parse_int=_parse_int)
         ws = " \t\r\n"
         pos = 0
 
@@ -110,6 +110,9 @@ class _Reader:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(key, i, f"{key}[{i}]: '{name}' is not a number ({v!r})", field=name)
         v = float(v)
+        if math.isinf(v):
+            self.fail(key, i, f"{key}[{i}]: '{name}' is not finite (beyond ±1.8e308, the range of double "
+                      f"precision)", field=name)
         if not math.isfinite(v):
             self.fail(key, i, f"{key}[{i}]: '{name}' is not finite ({v})", field=name)
         if positive and v <= 0:

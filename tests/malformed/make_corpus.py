@@ -258,6 +258,51 @@ def main():
     write("gama-unknown-point.gkf", GKF.replace('to="C" val="0.999"', 'to="Q" val="0.999"'))
     write("gama-free-defect.gkf", GKF.replace('fix="z"', 'adj="z"'))
     write("gama-truncated.gkf", GKF[:200])
+    issue12(bl, ul, col)
+
+
+def issue12(bl: list[str], ul: list[str], col: dict[str, str]):
+    """The minimal causes of issue 12's fuzzing (tests/test_fuzz_contract.py): overflow, huge
+    and Unicode digits, deep nesting, control characters in ids, σ and values double precision
+    cannot adjust, a singular normal matrix, unreadable CSV."""
+    nl = NATIVE.splitlines()
+    # JSON nested 1,000 deep (the decoder's RecursionError)
+    write("native-nested.json", NATIVE.replace('"dh": 0.999', '"dh": ' + "[" * 1000 + "0.999" + "]" * 1000))
+    # integers of 400 and 5,000 digits (Python's int-from-string limit, int → float overflow)
+    write("native-int-400.json", NATIVE.replace('"dh": 0.999', '"dh": ' + "9" * 400))
+    write("native-int-5000.json", NATIVE.replace('"dh": 0.999', '"dh": 1' + "0" * 5000))
+    write("native-sigma-tiny.json", NATIVE.replace('"dh": 0.999, "sigma": 0.001', '"dh": 0.999, "sigma": 1e-300'))
+    write("native-value-huge.json", NATIVE.replace('"dh": 0.999', '"dh": 1e308'))
+    # an id with a newline and an escape sequence: the message must stay one line
+    write("native-id-control.json", NATIVE.replace('"to": "C", "dh": 0.999',
+                                                   '"to": "Q\\n\\u001b[2Jforged", "dh": 0.999'))
+    assert len(nl) > 10
+    write("gama-value-huge.gkf", GKF.replace('val="0.999"', 'val="1e308"'))
+    write("gama-stdev-tiny.gkf", GKF.replace('val="0.999" stdev="1"', 'val="0.999" stdev="1e-300"'))
+    write("gama-int-5000.gkf", GKF.replace('val="0.999"', 'val="1' + "0" * 5000 + '"'))
+    write("gama-unicode-digit.gkf", GKF.replace('val="0.999"', 'val="\u2460"'))
+    write("gama-id-newline.gkf", GKF.replace('to="C" val="0.999"', 'to="Q&#10;forged line" val="0.999"'))
+    # BAL and Bundler: Unicode digits (str.isdigit accepts them, int() does not), huge numbers
+    write("bal-unicode-digit.txt", edited(bl, {3: token_changed(bl[3], 0, "\u00b2")}))
+    write("bal-int-400.txt", edited(bl, {3: token_changed(bl[3], 1, "9" * 400)}))
+    write("bal-value-huge.txt", edited(bl, {len(bl) - 2: "1e308"}))
+    # a rotation angle of 2⁶⁴ rad: finite, but the normal matrix is singular (reported with FILE)
+    write("bal-singular.txt", edited(bl, {60: "18446744073709551616"}))
+    write("bundler-unicode-digit.out", edited(ul, {len(ul) - 1: "\u2460 " + " ".join(ul[-1].split()[1:])}))
+    cl = {k: v.splitlines() for k, v in col.items()}
+    il, pl = cl["images.txt"], cl["points3D.txt"]
+    write_dir("colmap-unicode-digit", {**col, "images.txt": edited(il, {3: token_changed(il[3], 8, "\u00b2")})})
+    write_dir("colmap-int-5000", {**col, "points3D.txt": edited(pl, {2: token_changed(pl[2], 0, "1" * 5000)})})
+    write_dir("colmap-value-huge", {**col, "points3D.txt": edited(pl, {4: token_changed(pl[4], 1, "1e308")})})
+    # control CSV: a 200,000-character field (csv's field size limit), σ = 1e-300, an id with ESC
+    write("control-long-field.csv", "id,X,Y,Z,sx,sy,sz\n\"" + "7" * 200_000 + "\",0.1,0.2,0.3,0.01,0.01,0.02\n")
+    write("control-sigma-tiny.csv", "id,X,Y,Z,sx,sy,sz\n0,0.1,0.2,0.3,0.01,1e-300,0.02\n")
+    write("control-id-escape.csv", "id,X,Y,Z,sx,sy,sz\n\"9\x1b]0;owned\x07\r\",0.1,0.2,0.3,0.01,0.01,0.02\n")
+    # control CSV as spreadsheets write it: valid, must give the same result as control-valid.csv
+    plain = (VALID / "control-valid.csv").read_text()
+    quoted = "\n".join(",".join(f'"{c}"' for c in row.split(",")) for row in plain.splitlines()) + "\n"
+    (VALID / "control-spreadsheet-bom-crlf.csv").write_bytes(("\ufeff" + plain.replace("\n", "\r\n")).encode())
+    (VALID / "control-spreadsheet-cr-quoted.csv").write_bytes(quoted.replace("\n", "\r").encode())
 
 
 if __name__ == "__main__":
