@@ -37,7 +37,13 @@ can leave a point on one ray):
   centroid. γ is the intersection angle atan2(|u×v|, |u·v|) of the rays' lines: accurate near
   0, and 0 for opposite rays (a point between two centres on their baseline), which fix no
   depth either.
-* **images**: fewer than 3 distinct points (6 pose unknowns need at least 6 equations).
+* **images**: fewer than 3 distinct points (6 pose unknowns need at least 6 equations), or
+  points that do not fix the pose although there are enough of them (all on one line: the
+  camera can turn about it): the image's own 6 × 6 block of the normal equations, its points
+  held fixed, is singular (:func:`_pose_conditions`; smallest eigenvalue of the equilibrated
+  block below :data:`POSE_TOL` = 10⁻¹⁰, where rounding leaves ~10⁻¹⁶ for an exact defect and
+  real images stay many orders above). A singular diagonal block makes the whole normal matrix
+  singular, and it never flags the gauge of a free block (that moves every image and point).
 * **cameras** whose intrinsics (SfM ``refine_intrinsics``) or additional parameters (native
   blocks) are estimated: the images of the camera give Σ (2 p_i − 6) equations beyond their
   poses; fewer than the camera's estimated parameters leave them undetermined: the camera and
@@ -66,6 +72,7 @@ from .errors import DatumDefectError, InputError
 DEPTH_FACTOR = 1e6   # K: a depth σ beyond K × the block extent is "not determined"
 MIN_POINTS = 3       # points an image needs to fix its 6 pose unknowns
 MAX_ROUNDS = 4       # retries of the safety net in adjust_block
+POSE_TOL = 1e-10     # an image's equilibrated pose block with a smaller eigenvalue is singular
 POSE_SFM = ("rho1", "rho2", "rho3", "tx", "ty", "tz")
 POSE_BLOCK = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 
@@ -88,6 +95,7 @@ class _View:
             self.camera_ids = [c.id for c in b.cameras]
             cam_index = {c: k for k, c in enumerate(self.camera_ids)}
             self.image_camera = np.array([cam_index[im.camera] for im in b.images], dtype=np.int64)
+            self.rot = np.array([im.R for im in b.images], dtype=float).reshape(-1, 3, 3)
             self.centres = np.array([im.centre for im in b.images], dtype=float).reshape(-1, 3)
             self.X = np.asarray(b.X, dtype=float)
             self.obs_image = np.asarray(b.obs_image, dtype=np.int64)
@@ -114,7 +122,12 @@ class _View:
             self.camera_ids = [c.id for c in b.cameras]
             cam_index = {c: k for k, c in enumerate(self.camera_ids)}
             self.image_camera = np.array([cam_index[im.camera] for im in b.images], dtype=np.int64)
+            from .rotation import R_opk
+
             self.centres = np.array([(im.X0, im.Y0, im.Z0) for im in b.images], dtype=float).reshape(-1, 3)
+            ang = np.array([(im.omega, im.phi, im.kappa) for im in b.images], dtype=float).reshape(-1, 3)
+            # (U, V, W) = Rᵀ (X − X0) (baarda.bundle): world → camera is Rᵀ
+            self.rot = np.swapaxes(R_opk(ang[:, 0], ang[:, 1], ang[:, 2]), -1, -2).reshape(-1, 3, 3)
             self.X = np.array([(p.X, p.Y, p.Z) for p in b.points], dtype=float).reshape(-1, 3)
             self.obs_image = np.asarray(b.obs.image, dtype=np.int64)
             self.obs_point = np.asarray(b.obs.point, dtype=np.int64)
@@ -208,6 +221,39 @@ def _exact_angles(v: _View, obs: np.ndarray, points: np.ndarray):
     return gamma, pair
 
 
+def _pose_conditions(v: _View, obs: np.ndarray, ni: int, chunk: int = 1 << 19) -> np.ndarray:
+    """Per image, the smallest eigenvalue of its equilibrated pose block Ĵᵀ Ĵ (6 × 6, its points
+    held fixed) from the observations ``obs``: 0 (to rounding) when its points do not fix its
+    pose — fewer than three, or all on one line through which the pose can turn.
+
+    Ĵ is the ideal pinhole's Jacobian of (P_x/P_z, P_y/P_z), P = R (X − C), with respect to a
+    rotation δθ and shift δt of the camera frame: ∂P = −[P]× δθ + δt (distortion and focal
+    length scale rows and do not change the rank). The columns are scaled to unit diagonal.
+    Linear in the observations; the 21 distinct products are summed per image by bincount."""
+    G = np.zeros((ni, 6, 6))
+    for s in range(0, obs.size, chunk):
+        o = obs[s:s + chunk]
+        oi = v.obs_image[o]
+        P = np.einsum("kij,kj->ki", v.rot[oi], v.X[v.obs_point[o]] - v.centres[oi])
+        z = P[:, 2]
+        z = np.where(np.abs(z) > 1e-300, z, 1e-300)
+        a, b = P[:, 0] / z, P[:, 1] / z
+        # dπ/dP = (1/z) [[1, 0, −a], [0, 1, −b]]; times [−[P]×, I] (rows: x then y)
+        Px, Py, Pz = P[:, 0], P[:, 1], P[:, 2]
+        # −[P]× = [[0, Pz, −Py], [−Pz, 0, Px], [Py, −Px, 0]]
+        jx = np.stack([-a * Py, Pz + a * Px, -Py, np.ones_like(a), np.zeros_like(a), -a], axis=1) / z[:, None]
+        jy = np.stack([-Pz - b * Py, b * Px, Px, np.zeros_like(a), np.ones_like(a), -b], axis=1) / z[:, None]
+        for r in range(6):
+            for c in range(r, 6):
+                w = jx[:, r] * jx[:, c] + jy[:, r] * jy[:, c]
+                G[:, r, c] += np.bincount(oi, weights=w, minlength=ni)
+    iu = np.triu_indices(6, 1)
+    G[:, iu[1], iu[0]] = G[:, iu[0], iu[1]]
+    d = np.sqrt(np.maximum(np.einsum("kii->ki", G), 1e-300))
+    G /= d[:, :, None] * d[:, None, :]
+    return np.linalg.eigvalsh(G)[:, 0]
+
+
 def _distinct(key: np.ndarray) -> np.ndarray:
     """The distinct values of an integer array, sorted (a sort and a comparison: faster than
     np.unique's hashing on millions of keys)."""
@@ -288,6 +334,15 @@ def find_defects(model, factor: float = DEPTH_FACTOR):
             defects.append(LocalDefect("image", str(v.image_ids[k]), v.pose_names,
                                        f"sees {pts[k]} point{'' if pts[k] == 1 else 's'}; at least "
                                        f"{MIN_POINTS} are needed to fix its pose"))
+        # enough points, but in a configuration that does not fix the pose (e.g. on one line)
+        lam = _pose_conditions(v, np.flatnonzero(obs_on & image_on[v.obs_image]), ni)
+        weak = np.flatnonzero(image_on & (pts >= MIN_POINTS) & (lam < POSE_TOL))
+        for k in weak:
+            defects.append(LocalDefect("image", str(v.image_ids[k]), v.pose_names,
+                                       f"its {pts[k]} points do not fix its pose (they lie on one line "
+                                       f"or the like: its pose block is singular, relative smallest "
+                                       f"eigenvalue {max(lam[k], 0.0):.1g})"))
+        starved = np.concatenate([starved, weak])
         image_on[starved] = False
         left_images += [v.image_ids[k] for k in starved]
         # cameras with estimated intrinsics or APs

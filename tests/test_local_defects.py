@@ -171,9 +171,12 @@ def test_opposite_rays_fix_no_depth(balbianello):
     assert "zero baseline" in defects[0].reason
 
 
-def test_safety_net_collinear_points(balbianello):
-    """An image whose three points lie on one line: counting passes it, the normal equations
-    do not (its pose can turn about that line). The safety net names it and goes on."""
+def test_collinear_points_and_the_safety_net(balbianello, monkeypatch):
+    """An image whose three points lie on one line: counting passes it, its pose block does not
+    (the pose can turn about that line). The pre-pass names it; with that check switched off,
+    the safety net (singular normal equations → leave out, adjust again) names it instead."""
+    import baarda.sfm_defects as sd
+
     b = read_model(BALBIANELLO, refine_intrinsics=False)
     ref = b
     # three collinear new points in front of image 1, each also seen by images 0 and 1
@@ -188,7 +191,10 @@ def test_safety_net_collinear_points(balbianello):
     nim = SfmImage("lone", ncam.id, im1.rodrigues, tuple(np.asarray(im1.t) + [0.1, 0.02, 0.0]))
     blk = add(ref, images=[nim], cameras=[ncam], obs=[("lone", p) for p in cl])
     _, pre = find_defects(blk)
-    assert pre == []                                   # counting cannot see it
+    assert [(d.entity, d.id) for d in pre] == [("image", "lone")]
+    assert "do not fix its pose" in pre[0].reason
+    monkeypatch.setattr(sd, "POSE_TOL", -1.0)          # counting alone cannot see it
+    assert find_defects(blk)[1] == []
     adj, used = adjust_block(build(blk))
     named = {(d.entity, d.id) for d in used.extra["local_defects"]}
     assert ("image", "lone") in named
