@@ -24,6 +24,7 @@ import time
 import warnings
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pytest
 
@@ -36,6 +37,8 @@ from baarda.io.gama import GON, UndefinedPointsWarning, read_gama
 sys.path.insert(0, str(Path(__file__).parent))
 from extdata import GAMA, require_extdata  # noqa: E402
 from gama_result import read_gama_result  # noqa: E402
+
+SCHEMA = json.loads((Path(__file__).parents[1] / "core" / "schema" / "analysis.schema.json").read_text())
 
 TRUE = {"A": (0.0, 0.0, 100.0), "B": (400.0, 0.0, 150.0), "C": (0.0, 300.0, 200.0),
         "Z": (400.0, 300.0, 160.0)}
@@ -248,6 +251,7 @@ def test_undefined_points_dropped_on_request(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("baarda: warning: ") and "3021" in err and "315" in err
     doc = json.loads(out.read_text())
+    jsonschema.validate(doc, SCHEMA)
     dropped = doc["summary"]["dropped_observations"]
     assert [(d["line"], d["kind"], d["undefined"]) for d in dropped] == [(315, "direction", ["3021"])]
     # gama-local drops it too: the same observations remain, the same adjusted coordinates
@@ -309,6 +313,7 @@ def test_traverse_without_heights_is_adjusted_in_xy(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "3 local defect(s)" in text and "point 4262 (z)" in text
     doc = json.loads(out.read_text())
+    jsonschema.validate(doc, SCHEMA)
     assert [(d["id"], d["components"], d["action"]) for d in doc["summary"]["local_defects"]] == \
         [(i, ["z"], "adjusted in x, y") for i in ("4261", "4262", "4263")]
     assert main(["analyze", str(f), "--strict"]) == 2
