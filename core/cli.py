@@ -2,7 +2,11 @@
 
 Exit status: 0 success; 1 the analysis ran but a check asked for failed (none yet);
 2 bad input or usage (one line ``baarda: error: FILE:LINE: what is wrong``, no traceback
-unless ``--debug``); 3 an internal error.
+unless ``--debug``); 3 an internal error; 4 (:data:`NOT_CONVERGED`) the adjustment did not
+converge within ``--max-iter`` iterations (or stalled): the results are written, marked as
+not converged (JSON ``summary.converged`` false and ``summary.termination``, a column
+``adjustment`` in every CSV, a banner in the report), and one line ``baarda: FILE: NOT
+converged: ...`` goes to stderr.
 """
 
 from __future__ import annotations
@@ -16,6 +20,9 @@ from . import __version__
 from .errors import BaardaError, InputError
 from .text import number, printable, printable_lines, shorten
 
+#: exit status of a run whose adjustment did not converge (module docstring)
+NOT_CONVERGED = 4
+
 
 def _add_test_options(p):
     p.add_argument("--alpha", type=float, default=0.001,
@@ -24,6 +31,22 @@ def _add_test_options(p):
                    help="power β0 at which minimal detectable biases are computed, default 0.80")
     p.add_argument("--b-method", action="store_true",
                    help="Baarda's B-method: multi-dimensional tests get the δ0 and β0 of the 1D test")
+
+
+def _add_iteration_option(p):
+    p.add_argument("--max-iter", type=_positive_int, default=50, metavar="N",
+                   help="at most N iterations of the adjustment (default 50); a run that does not "
+                        "converge writes its results marked as such and exits with status 4")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
+    return value
 
 
 def _add_input_options(p):
@@ -56,6 +79,16 @@ def _warn_dropped(path, model_or_problem, quiet=False):
               f"{', '.join(ids)} dropped (--drop-undefined; line(s) {lines})", file=sys.stderr)
 
 
+def _adjust_with_defects(problem, options, progress=None, strict=False):
+    """Adjust; local defects found by the adjustment are set aside (networks: geodetic, blocks:
+    sfm_defects) unless ``strict``. Returns ``(adjustment, problem adjusted)``."""
+    if "network_model" in problem.extra:
+        from .geodetic import adjust_network
+        return adjust_network(problem, options, progress=progress, strict=strict)
+    from .sfm_defects import adjust_block
+    return adjust_block(problem, options, progress=progress, strict=strict)
+
+
 def _read_quietly(fn, *a, **kw):
     """Call a reader with its UndefinedPointsWarning silenced (the CLI prints its own line)."""
     import warnings
@@ -71,7 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="baarda",
         description="Reliability of geodetic networks and photogrammetric blocks: global test, "
                     "data snooping, redundancy numbers, MDB, external reliability.",
-        epilog="Exit status: 0 ok, 2 bad input or usage, 3 internal error.")
+        epilog="Exit status: 0 ok, 2 bad input or usage, 3 internal error, 4 the adjustment did not "
+               "converge (results written and marked as not converged).")
     ap.add_argument("--version", action="version", version=f"baarda {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     an = sub.add_parser("analyze", help="adjust a network or block and test it",
@@ -81,6 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
                                   "Bundler .out, COLMAP model directory (docs/formats.md)")
     _add_input_options(an)
     _add_test_options(an)
+    _add_iteration_option(an)
     an.add_argument("--json", metavar="OUT", help="write the full results as JSON (docs/json-schema.md)")
     an.add_argument("--csv", metavar="DIR", help="write observations.csv, points.csv, groups.csv into DIR")
     an.add_argument("--geojson", metavar="OUT", help="write the points with r_min, MDB, δ̄0 as GeoJSON (for GIS)")
@@ -149,6 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--format", default="auto", help="input format (see analyze)")
     _add_drop_option(rp)
     _add_test_options(rp)
+    _add_iteration_option(rp)
     rp.add_argument("--quiet", "-q", action="store_true")
     rp.add_argument("--debug", action="store_true")
 
@@ -216,11 +252,11 @@ def _analyze(args) -> int:
                             strict=args.strict, drop_undefined=args.drop_undefined)
     _warn_dropped(args.input, problem, args.quiet)
     t_read = time.perf_counter() - t0
-    options = Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method)
+    options = Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method, max_iter=args.max_iter)
     try:
         # blocks: unknowns found undetermined by a few points/images are left out (sfm_defects)
-        from .sfm_defects import adjust_block
-        adj, problem = adjust_block(problem, options, progress=_progress(args.quiet), strict=args.strict)
+        adj, problem = _adjust_with_defects(problem, options, progress=_progress(args.quiet),
+                                            strict=args.strict)
     except DatumDefectError as err:
         raise InputError(args.input, 0, _defect_message(err, problem)) from None
     if not args.quiet and sys.stderr.isatty():
@@ -348,7 +384,17 @@ def _analyze(args) -> int:
         if findings is not None:
             from . import truth
             print(printable_lines(truth.text(findings)))
-    return 0
+    return _convergence_status(args.input, adj)
+
+
+def _convergence_status(path, adj) -> int:
+    """0, or :data:`NOT_CONVERGED` with one line on stderr when the adjustment did not converge."""
+    if adj.converged:
+        return 0
+    why = getattr(adj, "termination", "") or "not converged"
+    print(f"baarda: {printable(str(path))}: NOT converged after {adj.iterations} iterations: "
+          f"{why.removeprefix('not converged: ')}", file=sys.stderr)
+    return NOT_CONVERGED
 
 
 def _defect_message(err, problem) -> str:
@@ -450,11 +496,11 @@ def cmd_simulate(args) -> int:
 def cmd_report(args) -> int:
     from .adjust import Options
     from .io import read_problem
-    from .sfm_defects import adjust_block
 
     problem = _read_quietly(read_problem, args.input, args.format, drop_undefined=args.drop_undefined)
     _warn_dropped(args.input, problem, args.quiet)
-    adj, problem = adjust_block(problem, Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method))
+    adj, problem = _adjust_with_defects(problem, Options(alpha=args.alpha, beta=args.beta,
+                                                         b_method=args.b_method, max_iter=args.max_iter))
     out = Path(args.out) if args.out else Path(args.input).with_suffix(".html")
     if out.resolve() == Path(args.input).resolve():
         raise BaardaError(f"{out}: refusing to overwrite the input file")
@@ -466,7 +512,7 @@ def cmd_report(args) -> int:
     write_report(adj, out)
     if not args.quiet:
         print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
-    return 0
+    return _convergence_status(args.input, adj)
 
 
 def cmd_serve(args) -> int:

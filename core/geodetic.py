@@ -22,7 +22,7 @@ azimuths (they are horizontal quantities). ``<obs orientation>`` only starts the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -356,9 +356,76 @@ def build_network(net: Network, strict: bool = False) -> Problem:
         return build_problem(net)
     net, defects = _set_aside_local_defects(net)
     problem = build_problem(net)
+    problem.extra["network_model"] = net     # for adjust_network's safety net
     if defects:
         problem.extra["local_defects"] = list(problem.extra.get("local_defects", ())) + defects
     return problem
+
+
+#: rounds of the safety net in :func:`adjust_network`
+MAX_ROUNDS = 5
+
+
+def adjust_network(problem: Problem, options=None, progress=None, strict: bool = False):
+    """Adjust a network from :func:`build_network`; ``(adjustment, problem adjusted)``.
+
+    Safety net for local defects the structural checks of :func:`build_network` cannot see:
+    when the normal equations turn out singular in the coordinates of a few points (a point
+    with approximate coordinates observed by a single direction, say), those coordinates are
+    named as local defects, set aside with the observations that need them, and the network
+    is adjusted again. A defect of the whole network (its datum), one involving other
+    unknowns (orientations), or any defect with ``strict`` raises
+    :class:`~baarda.errors.DatumDefectError` as :func:`baarda.adjust.adjust` does.
+    """
+    from .adjust import adjust
+    from .defects import LocalDefect
+    from .errors import DatumDefectError
+
+    first = None
+    for _ in range(MAX_ROUNDS + 1):
+        try:
+            return adjust(problem, options, progress=progress), problem
+        except DatumDefectError as err:
+            first = first or err
+            net = problem.extra.get("network_model")
+            if net is None or strict or "local datum defect" not in err.message:
+                raise first from None
+            ids = {p.id for p in net.points}
+            named: dict[str, set] = {}
+            for label in err.undetermined:
+                pid, _, a = label.rpartition(".")
+                if pid not in ids or a not in AXES:
+                    raise first from None
+                named.setdefault(pid, set()).add(a)
+            if not named or len(named) > max(3, len(net.points) // 4):
+                raise first from None
+            keep = [not any(pid in named and set(NEEDS[o.kind]) & named[pid] for pid in o.points)
+                    for o in net.observations]
+            lines = {pid: sorted({o.line for o, k in zip(net.observations, keep) if not k
+                                  and pid in o.points}) for pid in named}
+            points = []
+            for p in net.points:
+                if p.id in named:
+                    gone = named[p.id]
+                    p = replace(p, adjusted="".join(a for a in p.adjusted if a.lower() not in gone),
+                                constrained="".join(a for a in p.constrained if a.lower() not in gone))
+                points.append(p)
+            found = []
+            for p in points:
+                if p.id not in named:
+                    continue
+                left = "".join(a for a in "xyz" if a in (p.adjusted + p.constrained).lower())
+                action = f"adjusted in {', '.join(left)}" if left else "left out"
+                if lines[p.id]:
+                    action += (f", with {len(lines[p.id])} observation(s) left out (line(s) "
+                               f"{', '.join(map(str, lines[p.id][:20]))})")
+                found.append(LocalDefect("point", p.id, tuple(a for a in "xyz" if a in named[p.id]),
+                                         "the adjustment finds it undetermined (singular normal "
+                                         "equations: too few observations to it)", action))
+            old = list(problem.extra.get("local_defects", ()))
+            problem = build_network(_keep_observations(replace(net, points=tuple(points)), keep))
+            problem.extra["local_defects"] = old + found + list(problem.extra.get("local_defects", ()))
+    raise first
 
 
 def _set_aside_local_defects(net: Network):

@@ -387,3 +387,36 @@ def test_railway_survey_without_approximate_xy(capsys):
         assert abs(r - r2[k][0]) < 1e-6
         if r > 1e-6:   # w of observations without control (r ≈ 0) is noise
             assert abs(w - r2[k][1]) < 1e-4
+
+
+def test_adjustment_safety_net_for_points_a_single_direction_leaves_open(tmp_path, capsys):
+    """A point *with* approximate coordinates seen by a single direction: the structure looks
+    fine, the normal equations are singular in its x, y only. adjust_network names it, sets it
+    aside with its observation and adjusts the rest (the traverse as without it); --strict and
+    the plain adjustment keep the datum-defect error."""
+    from baarda.errors import DatumDefectError
+    from baarda.geodetic import adjust_network
+
+    f = _knin3d(tmp_path, extra_points='<point id="X8" x="1075200" y="758900" adj="xy"/>\n',
+                extra_obs='<obs from="4262">\n<direction to="X8" val="33.3330"/>\n'
+                          '<direction to="4261" val="0.0000"/>\n</obs>\n')
+    line = next(k for k, s in enumerate(f.read_text().splitlines(), 1) if 'to="X8"' in s)
+    p = read_problem(f)
+    with pytest.raises(DatumDefectError):
+        adjust(p)
+    with pytest.raises(DatumDefectError):
+        adjust_network(p, strict=True)
+    a, p2 = adjust_network(p)
+    d = {x.id: x for x in p2.extra["local_defects"]}
+    assert set(d) == {"4261", "4262", "4263", "X8"}
+    assert d["X8"].components == ("x", "y") and f"line(s) {line}" in d["X8"].action
+    ref = adjust(read_problem(GAMA / KNIN))
+    np.testing.assert_allclose(np.sort(a.r)[1:], np.sort(ref.r), atol=1e-9)
+    out = tmp_path / "x8.json"
+    assert main(["analyze", str(f), "--json", str(out), "--quiet"]) == 0
+    doc = json.loads(out.read_text())
+    jsonschema.validate(doc, SCHEMA)
+    assert "X8" in [x["id"] for x in doc["summary"]["local_defects"]]
+    assert main(["analyze", str(f), "--strict"]) == 2   # (refused at the heights already)
+    err = capsys.readouterr().err
+    assert err.startswith(f"baarda: error: {f}:") and err.count("\n") == 1
