@@ -40,9 +40,9 @@ can leave a point on one ray):
 * **images**: fewer than 3 distinct points (6 pose unknowns need at least 6 equations), or
   points that do not fix the pose although there are enough of them (all on one line: the
   camera can turn about it): the image's own 6 × 6 block of the normal equations, its points
-  held fixed, is singular (:func:`_pose_conditions`; smallest eigenvalue of the equilibrated
-  block below :data:`POSE_TOL` = 10⁻¹⁰, where rounding leaves ~10⁻¹⁶ for an exact defect and
-  real images stay many orders above). A singular diagonal block makes the whole normal matrix
+  held fixed, is singular (:func:`_pose_conditions`; smallest over largest eigenvalue of the
+  scaled block below :data:`POSE_TOL` = 10⁻¹⁰, where rounding leaves ~10⁻¹⁶ for an exact
+  defect and the images of real blocks stay above 10⁻⁵). A singular diagonal block makes the whole normal matrix
   singular, and it never flags the gauge of a free block (that moves every image and point).
 * **cameras** whose intrinsics (SfM ``refine_intrinsics``) or additional parameters (native
   blocks) are estimated: the images of the camera give Σ (2 p_i − 6) equations beyond their
@@ -95,7 +95,6 @@ class _View:
             self.camera_ids = [c.id for c in b.cameras]
             cam_index = {c: k for k, c in enumerate(self.camera_ids)}
             self.image_camera = np.array([cam_index[im.camera] for im in b.images], dtype=np.int64)
-            self.rot = np.array([im.R for im in b.images], dtype=float).reshape(-1, 3, 3)
             self.centres = np.array([im.centre for im in b.images], dtype=float).reshape(-1, 3)
             self.X = np.asarray(b.X, dtype=float)
             self.obs_image = np.asarray(b.obs_image, dtype=np.int64)
@@ -122,12 +121,7 @@ class _View:
             self.camera_ids = [c.id for c in b.cameras]
             cam_index = {c: k for k, c in enumerate(self.camera_ids)}
             self.image_camera = np.array([cam_index[im.camera] for im in b.images], dtype=np.int64)
-            from .rotation import R_opk
-
             self.centres = np.array([(im.X0, im.Y0, im.Z0) for im in b.images], dtype=float).reshape(-1, 3)
-            ang = np.array([(im.omega, im.phi, im.kappa) for im in b.images], dtype=float).reshape(-1, 3)
-            # (U, V, W) = Rᵀ (X − X0) (baarda.bundle): world → camera is Rᵀ
-            self.rot = np.swapaxes(R_opk(ang[:, 0], ang[:, 1], ang[:, 2]), -1, -2).reshape(-1, 3, 3)
             self.X = np.array([(p.X, p.Y, p.Z) for p in b.points], dtype=float).reshape(-1, 3)
             self.obs_image = np.asarray(b.obs.image, dtype=np.int64)
             self.obs_point = np.asarray(b.obs.point, dtype=np.int64)
@@ -221,37 +215,59 @@ def _exact_angles(v: _View, obs: np.ndarray, points: np.ndarray):
     return gamma, pair
 
 
-def _pose_conditions(v: _View, obs: np.ndarray, ni: int, chunk: int = 1 << 19) -> np.ndarray:
-    """Per image, the smallest eigenvalue of its equilibrated pose block Ĵᵀ Ĵ (6 × 6, its points
-    held fixed) from the observations ``obs``: 0 (to rounding) when its points do not fix its
-    pose — fewer than three, or all on one line through which the pose can turn.
+def _pose_conditions(v: _View, obs: np.ndarray, ni: int) -> np.ndarray:
+    r"""Per image, the smallest eigenvalue of its pose block (6 × 6, its points held fixed) from
+    the observations ``obs``: 0 (to rounding) when its points do not fix its pose — fewer than
+    three, or all on one line through which the pose can turn.
 
-    Ĵ is the ideal pinhole's Jacobian of (P_x/P_z, P_y/P_z), P = R (X − C), with respect to a
-    rotation δθ and shift δt of the camera frame: ∂P = −[P]× δθ + δt (distortion and focal
-    length scale rows and do not change the rank). The columns are scaled to unit diagonal.
-    Linear in the observations; the 21 distinct products are summed per image by bincount."""
+    Each image point is taken as the direction u = (X − C)/ρ, ρ = |X − C|, of its ray; a turn δθ
+    and shift δt of the camera move it by J = [−[u]×, (I − uuᵀ)/ρ] (the component across the
+    ray), so that
+
+    .. math:: JᵀJ = \\begin{pmatrix} I − uuᵀ & [u]_×/ρ \\\\ [u]_×ᵀ/ρ & (I − uuᵀ)/ρ² \\end{pmatrix}.
+
+    This is the projection's Jacobian up to a regular 2 × 2 factor per point (the same rank),
+    but bounded: a point near the camera's plane does not swamp the others. The rotation and
+    the translation blocks are scaled by their mean diagonal (so the result does not depend on
+    the frame). Linear in the observations (bincounts of 17 sums per image)."""
+    oi = v.obs_image[obs]
+    d = v.X[v.obs_point[obs]] - v.centres[oi]
+    rho = np.sqrt(np.einsum("ij,ij->i", d, d))
+    ok = rho > 0
+    oi, d, rho = oi[ok], d[ok], rho[ok]
+    u = d / rho[:, None]
+    del d
+    w = 1.0 / rho
+    w2 = w * w
+
+    def total(x):
+        return np.bincount(oi, weights=x, minlength=ni)
+
+    cnt = np.bincount(oi, minlength=ni).astype(float)
+    UU = np.empty((ni, 3, 3))
+    UW = np.empty((ni, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            p = u[:, a] * u[:, b]
+            UU[:, a, b] = UU[:, b, a] = total(p)
+            UW[:, a, b] = UW[:, b, a] = total(p * w2)
+    s1 = np.stack([total(u[:, a] * w) for a in range(3)], axis=1)      # Σ u/ρ
+    s2 = total(w2)                                                      # Σ 1/ρ²
+    eye = np.eye(3)
     G = np.zeros((ni, 6, 6))
-    for s in range(0, obs.size, chunk):
-        o = obs[s:s + chunk]
-        oi = v.obs_image[o]
-        P = np.einsum("kij,kj->ki", v.rot[oi], v.X[v.obs_point[o]] - v.centres[oi])
-        z = P[:, 2]
-        z = np.where(np.abs(z) > 1e-300, z, 1e-300)
-        a, b = P[:, 0] / z, P[:, 1] / z
-        # dπ/dP = (1/z) [[1, 0, −a], [0, 1, −b]]; times [−[P]×, I] (rows: x then y)
-        Px, Py, Pz = P[:, 0], P[:, 1], P[:, 2]
-        # −[P]× = [[0, Pz, −Py], [−Pz, 0, Px], [Py, −Px, 0]]
-        jx = np.stack([-a * Py, Pz + a * Px, -Py, np.ones_like(a), np.zeros_like(a), -a], axis=1) / z[:, None]
-        jy = np.stack([-Pz - b * Py, b * Px, Px, np.zeros_like(a), np.ones_like(a), -b], axis=1) / z[:, None]
-        for r in range(6):
-            for c in range(r, 6):
-                w = jx[:, r] * jx[:, c] + jy[:, r] * jy[:, c]
-                G[:, r, c] += np.bincount(oi, weights=w, minlength=ni)
-    iu = np.triu_indices(6, 1)
-    G[:, iu[1], iu[0]] = G[:, iu[0], iu[1]]
-    d = np.sqrt(np.maximum(np.einsum("kii->ki", G), 1e-300))
-    G /= d[:, :, None] * d[:, None, :]
-    return np.linalg.eigvalsh(G)[:, 0]
+    G[:, :3, :3] = cnt[:, None, None] * eye - UU
+    K = np.zeros((ni, 3, 3))                                             # Σ [u]×/ρ
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -s1[:, 2], s1[:, 1], -s1[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = s1[:, 2], -s1[:, 1], s1[:, 0]
+    G[:, :3, 3:] = K
+    G[:, 3:, :3] = np.swapaxes(K, 1, 2)
+    G[:, 3:, 3:] = s2[:, None, None] * eye - UW
+    sr = np.sqrt(np.maximum(np.einsum("kii->k", G[:, :3, :3]) / 3.0, 1e-300))
+    st = np.sqrt(np.maximum(np.einsum("kii->k", G[:, 3:, 3:]) / 3.0, 1e-300))
+    scale = np.concatenate([np.repeat(sr[:, None], 3, 1), np.repeat(st[:, None], 3, 1)], axis=1)
+    G /= scale[:, :, None] * scale[:, None, :]
+    lam = np.linalg.eigvalsh(G)
+    return lam[:, 0] / np.maximum(lam[:, -1], 1e-300)
 
 
 def _distinct(key: np.ndarray) -> np.ndarray:
