@@ -354,3 +354,19 @@ def test_arrays_in_extra_are_cut_like_the_block(balbianello):
     assert np.array_equal(reduced.extra["point_offset"], np.arange(m - 1) * 10)
     assert np.array_equal(reduced.extra["image_offset"], np.arange(k) * 7)
     assert reduced.extra["note"] == "kept" and b.extra["obs_keypoint"].size == n
+
+
+def test_whole_block_defect_is_still_diagnosed(capsys):
+    """dubrovnik-3-7 (38 equations for 48 unknowns) is underdetermined as a whole: no local
+    defect is found or made up; the datum-defect diagnosis names its unknowns as before."""
+    from baarda.cli import main
+
+    path = require_extdata(EXTDATA / "bal" / "dubrovnik-3-7-pre.txt")
+    model = read_model(path)
+    assert find_defects(model)[1] == []
+    with pytest.raises(DatumDefectError):
+        adjust_block(build(model))
+    assert main(["analyze", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "38 observations for 48 unknowns" in err and "do not determine" in err
+    assert "local defect" not in err
