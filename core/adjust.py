@@ -47,11 +47,44 @@ from .linalg import SPDFactor
 SOLVERS = ("auto", "schur", "generic")
 
 
+METHODS = ("auto", "gauss-newton", "levenberg-marquardt")
+
 #: a Gauss-Newton step that multiplies vᵀPv by more than this switches to Levenberg-Marquardt
 DIVERGENCE = 1.5
-#: in Levenberg-Marquardt mode, two accepted steps lowering vᵀPv by less than this (relative)
-#: end the iteration (converged in the cost, as Ceres' function tolerance)
+#: Levenberg-Marquardt trust region: Ceres Solver's defaults (``Solver::Options``)
+INITIAL_RADIUS = 1e4
+MAX_RADIUS = 1e16
+MIN_RADIUS = 1e-32
+#: a damped step is accepted when its gain ratio exceeds this (Ceres' min_relative_decrease)
+MIN_RELATIVE_DECREASE = 1e-3
+#: an accepted damped step changing vᵀPv by less than this (relative) starts the undamped end
+#: game (Ceres' function_tolerance)
 FUNCTION_TOL = 1e-6
+#: gradient tolerance (Ceres' gradient_tolerance, here on the scaled gradient; see _gradient_small)
+GRADIENT_TOL = 1e-10
+#: increments (in conditional standard deviations) below which round-off is reached when they
+#: stop shrinking
+ROUNDOFF_STEP = 1e-6
+#: in the end game after Levenberg-Marquardt, undamped steps are S-transformed once their
+#: increments are below this many conditional standard deviations
+GAUGE_STEP = 1e-2
+#: undamped end games (after the function tolerance) that may fail before the run stops
+MAX_END_GAMES = 3
+#: an undamped end-game step may raise vᵀPv by this much (relative) and still count as round-off
+ROUNDOFF_COST = 1e-10
+
+#: termination status → message (> 0 converged, ≤ 0 not; the style of SciPy's least_squares)
+STATUS = {
+    -1: "not converged: the trust region collapsed (no damped step lowers vᵀPv)",
+    0: "not converged: the maximum number of iterations was reached",
+    1: "converged: every increment below tol conditional standard deviations (undamped step)",
+    2: "converged: the increments reached round-off (undamped steps no longer shrink)",
+    3: "converged: the scaled gradient AᵀPv vanished (gradient tolerance)",
+    4: ("converged: every increment below tol conditional standard deviations with {n_far} far "
+        "point(s) held where Levenberg-Marquardt left them (they drift along their rays towards "
+        "infinity: no finite optimum for them)"),
+    -2: "not converged: vᵀPv no longer changes but undamped steps keep failing",
+}
 
 
 @dataclass(frozen=True)
@@ -75,6 +108,7 @@ class Options:
     max_iter: int = 50
     solver: str = "auto"
     backend: str | None = None
+    method: str = "auto"
 
 
 def keep_columns(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
@@ -92,13 +126,6 @@ def keep_columns(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
                         shape=(A.shape[0], keep.size))
     out.has_sorted_indices = A.has_sorted_indices
     return out
-
-
-def _regularised(A, P, free, plan):
-    mask = np.ones(free.size, dtype=bool)
-    mask[plan.eliminate] = False
-    keep = np.flatnonzero(mask)
-    return keep, keep_columns(A, keep)
 
 
 def weight_matrix(cov) -> sp.csr_matrix:
@@ -135,17 +162,131 @@ def schur_structure(problem, Ar, keep, solver: str = "auto"):
     return st
 
 
+class _Linearisation:
+    """f(x) and the design matrix A = ∂f/∂x over the free parameters, on a pattern found once.
+
+    The observation sets return their Jacobian entries as (row, column, value) triples in a
+    fixed order; the CSR pattern of A (and of the reduced Ar, without the datum's held columns)
+    and the place of every triple in it are computed at the first evaluation, so each later
+    one is a single weighted bincount (duplicates summed as scipy's COO conversion does).
+    A set that returns another pattern makes the layout be found again.
+    """
+
+    def __init__(self, problem, free: np.ndarray):
+        self.problem = problem
+        self.u = free.size
+        self.col = np.full(problem.params.size, -1, dtype=np.int64)
+        self.col[free] = np.arange(free.size)
+        self._key = None
+
+    def evaluate(self, x: np.ndarray):
+        """f(x) (n,) and the raw entries of the Jacobian (pass them to :meth:`design`)."""
+        problem = self.problem
+        f = np.empty(problem.n)
+        parts = []
+        for s in problem.sets:
+            fs, jr, jc, jv = s.evaluate(x)
+            f[s.rows] = fs
+            parts.append((jr, jc, jv))
+        return f, parts
+
+    def _layout(self, parts):
+        problem = self.problem
+        rows = np.concatenate([np.asarray(s.rows)[jr] for s, (jr, _, _) in zip(problem.sets, parts)])
+        cols = self.col[np.concatenate([jc for _, jc, _ in parts])]
+        m = cols >= 0
+        key = rows[m] * max(self.u, 1) + cols[m]
+        order = np.argsort(key, kind="stable")
+        ks = key[order]
+        first = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]]) if ks.size else np.zeros(0, dtype=np.int64)
+        uniq = ks[first]
+        n = problem.n
+        indptr = np.searchsorted(uniq // max(self.u, 1), np.arange(n + 1)).astype(np.int64)
+        self._key = tuple((jr, jc) for jr, jc, _ in parts)
+        # entries of the free columns in CSR order; duplicates (one parameter feeding two
+        # intrinsics) summed by reduceat over their runs
+        self._take = np.flatnonzero(m)[order]
+        self._first = None if first.size == ks.size else first
+        self._indptr, self._indices = indptr, (uniq % max(self.u, 1)).astype(np.int32 if self.u < 2**31 else np.int64)
+        self._reduced = None
+
+    def _same(self, parts) -> bool:
+        if self._key is None or len(self._key) != len(parts):
+            return False
+        return all((jr is kr or np.array_equal(jr, kr)) and (jc is kc or np.array_equal(jc, kc))
+                   for (jr, jc, _), (kr, kc) in zip(parts, self._key))
+
+    def design(self, parts) -> sp.csr_matrix:
+        """A (n × u_free, canonical CSR) from the entries of :meth:`evaluate`."""
+        if not self._same(parts):
+            self._layout(parts)
+        jv = parts[0][2] if len(parts) == 1 else np.concatenate([jv for _, _, jv in parts])
+        data = jv[self._take]
+        if self._first is not None:
+            data = np.add.reduceat(data, self._first)
+        A = sp.csr_matrix((data, self._indices, self._indptr), shape=(self.problem.n, self.u), copy=False)
+        A.has_canonical_format = True
+        self._A_indices = A.indices
+        return A
+
+    def reduced(self, A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
+        """A[:, keep] (:func:`keep_columns`), its pattern kept for the next A of this layout."""
+        if A.indices is not getattr(self, "_A_indices", None):
+            return keep_columns(A, keep)
+        if self._reduced is None or not np.array_equal(self._reduced[0], keep):
+            Ar = keep_columns(A, keep)
+            colmap = np.full(self.u, -1, dtype=np.int64)
+            colmap[keep] = np.arange(keep.size)
+            self._reduced = (keep.copy(), colmap[A.indices] >= 0, Ar.indices, Ar.indptr)
+        _, m, indices, indptr = self._reduced
+        Ar = sp.csr_matrix((A.data[m], indices, indptr), shape=(A.shape[0], keep.size), copy=False)
+        Ar.has_canonical_format = True
+        return Ar
+
+
+def update_radius(mu: float, decrease: float, rho: float, accepted: bool) -> tuple[float, float]:
+    """Levenberg-Marquardt trust region μ (damping λ = 1/μ) after a step of gain ratio ρ.
+
+    Ceres Solver's ``LevenbergMarquardtStrategy`` (Nielsen 1999, Madsen et al. 2004 §3.2):
+    accepted, μ ← μ / max(1/3, 1 − (2ρ − 1)³) (at most :data:`MAX_RADIUS`) and the decrease
+    factor is reset to 2; rejected, μ ← μ / factor and the factor doubles.
+    """
+    if accepted:
+        return min(mu / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), MAX_RADIUS), 2.0
+    return mu / decrease, 2.0 * decrease
+
+
+def gain_ratio(cost: float, cost_new: float, dx: np.ndarray, g: np.ndarray, lam: float,
+               diagN: np.ndarray) -> float:
+    """ρ = actual / predicted decrease of vᵀPv for the step dx of (N + λ D) dx = g, g = −AᵀPv.
+
+    The linear model predicts vᵀPv − (v + A dx)ᵀP(v + A dx) = 2 dxᵀg − dxᵀN dx = dxᵀ(g + λ D dx).
+    """
+    predicted = float(dx @ (lam * diagN * dx + g))
+    if not np.isfinite(cost_new):
+        return -np.inf
+    if predicted <= 0.0:
+        return 1.0 if cost_new <= cost else -np.inf
+    return (cost - cost_new) / predicted
+
+
 def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None,
            progress=None):
-    """Adjust ``problem`` by Gauss-Newton and return an :class:`baarda.result.Adjustment`.
+    """Adjust ``problem`` (Gauss-Newton, Levenberg-Marquardt where needed; module docstring)
+    and return an :class:`baarda.result.Adjustment`.
 
-    progress: optional callable(iteration, max_increment_ratio) for progress display.
+    The result carries ``status`` (a key of :data:`STATUS`: > 0 converged, ≤ 0 not) and
+    ``termination`` (its message). progress: optional callable(iteration, max_increment_ratio).
     Raises DatumDefectError (defect not resolved by the datum, or parameters the observations do
     not determine) — never returns a result from a singular system.
     """
     from .result import Adjustment
 
     options = options or Options()
+    if options.method not in METHODS:
+        raise ValueError(f"unknown method {options.method!r} (known: {', '.join(METHODS)})")
+    if int(options.max_iter) < 1:
+        raise ValueError(f"max_iter must be at least 1 (got {options.max_iter})")
     t0 = time.perf_counter()
     params = problem.params
     free = params.free
@@ -153,128 +294,211 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     x_ref = x.copy()
     P = weight_matrix(problem.cov)
     labels = np.asarray(params.labels)[free]
-    f, J = problem.evaluate(x)
-    A = J[:, free].tocsr()
+    lin = _Linearisation(problem, free)
+    f, parts = lin.evaluate(x)
+    A = lin.design(parts)
     plan = datum_mod.plan(problem, x, A, P, free)
-    converged = False
-    history = []
-    it = 0
-    keep, Ar = _regularised(A, P, free, plan)
-    st = schur_structure(problem, Ar, keep, options.solver)
-    lam = 0.0                      # Levenberg-Marquardt damping, 0 = Gauss-Newton
-    lm_mode = False                # becomes True once a Gauss-Newton step has failed
-    small_drops = 0
-    nu = 2.0
+    keep_all = np.setdiff1d(np.arange(free.size), plan.eliminate)
+    keep = keep_all                # the unknowns solved for (far points held in the end game)
+    Ar = lin.reduced(A, keep)
+    st = st_all = schur_structure(problem, Ar, keep, options.solver)
+    # Levenberg-Marquardt from the start for blocks whose points are eliminated (as Ceres);
+    # Gauss-Newton first otherwise, damped only once a step makes the fit much worse
+    damped = options.method == "levenberg-marquardt" or (options.method == "auto" and st is not None)
+    endgame = False                # undamped steps after Levenberg-Marquardt's function tolerance
+    mu, decrease = INITIAL_RADIUS, 2.0
+    ever_damped = damped
+    history: list[float] = []
+    trace = []                     # (λ, step, vᵀPv at the trial point, gain ratio) per solved step
+    last_undamped = None           # size of the last accepted undamped step
+    failed = 0                     # undamped end games that failed
+    n_far = 0                      # far points held in the end game
+    status = 0
     v = problem.misclosure(f)
     cost = float(v @ (P @ v))
+
+    def end_game_failed():
+        """An undamped step of the end game failed (rejected, or a singular system). When far
+        points are what drifts (along their rays towards infinity: vᵀPv falls towards an
+        infimum, no finite optimum for them), hold them where they are and finish the rest
+        undamped; otherwise back to the trust region."""
+        nonlocal keep, keep_all, Ar, st, st_all, plan, endgame, failed, n_far, last_undamped
+        failed += 1
+        last_undamped = None
+        if n_far == 0 and failed <= MAX_END_GAMES:
+            far = _far_columns(problem, x, free[keep_all])
+            if far.any():
+                if plan.defect:
+                    # the datum analysed again here: the S-base leaves the far points out
+                    plan = datum_mod.plan(problem, x, A, P, free)
+                    new = np.setdiff1d(np.arange(free.size), plan.eliminate)
+                    if not np.array_equal(new, keep_all):
+                        keep_all = new
+                        Ar = lin.reduced(A, keep_all)
+                        st_all = None if st_all is None else schur_structure(problem, Ar, keep_all, "schur")
+                    far = _far_columns(problem, x, free[keep_all])
+                keep = keep_all[~far]
+                Ar = lin.reduced(A, keep)
+                st = None if st_all is None else schur_structure(problem, Ar, keep, "schur")
+                n_far = int(np.unique(params.point[free[keep_all][far]]).size)
+                return
+        if n_far:
+            keep, st, n_far = keep_all, st_all, 0
+            Ar = lin.reduced(A, keep)
+        endgame = False
+
     it = 0
     for it in range(1, options.max_iter + 1):
-        keep, Ar = _regularised(A, P, free, plan)
+        lam = 1.0 / mu if damped and not endgame else 0.0
         if st is not None and not st.matches(Ar):
             st = schur_structure(problem, Ar, keep, "schur")
         try:
-            if st is not None:
-                factor = _schur_or_diagnose(st, Ar, P, labels[keep], options.backend, lam)
-                diagN = factor.diagonal
-            else:
-                N = (Ar.T @ P @ Ar).tocsr()
-                diagN = N.diagonal()
-                if lam:
-                    N = (N + sp.diags(lam * diagN)).tocsr()
-                factor = _factor_or_diagnose(N, Ar, P, labels[keep], problem, plan)
+            factor, diagN = _factor(st, Ar, P, labels[keep], options.backend, lam, problem, plan)
         except DatumDefectError:
             # singular at the start: a real defect. Later (after a long step) or while damped:
             # damp more and retry from the same point; give up past a huge damping.
             if it == 1 or lam > 1e12:
                 raise
-            lm_mode = True
-            lam, nu = max(nu * lam, 1e-3), 2.0 * nu
+            if endgame:
+                end_game_failed()
+            elif lam:
+                mu, decrease = mu / decrease, 2.0 * decrease
+            else:
+                mu, decrease = INITIAL_RADIUS, 2.0
+            damped = ever_damped = True
             history.append(float("inf"))
             continue
-        lam_used = lam
         g = -(Ar.T @ (P @ v))
+        if damped and not n_far and _gradient_small(g, diagN, cost):
+            status = 3
+            break
         step_keep = factor.solve(g)
-        dx_raw = np.zeros(free.size)
-        dx_raw[keep] = step_keep
-        ratio = np.abs(step_keep) * np.sqrt(diagN)
-        step = float(ratio.max(initial=0.0))
+        step = float((np.abs(step_keep) * np.sqrt(diagN)).max(initial=0.0))
         trial = x.copy()
-        trial[free] += dx_raw
-        f_new, J_new = problem.evaluate(trial)
+        trial[free[keep]] += step_keep
+        f_new, parts_new = lin.evaluate(trial)
         v_new = problem.misclosure(f_new)
         cost_new = float(v_new @ (P @ v_new))
-        if lm_mode:
-            # Levenberg-Marquardt (Nielsen's update): accept when vᵀPv decreases
-            predicted = float(step_keep @ (lam * diagN * step_keep + g))
-            rho = (cost - cost_new) / predicted if predicted > 0 else -1.0
-            ok = np.isfinite(cost_new) and (rho > 0 or step < 1e-3)
-            if ok:
-                lam = lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3) if rho > 0 else lam
-                nu = 2.0
-                if lam < 1e-9:
-                    lam = 0.0
-            else:
-                if lam > 1e12:
-                    break
-                lam, nu = max(nu * lam, 1e-6), 2.0 * nu
+        rho = gain_ratio(cost, cost_new, step_keep, g, lam, diagN)
+        trace.append((lam, step, cost_new, rho))
+        if lam > 0.0:
+            ok = rho > MIN_RELATIVE_DECREASE
+            mu, decrease = update_radius(mu, decrease, rho, ok)
+            if not ok and mu < MIN_RADIUS:
+                history.append(step)
+                status = -1
+                break
+        elif endgame:
+            # the undamped end game accepts what does not raise vᵀPv beyond round-off;
+            # otherwise the quadratic model is not good yet
+            ok = bool(np.isfinite(cost_new) and cost_new <= cost * (1.0 + ROUNDOFF_COST))
+            if not ok:
+                end_game_failed()
         else:
             # Gauss-Newton may raise vᵀPv a little on its way (and a free network's gauge motion
             # is not exactly cost-free for a finite step); only a step that makes the fit much
             # worse is taken as the start of divergence: switch to Levenberg-Marquardt
             ok = np.isfinite(cost_new) and not (cost_new > DIVERGENCE * cost and step > 1e-3)
             if not ok:
-                lm_mode, lam = True, 1e-3
+                damped = ever_damped = True
         history.append(step)
         if not ok:
+            if failed > MAX_END_GAMES:
+                status = -2
+                break
             continue
-        dx = dx_raw
-        if plan.defect and lam_used == 0.0:
-            # (while damped, the minimal constraint's gauge is kept; the S-base is restored by
-            # the undamped steps at the end)
+        dx = np.zeros(free.size)
+        dx[keep] = step_keep
+        x_new = trial
+        if plan.defect and lam == 0.0 and (not ever_damped or step < GAUGE_STEP):
+            # (while damped, and in the end game until the increments are small, the minimal
+            # constraint's gauge is kept: the linearised S-transformation of a long way is not
+            # cost-free, and each one would cost Gauss-Newton steps to undo)
             # S-transform the total shift from the input coordinates to the S-base (M84 §2)
             total = x[free] + dx - x_ref[free]
-            dx = plan.transform(total) - (x[free] - x_ref[free])
             x_new = x.copy()
-            x_new[free] += dx
-            f_new, J_new = problem.evaluate(x_new)
+            x_new[free] += plan.transform(total) - (x[free] - x_ref[free])
+            f_new, parts_new = lin.evaluate(x_new)
             v_new = problem.misclosure(f_new)
             cost_new = float(v_new @ (P @ v_new))
-        else:
-            x_new = trial
         if not np.isfinite(x_new).all():
             raise SingularError("the adjustment diverged (non-finite parameters)")
         rel_drop = (cost - cost_new) / cost if cost > 0 else 0.0
-        x, f, J, v, cost = x_new, f_new, J_new, v_new, cost_new
-        A = J[:, free].tocsr()
+        x, f, v, cost = x_new, f_new, v_new, cost_new
+        A = lin.design(parts_new)
+        Ar = lin.reduced(A, keep)
         if progress is not None:
-            progress(it, history[-1])
-        if lam_used < 1e-6 and (step < options.tol or (len(history) > 1 and step < 1e-6
-                                                    and step > 0.5 * history[-2])):
-            converged = True
-            break
-        if lm_mode and 0.0 <= rel_drop < FUNCTION_TOL:
-            small_drops += 1
-            if small_drops >= 2:
-                # Levenberg-Marquardt's end game (Ceres' function tolerance): vᵀPv no longer
-                # changes although far, weakly determined points still drift along their rays
-                converged = True
+            progress(it, step)
+        if lam == 0.0:
+            status = check_termination(step, last_undamped, options.tol)
+            last_undamped = step
+            if status:
+                status = 4 if n_far else status
                 break
-        else:
-            small_drops = 0
+        elif abs(rel_drop) < FUNCTION_TOL or step < options.tol:
+            # Levenberg-Marquardt's function tolerance (Ceres): vᵀPv no longer changes; far,
+            # weakly determined points may still drift along their rays, so finish with
+            # undamped steps until the increments themselves are negligible
+            endgame = True
+    if n_far:
+        Ar = lin.reduced(A, keep_all)
+    keep, st = keep_all, st_all
     if plan.defect:
         old = plan.eliminate
         plan = datum_mod.plan(problem, x, A, P, free)
         if st is not None and not np.array_equal(old, plan.eliminate):
-            keep, Ar = _regularised(A, P, free, plan)
+            keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
+            Ar = lin.reduced(A, keep)
             st = schur_structure(problem, Ar, keep, "schur")
     t_solve = time.perf_counter() - t0
     adj = Adjustment(problem=problem, options=options, x=x, f=f, A=A, P=P, plan=plan,
-                     converged=converged, iterations=it, history=tuple(history),
+                     converged=status > 0, iterations=it, history=tuple(history),
                      timings={"solve": t_solve}, solver="schur" if st is not None else "generic")
     if st is not None:
         adj.__dict__["schur_structure"] = st
-    adj.__dict__["damped"] = lm_mode          # Levenberg-Marquardt took over from Gauss-Newton
+    adj.__dict__["damped"] = ever_damped          # Levenberg-Marquardt took part
+    adj.__dict__["status"] = status
+    adj.__dict__["trace"] = tuple(trace)
+    adj.__dict__["termination"] = STATUS[status].format(n_far=n_far)
+    adj.__dict__["far_held"] = n_far
     return adj
+
+
+def check_termination(step: float, previous: float | None, tol: float) -> int:
+    """Status after an accepted undamped step whose largest increment is ``step`` conditional
+    standard deviations (|Δx_i| √N_ii): 1 below ``tol``, 2 at round-off (below
+    :data:`ROUNDOFF_STEP` and no longer shrinking by half), else 0 (go on)."""
+    if step < tol:
+        return 1
+    if previous is not None and step < ROUNDOFF_STEP and step > 0.5 * previous:
+        return 2
+    return 0
+
+
+def _far_columns(problem, x, cols) -> np.ndarray:
+    """Mask over parameter indices ``cols``: coordinates of far points (:func:`baarda.datum.far_points`)."""
+    far = datum_mod.far_points(problem, x)
+    pt = problem.params.point[cols]
+    return (pt >= 0) & (problem.params.kind[cols] == "k") & far[np.maximum(pt, 0)]
+
+
+def _gradient_small(g: np.ndarray, diagN: np.ndarray, cost: float) -> bool:
+    """Gradient tolerance: max |g_i| / √N_ii ≤ :data:`GRADIENT_TOL` · √(vᵀPv) (the scaled
+    gradient of Ceres' test, unit-free; at the fixed point it is round-off)."""
+    d = np.sqrt(np.maximum(diagN, 1e-300))
+    return float(np.abs(g / d).max(initial=0.0)) <= GRADIENT_TOL * np.sqrt(max(cost, 1e-300))
+
+
+def _factor(st, Ar, P, labels, backend, lam, problem, plan):
+    """The factor of N + λ diag(N) and the undamped diag(N)."""
+    if st is not None:
+        factor = _schur_or_diagnose(st, Ar, P, labels, backend, lam)
+        return factor, factor.diagonal
+    N = (Ar.T @ P @ Ar).tocsr()
+    diagN = N.diagonal()
+    if lam:
+        N = (N + sp.diags(lam * diagN)).tocsr()
+    return _factor_or_diagnose(N, Ar, P, labels, problem, plan), diagN
 
 
 def _schur_or_diagnose(st, Ar, P, labels, backend, damping=0.0):

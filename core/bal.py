@@ -68,7 +68,8 @@ import numpy as np
 
 from .datum import Datum
 from .geodetic import LinearSet
-from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
+from .problem import (Categorical, Covariance, JoinedLabels, ObservationInfo, Parameters, PointInfo, Problem,
+                      RecordIds)
 from .rotation import R_from_rodrigues, _skew
 
 INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
@@ -210,6 +211,39 @@ class ProjectionSet:
         return np.einsum("mij,mj->mi", R, X) + x[self.itr], R, X
 
     def evaluate(self, x):
+        kernel = _compiled_projection()
+        if kernel is None:
+            return self._evaluate_numpy(x)
+        m = self.ipt.shape[0]
+        jr, jc, pos = self._pattern()
+        f = np.empty(2 * m)
+        jv = np.empty(jr.size)
+        kernel(np.ascontiguousarray(x, dtype=float), self.ipt, self.irot, self.itr, self.iint,
+               float(self.sign), pos, f, jv)
+        return f, jr, jc, jv
+
+    def _pattern(self):
+        """Rows and columns of the Jacobian entries (fixed per set; the order of
+        :meth:`_evaluate_numpy`) and the place of each of the (m, 2, 17) values among them
+        (−1: a zero intrinsic, left out)."""
+        pat = self.__dict__.get("_pat")
+        if pat is None:
+            m = self.ipt.shape[0]
+            C = np.concatenate([self.ipt, self.itr, self.irot, self.iint], 1)
+            q = C.shape[1]
+            lr = np.arange(m)
+            jrows = np.concatenate([np.repeat(2 * lr, q), np.repeat(2 * lr + 1, q)])
+            jcols = np.concatenate([C.ravel(), C.ravel()])
+            keep = jcols >= 0
+            pos = np.full(keep.size, -1, dtype=np.int64)
+            pos[keep] = np.arange(int(keep.sum()))
+            pos = np.ascontiguousarray(pos.reshape(2, m, q).transpose(1, 0, 2))
+            pat = (jrows[keep], jcols[keep], pos)
+            self.__dict__["_pat"] = pat
+        return pat
+
+    def _evaluate_numpy(self, x):
+        """The reference formulas (vectorised numpy); :meth:`evaluate` compiles the same."""
         m = self.ipt.shape[0]
         P, R, X = self.camera_frame(x)
         xe = np.append(x, 0.0)
@@ -262,6 +296,109 @@ class ProjectionSet:
         return f, jrows[keep], jcols[keep], jvals[keep]
 
 
+def _projection_kernel(x, ipt, irot, itr, iint, s, pos, f, jv):
+    """f and the Jacobian values of every image point: the formulas of
+    :meth:`ProjectionSet._evaluate_numpy`, one observation at a time (compiled by numba).
+    The values (2 × 17 per point: point, t, ρ, the eight intrinsics) go to jv[pos[i, r, j]]
+    where pos ≥ 0."""
+    K, K2, R, Jr = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    SX, RS, dPr = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    P, ins, g = np.empty(3), np.empty(8), np.empty((2, 3))
+    V = np.empty((2, 17))
+    for i in range(ipt.shape[0]):
+        r0, r1, r2_ = x[irot[i, 0]], x[irot[i, 1]], x[irot[i, 2]]
+        th2 = r0 * r0 + r1 * r1 + r2_ * r2_
+        th = np.sqrt(th2)
+        # R = I + a K + b K², K = [ρ]× (rotation.R_from_rodrigues)
+        if th < 1e-8:
+            a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+        else:
+            a, b = np.sin(th) / th, (1.0 - np.cos(th)) / th2
+        # J_r = I − c K + d K² (right_jacobian)
+        if th < 1e-4:
+            c, d = 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+        else:
+            c, d = (1.0 - np.cos(th)) / th2, (th - np.sin(th)) / (th2 * th)
+        K[0, 0], K[0, 1], K[0, 2] = 0.0, -r2_, r1
+        K[1, 0], K[1, 1], K[1, 2] = r2_, 0.0, -r0
+        K[2, 0], K[2, 1], K[2, 2] = -r1, r0, 0.0
+        _mat3(K, K, K2)
+        for p in range(3):
+            for q in range(3):
+                e = 1.0 if p == q else 0.0
+                R[p, q] = e + a * K[p, q] + b * K2[p, q]
+                Jr[p, q] = e - c * K[p, q] + d * K2[p, q]
+        X0, X1, X2 = x[ipt[i, 0]], x[ipt[i, 1]], x[ipt[i, 2]]
+        for p in range(3):
+            P[p] = R[p, 0] * X0 + R[p, 1] * X1 + R[p, 2] * X2 + x[itr[i, p]]
+        for j in range(8):
+            ins[j] = x[iint[i, j]] if iint[i, j] >= 0 else 0.0
+        fx, fy, cx, cy, k1, k2, p1, p2 = ins[0], ins[1], ins[2], ins[3], ins[4], ins[5], ins[6], ins[7]
+        iz = 1.0 / P[2]
+        u, v = s * P[0] * iz, s * P[1] * iz
+        r2 = u * u + v * v
+        dk = k1 + 2.0 * k2 * r2
+        rad = 1.0 + k1 * r2 + k2 * r2 * r2
+        ud = u * rad + 2 * p1 * u * v + p2 * (r2 + 2 * u * u)
+        vd = v * rad + 2 * p2 * u * v + p1 * (r2 + 2 * v * v)
+        f[2 * i] = fx * ud + cx
+        f[2 * i + 1] = fy * vd + cy
+        duu = rad + 2 * u * u * dk + 2 * p1 * v + 6 * p2 * u
+        duv = 2 * u * v * dk + 2 * p1 * u + 2 * p2 * v
+        dvu = 2 * u * v * dk + 2 * p2 * v + 2 * p1 * u
+        dvv = rad + 2 * v * v * dk + 2 * p2 * u + 6 * p1 * v
+        # ∂(x, y)/∂P = diag(fx, fy) D ∂(u, v)/∂P
+        g[0, 0] = fx * duu * s * iz
+        g[0, 1] = fx * duv * s * iz
+        g[0, 2] = fx * (-duu * u - duv * v) * iz
+        g[1, 0] = fy * dvu * s * iz
+        g[1, 1] = fy * dvv * s * iz
+        g[1, 2] = fy * (-dvu * u - dvv * v) * iz
+        # ∂P/∂ρ = −R [X]× J_r
+        SX[0, 0], SX[0, 1], SX[0, 2] = 0.0, -X2, X1
+        SX[1, 0], SX[1, 1], SX[1, 2] = X2, 0.0, -X0
+        SX[2, 0], SX[2, 1], SX[2, 2] = -X1, X0, 0.0
+        _mat3(R, SX, RS)
+        _mat3(RS, Jr, dPr)
+        for r in range(2):
+            for j in range(3):
+                V[r, j] = g[r, 0] * R[0, j] + g[r, 1] * R[1, j] + g[r, 2] * R[2, j]
+                V[r, 3 + j] = g[r, j]
+                V[r, 6 + j] = -(g[r, 0] * dPr[0, j] + g[r, 1] * dPr[1, j] + g[r, 2] * dPr[2, j])
+        V[0, 9], V[0, 10], V[0, 11], V[0, 12] = ud, 0.0, 1.0, 0.0
+        V[0, 13], V[0, 14] = fx * u * r2, fx * u * r2 * r2
+        V[0, 15], V[0, 16] = fx * 2 * u * v, fx * (r2 + 2 * u * u)
+        V[1, 9], V[1, 10], V[1, 11], V[1, 12] = 0.0, vd, 0.0, 1.0
+        V[1, 13], V[1, 14] = fy * v * r2, fy * v * r2 * r2
+        V[1, 15], V[1, 16] = fy * (r2 + 2 * v * v), fy * 2 * u * v
+        for r in range(2):
+            for j in range(17):
+                if pos[i, r, j] >= 0:
+                    jv[pos[i, r, j]] = V[r, j]
+
+
+def _mat3(A, B, out):
+    """out = A B for 3 × 3 arrays (no temporaries in the compiled loop)."""
+    for p in range(3):
+        for q in range(3):
+            out[p, q] = A[p, 0] * B[0, q] + A[p, 1] * B[1, q] + A[p, 2] * B[2, q]
+
+
+_KERNEL = {}
+
+
+def _compiled_projection():
+    try:
+        import numba
+    except ImportError:          # pragma: no cover - numba is optional
+        return None
+    if "p" not in _KERNEL:
+        global _mat3                 # the kernel calls the compiled product
+        _mat3 = numba.njit(cache=True, inline="always")(_mat3)
+        _KERNEL["p"] = numba.njit(cache=True)(_projection_kernel)
+    return _KERNEL["p"]
+
+
 # --------------------------------------------------------------------------------------------
 # the Problem
 # --------------------------------------------------------------------------------------------
@@ -272,15 +409,14 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     geometry the dashboard draws (images with their projection centres X0, Y0, Z0; no
     footprints) and ``extra["image_names"]`` maps image ids to file names.
     """
-    labels, x0, kind, fixed, point, axis = [], [], [], [], [], []
+    # parameters: the (few) image and camera parameters one by one, the points as arrays
+    labels, x0, kind, fixed = [], [], [], []
 
-    def add(label, value, k, fix=False, p=-1, a=-1):
+    def add(label, value, k, fix=False):
         labels.append(label)
         x0.append(float(value))
         kind.append(k)
         fixed.append(fix)
-        point.append(p)
-        axis.append(a)
         return len(x0) - 1
 
     pose = np.array([[add(f"image {im.id}.{nm}", val, "t") for nm, val in
@@ -295,10 +431,17 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
                  for nm, val in zip(names, cam.params)}
         intrinsics[c] = [where[nm] if nm is not None else -1 for nm in feeds]
         cam_index[cam.id] = c
-    index = np.array([[add(f"point {pid}.{nm}", block.X[i, a], "k", p=i, a=a) for a, nm in enumerate("xyz")]
-                      for i, pid in enumerate(block.points)], dtype=np.int64).reshape(-1, 3)
-    params = Parameters(np.asarray(x0), tuple(labels), np.array(kind), np.array(fixed, dtype=bool),
-                        np.array(point, dtype=np.int64), np.array(axis, dtype=np.int64))
+    h = len(x0)
+    npt = len(block.points)
+    index = (h + np.arange(3 * npt, dtype=np.int64)).reshape(-1, 3)
+    u = h + 3 * npt
+    kinds = np.empty(u, dtype="<U1")
+    kinds[:h], kinds[h:] = kind, "k"
+    params = Parameters(np.concatenate([np.asarray(x0, dtype=float), np.asarray(block.X, dtype=float).ravel()]),
+                        JoinedLabels(labels, block.points), kinds,
+                        np.concatenate([np.array(fixed, dtype=bool), np.zeros(3 * npt, dtype=bool)]),
+                        np.concatenate([np.full(h, -1, dtype=np.int64), np.repeat(np.arange(npt, dtype=np.int64), 3)]),
+                        np.concatenate([np.full(h, -1, dtype=np.int64), np.tile(np.arange(3, dtype=np.int64), npt)]))
 
     m = block.obs_image.size
     img_cam = np.array([cam_index[im.camera] for im in block.images], dtype=np.int64)
@@ -306,63 +449,66 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     sets = [ProjectionSet(rows=np.arange(2 * m), ipt=index[pp], irot=pose[ii, :3], itr=pose[ii, 3:],
                           iint=intrinsics[img_cam[ii]], sign=SIGN[block.convention])]
     s2 = block.sigma_px ** 2
-    members = [np.array([2 * k, 2 * k + 1]) for k in range(m)]
-    blocks = [np.diag([s2, s2])] * m
-    img_ids = [im.id for im in block.images]
-    kinds = ["image-x", "image-y"] * m
-    ids = [{"image": img_ids[ii[k]], "point": block.points[pp[k]], "component": c}
-           for k in range(m) for c in "xy"]
-    kp = block.extra.get("obs_keypoint")
-    if kp is not None and m:
-        # several keypoints of one image on one point (COLMAP): each an observation of its own,
-        # told apart by its keypoint index (POINT2D_IDX)
-        _, inv, cnt = np.unique(ii * len(block.points) + pp, return_inverse=True, return_counts=True)
-        for k in np.flatnonzero(cnt[inv] > 1):
-            for c in (0, 1):
-                ids[2 * k + c] = {"image": img_ids[ii[k]], "point": block.points[pp[k]],
-                                  "keypoint": int(kp[k]), "component": "xy"[c]}
-    l = [block.xy.ravel()]
-    units = ["px"] * (2 * m)
-    sfile = [block.sigma_px] * (2 * m)
-    lines = list(np.repeat(block.obs_line, 2))
-    group = list(np.repeat(np.arange(m), 2))
-
-    pindex = {pid: i for i, pid in enumerate(block.points)}
-    row, g = 2 * m, m
-    crow, cidx = [], []
-    for cp in block.control:
+    # covariance: the image points stacked (one 2 × 2 matrix broadcast), then the control points
+    groups = [(2, np.arange(m, dtype=np.int64), np.arange(2 * m, dtype=np.int64).reshape(m, 2),
+               np.broadcast_to(np.diag([s2, s2]), (m, 2, 2)))]
+    nc = len(block.control)
+    n = 2 * m + 3 * nc
+    l = np.empty(n)
+    l[:2 * m] = block.xy.ravel()
+    sfile = np.full(n, block.sigma_px, dtype=float)
+    lines = np.empty(n, dtype=np.int64)
+    lines[:2 * m] = np.repeat(block.obs_line, 2)
+    group = np.empty(n, dtype=np.int64)
+    group[:2 * m] = np.repeat(np.arange(m, dtype=np.int64), 2)
+    kind_codes = np.empty(n, dtype=np.int8)              # KINDS: image-x, image-y, control-x/y/z
+    kind_codes[:2 * m] = np.tile(np.array([0, 1], dtype=np.int8), m)
+    unit_codes = np.zeros(n, dtype=np.int8)              # "px", "m"
+    # ids: image, point, component of each image point; the id of each control point
+    itype = np.int32 if max(len(block.images), npt, nc) < 2 ** 31 - 1 else np.int64
+    codes = np.full((n, 4), -1, dtype=itype)
+    codes[:2 * m, 0] = np.repeat(ii, 2)
+    codes[:2 * m, 1] = np.repeat(pp, 2)
+    codes[:2 * m, 2] = np.tile(np.array([0, 1], dtype=itype), m)
+    pindex = {pid: i for i, pid in enumerate(block.points)} if nc else {}
+    row = 2 * m
+    crow, cidx, cmem, cblk = [], [], [], []
+    for k, cp in enumerate(block.control):
         i = pindex[cp.id]
-        members.append(np.arange(row, row + 3))
-        blocks.append(np.diag(np.square(cp.sigma)))
-        for a, nm in enumerate("xyz"):
+        cmem.append(np.arange(row, row + 3))
+        cblk.append(np.diag(np.square(cp.sigma)))
+        for a in range(3):
             crow.append(row)
             cidx.append(index[i, a])
-            kinds.append(f"control-{nm}")
-            ids.append({"id": cp.id})
-            units.append("m")
-            sfile.append(cp.sigma[a])
-            lines.append(cp.line)
-            group.append(g)
+            kind_codes[row] = 2 + a
+            unit_codes[row] = 1
+            sfile[row] = cp.sigma[a]
+            lines[row] = cp.line
+            group[row] = m + k
+            codes[row, 3] = k
+            l[row] = float(cp.xyz[a])
             row += 1
-        l.append(np.asarray(cp.xyz, dtype=float))
-        g += 1
     if crow:
         sets.append(LinearSet("coordinate", np.array(crow, dtype=np.int64),
                               np.full(len(crow), -1, dtype=np.int64), np.array(cidx, dtype=np.int64)))
-    lvec = np.concatenate(l)
-    cov = Covariance.from_blocks(row, members, blocks)
-    info = ObservationInfo(kind=tuple(kinds), ids=tuple(ids), value_file=lvec.copy(), unit=tuple(units),
-                           sigma_file=np.array(sfile, dtype=float), sigma_unit=tuple(units),
-                           line=np.array(lines, dtype=np.int64), group=np.array(group, dtype=np.int64))
+        groups.append((3, m + np.arange(nc, dtype=np.int64), np.array(cmem), np.array(cblk)))
+    cov = Covariance.from_groups(n, groups)
+    units = Categorical(("px", "m"), unit_codes)
+    ids = RecordIds(("image", "point", "component", "id"),
+                    (tuple(im.id for im in block.images), block.points, ("x", "y"),
+                     tuple(cp.id for cp in block.control)), codes)
+    info = ObservationInfo(kind=Categorical(("image-x", "image-y", "control-x", "control-y", "control-z"), kind_codes),
+                           ids=ids, value_file=l.copy(), unit=units, sigma_file=sfile, sigma_unit=units,
+                           line=lines, group=group)
     controlled = {cp.id for cp in block.control}
-    status = tuple("control" if pid in controlled else "tie" for pid in block.points)
+    status = tuple("control" if pid in controlled else "tie" for pid in block.points) if controlled else \
+        ("tie",) * npt
     pts = PointInfo(tuple(block.points), index, status, 3)
     datum = Datum("fixed") if block.control else Datum("free", ())
-    return Problem(params=params, sets=tuple(sets), l=lvec, cov=cov, info=info, points=pts, datum=datum,
+    return Problem(params=params, sets=tuple(sets), l=l, cov=cov, info=info, points=pts, datum=datum,
                    sigma0=1.0, sigma_act="apriori", source=block.source, title=block.title,
                    extra={"block": sfm_geometry(block), "convention": block.convention,
-                          "image_names": {im.id: im.name for im in block.images},
-                          "duplicate_keypoints": block.extra.get("duplicate_keypoints")})
+                          "image_names": {im.id: im.name for im in block.images}})
 
 
 def sfm_geometry(block: SfmBlock) -> dict:

@@ -1,0 +1,142 @@
+"""Solve speed on real BAL problems: baarda's adjustment beside pycolmap's Ceres, same run.
+
+For each problem: baarda's solve (read and build excluded; numba kernels warmed up on a small
+problem first), then pycolmap's bundle adjustment (Ceres, one thread; focal length, k1, k2
+refined per camera as BAL defines; the block written as a COLMAP RADIAL model with flipped axes,
+:func:`bench_blocks.bal_as_colmap`), the ratio of the two times, both final costs ½Σr² (Ceres'
+measured in BAL's model, so the points behind a camera that COLMAP ignores count too),
+iterations, and the end-to-end ``baarda analyze FILE --json`` time (a subprocess).
+
+Usage: ``python bench/bench_solve.py [--problems DIR/FILE ...] [--no-analyze] [--repeat N]``.
+Compressed BAL files are decompressed to a temporary file when the reader does not take them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import bz2
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("GLOG_minloglevel", "2")     # quiet pycolmap/Ceres
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_blocks import bal_as_colmap  # noqa: E402
+
+from baarda.adjust import Options, adjust  # noqa: E402
+from baarda.bal import build_sfm_problem, initial_cost  # noqa: E402
+from baarda.errors import InputError  # noqa: E402
+from baarda.io.bal import read_bal  # noqa: E402
+
+EXTDATA = Path(__file__).resolve().parents[2] / "shared" / "extdata" / "bal"
+PROBLEMS = [EXTDATA / "problem-21-11315-pre.txt.bz2", EXTDATA / "problem-16-22106-pre.txt.bz2",
+            EXTDATA / "problem-49-7776-pre.txt"]
+
+
+def readable(path: Path, tmp: Path) -> Path:
+    """``path``, or a decompressed copy in ``tmp`` when the BAL reader does not take it as is."""
+    try:
+        read_bal(path, check=False)
+        return path
+    except InputError:
+        if path.suffix != ".bz2":
+            raise
+    out = tmp / path.stem
+    out.write_bytes(bz2.decompress(path.read_bytes()))
+    return out
+
+
+def ceres(block, threads: int = 1):
+    """pycolmap's bundle adjustment of ``block``: (seconds, ½Σr² in BAL's model, iterations)."""
+    import pycolmap
+
+    pycolmap.logging.minloglevel = 2
+    from baarda.io import read_problem
+
+    with tempfile.TemporaryDirectory() as tmp:
+        bal_as_colmap(block, Path(tmp) / "in")
+        rec = pycolmap.Reconstruction(str(Path(tmp) / "in"))
+        ba = pycolmap.BundleAdjustmentOptions()
+        ba.refine_focal_length = True
+        ba.refine_extra_params = True
+        ba.refine_principal_point = False
+        ba.print_summary = False
+        ba.ceres.solver_options.num_threads = threads
+        t0 = time.perf_counter()
+        summary = pycolmap.bundle_adjustment(rec, ba)
+        t = time.perf_counter() - t0
+        out = Path(tmp) / "out"
+        out.mkdir()
+        rec.write_text(str(out))
+        cost = initial_cost(read_problem(out, "colmap"))
+    its = getattr(summary, "num_successful_steps", None)
+    if its is not None:
+        its = int(its) + int(getattr(summary, "num_unsuccessful_steps", 0))
+    return t, cost, its
+
+
+def warm_up():
+    """Compile or load the numba kernels on a small block (not timed)."""
+    small = EXTDATA / "problem-49-7776-pre.txt"
+    if small.exists():
+        adjust(build_sfm_problem(read_bal(small)), Options(max_iter=2))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--problems", nargs="+", type=Path, default=PROBLEMS)
+    ap.add_argument("--no-analyze", action="store_true", help="skip the end-to-end baarda analyze")
+    ap.add_argument("--no-ceres", action="store_true", help="skip pycolmap's Ceres")
+    ap.add_argument("--threads", type=int, default=1, help="Ceres threads (default 1, as baarda)")
+    args = ap.parse_args()
+    print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
+          f"load average {os.getloadavg()[0]:.2f}, cores {os.cpu_count()}", flush=True)
+    warm_up()
+    head = (f"{'problem':<28} {'baarda s':>8} {'its':>4} {'½Σr² baarda':>16} {'Ceres s':>8} {'its':>4} "
+            f"{'½Σr² Ceres':>16} {'ratio':>6} {'rel.Δcost':>9} {'analyze s':>9}  status")
+    print(head)
+    print("-" * len(head), flush=True)
+    with tempfile.TemporaryDirectory() as tmpdir:
+        for path in args.problems:
+            if not path.exists():
+                print(f"{path.name:<28} skipped: not found", flush=True)
+                continue
+            local = readable(path, Path(tmpdir))
+            block = read_bal(local)
+            problem = build_sfm_problem(block)
+            t0 = time.perf_counter()
+            adj = adjust(problem, Options())
+            t_b = time.perf_counter() - t0
+            cost_b = 0.5 * float(adj.v @ adj.v)
+            t_c = cost_c = its_c = None
+            if not args.no_ceres:
+                try:
+                    t_c, cost_c, its_c = ceres(block, args.threads)
+                except ImportError:
+                    pass
+            t_a = None
+            if not args.no_analyze:
+                with tempfile.TemporaryDirectory() as out:
+                    t0 = time.perf_counter()
+                    subprocess.run([sys.executable, "-m", "baarda.cli", "analyze", str(path), "--quiet",
+                                    "--json", str(Path(out) / "r.json")], check=False)
+                    t_a = time.perf_counter() - t0
+
+            def fmt(v, spec):
+                return format(v, spec) if v is not None else "-"
+            ratio = t_b / t_c if t_c else None
+            rel = abs(cost_b - cost_c) / cost_c if cost_c else None
+            print(f"{path.name:<28} {t_b:>8.2f} {adj.iterations:>4} {cost_b:>16,.6f} {fmt(t_c, '>8.2f')} "
+                  f"{fmt(its_c, '>4')} {fmt(cost_c, '>16,.6f')} {fmt(ratio, '>6.2f')} {fmt(rel, '>9.1e')} "
+                  f"{fmt(t_a, '>9.2f')}  {adj.termination}", flush=True)
+            del adj, problem, block
+
+
+if __name__ == "__main__":
+    main()
