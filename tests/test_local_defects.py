@@ -370,3 +370,24 @@ def test_whole_block_defect_is_still_diagnosed(capsys):
     err = capsys.readouterr().err
     assert "38 observations for 48 unknowns" in err and "do not determine" in err
     assert "local defect" not in err
+
+
+def test_camera_with_too_few_points_for_its_intrinsics(balbianello):
+    """BAL/Bundler refine f, k1, k2 per camera: an image of its own camera that sees 4 points
+    gives 2·4 − 6 = 2 equations for those 3 — the camera and its image are left out. With the
+    intrinsics held fixed the same image is fine."""
+    b = balbianello
+    im = b.images[4]
+    cam = next(c for c in b.cameras if c.id == im.camera)
+    ncam = SfmCamera("four-cam", cam.model, cam.params)
+    nim = SfmImage("four", ncam.id, im.rodrigues, tuple(np.asarray(im.t) + [0.05, -0.02, 0.01]))
+    blk = add(b, images=[nim], cameras=[ncam], obs=[("four", p) for p in seen_by(b, 4)[:4]])
+    reduced, defects = find_defects(blk)
+    assert [(d.entity, d.id) for d in defects] == [("camera", "four-cam"), ("image", "four")]
+    assert defects[0].components == ("f", "k1", "k2") and "2 equation(s)" in defects[0].reason
+    assert [c.id for c in reduced.cameras] == [c.id for c in b.cameras]
+    assert find_defects(blk.replace(refine_intrinsics=False))[1] == []
+    adj, _ = adjust_block(build(blk))
+    reference = adjust(build_sfm_problem(b))
+    np.testing.assert_allclose(adj.r, reference.r, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(adj.w, reference.w, rtol=1e-6, atol=1e-6)
