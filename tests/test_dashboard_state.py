@@ -95,7 +95,7 @@ def tiny_block_problem(seed: int = 1):
 def network_state(name: str) -> State:
     path = require_extdata(GAMA) / name
     st = State(path)
-    assert st.error == "" and st.results is not None
+    assert st.error == "" and st.results is not None, st.error
     return st
 
 

@@ -36,17 +36,17 @@ class AnalysisPanel(pn.viewable.Viewer):
                                      css_classes=["analysis-alert"])
         self.robust_info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["robust-info"])
         self.robust_table = _table("robust-table", 200)
-        self.snoop_button = pn.widgets.Button(name="Run iterative data snooping", button_type="primary",
+        self.snoop_button = pn.widgets.Button(label="Run iterative data snooping", color="primary",
                                               width=220, css_classes=["snoop-run"])
-        self.accept = pn.widgets.Button(name="Accept: exclude the removed", button_type="warning", width=210,
+        self.accept = pn.widgets.Button(label="Accept: exclude the removed", color="warning", width=210,
                                         disabled=True, css_classes=["snoop-accept"])
         self.snoop_info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["snoop-info"])
         self.snoop_table = _table("snoop-table", 130)
         self.loo_table = _table("loo-table", 130)
-        self.variance_button = pn.widgets.Button(name="Estimate variance components", width=230,
+        self.variance_button = pn.widgets.Button(label="Estimate variance components", width=230,
                                                  css_classes=["variance-run"])
         self.variance_model = pn.widgets.RadioButtonGroup(options=["families", "radial"], value=s.variance_model,
-                                                          button_type="primary", button_style="outline", width=180,
+                                                          color="primary", variant="outline", width=180,
                                                           css_classes=["variance-model"])
         self.variance_model.link(s, value="variance_model")
         self.variance_table = _table("variance-table", 110)
@@ -131,14 +131,14 @@ class InjectPanel(pn.viewable.Viewer):
         super().__init__(**params)
         s = self.state
         self.target = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["inject-target"])
-        self.size = pn.widgets.FloatInput(name="Error size", value=1.0, step=0.5, width=120,
+        self.size = pn.widgets.FloatInput(label="Error size", value=1.0, step=0.5, width=120,
                                           css_classes=["inject-size"])
         self.unit = pn.widgets.RadioButtonGroup(options={"× σ": "sigma", "× MDB": "mdb"}, value="mdb", width=160,
-                                                button_type="primary", button_style="outline",
+                                                color="primary", variant="outline",
                                                 css_classes=["inject-unit"])
-        self.run = pn.widgets.Button(name="Inject and adjust", button_type="primary", width=150,
+        self.run = pn.widgets.Button(label="Inject and adjust", color="primary", width=150,
                                      css_classes=["inject-run"])
-        self.keep = pn.widgets.Button(name="Keep it in the data", button_type="danger", width=150,
+        self.keep = pn.widgets.Button(label="Keep it in the data", color="danger", width=150,
                                       disabled=True, css_classes=["inject-keep"])
         self.result = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["inject-result"])
         self.message = pn.pane.Alert("", alert_type="warning", visible=False, sizing_mode="stretch_width")

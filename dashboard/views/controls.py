@@ -34,16 +34,16 @@ class Controls(pn.viewable.Viewer):
     def __init__(self, **params):
         super().__init__(**params)
         s = self.state
-        self.alpha = pn.widgets.DiscreteSlider(name="α0 (1D test size)", options=ALPHAS,
+        self.alpha = pn.widgets.DiscreteSlider(label="α0 (1D test size)", options=ALPHAS,
                                                value=min(ALPHAS, key=lambda a: abs(a - s.alpha0)),
                                                css_classes=["alpha-slider"], sizing_mode="stretch_width")
-        self.beta = pn.widgets.FloatSlider(name="β0 (power)", start=0.5, end=0.99, step=0.01,
+        self.beta = pn.widgets.FloatSlider(label="β0 (power)", start=0.5, end=0.99, step=0.01,
                                            value=s.beta0, sizing_mode="stretch_width")
-        self.b_method = pn.widgets.Checkbox(name="B-method (same δ0 for all dimensions)", value=s.b_method)
-        self.sigma = pn.widgets.RadioButtonGroup(name="σ0", options={"σ0 a priori (w)": "apriori",
+        self.b_method = pn.widgets.Checkbox(label="B-method (same δ0 for all dimensions)", value=s.b_method)
+        self.sigma = pn.widgets.RadioButtonGroup(label="σ0", options={"σ0 a priori (w)": "apriori",
                                                                    "σ̂0 a posteriori (τ)": "aposteriori"},
                                                  value=s.sigma0_mode, sizing_mode="stretch_width")
-        self.robust = pn.widgets.Select(name="Robust reweighting (M84 §3.1, R84)", options=list(ROBUST_METHODS),
+        self.robust = pn.widgets.Select(label="Robust reweighting (M84 §3.1, R84)", options=list(ROBUST_METHODS),
                                         value=s.robust_method, css_classes=["robust-select"],
                                         sizing_mode="stretch_width")
         for w, name in ((self.alpha, "alpha0"), (self.beta, "beta0"), (self.b_method, "b_method"),
@@ -73,13 +73,13 @@ class SelectionPanel(pn.viewable.Viewer):
         super().__init__(**params)
         s = self.state
         self.info = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["selection-info"])
-        self.exclude = pn.widgets.Button(name="Exclude", button_type="warning", width=80)
-        self.include = pn.widgets.Button(name="Re-include", width=90)
-        self.test = pn.widgets.Button(name="Test it", width=70)
-        self.include_all = pn.widgets.Button(name="Re-include all", width=120)
+        self.exclude = pn.widgets.Button(label="Exclude", color="warning", width=80)
+        self.include = pn.widgets.Button(label="Re-include", width=90)
+        self.test = pn.widgets.Button(label="Test it", width=70)
+        self.include_all = pn.widgets.Button(label="Re-include all", width=120)
         self.excluded = pn.pane.Markdown("", sizing_mode="stretch_width")
-        self.image = pn.widgets.Select(name="Image (residual view)", options=[], sizing_mode="stretch_width")
-        self.exaggeration = pn.widgets.FloatInput(name="Residual vector exaggeration", value=s.exaggeration,
+        self.image = pn.widgets.Select(label="Image (residual view)", options=[], sizing_mode="stretch_width")
+        self.exaggeration = pn.widgets.FloatInput(label="Residual vector exaggeration", value=s.exaggeration,
                                                   start=0.0, sizing_mode="stretch_width")
         _two_way(self.exaggeration, s, "exaggeration")
         self.image.param.watch(lambda e: setattr(s, "selected_image", e.new), "value")
@@ -185,7 +185,7 @@ class FilePanel(pn.viewable.Viewer):
                                    css_classes=["error-alert"])
         s.param.watch(self._show_error, "error")
         self.download = pn.widgets.FileDownload(callback=self._report, filename="baarda-report.html",
-                                                label="Download HTML report", button_type="success",
+                                                label="Download HTML report", color="success",
                                                 sizing_mode="stretch_width")
         self.source = pn.pane.HTML(pn.bind(lambda src: f"File: <code>{html_text(Path(src).name)}</code>"
                                            if src else "", s.param.source),
@@ -272,7 +272,7 @@ class TaskPanel(pn.viewable.Viewer):
         self.bar = pn.indicators.Progress(active=True, value=-1, sizing_mode="stretch_width", height=12,
                                           css_classes=["task-progress"])
         self.text = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["task-text"])
-        self.cancel = pn.widgets.Button(name="Cancel", button_type="danger", width=90, css_classes=["task-cancel"])
+        self.cancel = pn.widgets.Button(label="Cancel", color="danger", width=90, css_classes=["task-cancel"])
         self.cancel.on_click(lambda e: s.cancel())
         self.box = pn.Column(self.bar, self.text, self.cancel, sizing_mode="stretch_width", visible=False,
                              css_classes=["task-panel"])

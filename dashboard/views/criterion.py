@@ -37,17 +37,17 @@ class CriterionView(pn.viewable.Viewer):
         super().__init__(**params)
         s = self.state
         self.reason = s.criterion_reason()
-        self.kind = pn.widgets.Select(name="structure", options=KINDS, value="logarithmic", width=150,
+        self.kind = pn.widgets.Select(label="structure", options=KINDS, value="logarithmic", width=150,
                                       css_classes=["criterion-kind"])
-        self.sbase = pn.widgets.MultiChoice(name="S-base", options=labels(s.problem.points.ids),
+        self.sbase = pn.widgets.MultiChoice(label="S-base", options=labels(s.problem.points.ids),
                                             value=s.criterion_base(), css_classes=["criterion-sbase"])
-        self.fit = pn.widgets.Button(name="Fit C1, C2", button_type="primary", width=120,
+        self.fit = pn.widgets.Button(label="Fit C1, C2", color="primary", width=120,
                                      css_classes=["criterion-fit"])
-        self.C1 = pn.widgets.FloatInput(name="C1 [m²/m]", value=1e-6, width=140,
+        self.C1 = pn.widgets.FloatInput(label="C1 [m²/m]", value=1e-6, width=140,
                                         css_classes=["criterion-c1"])
-        self.C2 = pn.widgets.FloatInput(name="C2 [m]", value=1.0, width=140,
+        self.C2 = pn.widgets.FloatInput(label="C2 [m]", value=1.0, width=140,
                                         css_classes=["criterion-c2"])
-        self.check = pn.widgets.Button(name="Compare with C1, C2", width=170, css_classes=["criterion-check"])
+        self.check = pn.widgets.Button(label="Compare with C1, C2", width=170, css_classes=["criterion-check"])
         self.info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["criterion-info"])
         self.message = pn.pane.Alert("", alert_type="warning", visible=False, sizing_mode="stretch_width",
                                      css_classes=["criterion-alert"])
@@ -129,11 +129,11 @@ class RiskView(pn.viewable.Viewer):
         super().__init__(**params)
         s = self.state
         kw = dict(width=110)
-        self.p = pn.widgets.FloatInput(name="p (erroneous)", value=0.01, step=0.005, start=1e-6, end=0.999,
+        self.p = pn.widgets.FloatInput(label="p (erroneous)", value=0.01, step=0.005, start=1e-6, end=0.999,
                                        css_classes=["risk-p"], **kw)
-        self.L1 = pn.widgets.FloatInput(name="L1 (reject good)", value=1.0, step=0.5, css_classes=["risk-l1"], **kw)
-        self.L2 = pn.widgets.FloatInput(name="L2 (miss bad)", value=10.0, step=1.0, css_classes=["risk-l2"], **kw)
-        self.lam = pn.widgets.FloatInput(name="λtol", value=round(float(s.results.delta0 ** 2), 4), step=1.0,
+        self.L1 = pn.widgets.FloatInput(label="L1 (reject good)", value=1.0, step=0.5, css_classes=["risk-l1"], **kw)
+        self.L2 = pn.widgets.FloatInput(label="L2 (miss bad)", value=10.0, step=1.0, css_classes=["risk-l2"], **kw)
+        self.lam = pn.widgets.FloatInput(label="λtol", value=round(float(s.results.delta0 ** 2), 4), step=1.0,
                                          css_classes=["risk-lam"], **kw)
         self.info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["risk-info"])
         self.plot = pn.pane.HoloViews(hv.Curve([]), sizing_mode="stretch_width", css_classes=["risk-plot"],

@@ -44,18 +44,18 @@ class HypothesisPanel(pn.viewable.Viewer):
     def __init__(self, **params):
         super().__init__(**params)
         s = self.state
-        self.kind = pn.widgets.Select(name="Hypothesis", options={}, width=260, css_classes=["hyp-kind"])
-        self.obs_input = pn.widgets.IntInput(name="Observation index", value=0, start=0, width=150,
+        self.kind = pn.widgets.Select(label="Hypothesis", options={}, width=260, css_classes=["hyp-kind"])
+        self.obs_input = pn.widgets.IntInput(label="Observation index", value=0, start=0, width=150,
                                              css_classes=["hyp-obs"])
-        self.group = pn.widgets.Select(name="Group", options=[], width=260)
-        self.point = pn.widgets.Select(name="Point", options=[], width=150, css_classes=["hyp-point"])
-        self.image = pn.widgets.Select(name="Image", options=[], width=150, css_classes=["hyp-image"])
-        self.images = pn.widgets.MultiChoice(name="Images (the transferred point's)", options=[], width=260)
-        self.camera = pn.widgets.Select(name="Camera", options=[], width=150, css_classes=["hyp-camera"])
-        self.ap_group = pn.widgets.Select(name="AP group", options=[], width=150, css_classes=["hyp-ap"])
-        self.add = pn.widgets.Button(name="Test", button_type="primary", width=90,
+        self.group = pn.widgets.Select(label="Group", options=[], width=260)
+        self.point = pn.widgets.Select(label="Point", options=[], width=150, css_classes=["hyp-point"])
+        self.image = pn.widgets.Select(label="Image", options=[], width=150, css_classes=["hyp-image"])
+        self.images = pn.widgets.MultiChoice(label="Images (the transferred point's)", options=[], width=260)
+        self.camera = pn.widgets.Select(label="Camera", options=[], width=150, css_classes=["hyp-camera"])
+        self.ap_group = pn.widgets.Select(label="AP group", options=[], width=150, css_classes=["hyp-ap"])
+        self.add = pn.widgets.Button(label="Test", color="primary", width=90,
                                      css_classes=["hyp-add"])
-        self.remove = pn.widgets.Button(name="Remove selected", width=130)
+        self.remove = pn.widgets.Button(label="Remove selected", width=130)
         self.message = pn.pane.Alert("", alert_type="warning", visible=False)
         self.results = pn.widgets.Tabulator(
             pd.DataFrame(), disabled=False, selectable=1, show_index=False, sizing_mode="stretch_width",

@@ -443,7 +443,7 @@ class PrecisionMap(MapView):
         s = self.state
         datum = s.datum_points()
         self.sbase = pn.widgets.MultiChoice(
-            name="S-base (empty: the problem's datum" + (f" — {plain(', '.join(datum))})" if datum else
+            label="S-base (empty: the problem's datum" + (f" — {plain(', '.join(datum))})" if datum else
                                                         ", its fixed / weighted points)"),
             options=labels(s.problem.points.ids), value=list(s.sbase), css_classes=["sbase-choice"],
             sizing_mode="stretch_width", visible=s.problem.points.dim > 1, stylesheets=[INLINE_DROPDOWN])

@@ -29,7 +29,7 @@ class TestsTable(pn.viewable.Viewer):
     def __init__(self, **params):
         super().__init__(**params)
         self._syncing = False
-        self.only_selection = pn.widgets.Checkbox(name="only rows of the selected point / observation",
+        self.only_selection = pn.widgets.Checkbox(label="only rows of the selected point / observation",
                                                   value=False)
         self.table = pn.widgets.Tabulator(
             self._frame(), layout="fit_data_stretch", sizing_mode="stretch_width", height=560,

@@ -44,7 +44,7 @@ class TeachingView(pn.viewable.Viewer):
 
     def __init__(self, **params):
         super().__init__(**params)
-        self.q_widget = pn.widgets.IntSlider(name="test dimension q", start=1, end=6, value=self.q, width=220)
+        self.q_widget = pn.widgets.IntSlider(label="test dimension q", start=1, end=6, value=self.q, width=220)
         self.q_widget.link(self, value="q")
         self.power = hv.DynamicMap(self._power, streams=[hv.streams.Params(self.state, ["results"]),
                                                          hv.streams.Params(self, ["q"])])
