@@ -20,11 +20,152 @@ angular observations.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
+
+
+# --------------------------------------------------------------------------------------------
+# array-backed sequences: one entry per observation or parameter without one Python object each
+# --------------------------------------------------------------------------------------------
+class LazySequence(Sequence):
+    """A read-only sequence whose items are made on demand from arrays.
+
+    Behaves as the tuple it replaces (indexing, iteration, ``len``, ``==`` with a tuple or
+    another sequence, ``np.asarray``); ``take(idx)`` is the sub-sequence of the indices
+    ``idx`` (array-backed again). Subclasses implement ``__len__``, ``_item(i)`` and ``take``.
+    """
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return self.take(np.arange(len(self))[i])
+        if isinstance(i, (np.ndarray, list)):
+            return self.take(np.asarray(i))
+        n = len(self)
+        i = int(i)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError("index out of range")
+        return self._item(i)
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self._item(i)
+
+    def __eq__(self, other):
+        if not isinstance(other, Sequence) or isinstance(other, str) or len(other) != len(self):
+            return NotImplemented if not isinstance(other, Sequence) else False
+        return all(a == b for a, b in zip(self, other))
+
+    __hash__ = None
+
+    def __array__(self, dtype=None, copy=None):
+        return np.array(list(self), dtype=dtype)
+
+    def __repr__(self):
+        n = len(self)
+        head = ", ".join(repr(self._item(i)) for i in range(min(n, 3)))
+        return f"{type(self).__name__}([{head}{', ...' if n > 3 else ''}], n={n})"
+
+
+def take(seq, idx):
+    """``seq`` at the indices ``idx``: array-backed for a :class:`LazySequence`, else a tuple."""
+    if isinstance(seq, LazySequence):
+        return seq.take(np.asarray(idx, dtype=np.int64))
+    return tuple(seq[i] for i in np.asarray(idx).tolist())
+
+
+class Categorical(LazySequence):
+    """Strings from a few categories: ``categories[codes[i]]`` (kinds, units)."""
+
+    def __init__(self, categories, codes):
+        self.categories = tuple(categories)
+        self.codes = np.asarray(codes)
+        self.codes.setflags(write=False)
+
+    @classmethod
+    def from_values(cls, values) -> "Categorical":
+        cats, codes = np.unique(np.asarray(list(values), dtype=object).astype(str), return_inverse=True)
+        dtype = np.int8 if len(cats) < 128 else np.int32
+        return cls(tuple(str(c) for c in cats), codes.astype(dtype))
+
+    def __len__(self):
+        return self.codes.size
+
+    def _item(self, i):
+        return self.categories[self.codes[i]]
+
+    def take(self, idx):
+        return Categorical(self.categories, self.codes[idx])
+
+    def __array__(self, dtype=None, copy=None):
+        return np.asarray(self.categories, dtype=dtype if dtype is not None else str)[self.codes] \
+            if self.categories else np.array([], dtype=dtype if dtype is not None else str)
+
+    def startswith(self, prefix: str) -> np.ndarray:
+        """Boolean per item: does it start with ``prefix``."""
+        hit = np.array([c.startswith(prefix) for c in self.categories], dtype=bool)
+        return hit[self.codes] if hit.size else np.zeros(len(self), dtype=bool)
+
+
+class RecordIds(LazySequence):
+    """Per observation the dict role → id of the reports, from index arrays.
+
+    ``roles`` (r,), ``values`` (per role a sequence of ids), ``codes`` (n × r, int32): item i is
+    ``{role: values[k][codes[i, k]]}`` over the roles with codes[i, k] ≥ 0, in the order of
+    ``roles`` (the dicts the builders used to store, one per observation)."""
+
+    def __init__(self, roles, values, codes):
+        self.roles = tuple(roles)
+        self.values = tuple(values)
+        self.codes = np.asarray(codes)
+        self.codes.setflags(write=False)
+
+    def __len__(self):
+        return self.codes.shape[0]
+
+    def _item(self, i):
+        row = self.codes[i].tolist()
+        return {r: self.values[k][c] for k, (r, c) in enumerate(zip(self.roles, row)) if c >= 0}
+
+    def take(self, idx):
+        return RecordIds(self.roles, self.values, self.codes[idx])
+
+
+class JoinedLabels(LazySequence):
+    """Labels of the parameters: an explicit tuple followed by generated point coordinate labels
+    ``f"{prefix}{point_ids[k]}.{axes[a]}"`` for (k, a) = divmod(j, len(axes)) (all points, all axes)."""
+
+    def __init__(self, head, point_ids, prefix: str = "point ", axes: str = "xyz", sel=None):
+        self.head = tuple(head)
+        self.point_ids = point_ids
+        self.prefix, self.axes = prefix, axes
+        self.sel = sel                      # indices into the full sequence, or None for all
+
+    def _full_len(self):
+        return len(self.head) + len(self.point_ids) * len(self.axes)
+
+    def __len__(self):
+        return self._full_len() if self.sel is None else self.sel.size
+
+    def _full_item(self, j):
+        h = len(self.head)
+        if j < h:
+            return self.head[j]
+        k, a = divmod(j - h, len(self.axes))
+        return f"{self.prefix}{self.point_ids[k]}.{self.axes[a]}"
+
+    def _item(self, i):
+        return self._full_item(i if self.sel is None else int(self.sel[i]))
+
+    def take(self, idx):
+        idx = np.asarray(idx, dtype=np.int64)
+        return JoinedLabels(self.head, self.point_ids, self.prefix, self.axes,
+                            idx if self.sel is None else self.sel[idx])
 
 
 class ObservationSet(Protocol):
@@ -69,17 +210,53 @@ class Parameters:
         return np.flatnonzero(~self.fixed)
 
 
+class _StackItems(LazySequence):
+    """``members`` or ``blocks`` of a stacked :class:`Covariance`: item c is row ``pos[c]`` of
+    the stack of size group ``grp[c]``."""
+
+    def __init__(self, cov, which: int):
+        self.cov, self.which = cov, which
+
+    def __len__(self):
+        return self.cov.cluster_count
+
+    def _item(self, c):
+        g, p = self.cov._locate()
+        return self.cov.groups[g[c]][self.which][p[c]]
+
+    def take(self, idx):
+        return tuple(self._item(int(c)) for c in np.asarray(idx).tolist())
+
+    def __iter__(self):
+        g, p = self.cov._locate()
+        stacks = [grp[self.which] for grp in self.cov.groups]
+        for gc, pc in zip(g.tolist(), p.tolist()):
+            yield stacks[gc][pc]
+
+
 @dataclass(frozen=True, eq=False)
 class Covariance:
     """Block-diagonal a priori covariance σ0²Q of the observations, by clusters.
 
     cluster: cluster id per observation (n,), clusters numbered 0..m-1.
     blocks: per cluster, the observation indices (sorted) and the covariance matrix (SI units²).
+
+    A covariance made by :meth:`from_groups` keeps its clusters stacked by size — ``groups``:
+    ((m, cluster ids (k,), members (k, m), C (k, m, m)), ...) ascending in m — and ``members``
+    and ``blocks`` are read-only views of them (no array object per cluster; a block of a
+    million image points with one σ holds one 2 × 2 matrix, broadcast).
     """
 
     cluster: np.ndarray
     members: tuple[np.ndarray, ...]
     blocks: tuple[np.ndarray, ...]
+    groups: tuple | None = None
+
+    @property
+    def cluster_count(self) -> int:
+        if self.groups is not None:
+            return int(sum(g[1].size for g in self.groups))
+        return len(self.members)
 
     @classmethod
     def from_blocks(cls, n: int, members, blocks) -> "Covariance":
@@ -98,6 +275,62 @@ class Covariance:
         return cls(cluster, tuple(ms), tuple(bs))
 
     @classmethod
+    def from_groups(cls, n: int, groups) -> "Covariance":
+        """A stacked covariance from ((m, cluster ids (k,), members (k, m), C (k, m, m)), ...):
+        the cluster ids of all groups together are 0..K-1, each once. Groups of one size are
+        merged (cluster ids ascending in each); C may be a broadcast (read-only) view."""
+        by_m: dict[int, list] = {}
+        for m, cl, mem, C in groups:
+            if np.asarray(cl).size:
+                by_m.setdefault(int(m), []).append((np.asarray(cl, dtype=np.int64),
+                                                    np.asarray(mem, dtype=np.int64).reshape(-1, int(m)),
+                                                    np.asarray(C, dtype=float).reshape(-1, int(m), int(m))))
+        out = []
+        cluster = np.full(n, -1, dtype=np.int64)
+        for m in sorted(by_m):
+            parts = by_m[m]
+            if len(parts) == 1:
+                cl, mem, C = parts[0]
+            else:
+                cl = np.concatenate([p[0] for p in parts])
+                mem = np.concatenate([p[1] for p in parts])
+                C = np.concatenate([p[2] for p in parts])
+            if cl.size > 1 and (np.diff(cl) <= 0).any():
+                o = np.argsort(cl, kind="stable")
+                cl, mem, C = cl[o], mem[o], C[o]
+            if C.shape != (cl.size, m, m) or mem.shape != (cl.size, m):
+                raise ValueError(f"clusters of size {m}: members {mem.shape}, covariances {C.shape}")
+            cluster[mem] = cl[:, None]
+            for a in (cl, mem, C):
+                if a.flags.writeable:
+                    a.setflags(write=False)
+            out.append((m, cl, mem, C))
+        if (cluster < 0).any():
+            raise ValueError(f"observations without covariance: {np.flatnonzero(cluster < 0)[:10]}")
+        total = sum(g[1].size for g in out)
+        if total and not np.array_equal(np.bincount(np.concatenate([g[1] for g in out]), minlength=total),
+                                        np.ones(total, dtype=np.int64)):
+            raise ValueError("cluster ids must be 0..K-1, each once")
+        cov = cls(cluster, (), (), tuple(out))
+        object.__setattr__(cov, "members", _StackItems(cov, 2))
+        object.__setattr__(cov, "blocks", _StackItems(cov, 3))
+        return cov
+
+    def _locate(self):
+        """(size group, row in its stack) of every cluster of a stacked covariance (cached)."""
+        loc = self.__dict__.get("_loc")
+        if loc is None:
+            K = self.cluster_count
+            g = np.empty(K, dtype=np.int8 if len(self.groups) < 128 else np.int32)
+            p = np.empty(K, dtype=np.int64)
+            for k, (_, cl, _, _) in enumerate(self.groups):
+                g[cl] = k
+                p[cl] = np.arange(cl.size)
+            loc = (g, p)
+            object.__setattr__(self, "_loc", loc)
+        return loc
+
+    @classmethod
     def diagonal(cls, sigma: np.ndarray) -> "Covariance":
         sigma = np.asarray(sigma, dtype=float)
         n = sigma.size
@@ -106,6 +339,8 @@ class Covariance:
 
     def matrix(self) -> sp.csr_matrix:
         """The sparse block-diagonal covariance matrix (n × n)."""
+        if self.groups is not None:
+            return _stack_diag([(mem, C) for _, _, mem, C in self.groups], self.cluster.size)
         return _block_diag(self.members, self.blocks, self.cluster.size)
 
     def weight(self, scale: np.ndarray | None = None) -> sp.csr_matrix:
@@ -113,6 +348,15 @@ class Covariance:
 
         ``scale`` (per cluster) divides each block's weight (variance-component factors).
         """
+        if self.groups is not None:
+            parts = []
+            for m, clusters, members in self._by_size():
+                W = np.linalg.inv(self._stack(clusters, m))
+                W = 0.5 * (W + np.swapaxes(W, 1, 2))
+                if scale is not None:
+                    W = W / np.asarray(scale)[clusters][:, None, None]
+                parts.append((members, W))
+            return _stack_diag(parts, self.cluster.size)
         inv = [None] * len(self.blocks)
         for m, clusters, _ in self._by_size():
             C = np.array([self.blocks[c] for c in clusters]).reshape(clusters.size, m, m)
@@ -124,7 +368,18 @@ class Covariance:
                 inv[c] = W[k]
         return _block_diag(self.members, inv, self.cluster.size)
 
+    def _stack(self, clusters, m):
+        if self.groups is not None:
+            for mm, cl, _, C in self.groups:
+                if mm == m:
+                    return C
+        return np.array([self.blocks[c] for c in clusters]).reshape(clusters.size, m, m)
+
     def _by_size(self):
+        if self.groups is not None:
+            for m, cl, mem, _ in self.groups:
+                yield int(m), cl, mem
+            return
         sizes = np.array([idx.size for idx in self.members])
         for m in np.unique(sizes):
             cl = np.flatnonzero(sizes == m)
@@ -134,12 +389,16 @@ class Covariance:
         """Standard deviation of each observation (SI units)."""
         out = np.empty(self.cluster.size)
         for m, clusters, members in self._by_size():
-            C = np.array([self.blocks[c] for c in clusters]).reshape(clusters.size, m, m)
+            C = self._stack(clusters, m)
             out[members] = np.sqrt(np.diagonal(C, axis1=1, axis2=2))
         return out
 
     def scaled(self, factors: np.ndarray) -> "Covariance":
         """The covariance with each cluster multiplied by ``factors[cluster]``."""
+        if self.groups is not None:
+            f = np.asarray(factors, dtype=float)
+            return Covariance.from_groups(self.cluster.size, [(m, cl, mem, C * f[cl][:, None, None])
+                                                              for m, cl, mem, C in self.groups])
         return Covariance(self.cluster, self.members, tuple(b * f for b, f in zip(self.blocks, factors)))
 
     def subset(self, keep: np.ndarray) -> "Covariance":
@@ -151,9 +410,22 @@ class Covariance:
         keep = np.asarray(keep, dtype=np.int64)
         new_index = np.full(n, -1, dtype=np.int64)
         new_index[keep] = np.arange(keep.size)
-        ncl = len(self.members)
-        sizes = np.fromiter((idx.size for idx in self.members), dtype=np.int64, count=ncl)
+        ncl = self.cluster_count
         kept = np.bincount(self.cluster[keep], minlength=ncl)
+        renum = np.cumsum(kept > 0) - 1
+        if self.groups is not None:
+            groups = []
+            for m, cl, mem, C in self.groups:
+                kc = kept[cl]
+                whole = kc == m
+                groups.append((m, renum[cl[whole]], new_index[mem[whole]], C[whole]))
+                for r in np.flatnonzero((kc > 0) & (kc < m)).tolist():
+                    sel = new_index[mem[r]] >= 0
+                    mm = int(sel.sum())
+                    groups.append((mm, renum[cl[r:r + 1]], new_index[mem[r][sel]][None, :],
+                                   C[r][np.ix_(sel, sel)][None]))
+            return Covariance.from_groups(keep.size, groups)
+        sizes = np.fromiter((idx.size for idx in self.members), dtype=np.int64, count=ncl)
         partial = set(np.flatnonzero((kept > 0) & (kept < sizes)).tolist())
         members, blocks = [], []
         for c in np.flatnonzero(kept > 0).tolist():
@@ -165,8 +437,18 @@ class Covariance:
             else:
                 members.append(new_index[idx])
                 blocks.append(b)
-        renum = np.cumsum(kept > 0) - 1
         return Covariance(renum[self.cluster[keep]], tuple(members), tuple(blocks))
+
+
+def _stack_diag(parts, n) -> sp.csr_matrix:
+    """The block-diagonal matrix of stacks [(members (k, m), blocks (k, m, m)), ...]."""
+    parts = [(mem, B) for mem, B in parts if mem.size]
+    if not parts:
+        return sp.csr_matrix((n, n))
+    rows = np.concatenate([np.repeat(mem, mem.shape[1], axis=1).ravel() for mem, _ in parts])
+    cols = np.concatenate([np.tile(mem, (1, mem.shape[1])).ravel() for mem, _ in parts])
+    vals = np.concatenate([np.ascontiguousarray(B).ravel() for _, B in parts])
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
 
 
 def _block_diag(members, blocks, n) -> sp.csr_matrix:
@@ -329,9 +611,9 @@ def subset(problem: Problem, keep, observed: np.ndarray | None = None) -> Proble
     sets = tuple(s2 for s2 in (_subset_set(s, mask, new_index) for s in problem.sets) if s2 is not None)
     info = problem.info
     info2 = ObservationInfo(
-        kind=tuple(info.kind[i] for i in idx), ids=tuple(info.ids[i] for i in idx),
-        value_file=info.value_file[idx], unit=tuple(info.unit[i] for i in idx),
-        sigma_file=info.sigma_file[idx], sigma_unit=tuple(info.sigma_unit[i] for i in idx),
+        kind=take(info.kind, idx), ids=take(info.ids, idx),
+        value_file=info.value_file[idx], unit=take(info.unit, idx),
+        sigma_file=info.sigma_file[idx], sigma_unit=take(info.sigma_unit, idx),
         line=info.line[idx], group=info.group[idx])
     # nuisance parameters left without any observation (e.g. the orientation of a direction set
     # whose directions were all excluded) are held at their values; coordinates are not, so that

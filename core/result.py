@@ -96,8 +96,11 @@ def cluster_pairs(cov) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def size_groups(cov) -> tuple:
     """Clusters grouped by their size: ((m, cluster ids (k,), members (k, m), C (k, m, m)), ...).
 
-    Cached per (immutable) covariance object: the stacks are built once.
+    Cached per (immutable) covariance object: the stacks are built once (a stacked covariance,
+    :meth:`baarda.problem.Covariance.from_groups`, has them already).
     """
+    if getattr(cov, "groups", None) is not None:
+        return tuple((int(m), cl, members, C) for m, cl, members, C in cov.groups)
     sizes = np.array([idx.size for idx in cov.members])
     out = []
     for m in np.unique(sizes):
@@ -131,7 +134,7 @@ def _mm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _cluster_sizes(cov) -> np.ndarray:
-    sizes = np.zeros(len(cov.members), dtype=np.int64)
+    sizes = np.zeros(sum(g[1].size for g in size_groups(cov)), dtype=np.int64)
     for m, cl, _, _ in size_groups(cov):
         sizes[cl] = m
     return sizes
@@ -721,7 +724,7 @@ class Adjustment:
 
 def _pair_index(cov, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """Position of the pair (i, j) (same cluster) in the layout of :func:`cluster_pairs`."""
-    sizes = np.array([m.size for m in cov.members])
+    sizes = _cluster_sizes(cov)
     order = np.lexsort((np.arange(sizes.size), sizes))
     start = np.empty(sizes.size, dtype=np.int64)
     start[order] = np.concatenate([[0], np.cumsum(sizes[order] ** 2)[:-1]])

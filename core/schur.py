@@ -185,8 +185,9 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     if M > MAX_CLUSTER or n == 0 or u == 0:
         return None
     counts = np.diff(Ar.indptr)
-    row = np.repeat(np.arange(n, dtype=np.int64), counts)
-    col = Ar.indices.astype(np.int64)
+    row = np.repeat(np.arange(n, dtype=_index_dtype(n)), counts)
+    col = Ar.indices                              # no copy: indices of any integer type index alike
+    del counts
     ccl = cluster[row]
     order = np.argsort(cluster, kind="stable")
     cstart = np.concatenate([[0], np.cumsum(csize)[:-1]])
@@ -198,7 +199,9 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     npt = int(point.max(initial=-1)) + 1
     m = is_pt[col]
     key = _unique_sorted(ccl[m] * max(npt, 1) + point[col[m]])
+    del m
     kc, kp = key // max(npt, 1), key % max(npt, 1)
+    del key
     per_cl = np.bincount(kc, minlength=ncl)
     bad = np.zeros(max(npt, 1), dtype=bool)
     bad[kp[per_cl[kc] > 1]] = True
@@ -243,6 +246,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     h2 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
     cnt = np.bincount(colc, minlength=u)[camcols]
     tk = (kind[camcols] == "t").astype(float)
+    del rng
     _, grp = np.unique(np.stack([h1, h2, cnt.astype(float), tk], 1), axis=0, return_inverse=True)
     grp = grp.ravel()
     ngrp = int(grp.max(initial=-1)) + 1
@@ -282,21 +286,26 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     sizes = np.where(cl_sn >= 0, sn_size[np.maximum(cl_sn, 0)], 0)
     cl_off = np.cumsum(sizes, axis=1) - sizes
     K = max(int(sizes.sum(axis=1).max(initial=0)), 1)
-    nnz_a = np.flatnonzero(cm)
+    nnz = col.size
+    nnz_a = np.flatnonzero(cm).astype(_index_dtype(nnz))
     loc = np.searchsorted(skey, akey[run])
     local = np.repeat(cl_off[sp_[loc], slot[loc]], np.diff(np.r_[run, akey.size])) + off_of[colc]
-    dest_a = (pa * M + rpos[rowc]) * K + local
+    del loc, run, akey
+    dest_a = _narrow((pa * M + rpos[rowc]) * K + local, nc * M * K)
+    del local, pa, colc, rowc
     col_S = np.full((nc, K), -1, dtype=np.int64)
     for s_ in range(G):                          # a cluster sees every column of its supernodes
         g = cl_sn[:, s_]
         for i in range(int(sn_size.max(initial=0))):
             p_ = np.flatnonzero((g >= 0) & (i < sn_size[np.maximum(g, 0)]))
             col_S[p_, cl_off[p_, s_] + i] = sn_ptr[g[p_]] + i
-    nnz_b = np.flatnonzero(~cm)
+    nnz_b = np.flatnonzero(~cm).astype(_index_dtype(nnz))
     cb = col[~cm]
     coord_col = np.full(u, -1, dtype=np.int64)
     coord_col[ecols] = coord
-    dest_b = ((cl_pos[ccl[~cm]] * M + rpos[row[~cm]]) * 3 + coord_col[cb]).astype(np.int64)
+    dest_b = _narrow((cl_pos[ccl[~cm]] * M + rpos[row[~cm]]) * 3 + coord_col[cb], nc * M * 3)
+    del cb, ccl, row, cm
+    rpos = _narrow(rpos, M)
 
     # block pattern of S: supernodes sharing an entity (plus the diagonal)
     valid = cl_sn >= 0
@@ -315,13 +324,32 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     wh = sn_size[bcol[blk]]
     flat_r = sn_ptr[brow[blk]] + local // wh
     flat_c = sn_ptr[bcol[blk]] + local % wh
-    return Structure(n=n, u=u, M=M, K=K, G=G, indptr=Ar.indptr.copy(), indices=Ar.indices.copy(),
+    # the pattern is kept by reference (read-only views, no copy of the n·k indices); matches()
+    # compares it with the next design matrix's
+    return Structure(n=n, u=u, M=M, K=K, G=G, indptr=_readonly(Ar.indptr), indices=_readonly(Ar.indices),
                      cam=cam, cam_pos=cam_pos, sn_ptr=sn_ptr, sn_t=sn_t, n_points=n_points,
                      ent_ptr=ent_ptr, ent_cols=ent_cols, ent_size=ent_size, cl_id=cl_id,
                      cl_pos=cl_pos, cl_ent=cl_ent, cl_sn=cl_sn, cl_off=cl_off.astype(np.int64), col_S=col_S,
                      cluster=cluster, rpos=rpos, nnz_a=nnz_a, dest_a=dest_a, nnz_b=nnz_b, dest_b=dest_b, bptr=bptr,
                      bcol=bcol, bstart=bstart, flat_r=flat_r, flat_c=flat_c,
                      labels=None if labels is None else np.asarray(labels))
+
+
+def _index_dtype(top: int):
+    """int32 for indices below ``top`` when they fit (half the memory of int64), else int64."""
+    return np.int32 if top < np.iinfo(np.int32).max else np.int64
+
+
+def _narrow(a: np.ndarray, top: int) -> np.ndarray:
+    """``a`` (values in [0, top)) as :func:`_index_dtype` (top)."""
+    dt = _index_dtype(top)
+    return a if a.dtype == dt else a.astype(dt)
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.setflags(write=False)
+    return v
 
 
 def _unique_sorted(key: np.ndarray) -> np.ndarray:
