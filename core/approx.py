@@ -332,7 +332,12 @@ class _Approx:
         if "x" in axes and "y" in axes:
             return float(np.median(axes["x"])), float(np.median(axes["y"]))
         cands = []
-        for v in self.vec.values():
+        if not hasattr(self, "vec_at"):
+            self.vec_at = defaultdict(list)  # vectors by end point, in file order
+            for v in self.vec.values():
+                for q in dict.fromkeys((v["from"], v["to"])):
+                    self.vec_at[q].append(v)
+        for v in self.vec_at.get(pid, ()):
             if "x" in v and "y" in v:
                 if v["to"] == pid and v["from"] in self.xy:
                     xa, ya = self.xy[v["from"]]
