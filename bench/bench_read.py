@@ -8,6 +8,7 @@ naive baseline "read the text, split it into tokens, convert them" that the read
 (each token a Python string with its line number).
 
     python bench/bench_read.py [--obs 5000000] [--dir /tmp/baarda-bench] [--bz2] [--no-before]
+    python bench/bench_read.py --colmap 40 50000     # COLMAP text and binary: baarda vs pycolmap
 """
 
 from __future__ import annotations
@@ -77,12 +78,64 @@ print(json.dumps({"seconds": dt, "rss_mb": resource.getrusage(resource.RUSAGE_SE
 """
 
 
-def measure(path: Path, how: str) -> dict:
+COLMAP_CHILD = r"""
+import resource, sys, time, json
+import numpy as np
+path, how = sys.argv[1], sys.argv[2]
+t = time.perf_counter()
+if how == "baarda":
+    from baarda.io.colmap import read_colmap
+    b = read_colmap(path, check=False)
+    n = b.obs_image.size
+    t_read = time.perf_counter() - t
+else:
+    import pycolmap
+    rec = pycolmap.Reconstruction(path)
+    t_read = time.perf_counter() - t
+    # what a reader through pycolmap must still do: the observations as arrays
+    img, pt, kp, xy = [], [], [], []
+    for pid, p3 in rec.points3D.items():
+        for el in p3.track.elements:
+            img.append(el.image_id); pt.append(pid); kp.append(el.point2D_idx)
+            xy.append(rec.images[el.image_id].points2D[el.point2D_idx].xy)
+    n = len(img)
+dt = time.perf_counter() - t
+print(json.dumps({"seconds": dt, "read": t_read, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "obs": n}))
+"""
+
+
+def measure(path: Path, how: str, child: str = CHILD) -> dict:
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    out = subprocess.run([sys.executable, "-c", CHILD, str(path), how], capture_output=True, text=True, env=env)
+    out = subprocess.run([sys.executable, "-c", child, str(path), how], capture_output=True, text=True, env=env)
     if out.returncode:
         return {"seconds": float("nan"), "rss_mb": float("nan"), "obs": 0, "error": out.stderr.strip()[-200:]}
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def colmap_table(d: Path, frames: int, points: int) -> None:
+    """A synthetic COLMAP model (pycolmap; every point in every frame), text and binary, read by
+    baarda's reader and by pycolmap (its read, then the observations taken out as arrays)."""
+    import pycolmap
+
+    base = d / f"colmap-{frames}x{points}"
+    if not (base / "bin" / "points3D.bin").exists():
+        opt = pycolmap.SyntheticDatasetOptions(num_rigs=1, num_cameras_per_rig=1, num_frames_per_rig=frames,
+                                               num_points3D=points, num_points2D_without_point3D=10)
+        rec = pycolmap.synthesize_dataset(opt)
+        for kind in ("txt", "bin"):
+            (base / kind).mkdir(parents=True, exist_ok=True)
+            (rec.write_text if kind == "txt" else rec.write_binary)(str(base / kind))
+    print(f"{'COLMAP model':<24s} {'MB':>8s} {'reader':<10s} {'image pts':>10s} {'seconds':>8s} {'peak RSS MB':>12s}"
+          "  (pycolmap: its own read)")
+    for kind in ("txt", "bin"):
+        m = base / kind
+        size = sum(f.stat().st_size for f in m.iterdir()) / 1e6
+        for how in ("baarda", "pycolmap"):
+            r = measure(m, how, COLMAP_CHILD)
+            extra = f"  ({r['read']:.2f} s)" if how == "pycolmap" and "read" in r else ""
+            print(f"{base.name + '/' + kind:<24s} {size:8.1f} {how:<10s} {r['obs']:>10d} {r['seconds']:8.2f} "
+                  f"{r['rss_mb']:12.0f}{extra}" + (f"  {r['error']}" if "error" in r else ""))
 
 
 def main(argv=None):
@@ -91,6 +144,8 @@ def main(argv=None):
     ap.add_argument("--dir", default=None, help="where to write the files (default: a temporary directory)")
     ap.add_argument("--bz2", action="store_true", help="also read a bzip2-compressed copy")
     ap.add_argument("--no-before", action="store_true", help="skip the naive baseline")
+    ap.add_argument("--colmap", type=int, nargs=2, metavar=("FRAMES", "POINTS"),
+                    help="instead: a synthetic COLMAP model read by baarda and by pycolmap")
     args = ap.parse_args(argv)
     tmp = None
     if args.dir is None:
@@ -99,6 +154,11 @@ def main(argv=None):
     else:
         d = Path(args.dir)
         d.mkdir(parents=True, exist_ok=True)
+    if args.colmap:
+        colmap_table(d, *args.colmap)
+        if tmp is not None:
+            tmp.cleanup()
+        return
     path = d / f"bal-{args.obs}.txt"
     if not path.exists():
         t = time.perf_counter()

@@ -38,7 +38,7 @@ from ..bal import CAMERA_MODELS, SfmBlock, SfmCamera, SfmImage
 from ..errors import InputError
 from ..rotation import R_from_quaternion, rodrigues_from_R
 from .bal import check_block
-from .source import EXTENSIONS, logical_path, open_binary, read_bytes, read_text
+from .source import _WS, EXTENSIONS, Numbers, logical_path, open_binary, read_bytes, read_text
 
 MODEL_IDS = {0: "SIMPLE_PINHOLE", 1: "PINHOLE", 2: "SIMPLE_RADIAL", 3: "RADIAL", 4: "OPENCV",
              5: "OPENCV_FISHEYE", 6: "FULL_OPENCV", 7: "FOV", 8: "SIMPLE_RADIAL_FISHEYE",
@@ -226,8 +226,10 @@ def _assemble(d, binary, paths, cams, imgs: _Images, pts: _Points, sigma_px, ref
                    f"{_pid(int(imgs.p3d[slot[k]]))}, not to this one")
         raise _error(pt_path, where, msg, binary)
     linked = np.flatnonzero(imgs.p3d != -1)
-    if linked.size != T or not np.array_equal(np.unique(slot), linked):
-        missing = np.setdiff1d(linked, slot)
+    hit = np.zeros(imgs.p3d.size, dtype=bool)
+    hit[slot[belongs]] = True
+    if linked.size != T or not hit[linked].all():
+        missing = linked[~hit[linked]]
         if missing.size:
             j = int(missing[0])
             k = int(np.searchsorted(imgs.off, j, side="right")) - 1
@@ -284,13 +286,22 @@ def _records(path):
 
 
 def _lines(path):
-    """(line number, text) of each line of a (perhaps compressed) text file, read as a stream."""
+    """(line number, bytes) of each line of a (perhaps compressed) text file, read as a stream."""
     with open_binary(path) as f:
-        for ln, raw in enumerate(f, 1):
-            try:
-                yield ln, raw.decode("utf-8")
-            except UnicodeDecodeError as err:
-                raise InputError(path, ln, f"not UTF-8 text (byte {err.start} of the line)") from None
+        yield from enumerate(f, 1)
+
+
+def _text(path, line: int, raw: bytes) -> str:
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise InputError(path, line, f"not UTF-8 text (byte {err.start} of the line)") from None
+
+
+def _ntok(raw: bytes) -> int:
+    """Number of whitespace-separated tokens."""
+    ws = _WS[np.frombuffer(raw, dtype=np.uint8)]
+    return int(np.count_nonzero(~ws[1:] & ws[:-1])) + int(ws.size > 0 and not ws[0])
 
 
 def _int(path, line, tok, what, allow_negative=False):
@@ -358,10 +369,10 @@ def _images_txt(path) -> _Images:
     imgs = _Images()
     first = {}
     it = _lines(path)
-    for line, s in it:
-        if not s.strip() or s.lstrip().startswith("#"):
+    for line, raw in it:
+        if not raw.strip() or raw.lstrip().startswith(b"#"):
             continue
-        tok = s.split()
+        tok = _text(path, line, raw).split()
         if len(tok) < 10:
             raise InputError(path, line, "expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'")
         iid = _int(path, line, tok[0], "IMAGE_ID")
@@ -378,12 +389,12 @@ def _images_txt(path) -> _Images:
         a = _numbers(ps)
         ok = (a is not None and a.size % 3 == 0 and np.isfinite(a).all()
               and np.all(a[2::3] == np.floor(a[2::3])) and np.all(a[2::3] >= -1)
-              and np.all(np.abs(a[2::3]) < _ID_EXACT) and a.size == len(ps.split()))
+              and np.all(np.abs(a[2::3]) < _ID_EXACT) and a.size == _ntok(ps))
         if ok:
             a = a.reshape(-1, 3)
             xy, p3d = a[:, :2].copy(), a[:, 2].astype(np.int64)
         else:
-            xy, p3d = _image_points_slow(path, pline, iid, ps.split())
+            xy, p3d = _image_points_slow(path, pline, iid, _text(path, pline, ps).split())
         imgs.add(iid, line, pose[:4], pose[4:], cid, name, xy, p3d, pline)
     if not imgs.ids:
         raise InputError(path, 1, "no images")
@@ -406,27 +417,47 @@ def _image_points_slow(path, pline, iid, ptok):
 
 
 def _points_txt(path) -> _Points:
-    pts = _Points()
-    first = {}
-    for line, s in _lines(path):
-        if not s.strip() or s.lstrip().startswith("#"):
-            continue
-        a = _numbers(s)
-        ok = (a is not None and a.size >= 8 and a.size % 2 == 0 and np.isfinite(a).all()
-              and a[0] >= 0 and a[0] < _ID_EXACT and a[0] == np.floor(a[0])
-              and np.all(a[8:] >= 0) and np.all(a[8:] < _ID_EXACT) and np.all(a[8:] == np.floor(a[8:]))
-              and a.size == len(s.split()))
-        if ok:
-            pid, xyz, track = int(a[0]), a[1:4], a[8:].astype(np.int64).reshape(-1, 2)
-        else:
-            pid, xyz, track = _point_slow(path, line, s.split())
-        if pid in first:
-            raise InputError(path, line, f"duplicate POINT3D_ID {pid} (first at line {first[pid]})")
-        first[pid] = line
-        pts.add(pid, line, xyz, track)
-    if not pts.ids:
+    """points3D.txt read in chunks (:class:`baarda.io.source.Numbers`): one line per point,
+    the lines told apart by the line of each number; a line that fails the vectorised checks
+    is read again as text to say what is wrong with it."""
+    with open_binary(path) as f:
+        num = Numbers(path, f, comment="#")
+        vals, lines = num.take_rest()
+    if vals.size == 0:
         raise InputError(path, 1, "no points")
-    return pts.done()
+    new = np.flatnonzero(np.diff(lines)) + 1
+    start = np.concatenate([[0], new])
+    count = np.diff(np.append(start, vals.size))
+    rank = np.arange(vals.size) - np.repeat(start, count)
+    integral = np.isfinite(vals) & (vals >= 0) & (vals < _ID_EXACT) & (vals == np.floor(vals))
+    finite = np.isfinite(vals)
+    good_tok = np.where((rank == 0) | (rank >= 8), integral, finite)
+    bad_line = (count < 8) | (count % 2 == 1)
+    bad_line |= np.add.reduceat(~good_tok, start).astype(bool)
+    ids = vals[start]
+    order = np.argsort(ids, kind="stable")
+    dup = np.flatnonzero(np.diff(ids[order]) == 0)
+    second = int(order[dup + 1].min()) if dup.size else None      # the first repeated id in the file
+    if bad_line.any() or second is not None:
+        k = int(np.flatnonzero(bad_line)[0]) if bad_line.any() else None
+        if k is not None and (second is None or k < second):
+            ln = int(lines[start[k]])
+            raw = next(r for i, r in _lines(path) if i == ln)
+            _point_slow(path, ln, _text(path, ln, raw).split())
+            raise InputError(path, ln, "POINT3D_ID, IMAGE_ID or POINT2D_IDX beyond 2⁵³ (not supported)")
+        first = int(np.flatnonzero(ids == ids[second])[0])
+        raise InputError(path, int(lines[start[second]]), f"duplicate POINT3D_ID {int(ids[second])} "
+                         f"(first at line {int(lines[start[first]])})")
+    pts = _Points()
+    pts.ids = [int(v) for v in ids]
+    pts.where = lines[start].tolist()
+    pts.X = np.ascontiguousarray(vals[start[:, None] + np.arange(1, 4)])
+    tr = vals[rank >= 8].astype(np.int64).reshape(-1, 2)
+    pts.count = (count - 8) // 2
+    pts.off = np.concatenate([[0], np.cumsum(pts.count)]).astype(np.int64)
+    pts.t_img, pts.t_idx = tr[:, 0].copy(), tr[:, 1].copy()
+    pts.pid = ids.astype(np.int64)
+    return pts
 
 
 def _point_slow(path, line, tok):

@@ -16,11 +16,14 @@ the same time: only the numbers asked for (float64) and the line of each group o
 from __future__ import annotations
 
 import bz2
+import collections
 import gzip
 import io
 import lzma
+import os
 import re
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -141,6 +144,42 @@ def read_text(path) -> str:
 # --------------------------------------------------------------------------------------------
 # numbers in chunks
 # --------------------------------------------------------------------------------------------
+_AHEAD = 3
+_POOL = None
+
+
+def _pool() -> ThreadPoolExecutor:
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)),
+                                   thread_name_prefix="baarda-read")
+    return _POOL
+
+
+def _fast_parse(buf: bytes, first: int, comment: bytes | None):
+    """(values, line of each, offset of each, the chunk without its comment lines) of a chunk
+    of whole lines, or None when numpy cannot read it all (then :meth:`Numbers._parse_slow`
+    finds out why)."""
+    if comment is not None and comment in buf:
+        # comment lines become empty lines (the line numbers stay); a comment elsewhere fails below
+        buf = b"\n".join(b"" if ln.lstrip().startswith(comment) else ln for ln in buf.split(b"\n"))
+    b = np.frombuffer(buf, dtype=np.uint8)
+    ws = _WS[b]
+    start = ~ws
+    start[1:] &= ws[:-1]
+    starts = np.flatnonzero(start)
+    if not starts.size:
+        return np.zeros(0), np.zeros(0, dtype=np.int64), starts, buf
+    try:
+        vals = np.fromstring(buf, dtype=float, sep=" ")
+    except ValueError:
+        return None
+    if vals.size != starts.size:
+        return None
+    lines = first + np.searchsorted(np.flatnonzero(b == 10), starts)
+    return vals, lines.astype(np.int64), starts, buf
+
+
 class Truncated(Exception):
     """The stream ended before the numbers asked for: ``have`` of them were there."""
 
@@ -175,6 +214,7 @@ class Numbers:
         self.eof = False
         self.consumed = 0                # numbers taken so far
         self.odd = {}                    # global index → text of a non-finite or unreadable token
+        self._pending = None
         self._set_chunk(np.zeros(0), np.zeros(0, dtype=np.int64), [])
 
     # -- chunks ------------------------------------------------------------------------------
@@ -183,11 +223,9 @@ class Numbers:
         self.base = self.consumed        # global index of vals[0]
         self.buf, self.starts = buf, starts
 
-    def _read_chunk(self) -> bool:
-        """Parse the next chunk of whole lines; False at the end of the stream."""
-        while True:
-            if self.eof:
-                return False
+    def _raw_chunks(self):
+        """(bytes of whole lines, its first line, its last line), in order."""
+        while not self.eof:
             data = self.stream.read(self.chunk)
             if not data:
                 self.eof = True
@@ -200,38 +238,43 @@ class Numbers:
                     continue
                 buf, self.tail = data[:cut + 1], data[cut + 1:]
             if not buf:
-                return False
+                return
             first = self.next_line
             nl = buf.count(b"\n")
             self.next_line += nl
-            self.last_line = first + nl - (1 if buf.endswith(b"\n") else 0)
-            self._parse(buf, first)
+            yield buf, first, first + nl - (1 if buf.endswith(b"\n") else 0)
+
+    def _read_chunk(self) -> bool:
+        """Parse the next chunk of whole lines; False at the end of the stream.
+
+        Chunks are parsed ahead in a small thread pool (numpy releases the GIL while it
+        parses), while this thread reads, and perhaps decompresses, the next ones."""
+        if self._pending is None:
+            self._pending = collections.deque()
+            self._source = self._raw_chunks()
+        comment = self.comment.encode() if self.comment else None
+        while True:
+            while len(self._pending) < _AHEAD:
+                nxt = next(self._source, None)
+                if nxt is None:
+                    break
+                buf, first, last = nxt
+                self._pending.append((_pool().submit(_fast_parse, buf, first, comment), buf, first, last))
+            if not self._pending:
+                return False
+            fut, buf, first, last = self._pending.popleft()
+            res = fut.result()
+            self.last_line = max(last, 1)
+            if res is None:
+                self._parse_slow(buf, first)
+            else:
+                vals, lines, starts, buf = res
+                self._set_chunk(vals, lines, None, buf, starts)
+                if not np.isfinite(vals).all():
+                    for j in np.flatnonzero(~np.isfinite(vals))[:1000]:
+                        self._note(self.base + int(j), self._raw(int(j)))
             if self.vals.size:
                 return True
-
-    def _parse(self, buf: bytes, first: int):
-        b = np.frombuffer(buf, dtype=np.uint8)
-        ws = _WS[b]
-        start = ~ws
-        start[1:] &= ws[:-1]
-        starts = np.flatnonzero(start)
-        vals = None
-        if starts.size and (self.comment is None or self.comment.encode() not in buf):
-            try:
-                vals = np.fromstring(buf, dtype=float, sep=" ")
-            except ValueError:
-                vals = None
-            if vals is not None and vals.size != starts.size:
-                vals = None
-        if vals is None and starts.size:
-            self._parse_slow(buf, first)
-            return
-        lines = first + np.searchsorted(np.flatnonzero(b == 10), starts)
-        vals = np.zeros(0) if vals is None else vals
-        self._set_chunk(vals, lines.astype(np.int64), None, buf, starts)
-        if not np.isfinite(vals).all():
-            for j in np.flatnonzero(~np.isfinite(vals))[:1000]:
-                self._note(self.base + int(j), self._raw(int(j)))
 
     def _raw(self, j: int) -> str:
         """Text of token j of the current (fast-parsed) chunk."""
