@@ -388,8 +388,9 @@ def adjust_network(problem: Problem, options=None, progress=None, strict: bool =
         except DatumDefectError as err:
             first = first or err
             net = problem.extra.get("network_model")
-            if net is None or strict or "local datum defect" not in err.message:
-                raise first from None
+            if (net is None or strict or "local datum defect" not in err.message
+                    or "kept_rows" in problem.extra or len(net.observations) != problem.n):
+                raise first from None   # (a subset of the network's problem: not rebuilt from it)
             ids = {p.id for p in net.points}
             named: dict[str, set] = {}
             for label in err.undetermined:
