@@ -420,3 +420,15 @@ def test_adjustment_safety_net_for_points_a_single_direction_leaves_open(tmp_pat
     assert main(["analyze", str(f), "--strict"]) == 2   # (refused at the heights already)
     err = capsys.readouterr().err
     assert err.startswith(f"baarda: error: {f}:") and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("attrs,words", [(' from_dh="1,5"', "not a number"),
+                                         (' from_dh="inf"', "finite"),
+                                         (' orientation="12-75-00"', "d-m-s"),
+                                         (' station="Z"', "unknown attribute")])
+def test_bad_obs_attributes_name_the_line(tmp_path, attrs, words):
+    f = tmp_path / "bad.gkf"
+    f.write_text(_gkf(attrs, _children(_obs_values(heights=True), False)))
+    with pytest.raises(InputError) as err:
+        read_gama(f)
+    assert err.value.line == 9 and words in str(err.value)
