@@ -34,6 +34,7 @@ import scipy.sparse as sp
 
 from . import stats
 from .linalg import LowRankUpdate, SPDFactor
+from .problem import LazySequence
 
 R_EPS = 1e-10
 #: :meth:`Adjustment.exclude` updates by Woodbury when the left-out clusters hold at most this
@@ -154,6 +155,41 @@ def _cluster_blocks(cov, values):
         block = values[pos:pos + k * m * m].reshape(k, m, m)
         pos += k * m * m
         yield m, members, C, block
+
+
+class GroupTests(LazySequence):
+    """The group tests of :attr:`Adjustment.groups` as arrays; item k is the dict
+    {group, members, T, dimension, redundancy, critical, rejected, alpha, nabla} of group k
+    (members sorted, ∇ŝ in their order), made on demand."""
+
+    def __init__(self, group, ptr, members, T, dimension, redundancy, critical, rejected, alpha, nabla):
+        self.group, self.ptr, self.members = group, ptr, members
+        self.T, self.dimension, self.redundancy = T, dimension, redundancy
+        self.critical, self.rejected, self.alpha, self.nabla = critical, rejected, alpha, nabla
+
+    @classmethod
+    def empty(cls) -> "GroupTests":
+        z, i = np.zeros(0), np.zeros(0, dtype=np.int64)
+        return cls(i, np.zeros(1, dtype=np.int64), i, z, i, z, z, np.zeros(0, dtype=bool), z, z)
+
+    def __len__(self):
+        return self.group.size
+
+    def _item(self, k):
+        a, b = int(self.ptr[k]), int(self.ptr[k + 1])
+        return {"group": int(self.group[k]), "members": self.members[a:b], "T": float(self.T[k]),
+                "dimension": int(self.dimension[k]), "redundancy": float(self.redundancy[k]),
+                "critical": float(self.critical[k]), "rejected": bool(self.rejected[k]),
+                "alpha": float(self.alpha[k]), "nabla": self.nabla[a:b]}
+
+    def take(self, idx):
+        idx = np.asarray(idx, dtype=np.int64)
+        sizes = self.ptr[idx + 1] - self.ptr[idx]
+        flat = np.repeat(self.ptr[idx], sizes) + (np.arange(int(sizes.sum())) -
+                                                   np.repeat(np.cumsum(sizes) - sizes, sizes))
+        return GroupTests(self.group[idx], np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+                          self.members[flat], self.T[idx], self.dimension[idx], self.redundancy[idx],
+                          self.critical[idx], self.rejected[idx], self.alpha[idx], self.nabla[flat])
 
 
 @dataclass(frozen=True, eq=False)
@@ -471,47 +507,75 @@ class Adjustment:
 
     # -- groups -------------------------------------------------------------------------------
     @cached_property
-    def groups(self) -> list[dict]:
-        """Multi-dimensional tests of the problem's observation groups (vectors, image points)."""
+    def groups(self) -> "GroupTests":
+        """Multi-dimensional tests of the problem's observation groups (vectors, image points).
+
+        A sequence of dicts (group, members, T, dimension, redundancy, critical, rejected, alpha,
+        nabla) ordered by group id, kept as arrays (:class:`GroupTests`): a block of a million
+        image points holds a few arrays, not a million dicts."""
         from .hypotheses import selection, test
 
         gid = self.problem.info.group
-        out = []
         if (gid < 0).all():
-            return out
+            return GroupTests.empty()
         order = np.argsort(gid, kind="stable")
         g_sorted = gid[order]
         starts = np.flatnonzero(np.r_[True, g_sorted[1:] != g_sorted[:-1]])
         ends = np.r_[starts[1:], g_sorted.size]
-        fast = self._cluster_group_tests()
-        for s, e in zip(starts, ends):
-            if g_sorted[s] < 0:
-                continue
-            members = np.sort(order[s:e])
-            key = int(g_sorted[s])
-            if key in fast:
-                T, q, alpha, crit, nabla = fast[key]
-                out.append({"group": key, "members": members, "T": T, "dimension": q,
-                            "redundancy": float(self.r[members].sum()), "critical": crit,
-                            "rejected": bool(q > 0 and T > crit), "alpha": alpha, "nabla": nabla})
-                continue
-            h = test(self, selection(self.n, members), label=f"group {g_sorted[s]}")
-            out.append({"group": key, "members": members, "T": h.T,
-                        "dimension": h.q, "redundancy": float(self.r[members].sum()),
-                        "critical": h.critical_T, "rejected": h.rejected_T,
-                        "alpha": h.alpha, "nabla": h.nabla})
-        return out
+        valid = g_sorted[starts] >= 0
+        starts, ends = starts[valid], ends[valid]
+        keys = g_sorted[starts].astype(np.int64)
+        ng = keys.size
+        ptr = np.concatenate([[0], np.cumsum(ends - starts)]).astype(np.int64)
+        members = np.empty(int(ptr[-1]), dtype=np.int64)
+        members_ok = np.zeros(ng, dtype=bool)
+        T, red, crit, alpha = (np.full(ng, np.nan) for _ in range(4))
+        q = np.zeros(ng, dtype=np.int64)
+        nabla = np.full(members.size, np.nan)
+        r = self.r
+        # groups that are exactly one covariance cluster: all at once from the cluster blocks
+        for mem, Tf, qf, af, cf, nf in self._cluster_group_stacks():
+            pos = np.searchsorted(keys, gid[mem[:, 0]])
+            msz = mem.shape[1]
+            dest = ptr[pos][:, None] + np.arange(msz)[None, :]
+            members[dest] = mem                               # sorted members
+            nabla[dest] = nf
+            T[pos], q[pos], alpha[pos], crit[pos] = Tf, qf, af, cf
+            red[pos] = r[mem].sum(axis=1)
+            members_ok[pos] = True
+        for k in np.flatnonzero(~members_ok).tolist():
+            mem = np.sort(order[starts[k]:ends[k]])
+            h = test(self, selection(self.n, mem), label=f"group {keys[k]}")
+            members[ptr[k]:ptr[k + 1]] = mem
+            nabla[ptr[k]:ptr[k + 1]] = np.asarray(h.nabla, dtype=float).ravel() if h.nabla is not None \
+                else np.nan
+            T[k], q[k], crit[k], alpha[k] = h.T, h.q, h.critical_T, h.alpha
+            red[k] = float(r[mem].sum())
+        rejected = (q > 0) & (T > crit)
+        return GroupTests(keys, ptr, members, T, q, red, crit, rejected, alpha, nabla)
 
     def _cluster_group_tests(self) -> dict:
+        """{group: (T, q, α, T_crit, ∇ŝ)} of the groups that are one covariance cluster
+        (:meth:`_cluster_group_stacks` as a dict, for inspection)."""
+        gid = self.problem.info.group
+        out = {}
+        for mem, T, q, alpha, crit, nabla in self._cluster_group_stacks():
+            for k in range(T.size):
+                out[int(gid[mem[k, 0]])] = (float(T[k]), int(q[k]), float(alpha[k]), float(crit[k]), nabla[k])
+        return out
+
+    def _cluster_group_stacks(self) -> list:
         """Tests of the groups that are exactly one covariance cluster (an image point, a GNSS
         vector), all at once from the cluster blocks of C_vv: W = P_c C_vv P_c, T = gᵀW⁺g with
         g = (Pv)_c, ∇ŝ = −W⁺g — the formulas of :func:`baarda.hypotheses.test` with H the
-        selection of the cluster, without a solve per group. Returns {group: (T, q, α, T_crit, ∇ŝ)}.
+        selection of the cluster, without a solve per group. Returns, per cluster size, stacks
+        (members (k, m) sorted per row, T (k,), q (k,), α (k,), T_crit (k,), ∇ŝ (k, m) in the
+        order of the sorted members).
         """
         gid = self.problem.info.group
         o = self.options
         Pv = self.Pv
-        out = {}
+        out = []
         counts = np.bincount(gid[gid >= 0])
         for (members, C, Cvv), Pall in zip(self.cluster_cvv(), size_weights(self.problem.cov)):
             g0 = gid[members]
@@ -521,22 +585,28 @@ class Adjustment:
                 continue
             mem, Cv, Pc = members[same], Cvv[same], Pall[same]     # P_c: the cached cluster weights
             W = Pc @ Cv @ Pc
+            del Cv
             W = 0.5 * (W + np.swapaxes(W, 1, 2))
             lam, V = np.linalg.eigh(W)
+            del W
             tol = 1e-10 * np.maximum(np.maximum(lam.max(axis=1), np.abs(np.diagonal(Pc, axis1=1, axis2=2)).max(axis=1)), 1e-300)
             pos = lam > tol[:, None]
             inv = np.where(pos, 1.0 / np.where(pos, lam, 1.0), 0.0)
             Winv = np.einsum("kij,kj,klj->kil", V, inv, V)
+            del V, inv, lam
             g = Pv[mem]
             nabla = -np.einsum("kij,kj->ki", Winv, g)
+            del Winv
             T = np.einsum("ki,ki->k", g, -nabla)
             q = pos.sum(axis=1)
-            for qq in np.unique(q):
-                alpha = stats.alpha_b_method(o.alpha, o.beta, int(qq)) if (o.b_method and qq) else o.alpha
-                crit = stats.critical_chi2(alpha, int(qq)) if qq else float("inf")
-                for k in np.flatnonzero(q == qq):
-                    out[int(gid[mem[k, 0]])] = (float(T[k]), int(qq), alpha, crit,
-                                                nabla[k][np.argsort(mem[k])])   # sorted members
+            alpha = np.empty(q.size)
+            crit = np.empty(q.size)
+            for qq in np.unique(q).tolist():
+                a = stats.alpha_b_method(o.alpha, o.beta, int(qq)) if (o.b_method and qq) else o.alpha
+                alpha[q == qq] = a
+                crit[q == qq] = stats.critical_chi2(a, int(qq)) if qq else float("inf")
+            srt = np.argsort(mem, axis=1)
+            out.append((np.take_along_axis(mem, srt, 1), T, q, alpha, crit, np.take_along_axis(nabla, srt, 1)))
         return out
 
     # -- covariance of the unknowns -----------------------------------------------------------
