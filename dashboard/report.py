@@ -94,11 +94,16 @@ def report_html(adj, state=None) -> str:
             f"<td>{'REJECTED' if g['rejected'] else 'accepted'}</td></tr>" for g in adj.groups[:MAX_ROWS])
         groups = ("<h2>Group tests</h2><table class='obs'><tr><th>group</th><th>q</th><th>T</th>"
                   f"<th>critical</th><th>decision</th></tr>{rows}</table>")
+    banner = ("" if adj.converged else
+              "<p class='notconv'><b>NOT converged</b> after "
+              f"{adj.iterations} iterations: {html_text(getattr(adj, 'termination', '') or 'not converged')}. "
+              "The numbers below belong to the last iterate, not to the least-squares solution.</p>")
     excluded = ("<p><b>Excluded observations:</b> " + ", ".join(map(str, sorted(state.excluded))) + "</p>"
                 if state.excluded else "")
     css = ("body{font-family:system-ui,sans-serif;margin:20px;max-width:1100px}"
            "table.obs{border-collapse:collapse;font-size:12px}table.obs td,table.obs th{padding:2px 6px;"
-           "border-bottom:1px solid #eee;text-align:right}pre{background:#f6f6f6;padding:8px;font-size:12px}")
+           "border-bottom:1px solid #eee;text-align:right}pre{background:#f6f6f6;padding:8px;font-size:12px}"
+           ".notconv{background:#b00020;color:#fff;padding:8px 12px;font-size:15px}")
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>baarda — {title}</title>
 <style>{css}</style>
@@ -106,6 +111,7 @@ def report_html(adj, state=None) -> str:
 {script}
 </head><body>
 <h1>baarda — {title}</h1>
+{banner}
 <p>Source: <code>{html_text(Path(str(s['source'])).name)}</code>; written {_dt.datetime.now().isoformat(timespec='seconds')}.</p>
 {summary_html(s)}
 {excluded}

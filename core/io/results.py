@@ -49,6 +49,7 @@ def summary(adj) -> dict:
         "critical_tau": _num(adj.critical_tau),
         "converged": bool(adj.converged),
         "iterations": int(adj.iterations),
+        "termination": str(getattr(adj, "termination", "")),
         "n_rejected": int(adj.rejected.sum()),
         "global_test": {
             "statistic": _num(g["statistic"]), "dof": g["dof"], "lower": _num(g["lower"]),
@@ -148,9 +149,11 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
     doc = doc if doc is not None else to_dict(adj)
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
+    # an adjustment that did not converge marks every row (a column, so the files stay CSV)
+    mark = {} if doc["summary"]["converged"] else {"adjustment": "NOT converged"}
     written = []
     for name in ("observations", "points", "groups"):
-        rows = doc[name]
+        rows = [{**row, **mark} for row in doc[name]]
         path = d / f"{name}.csv"
         keys = []
         for row in rows:
@@ -178,7 +181,8 @@ def text_summary(adj, top: int = 8) -> str:
                  f"{s['datum_defect']} ({s['datum']}), redundancy {s['dof']}")
     conv = "converged" if s["converged"] else "NOT converged"
     method = "Levenberg-Marquardt" if getattr(adj, "damped", False) else "Gauss-Newton"
-    lines.append(f"  {method} {conv} in {s['iterations']} iterations")
+    lines.append(f"  {method} {conv} in {s['iterations']} iterations"
+                 + (f" ({s['termination']})" if s["termination"] else ""))
     if s.get("duplicate_keypoints"):
         dk = s["duplicate_keypoints"]
         lines.append(f"  {dk['points']} point(s) observed by two or more keypoints of one image: "
