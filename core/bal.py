@@ -494,9 +494,19 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
         groups.append((3, m + np.arange(nc, dtype=np.int64), np.array(cmem), np.array(cblk)))
     cov = Covariance.from_groups(n, groups)
     units = Categorical(("px", "m"), unit_codes)
-    ids = RecordIds(("image", "point", "component", "id"),
-                    (tuple(im.id for im in block.images), block.points, ("x", "y"),
-                     tuple(cp.id for cp in block.control)), codes)
+    roles = ("image", "point", "component", "id")
+    values = (tuple(im.id for im in block.images), block.points, ("x", "y"), tuple(cp.id for cp in block.control))
+    kp = block.extra.get("obs_keypoint")
+    if kp is not None and m and (block.extra.get("duplicate_keypoints") or {}).get("observations"):
+        # several keypoints of one image on one point (COLMAP): each an observation of its own,
+        # told apart by its keypoint index (POINT2D_IDX)
+        _, inv, cnt = np.unique(ii * max(npt, 1) + pp, return_inverse=True, return_counts=True)
+        kcol = np.full(n, -1, dtype=np.int64)
+        kcol[:2 * m] = np.repeat(np.where(cnt[inv] > 1, kp, -1), 2)
+        codes = np.column_stack([codes[:, :2], kcol.astype(codes.dtype), codes[:, 2:]])
+        roles = ("image", "point", "keypoint", "component", "id")
+        values = (*values[:2], range(int(kp.max()) + 1), *values[2:])
+    ids = RecordIds(roles, values, codes)
     info = ObservationInfo(kind=Categorical(("image-x", "image-y", "control-x", "control-y", "control-z"), kind_codes),
                            ids=ids, value_file=l.copy(), unit=units, sigma_file=sfile, sigma_unit=units,
                            line=lines, group=group)
@@ -508,7 +518,8 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     return Problem(params=params, sets=tuple(sets), l=l, cov=cov, info=info, points=pts, datum=datum,
                    sigma0=1.0, sigma_act="apriori", source=block.source, title=block.title,
                    extra={"block": sfm_geometry(block), "convention": block.convention,
-                          "image_names": {im.id: im.name for im in block.images}})
+                          "image_names": {im.id: im.name for im in block.images},
+                          "duplicate_keypoints": block.extra.get("duplicate_keypoints")})
 
 
 def sfm_geometry(block: SfmBlock) -> dict:
