@@ -155,7 +155,12 @@ class DatumPlan:
     G: np.ndarray
     names: tuple[str, ...]
     eliminate: np.ndarray
-    E: np.ndarray
+    base: np.ndarray           # bool per free parameter: in the S-base (E = G there, 0 elsewhere)
+
+    @property
+    def E(self) -> np.ndarray:
+        """The S-base rows of G (u_free × d, zero outside the S-base), made on demand."""
+        return np.where(self.base[:, None], self.G, 0.0)
 
     @property
     def defect(self) -> int:
@@ -173,7 +178,7 @@ class DatumPlan:
         squares shift over the base; EᵀG itself has the square of the base's condition)."""
         K = self.__dict__.get("_K")
         if K is None:
-            rows = np.flatnonzero(np.abs(self.E).max(axis=1) > 0)
+            rows = np.flatnonzero(self.base & (np.abs(self.G).max(axis=1, initial=0.0) > 0))
             K = np.zeros((self.defect, self.G.shape[0]))
             K[:, rows] = la.pinv(self.G[rows])
             object.__setattr__(self, "_K", K)
@@ -186,8 +191,14 @@ def normal_diagonal(A: sp.csr_matrix, P: sp.csr_matrix) -> np.ndarray:
     rows = np.repeat(np.arange(P.shape[0]), np.diff(P.indptr))
     if not np.any(P.data[rows != P.indices]):              # diagonal (stored zeros aside)
         A = sp.csr_matrix(A)
-        Pd = np.repeat(P.diagonal(), np.diff(A.indptr))
-        return np.bincount(A.indices, weights=Pd * A.data ** 2, minlength=A.shape[1])
+        Pdiag = P.diagonal()
+        out = np.zeros(A.shape[1])
+        step = 1 << 20                                      # rows per chunk: no n·k temporaries
+        for s in range(0, A.shape[0], step):
+            a, b = A.indptr[s], A.indptr[min(s + step, A.shape[0])]
+            Pd = np.repeat(Pdiag[s:s + step], np.diff(A.indptr[s:s + step + 1]))
+            np.add.at(out, A.indices[a:b], Pd * A.data[a:b] ** 2)   # the order of one bincount
+        return out
     return np.asarray((A.multiply(P @ A)).sum(axis=0)).ravel()
 
 
@@ -272,9 +283,8 @@ def plan(problem, x, A, P, free) -> DatumPlan:
     d = G.shape[1]
     u = free.size
     if d == 0:
-        return DatumPlan(np.zeros((u, 0)), (), np.zeros(0, dtype=np.int64), np.zeros((u, 0)))
+        return DatumPlan(np.zeros((u, 0)), (), np.zeros(0, dtype=np.int64), np.zeros(u, dtype=bool))
     datum = problem.datum
-    labels = np.asarray(problem.params.labels)[free]
     point_of = problem.params.point[free]
     ids = problem.points.ids
     moved = sorted({ids[p] for p in point_of[np.abs(G).max(axis=1) > 1e-9] if p >= 0})
@@ -286,14 +296,14 @@ def plan(problem, x, A, P, free) -> DatumPlan:
             "fix or weight enough points, or declare a free network with an S-base")
     if datum.sbase:
         wanted = set(datum.sbase)
-        in_base = np.array([(p >= 0 and (ids[p] in wanted or lab in wanted))
-                            for p, lab in zip(point_of, labels)])
+        labels = problem.params.labels
+        in_base = np.array([(p >= 0 and (ids[p] in wanted or labels[j] in wanted))
+                            for p, j in zip(point_of.tolist(), free.tolist())], dtype=bool)
     else:
         in_base = (point_of >= 0) & (problem.params.kind[free] == "k")
         far = far_points(problem, x)
         if far.any() and not far[point_of[in_base]].all():
             in_base &= ~far[np.maximum(point_of, 0)]
-    E = np.where(in_base[:, None], G, 0.0)
     Gb = G[in_base]
     sv = la.svdvals(Gb / np.maximum(np.abs(Gb).max(axis=0), 1e-300)) if Gb.size else np.zeros(1)
     if Gb.shape[0] < d or sv.min() <= 1e-9 * sv.max():
@@ -320,4 +330,4 @@ def plan(problem, x, A, P, free) -> DatumPlan:
     _, _, piv = la.qr(equilibrated(sub).T, pivoting=True, mode="economic")
     cand = sub
     eliminate = np.sort(cand[piv[:d]])
-    return DatumPlan(G, names, eliminate, E)
+    return DatumPlan(G, names, eliminate, np.asarray(in_base, dtype=bool))
