@@ -24,7 +24,7 @@ def project(block, image_idx, point_idx):
     m = len(image_idx)
     trial = block.replace(obs_image=np.asarray(image_idx, dtype=np.int64),
                           obs_point=np.asarray(point_idx, dtype=np.int64),
-                          xy=np.zeros((m, 2)), obs_line=np.zeros(m, dtype=np.int64), control=())
+                          xy=np.zeros((m, 2)), obs_line=np.zeros(m, dtype=np.int64), control=(), extra={})
     pr = build_sfm_problem(trial)
     f, _ = pr.evaluate(pr.params.x0)
     return f[: 2 * m].reshape(m, 2)
@@ -37,7 +37,11 @@ def add(block, images=(), cameras=(), points=(), X=None, obs=()):
     imgs = block.images + tuple(images)
     pts = block.points + tuple(points)
     XX = np.vstack([block.X, np.asarray(X, dtype=float).reshape(-1, 3)]) if len(points) else block.X
-    big = block.replace(cameras=cams, images=imgs, points=pts, X=XX,
+    # the readers' arrays per observation, point or image (COLMAP keypoint index, offsets) grow too
+    grow = {block.obs_image.size: len(obs), len(block.points): len(points), len(block.images): len(images)}
+    extra = {k: (np.concatenate([v, np.arange(grow[v.shape[0]]) + 10 ** 6])
+                 if isinstance(v, np.ndarray) and v.shape[0] in grow else v) for k, v in block.extra.items()}
+    big = block.replace(cameras=cams, images=imgs, points=pts, X=XX, extra=extra,
                         point_line=np.concatenate([block.point_line, np.zeros(len(points), dtype=np.int64)]))
     if not obs:
         return big
