@@ -472,7 +472,8 @@ def remove(model, points=(), images=(), cameras=()):
 # --------------------------------------------------------------------------------------------
 def strict_error(model, defects) -> InputError:
     """The error ``--strict`` raises: every defect named, at the file."""
-    text = "; ".join(d.text() for d in defects[:30]) + (f"; ... ({len(defects)} in all)" if len(defects) > 30 else "")
+    text = "; ".join(f"{d.entity} {d.id} ({', '.join(d.components)}): {d.reason}" for d in defects[:30]) \
+        + (f"; ... ({len(defects)} in all)" if len(defects) > 30 else "")
     return InputError(getattr(model, "source", "") or "input", 0,
                       f"{len(defects)} local defect(s) (--strict): {text}")
 
