@@ -1,0 +1,154 @@
+"""Memory discipline (issue 11, item 5): array-backed problem parts equal what the builders used
+to store one Python object at a time, and a block's build stays within a per-observation budget."""
+
+from __future__ import annotations
+
+import importlib.util
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from baarda.adjust import Options, adjust
+from baarda.bal import CAMERA_MODELS, ControlPoint, build_sfm_problem
+from baarda.datum import normal_diagonal
+from baarda.hypotheses import selection
+from baarda.hypotheses import test as general_test
+from baarda.io.bal import read_bal
+from baarda.problem import Categorical, Covariance, JoinedLabels, RecordIds, subset
+
+BENCH = Path(__file__).resolve().parents[1] / "bench"
+
+
+def _make_big_bal():
+    spec = importlib.util.spec_from_file_location("make_big_bal", BENCH / "make_big_bal.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    mk = _make_big_bal()
+    path = tmp_path_factory.mktemp("bal") / "small.txt"
+    mk.write(path, *mk.make(6000, 2000, seed=3))
+    return read_bal(path)
+
+
+def _old_style(block):
+    """Labels, kinds, ids, units of the observations and parameters as build_sfm_problem made
+    them one tuple entry per item (the reference for the lazily made ones)."""
+    labels = []
+    for im in block.images:
+        labels += [f"image {im.id}.{nm}" for nm in ("rho1", "rho2", "rho3", "tx", "ty", "tz")]
+    for cam in block.cameras:
+        labels += [f"camera {cam.id}.{nm}" for nm in CAMERA_MODELS[cam.model][0]]
+    labels += [f"point {pid}.{a}" for pid in block.points for a in "xyz"]
+    img = [im.id for im in block.images]
+    kinds, ids, units = [], [], []
+    for k in range(block.obs_image.size):
+        for c in "xy":
+            kinds.append(f"image-{c}")
+            ids.append({"image": img[block.obs_image[k]], "point": block.points[block.obs_point[k]], "component": c})
+            units.append("px")
+    for cp in block.control:
+        for a in "xyz":
+            kinds.append(f"control-{a}")
+            ids.append({"id": cp.id})
+            units.append("m")
+    return tuple(labels), tuple(kinds), tuple(ids), tuple(units)
+
+
+@pytest.mark.parametrize("with_control", [False, True])
+def test_lazy_labels_and_ids_equal_the_explicit_ones(block, with_control):
+    if with_control:
+        block = block.replace(control=(ControlPoint(block.points[5], tuple(block.X[5]), (0.01, 0.01, 0.02), 7),
+                                       ControlPoint(block.points[9], tuple(block.X[9]), (0.01, 0.01, 0.02), 8)))
+    p = build_sfm_problem(block)
+    labels, kinds, ids, units = _old_style(block)
+    assert isinstance(p.params.labels, JoinedLabels) and isinstance(p.info.ids, RecordIds)
+    assert p.params.labels == labels and tuple(p.params.labels) == labels
+    assert list(np.asarray(p.params.labels)) == list(labels)
+    assert p.info.kind == kinds and p.info.unit == units and p.info.sigma_unit == units
+    assert list(p.info.ids) == list(ids)
+    assert p.info.ids[-1] == ids[-1] and p.info.kind[-2] == kinds[-2]
+    # a subset (excluded observations) keeps them aligned, still array-backed
+    keep = np.setdiff1d(np.arange(p.n), [0, 1, 17, p.n - 1])
+    q = subset(p, keep)
+    assert isinstance(q.info.kind, Categorical)
+    assert list(q.info.ids) == [ids[i] for i in keep] and q.info.kind == tuple(kinds[i] for i in keep)
+    idx = np.array([3, 0, len(labels) - 1])
+    assert list(p.params.labels[idx]) == [labels[i] for i in idx]
+
+
+def test_stacked_covariance_equals_the_cluster_list(block):
+    p = build_sfm_problem(block.replace(
+        control=(ControlPoint(block.points[2], tuple(block.X[2]), (0.01, 0.02, 0.03), 1),)))
+    cov = p.cov
+    assert cov.groups is not None
+    ref = Covariance.from_blocks(p.n, list(cov.members), list(cov.blocks))
+    assert np.array_equal(cov.cluster, ref.cluster)
+    assert (cov.matrix() != ref.matrix()).nnz == 0
+    assert (cov.weight() != ref.weight()).nnz == 0
+    f = np.linspace(0.5, 2.0, len(cov.members))
+    assert (cov.weight(f) != ref.weight(f)).nnz == 0
+    assert np.array_equal(cov.sigma(), ref.sigma())
+    assert (cov.scaled(f).matrix() != ref.scaled(f).matrix()).nnz == 0
+    # whole clusters and a cut one (x of image point 4, y of the control point left out)
+    keep = np.setdiff1d(np.arange(p.n), [8, p.n - 2, 30, 31])
+    a, b = cov.subset(keep), ref.subset(keep)
+    assert np.array_equal(a.cluster, b.cluster)
+    assert all(np.array_equal(x, y) for x, y in zip(a.members, b.members))
+    assert all(np.array_equal(x, y) for x, y in zip(a.blocks, b.blocks))
+    assert (a.weight() != b.weight()).nnz == 0
+
+
+def test_group_tests_as_arrays_equal_the_general_test(block):
+    adj = adjust(build_sfm_problem(block), Options())
+    groups = adj.groups
+    assert len(groups) == block.obs_image.size
+    sub = groups[5:40:7]
+    for k, g in zip(range(5, 40, 7), sub):
+        assert g.keys() == groups[k].keys() and all(np.array_equal(g[key], groups[k][key]) for key in g)
+        h = general_test(adj, selection(adj.n, g["members"]))
+        assert g["dimension"] == h.q and abs(g["T"] - h.T) <= 1e-9 * max(1.0, h.T)
+        np.testing.assert_allclose(g["nabla"], h.nabla, rtol=1e-8, atol=1e-12)
+        assert g["redundancy"] == pytest.approx(float(adj.r[g["members"]].sum()), abs=1e-12)
+    assert int(groups.rejected.sum()) == sum(g["rejected"] for g in groups)
+
+
+def test_normal_diagonal_in_chunks_equals_the_product():
+    rng = np.random.default_rng(1)
+    A = sp.random(3_000_000, 50, density=3 / 50, format="csr", random_state=rng)
+    p = rng.uniform(0.5, 2.0, A.shape[0])
+    P = sp.diags(p).tocsr()
+    ref = np.bincount(A.indices, weights=np.repeat(p, np.diff(A.indptr)) * A.data ** 2, minlength=50)
+    assert np.array_equal(normal_diagonal(A, P), ref)          # same order of summation
+    np.testing.assert_allclose(ref, np.asarray((A.T @ P @ A).diagonal()), rtol=1e-12)
+
+
+def test_build_memory_per_image_point():
+    """The Problem of a block holds no Python object per observation: at most 600 bytes per
+    image point (two rows: l, σ, line, group, kinds, ids, covariance, the projection set's
+    index arrays) where one dict and one array per image point took over 700."""
+    mk = _make_big_bal()
+    cams, X, oc, op, xy = mk.make(60_000, 20_000, seed=5)
+    from baarda.bal import SfmBlock, SfmCamera, SfmImage
+    cameras = tuple(SfmCamera(str(c), "BAL", tuple(float(v) for v in cams[c, 6:9])) for c in range(cams.shape[0]))
+    images = tuple(SfmImage(str(c), str(c), tuple(float(v) for v in cams[c, :3]), tuple(float(v) for v in cams[c, 3:6]))
+                   for c in range(cams.shape[0]))
+    blk = SfmBlock(cameras=cameras, images=images, points=tuple(str(i) for i in range(X.shape[0])), X=X,
+                   point_line=np.zeros(X.shape[0], dtype=np.int64), obs_image=oc, obs_point=op, xy=xy,
+                   obs_line=np.zeros(oc.size, dtype=np.int64), convention="bal", refine_intrinsics=True)
+    tracemalloc.start()
+    try:
+        p = build_sfm_problem(blk)
+        current, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    m = oc.size
+    assert p.n == 2 * m
+    assert current / m < 600, f"{current / m:.0f} bytes per image point kept"
+    assert peak / m < 900, f"{peak / m:.0f} bytes per image point at the peak"
