@@ -219,6 +219,7 @@ class State(param.Parameterized):
     """Everything the dashboard shows (see the module docstring)."""
 
     source = param.String(default="", doc="Path of the problem file.")
+    file_name = param.String(default="", doc="The file's name as shown (an upload's own name).")
     problem = param.Parameter(default=None, doc="The full problem as read (baarda.problem.Problem).")
     alpha0 = param.Number(default=0.001, bounds=(1e-6, 0.5), doc="Size α0 of the 1D tests.")
     beta0 = param.Number(default=0.80, bounds=(0.5, 0.999), doc="Power β0.")
@@ -345,44 +346,51 @@ class State(param.Parameterized):
         if key is not None:
             with _LOADED_GUARD:
                 lock = _LOADED_LOCKS.setdefault(key, threading.Lock())
+        # the lock is held while the file is read and adjusted (other sessions opening the same
+        # file wait for it), not while this session shows it
         with (lock or contextlib.nullcontext()):
             hit = _LOADED.get(key) if key is not None else None
-            if hit is not None:
+            if hit is None:
+                try:
+                    with self._busy():
+                        self.progress = f"reading {shown}"
+                        problem = read_problem(path)
+                except BaardaError as err:
+                    self.error = f"Cannot read {shown}: {message(err)}"
+                    return False
+                except Exception as err:  # noqa: BLE001 - the app must show a message, never a traceback
+                    self.error = f"Cannot read {shown}: {type(err).__name__}: {message(err)}"
+                    return False
                 self._check_cancel()
-                return self._set_loaded(hit, source=str(path))
-            try:
+                if name is not None:
+                    problem = replace(problem, source=str(name))
+                self.progress = f"adjusting {shown}"
                 with self._busy():
-                    self.progress = f"reading {shown}"
-                    problem = read_problem(path)
-            except BaardaError as err:
-                self.error = f"Cannot read {shown}: {message(err)}"
-                return False
-            except Exception as err:  # noqa: BLE001 - the app must show a message, never a traceback
-                self.error = f"Cannot read {shown}: {type(err).__name__}: {message(err)}"
-                return False
-            self._check_cancel()
-            if name is not None:
-                problem = replace(problem, source=str(name))
-            self.progress = f"adjusting {shown}"
-            ok = self.set_problem(problem, source=str(name if name is not None else path), error_name=shown,
-                                  error_path=str(path))
-            if ok and key is not None:
-                self.frames()
-                with _LOADED_GUARD:
-                    while len(_LOADED) >= LOADED_MAX:
-                        _LOADED.pop(next(iter(_LOADED)))
-                    _LOADED[key] = (self.problem, self.results, self.kept, self.problem_index(),
-                                    self._frames)
-            return ok
+                    fresh = State(problem=problem, path=name if name is not None else path,
+                                  alpha0=self.alpha0, beta0=self.beta0, b_method=self.b_method)
+                if fresh.results is None:
+                    self.error = message(fresh.error)
+                    return False
+                fresh.frames()
+                hit = (fresh.problem, fresh.results, fresh.kept, fresh.problem_index(), fresh._frames)
+                if key is not None:
+                    with _LOADED_GUARD:
+                        while len(_LOADED) >= LOADED_MAX:
+                            _LOADED.pop(next(iter(_LOADED)))
+                        _LOADED[key] = hit
+        self._check_cancel()
+        ok = self._set_loaded(hit, source=str(name if name is not None else path))
+        if ok:
+            self.file_name = shown
+        return ok
 
     def _set_loaded(self, hit, source: str) -> bool:
         """Make a cached (problem, adjustment, …) current without adjusting again."""
         problem, adj, kept, index, frames = hit
-        if self.sigma0_mode != (problem.sigma_act if problem.sigma_act in ("apriori", "aposteriori")
-                                else "apriori"):
-            return self.set_problem(problem, source=source)
         with param.parameterized.discard_events(self):
             self.problem = problem
+            self.sigma0_mode = (problem.sigma_act if problem.sigma_act in ("apriori", "aposteriori")
+                                else "apriori")     # as the cached adjustment was made
             self.excluded = frozenset()
             self.sbase, self.sbase_error, self.hypotheses, self.hyp_results = [], "", [], []
             self.selected_point = self.selected_obs = self.selected_hypothesis = None
@@ -399,7 +407,7 @@ class State(param.Parameterized):
             self.results = adj
             self.solution += 1
             self._run_robust()
-        self.source = source
+        self.param.update(source=source, file_name=plain(Path(source).name))
         self.exaggeration = self._auto_exaggeration()
         self.error = ""
         self.param.trigger("problem")
@@ -435,6 +443,7 @@ class State(param.Parameterized):
             self._check_cancel()
             return False
         self.source = source or problem.source
+        self.file_name = plain(Path(str(self.source)).name)
         self.exaggeration = self._auto_exaggeration()
         self.error = ""
         self.param.trigger("problem")

@@ -187,8 +187,8 @@ class FilePanel(pn.viewable.Viewer):
         self.download = pn.widgets.FileDownload(callback=self._report, filename="baarda-report.html",
                                                 label="Download HTML report", color="success",
                                                 sizing_mode="stretch_width")
-        self.source = pn.pane.HTML(pn.bind(lambda src: f"File: <code>{html_text(Path(src).name)}</code>"
-                                           if src else "", s.param.source),
+        self.source = pn.pane.HTML(pn.bind(lambda name: f"File: <code>{html_text(name)}</code>"
+                                           if name else "", s.param.file_name),
                                    sizing_mode="stretch_width", css_classes=["file-source"])
         self._dirs: list[Path] = []
         self._lock = threading.Lock()

@@ -1,0 +1,165 @@
+"""Many users on one dashboard server (issue 12): sessions opened at once, and a click in one
+session while another runs data snooping.
+
+The 1,000-image aerial block of ``bench/bench_blocks.py`` (20 strips × 50 images, design
+mode, seed 1) is written with ``baarda simulate`` into a temporary directory and served with
+``baarda serve`` on 127.0.0.1 (a free port, loopback only). Debian's Chromium (Playwright with
+``executable_path=/usr/bin/chromium``) then
+
+1. opens ``--sessions`` pages at once and times, for each, until its summary (the global test)
+   shows, and until its maps are there;
+2. starts iterative data snooping in one session and, while it runs, clicks rows of the tests
+   table in another one and times each click until the selection panel shows the observation;
+3. cancels the snooping and times until the session says it stopped.
+
+Everything is bounded (``--timeout`` seconds in all); the server is stopped at the end.
+
+    OPENBLAS_NUM_THREADS=1 python bench/bench_load.py [--sessions 20] [--clicks 5] [--timeout 600]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--no-first-run",
+        "--disable-renderer-backgrounding", "--disable-background-timer-throttling"]
+SUMMARY_LIMIT = 15.0     # seconds: every session shows its summary within this
+CLICK_LIMIT = 1.0        # seconds: a click answers within this while another session snoops
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def write_block(folder: Path) -> Path:
+    from baarda.cli import main
+
+    out = folder / "aerial-1000.json"
+    assert main(["simulate", str(out), "--strips", "20", "--images", "50", "--design", "--seed", "1",
+                 "--quiet"]) == 0
+    return out
+
+
+def start_server(path: Path, port: int) -> subprocess.Popen:
+    env = dict(os.environ, DISPLAY="", BROWSER="false", OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.Popen([sys.executable, "-m", "baarda.cli", "serve", str(path), "--port", str(port),
+                             "--address", "127.0.0.1"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True, env=env)
+    proc.stdout.readline()                 # "baarda dashboard: URL" once it is about to listen
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return proc
+        time.sleep(0.2)
+    raise RuntimeError("server did not come up")
+
+
+async def open_session(context, url, t0, timeout_ms):
+    page = await context.new_page()
+    out = {"page": page}
+    await page.goto(url, timeout=timeout_ms)
+    await page.locator(".summary").get_by_text("Global test").first.wait_for(timeout=timeout_ms)
+    out["summary"] = time.perf_counter() - t0
+    await page.locator(".tests-table .tabulator-row").first.wait_for(timeout=timeout_ms)
+    out["maps"] = time.perf_counter() - t0
+    return out
+
+
+async def run(args) -> int:
+    from playwright.async_api import async_playwright
+
+    folder = Path(tempfile.mkdtemp(prefix="baarda-bench-load-"))
+    path = write_block(folder)
+    port = free_port()
+    url = f"http://127.0.0.1:{port}/"
+    server = start_server(path, port)
+    ms = int(args.timeout * 1000)
+    rows, ok = [], True
+    try:
+        async with async_playwright() as pw:
+            browser = await pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+            context = await browser.new_context(viewport={"width": 1600, "height": 1000})
+            t0 = time.perf_counter()
+            sessions = await asyncio.wait_for(
+                asyncio.gather(*(open_session(context, url, t0, ms) for _ in range(args.sessions))),
+                timeout=args.timeout)
+            summary = sorted(s["summary"] for s in sessions)
+            maps = sorted(s["maps"] for s in sessions)
+            rows.append((f"{args.sessions} sessions opened at once: summary shown (s)",
+                         f"{summary[0]:.1f}", f"{statistics.median(summary):.1f}", f"{summary[-1]:.1f}",
+                         f"≤ {SUMMARY_LIMIT:g}"))
+            rows.append(("  … maps and tests table shown (s)", f"{maps[0]:.1f}", f"{statistics.median(maps):.1f}",
+                         f"{maps[-1]:.1f}", ""))
+            ok &= summary[-1] <= SUMMARY_LIMIT
+            for s in sessions[2:]:
+                await s["page"].close()
+
+            snooper, clicker = sessions[0]["page"], sessions[1]["page"]
+            await snooper.get_by_text("Find errors", exact=True).first.click()
+            await snooper.get_by_role("button", name="Run iterative data snooping").click()
+            task = snooper.locator(".task-panel")
+            await task.get_by_text("iterative data snooping").first.wait_for(timeout=ms)
+            times = []
+            table_rows = clicker.locator(".tests-table .tabulator-row")
+            info = clicker.locator(".selection-info")
+            for k in range(args.clicks):
+                i = 3 * k + 1
+                start = time.perf_counter()
+                await table_rows.nth(i).click()
+                await info.get_by_text(f"Observation {i} ").first.wait_for(timeout=ms)
+                times.append(time.perf_counter() - start)
+            running = await task.is_visible()
+            rows.append((f"click in another session while snooping runs (s){'' if running else ' [snooping ended]'}",
+                         f"{min(times):.2f}", f"{statistics.median(times):.2f}", f"{max(times):.2f}",
+                         f"≤ {CLICK_LIMIT:g}"))
+            ok &= max(times) <= CLICK_LIMIT and running
+            start = time.perf_counter()
+            if await task.is_visible():
+                await snooper.get_by_role("button", name="Cancel").click()
+                await task.wait_for(state="hidden", timeout=ms)
+            stop = time.perf_counter() - start
+            rows.append(("snooping cancelled: stopped after (s)", "", f"{stop:.1f}", "", ""))
+            await browser.close()
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        try:
+            server.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+        for f in folder.iterdir():
+            f.unlink()
+        folder.rmdir()
+    width = max(len(r[0]) for r in rows)
+    print(f"{'':{width}}  {'min':>6} {'median':>6} {'max':>6}  limit")
+    for r in rows:
+        print(f"{r[0]:{width}}  {r[1]:>6} {r[2]:>6} {r[3]:>6}  {r[4]}")
+    print("PASS" if ok else "FAIL")
+    return 0 if ok else 1
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sessions", type=int, default=20)
+    ap.add_argument("--clicks", type=int, default=5)
+    ap.add_argument("--timeout", type=float, default=600.0, help="bound of the whole run (s)")
+    args = ap.parse_args()
+    return asyncio.run(run(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
