@@ -9,6 +9,8 @@ they fit double precision once they meet in the normal equations N = AᵀPA, P =
 * a σ below ``RELATIVE`` × |value| is smaller than the rounding error of the value itself
   (2⁻⁵³|value|, a few units in the last place): the misclosure l − f(x) is then rounding noise
   of several σ and the w-test of that observation meaningless;
+* an a priori σ0 (a dimensionless factor, normally 1) outside [1e-10, 1e10] squares into the
+  statistics together with σ: it, too, can overflow them;
 * a value or an approximate coordinate beyond ``VALUE_LIMIT`` overflows in the squares and
   products of the observation equations (1e308: a distance's dx² is inf).
 
@@ -29,6 +31,7 @@ SIGMA_MIN = 1e-30
 SIGMA_MAX = 1e30
 VALUE_LIMIT = 1e20
 RELATIVE = 2.0 ** -48          # 32 units in the last place of a double
+SIGMA0_MIN, SIGMA0_MAX = 1e-10, 1e10   # σ0 (dimensionless): vᵀPv σ0², σ0² Q stay in range
 
 
 def _where(problem, i: int, path, control) -> tuple[str, int]:
@@ -66,6 +69,10 @@ def _label(problem, i: int) -> str:
 def check_numeric_range(problem, path, control=None) -> None:
     """Refuse (:class:`InputError` naming the file, line and field) a problem whose σ, values or
     approximate coordinates lie outside what double precision can adjust (module docstring)."""
+    s0 = float(problem.sigma0)
+    if not SIGMA0_MIN <= s0 <= SIGMA0_MAX:
+        raise InputError(path, 0, f"the a priori σ0 = {s0:g} is outside [{SIGMA0_MIN:g}, {SIGMA0_MAX:g}]: σ0² "
+                         f"and the statistics scaled by it cannot be formed in double precision", field="sigma0")
     l = np.asarray(problem.l, dtype=float)
     n = l.size
     if n == 0 or problem.params.free.size == 0:

@@ -39,6 +39,7 @@ import numpy as np
 
 from baarda.errors import InputError
 from baarda.network import Cluster, NetObservation, NetPoint, Network
+from baarda.validate import SIGMA0_MAX, SIGMA0_MIN, VALUE_LIMIT
 
 __all__ = ["read_gama", "bearing_convention", "UndefinedPointsWarning", "GON", "CC", "DEG", "ARCSEC", "MM"]
 
@@ -245,6 +246,9 @@ class _Reader:
             raise self.error(line, f"{where}: not a number: {text.strip()!r}", field) from None
         if not math.isfinite(v):
             raise self.error(line, f"{where}: value must be finite, got {text.strip()!r}", field)
+        if abs(v) > VALUE_LIMIT:        # squares of it overflow (baarda.validate)
+            raise self.error(line, f"{where}: {v:g} is outside ±{VALUE_LIMIT:g}, too large to adjust in "
+                             f"double precision", field)
         return v
 
     def angle(self, node: _Node, attr: str = "val") -> tuple[float, float, str]:
@@ -612,6 +616,10 @@ class _Reader:
         sigma_act = self.params.get("sigma-act", "aposteriori")
         if sigma_apr <= 0:
             raise self.error(self.param_lines["sigma-apr"], "<parameters sigma-apr> must be positive",
+                             "sigma-apr")
+        if not SIGMA0_MIN <= sigma_apr <= SIGMA0_MAX:
+            raise self.error(self.param_lines["sigma-apr"], f"<parameters sigma-apr> = {sigma_apr:g} is outside "
+                             f"[{SIGMA0_MIN:g}, {SIGMA0_MAX:g}]: too far from 1 to adjust in double precision",
                              "sigma-apr")
         if not 0 < conf_pr < 1:
             raise self.error(self.param_lines["conf-pr"], "<parameters conf-pr> must be in (0, 1)",

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..validate import SIGMA0_MAX, SIGMA0_MIN
 
 FORMAT = "baarda-block"
 VERSIONS = (1,)
@@ -188,6 +189,9 @@ def read_native(path):
     if kind not in KINDS:
         rd.fail("kind", None, f"unknown kind {kind!r} (known: {', '.join(KINDS)})", field="kind")
     sigma0 = rd.number(doc, "sigma0", "sigma0", None, default=1.0, positive=True) if "sigma0" in doc else 1.0
+    if not SIGMA0_MIN <= sigma0 <= SIGMA0_MAX:
+        rd.fail("sigma0", None, f"'sigma0' = {sigma0:g} is outside [{SIGMA0_MIN:g}, {SIGMA0_MAX:g}]: too far from 1 "
+                f"to adjust in double precision", field="sigma0")
     if kind == "bundle":
         return _read_bundle(rd, sigma0)
     if kind == "imodel":

@@ -278,6 +278,8 @@ def issue12(bl: list[str], ul: list[str], col: dict[str, str]):
                                                    '"to": "Q\\n\\u001b[2Jforged", "dh": 0.999'))
     assert len(nl) > 10
     write("gama-value-huge.gkf", GKF.replace('val="0.999"', 'val="1e308"'))
+    write("gama-sigma-apr-tiny.gkf", GKF.replace('sigma-apr="1"', 'sigma-apr="1e-300"'))
+    write("native-sigma0-huge.json", NATIVE.replace('"version": 1,', '"version": 1,\n "sigma0": 1e300,'))
     write("gama-stdev-tiny.gkf", GKF.replace('val="0.999" stdev="1"', 'val="0.999" stdev="1e-300"'))
     write("gama-int-5000.gkf", GKF.replace('val="0.999"', 'val="1' + "0" * 5000 + '"'))
     write("gama-unicode-digit.gkf", GKF.replace('val="0.999"', 'val="\u2460"'))
