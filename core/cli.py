@@ -499,8 +499,13 @@ def cmd_report(args) -> int:
 
     problem = _read_quietly(read_problem, args.input, args.format, drop_undefined=args.drop_undefined)
     _warn_dropped(args.input, problem, args.quiet)
-    adj, problem = _adjust_with_defects(problem, Options(alpha=args.alpha, beta=args.beta,
-                                                         b_method=args.b_method, max_iter=args.max_iter))
+    try:
+        adj, problem = _adjust_with_defects(problem, Options(alpha=args.alpha, beta=args.beta,
+                                                             b_method=args.b_method, max_iter=args.max_iter))
+    except InputError:
+        raise
+    except BaardaError as err:         # a singular normal matrix ...: the file's fault, name it
+        raise InputError(args.input, 0, str(err)) from None
     out = Path(args.out) if args.out else Path(args.input).with_suffix(".html")
     if out.resolve() == Path(args.input).resolve():
         raise BaardaError(f"{out}: refusing to overwrite the input file")
