@@ -75,8 +75,8 @@ def _warn_dropped(path, model_or_problem, quiet=False):
     if dropped and not quiet:
         ids = sorted({pid for d in dropped for pid in d.get("undefined", ())})
         lines = ", ".join(str(d["line"]) for d in dropped[:20]) + (" ..." if len(dropped) > 20 else "")
-        print(f"baarda: warning: {path}: {len(dropped)} observation(s) to undefined point(s) "
-              f"{', '.join(ids)} dropped (--drop-undefined; line(s) {lines})", file=sys.stderr)
+        print(printable(f"baarda: warning: {path}: {len(dropped)} observation(s) to undefined point(s) "
+                        f"{', '.join(map(str, ids))} dropped (--drop-undefined; line(s) {lines})"), file=sys.stderr)
 
 
 def _adjust_with_defects(problem, options, progress=None, strict=False):
@@ -440,7 +440,7 @@ def cmd_convert(args) -> int:
         raise BaardaError(f"{args.out}:0: refusing to overwrite the input file")
     write_native(model, out)
     if not args.quiet:
-        print(f"wrote {out}{note}")
+        print(printable(f"wrote {out}{note}"))
     return 0
 
 
@@ -516,7 +516,7 @@ def cmd_report(args) -> int:
 
     write_report(adj, out)
     if not args.quiet:
-        print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
+        print(printable(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)"))
     return _convergence_status(args.input, adj)
 
 

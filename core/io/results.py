@@ -120,8 +120,9 @@ def points(adj) -> list[dict]:
         d = {"id": pid, "status": pts.status[i]}
         for a, name in enumerate("xyz"):
             if pts.index[i, a] >= 0:
-                d[name] = float(xyz[i, a])
-                d["s" + name] = float(sig[i, a])
+                for key, val in ((name, _num(xyz[i, a])), ("s" + name, _num(sig[i, a]))):
+                    if val is not None:              # left out, never NaN (strict JSON, the schema)
+                        d[key] = val
         out.append(d)
     return out
 
