@@ -113,6 +113,7 @@ class SPDFactor:
             if k:
                 O[k - 1][a[~same], b[~same]] = v[~same]
         diagN = N.diagonal()[perm]
+        del C, pi, pj, val, K, J, order, low
         self._factor(D, O, diagN, pivot_tol)
 
     # -- factorisation -------------------------------------------------------------------------
@@ -121,7 +122,9 @@ class SPDFactor:
         L, B = [], []
         for k in range(nb):
             A = D[k] if k == 0 else D[k] - B[k - 1] @ B[k - 1].T
+            D[k] = None                 # the input blocks are let go as they are factored
             c, info = la.lapack.dpotrf(A, lower=1, clean=1)
+            del A
             dN = diagN[starts[k]:starts[k + 1]]
             piv = np.diag(c) ** 2 if info == 0 else None
             if info != 0 or (piv < pivot_tol * dN).any():
@@ -133,6 +136,7 @@ class SPDFactor:
             L.append(c)
             if k + 1 < nb:
                 B.append(la.solve_triangular(c, O[k].T, lower=True, check_finite=False).T)
+                O[k] = None
         self.L, self.B = L, B
 
     def _singular(self, p):
@@ -172,23 +176,26 @@ class SPDFactor:
         """Σ on the block pattern, flat: diagonal blocks row-major, then the sub-diagonal ones."""
         if self._selinv is None:
             nb, size = self.nb, self._size
-            SD = [None] * nb
-            SO = [None] * max(nb - 1, 0)
+            d_start = np.concatenate([[0], np.cumsum(size.astype(np.int64) ** 2)])
+            o_start = np.concatenate([[0], np.cumsum(size[1:].astype(np.int64) * size[:-1])])
+            # the blocks are written straight into the flat arrays (no second copy of Σ)
+            flatD = np.empty(int(d_start[-1]))
+            flatO = np.empty(int(o_start[-1]))
+            SD = [flatD[d_start[k]:d_start[k + 1]].reshape(size[k], size[k]) for k in range(nb)]
+            SO = [flatO[o_start[k]:o_start[k + 1]].reshape(size[k + 1], size[k]) for k in range(nb - 1)]
             for k in range(nb - 1, -1, -1):
                 c, info = la.lapack.dpotri(self.L[k], lower=1)
                 S = np.tril(c) + np.tril(c, -1).T
+                del c
                 if k < nb - 1:
                     # X = B_k L_k⁻¹: solve L_kᵀ Xᵀ = B_kᵀ
                     X = la.solve_triangular(self.L[k], self.B[k].T, lower=True, trans="T",
                                             check_finite=False).T
                     SX = SD[k + 1] @ X
-                    SO[k] = -SX
+                    np.negative(SX, out=SO[k])
                     S += X.T @ SX
-                SD[k] = S
-            d_start = np.concatenate([[0], np.cumsum(size.astype(np.int64) ** 2)])
-            o_start = np.concatenate([[0], np.cumsum(size[1:].astype(np.int64) * size[:-1])])
-            flatD = np.concatenate([x.ravel() for x in SD])
-            flatO = np.concatenate([x.ravel() for x in SO]) if SO else np.zeros(0)
+                    del X, SX
+                SD[k][...] = S
             self._selinv = (flatD, d_start, flatO, o_start)
         return self._selinv
 

@@ -312,11 +312,11 @@ class Adjustment:
         else:
             I, J, _ = cluster_pairs(self.problem.cov)
             out = pair_products(self.Ar, factor, I, J), self._nuisance_products(I, J)
-        out = self._repair_hat_blocks(*out)
+        out = self._repair_hat_blocks(*out, inplace=True)     # fresh arrays: no copies
         self.timings.setdefault("selected_inverse", time.perf_counter() - t0)
         return out
 
-    def _repair_hat_blocks(self, H, Ht):
+    def _repair_hat_blocks(self, H, Ht, inplace: bool = False):
         """Recompute by direct solves the cluster blocks whose selected-inverse values betray
         round-off: a redundancy number outside [0, 1] or an asymmetric block.
 
@@ -325,7 +325,8 @@ class Adjustment:
         less. Only the flagged clusters are solved for (few, if any); their number is kept in
         ``repaired_clusters``.
         """
-        H, Ht = H.copy(), Ht.copy()
+        if not inplace:
+            H, Ht = H.copy(), Ht.copy()
         pos, fixed = 0, 0
         cov = self.problem.cov
         for (m, _, members, C), Pc in zip(size_groups(cov), size_weights(cov)):
