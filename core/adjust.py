@@ -33,6 +33,7 @@ Residuals are v = f(x̂) − l (adjusted minus observed). With P = C⁻¹ the qu
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -43,6 +44,7 @@ from . import datum as datum_mod
 from .errors import DatumDefectError, SingularError
 from . import schur
 from .linalg import SPDFactor
+from .problem import take
 
 SOLVERS = ("auto", "schur", "generic")
 
@@ -65,9 +67,6 @@ GRADIENT_TOL = 1e-10
 #: increments (in conditional standard deviations) below which round-off is reached when they
 #: stop shrinking
 ROUNDOFF_STEP = 1e-6
-#: in the end game after Levenberg-Marquardt, undamped steps are S-transformed once their
-#: increments are below this many conditional standard deviations
-GAUGE_STEP = 1e-2
 #: undamped end games (after the function tolerance) that may fail before the run stops
 MAX_END_GAMES = 3
 #: an undamped end-game step may raise vᵀPv by this much (relative) and still count as round-off
@@ -156,10 +155,29 @@ def schur_structure(problem, Ar, keep, solver: str = "auto"):
     kind = params.kind[fr]
     if solver == "auto" and int((kind == "k").sum()) < schur.MIN_ELIMINATED:
         return None
-    st = schur.analyse(Ar, problem.cov, kind, params.point[fr], np.asarray(params.labels)[fr])
+    st = schur.analyse(Ar, problem.cov, kind, params.point[fr], take(params.labels, fr))
     if st is None or (solver == "auto" and not st.worthwhile()):
         return None
     return st
+
+
+class _Labels:
+    """The labels of the free parameters, made only when an error names one (labels may be
+    generated lazily, :class:`baarda.problem.LazySequence`)."""
+
+    def __init__(self, labels, free):
+        self.labels, self.idx = labels, np.asarray(free)
+
+    def __getitem__(self, i):
+        if isinstance(i, (np.ndarray, list)):
+            return _Labels(self.labels, self.idx[np.asarray(i)])
+        return self.labels[int(self.idx[int(i)])]
+
+    def __len__(self):
+        return self.idx.size
+
+    def __array__(self, dtype=None, copy=None):
+        return np.asarray(take(self.labels, self.idx), dtype=dtype)
 
 
 class _Linearisation:
@@ -293,7 +311,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     x = (params.x0 if x0 is None else x0).astype(float).copy()
     x_ref = x.copy()
     P = weight_matrix(problem.cov)
-    labels = np.asarray(params.labels)[free]
+    labels = _Labels(params.labels, free)
     lin = _Linearisation(problem, free)
     f, parts = lin.evaluate(x)
     A = lin.design(parts)
@@ -330,7 +348,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             if far.any():
                 if plan.defect:
                     # the datum analysed again here: the S-base leaves the far points out
-                    plan = datum_mod.plan(problem, x, A, P, free)
+                    plan = _replan(problem, x, A, P, free, plan)
                     new = np.setdiff1d(np.arange(free.size), plan.eliminate)
                     if not np.array_equal(new, keep_all):
                         keep_all = new
@@ -348,8 +366,26 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         endgame = False
 
     it = 0
+    free_gauge = None              # (all unknowns, their structure): damped steps of a free block
     for it in range(1, options.max_iter + 1):
-        lam = 1.0 / mu if damped and not endgame else 0.0
+        # the first step is undamped whatever the method: a singular system there is a defect
+        # to diagnose (DatumDefectError), not something to damp away
+        first = it == 1
+        lam = 1.0 / mu if damped and not endgame and not first else 0.0
+        if plan.defect and st_all is not None:
+            # a free block's damped steps move all unknowns, the gauge too (the damping makes
+            # N + λD regular, as in Ceres, which fixes no gauge); its undamped steps hold the
+            # datum's coordinates and are S-transformed. (Holding coordinates while damped
+            # makes the way much longer: 72 instead of 19 iterations on BAL Dubrovnik-16.)
+            if lam > 0.0 and keep is keep_all:
+                if free_gauge is None:
+                    every = np.arange(free.size)
+                    free_gauge = (every, schur_structure(problem, lin.reduced(A, every), every, "schur"))
+                keep, st = free_gauge
+                Ar = lin.reduced(A, keep)
+            elif lam == 0.0 and free_gauge is not None and keep is free_gauge[0]:
+                keep, st = keep_all, st_all
+                Ar = lin.reduced(A, keep)
         if st is not None and not st.matches(Ar):
             st = schur_structure(problem, Ar, keep, "schur")
         try:
@@ -388,6 +424,8 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                 history.append(step)
                 status = -1
                 break
+        elif first and damped:
+            ok = rho > MIN_RELATIVE_DECREASE          # the trust region's rule, radius untouched
         elif endgame:
             # the undamped end game accepts what does not raise vᵀPv beyond round-off;
             # otherwise the quadratic model is not good yet
@@ -410,10 +448,9 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         dx = np.zeros(free.size)
         dx[keep] = step_keep
         x_new = trial
-        if plan.defect and lam == 0.0 and (not ever_damped or step < GAUGE_STEP):
-            # (while damped, and in the end game until the increments are small, the minimal
-            # constraint's gauge is kept: the linearised S-transformation of a long way is not
-            # cost-free, and each one would cost Gauss-Newton steps to undo)
+        if plan.defect and lam == 0.0 and keep is keep_all:
+            # (while damped, the minimal constraint's gauge is kept; the S-base is restored by
+            # the undamped steps at the end)
             # S-transform the total shift from the input coordinates to the S-base (M84 §2)
             total = x[free] + dx - x_ref[free]
             x_new = x.copy()
@@ -440,7 +477,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             # weakly determined points may still drift along their rays, so finish with
             # undamped steps until the increments themselves are negligible
             endgame = True
-    if n_far:
+    if keep is not keep_all:
         Ar = lin.reduced(A, keep_all)
     keep, st = keep_all, st_all
     if plan.defect:
@@ -473,6 +510,19 @@ def check_termination(step: float, previous: float | None, tol: float) -> int:
     if previous is not None and step < ROUNDOFF_STEP and step > 0.5 * previous:
         return 2
     return 0
+
+
+def _replan(problem, x, A, P, free, plan):
+    """The datum plan at ``x`` (:func:`baarda.datum.plan`), holding the same coordinates as
+    ``plan`` when they still fix the gauge (so the reduced system keeps its structure)."""
+    new = datum_mod.plan(problem, x, A, P, free)
+    if np.array_equal(new.eliminate, plan.eliminate):
+        return new
+    g = new.G[plan.eliminate]
+    g = g / np.maximum(np.linalg.norm(g, axis=0), 1e-300)
+    if g.shape[0] == new.defect and np.linalg.svd(g, compute_uv=False).min() > 1e-6:
+        return dataclasses.replace(new, eliminate=plan.eliminate)
+    return plan
 
 
 def _far_columns(problem, x, cols) -> np.ndarray:

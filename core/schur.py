@@ -64,6 +64,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import SingularError
+from .problem import LazySequence
 from .linalg import SPDFactor, block_partition
 
 try:                       # optional: compiled pair loops
@@ -332,7 +333,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
                      cl_pos=cl_pos, cl_ent=cl_ent, cl_sn=cl_sn, cl_off=cl_off.astype(np.int64), col_S=col_S,
                      cluster=cluster, rpos=rpos, nnz_a=nnz_a, dest_a=dest_a, nnz_b=nnz_b, dest_b=dest_b, bptr=bptr,
                      bcol=bcol, bstart=bstart, flat_r=flat_r, flat_c=flat_c,
-                     labels=None if labels is None else np.asarray(labels))
+                     labels=None if labels is None or isinstance(labels, LazySequence) else np.asarray(labels))
 
 
 def _index_dtype(top: int):
