@@ -59,6 +59,23 @@ def _extensions():
 #: interpreter for a second or two, and the event loop (pages of new sessions, clicks in
 #: others) competes with one builder instead of twenty.
 _BUILD_LOCK = threading.Lock()
+#: Sessions whose summary is not there yet: the maps of other sessions wait for them (at most
+#: :data:`SUMMARY_FIRST` seconds), so that twenty users opening the page at once all see their
+#: summary first, and the heavy maps and tables come after.
+_PENDING = [0]
+_PENDING_CV = threading.Condition()
+SUMMARY_FIRST = 15.0
+
+
+def _pending(delta: int) -> None:
+    with _PENDING_CV:
+        _PENDING[0] += delta
+        _PENDING_CV.notify_all()
+
+
+def _summaries_first(timeout: float = SUMMARY_FIRST) -> None:
+    with _PENDING_CV:
+        _PENDING_CV.wait_for(lambda: _PENDING[0] <= 0, timeout)
 
 
 def _served() -> bool:
@@ -97,8 +114,18 @@ def create_app(path=None, problem=None, background: bool | None = None):
                            else "<i>Upload a file (sidebar).</i>", css_classes=["main-waiting"])
     content = pn.Column(waiting, sizing_mode="stretch_width")
 
+    waits = {"summary": False}
+
+    def summary_shown(*_):
+        if waits["summary"]:
+            waits["summary"] = False
+            _pending(-1)
+
     def rebuild(*_):
         # a new problem gets new views (map extents, frame sizes and widgets depend on it)
+        summary_shown()
+        if background:
+            _summaries_first()
         with _BUILD_LOCK:
             main = _main(state)
         content.objects = [main]
@@ -111,9 +138,13 @@ def create_app(path=None, problem=None, background: bool | None = None):
     if background:
         if path is not None and state.results is None and not state.error:
             shown = Path(str(path)).name
+            waits["summary"] = True
+            _pending(+1)
+            state.param.watch(summary_shown, ["results", "error"])
             pn.state.onload(lambda: state.submit(f"reading {shown}", state.load, path))
 
         def destroyed(_context):
+            summary_shown()
             state.cancel()
             files.cleanup()
         pn.state.on_session_destroyed(destroyed)

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 import pytest
+from playwright.sync_api import expect
 
 pytestmark = pytest.mark.browser
 
@@ -80,18 +81,33 @@ def open_app(page, served):
     while len(served.templates) <= n and time.time() < deadline:
         time.sleep(0.1)
     try:
-        page.locator(".summary").get_by_text("Global test").first.wait_for(timeout=60_000)
+        page.locator(".summary").get_by_text("Global test").first.wait_for(timeout=90_000)
+        # the maps and tables are built after the summary: wait for the first map's figure
+        page.locator(".map-tabs").first.wait_for(timeout=90_000)
+        wait_for_title(page, "Layout", timeout=90_000)
     except Exception:
         page.screenshot(path="screenshots/failed-load.png")
         raise
-    page.wait_for_timeout(1500)
     return served.latest().state, errors
 
 
 def click_tab(page, name):
+    """Click a tab (the caller waits for what the tab shows)."""
     page.get_by_role("tab", name=name, exact=True).click() if page.get_by_role("tab", name=name).count() \
         else page.get_by_text(name, exact=True).first.click()
-    page.wait_for_timeout(1200)
+
+
+def wait_for_column(page, col, cond="(cols) => cols.length > 0", timeout=30_000):
+    """Wait until the ColumnDataSources holding ``col`` satisfy ``cond`` (a JS function of
+    the list of columns) and return them."""
+    page.wait_for_function(f"([col]) => ({cond})(({JS_COLUMN})(col))", arg=[col], timeout=timeout)
+    return page.evaluate(JS_COLUMN, col)
+
+
+def wait_for_titles(page, pred, timeout=30.0):
+    """Wait until ``pred(titles)`` holds for the Bokeh titles in the page; return them."""
+    assert wait_until(lambda: pred(page.evaluate(JS_TITLES)), timeout), page.evaluate(JS_TITLES)
+    return page.evaluate(JS_TITLES)
 
 
 def wait_until(cond, timeout=15.0):
@@ -129,7 +145,6 @@ def test_every_view_renders(page, which, network_app, block_app, screenshots):
     for tab, prefix in MAP_TABS.items():
         click_tab(page, tab)
         wait_for_title(page, prefix)
-        page.wait_for_timeout(500)
         page.screenshot(path=str(screenshots / f"{which}-map-{tab.split()[0].lower()}.png"))
     for tab in RIGHT_TABS:
         click_tab(page, tab)
@@ -154,7 +169,8 @@ def test_click_point_selects_table_rows(page, network_app, screenshots):
     page.mouse.click(*xy[0])
     assert wait_until(lambda: state.selected_point == k), state.selected_point
     rows = state.observations_of_point(k)
-    page.wait_for_timeout(800)
+    page.wait_for_function(f"() => {{ const s = ({JS_TABLE_SELECTION})(); return s && s.length === {len(rows)}; }}",
+                           timeout=30_000)
     selected = page.evaluate(JS_TABLE_SELECTION)
     assert selected is not None and len(selected) == len(rows)
     assert page.locator(".tabulator-row.tabulator-selected").count() >= 1
@@ -166,30 +182,26 @@ def test_hypothesis_shows_T_and_ellipse(page, block_app, screenshots):
     state, errors = open_app(page, block_app)
     click_tab(page, "Hypotheses")
     page.locator(".hyp-kind select").first.select_option(label="image point (x, y)")
-    page.wait_for_timeout(800)
     obs, _ = state.frames()
     best = obs[obs["kind"] == "image-x"].sort_values("r", ascending=False).index[0]
     ids = state.problem.info.ids[best]
-    page.locator(".hyp-point select").first.select_option(str(ids["point"]))
-    page.wait_for_timeout(800)
+    page.locator(".hyp-point select").first.select_option(str(ids["point"]))   # waits for the option
     page.locator(".hyp-image select").first.select_option(str(ids["image"]))
-    page.wait_for_timeout(500)
     page.get_by_role("button", name="Test", exact=True).click()
     assert wait_until(lambda: state.hyp_results and state.hyp_results[-1] is not None)
     h = state.hyp_results[-1]
     assert state.hypotheses[-1] == {**state.hypotheses[-1], "kind": "image-point", "image": str(ids["image"]),
                                     "point": str(ids["point"])}
     assert h.q == 2
-    page.wait_for_timeout(1500)
-    assert page.get_by_text(f"{h.T:.3f}".rstrip("0").rstrip(".")).count() >= 1
-    titles = page.evaluate(JS_TITLES)
-    assert any(t.startswith("∇0s (β0)") and f"T = {h.T:.2f}" in t for t in titles), titles
-    ellipse = [c for c in page.evaluate(JS_COLUMN, "xs") if c and len(c[0]) == 73]
+    expect(page.get_by_text(f"{h.T:.3f}".rstrip("0").rstrip(".")).first).to_be_visible(timeout=30_000)
+    wait_for_titles(page, lambda ts: any(t.startswith("∇0s (β0)") and f"T = {h.T:.2f}" in t for t in ts))
+    ellipse = [c for c in wait_for_column(page, "xs", "(cols) => cols.some(c => c.length && c[0].length === 73)")
+               if c and len(c[0]) == 73]
     assert ellipse, "lower-bound ellipse path not in the page"
     page.screenshot(path=str(screenshots / "block-hypothesis.png"))
     click_tab(page, "Layout")
+    wait_for_titles(page, lambda ts: any("lower-bound ellipse" in t.lower() for t in ts))
     page.screenshot(path=str(screenshots / "block-hypothesis-map.png"))
-    assert any("lower-bound ellipse" in t.lower() for t in page.evaluate(JS_TITLES))
     assert real_errors(errors) == []
 
 
@@ -199,37 +211,37 @@ def test_network_hypothesis_T_in_table(page, network_app):
     box = page.locator(".hyp-obs input").first
     box.fill("17")
     box.press("Enter")
-    page.wait_for_timeout(500)
     page.get_by_role("button", name="Test", exact=True).click()
     assert wait_until(lambda: state.hyp_results and state.hyp_results[-1] is not None)
     h = state.hyp_results[-1]
     assert state.hypotheses[-1]["index"] == 17
     assert h.T == pytest.approx(state.results.w[17] ** 2, rel=1e-9)
-    page.wait_for_timeout(1000)
-    assert page.get_by_text(f"{round(h.T, 3)}").count() >= 1
+    expect(page.get_by_text(f"{round(h.T, 3)}").first).to_be_visible(timeout=30_000)
     assert real_errors(errors) == []
 
 
 def test_alpha_changes_delta0_and_mdb_data(page, network_app, screenshots):
     state, errors = open_app(page, network_app)
     click_tab(page, "MDB")
-    before = page.evaluate(JS_COLUMN, "mdb_sigma")
+    wait_for_title(page, "Minimal detectable")
+    before = wait_for_column(page, "mdb_sigma")      # the MDB map's data, not read before it is there
     assert before
     d_old = state.results.delta0
-    assert page.get_by_text(f"δ0 = {d_old:.3f}").count() >= 1
+    expect(page.locator(".delta0")).to_contain_text(f"δ0 = {d_old:.3f}", timeout=30_000)
     handle = page.locator(".alpha-slider .noUi-handle").first
     handle.focus()
     handle.press("ArrowRight")
     assert wait_until(lambda: state.results.delta0 != d_old)
     d_new = state.results.delta0
-    page.wait_for_timeout(1500)
-    assert page.get_by_text(f"δ0 = {d_new:.3f}").count() >= 1
-    after = page.evaluate(JS_COLUMN, "mdb_sigma")
+    expect(page.locator(".delta0")).to_contain_text(f"δ0 = {d_new:.3f}", timeout=30_000)
     ratio = d_new / d_old
     b = np.array([v for col in before for v in col], dtype=float)
-    a = np.array([v for col in after for v in col], dtype=float)
     ok = np.isfinite(b)
-    np.testing.assert_allclose(a[ok], b[ok] * ratio, rtol=1e-6)
+
+    def scaled():
+        a = np.array([v for col in page.evaluate(JS_COLUMN, "mdb_sigma") for v in col], dtype=float)
+        return a.shape == b.shape and np.allclose(a[ok], b[ok] * ratio, rtol=1e-6)
+    assert wait_until(scaled, 30), "MDB data in the page did not follow α0"
     page.screenshot(path=str(screenshots / "network-alpha-changed.png"))
     assert real_errors(errors) == []
 
@@ -247,51 +259,49 @@ def test_sbase_and_robust_selector(page, network_app, screenshots):
     state, errors = open_app(page, network_app)
     click_tab(page, "Precision")
     wait_for_title(page, "Standard ellipses")
+    assert wait_until(lambda: bool(_ellipses(page)), 30)
     before = _ellipses(page)
-    assert before
     free = [pid for pid, s in zip(state.problem.points.ids, state.problem.points.status) if s != "fixed"]
     box = page.locator(".sbase-choice input.choices__input--cloned").first
     for pid in free[:3]:
+        n = len(state.sbase)
         box.click()
         box.fill(pid)
-        page.wait_for_timeout(300)
+        expect(page.locator(".sbase-choice .choices__list--dropdown.is-active .choices__item--selectable")
+               .first).to_be_visible(timeout=30_000)
         box.press("Enter")
-        page.wait_for_timeout(500)
+        assert wait_until(lambda: len(state.sbase) > n, 30), state.sbase
     # Choices.js matches fuzzily ("3" may pick "403"): whatever three points were picked
     assert wait_until(lambda: len(state.sbase) == 3), state.sbase
     assert set(state.sbase) <= set(state.problem.points.ids)
     assert wait_until(lambda: any(t.startswith("Standard ellipses") and "S-base" in t
                                   for t in page.evaluate(JS_TITLES)), 30)
-    page.wait_for_timeout(1000)
     # the open S-base list pushes the map down instead of covering it
     dropdown = page.locator(".sbase-choice .choices__list--dropdown.is-active").first
     assert dropdown.is_visible()
     box = dropdown.bounding_box()
     figure = page.evaluate(JS_FIGURE_RECT, "Standard ellipses")
     assert box and figure and box["y"] + box["height"] <= figure["top"] + 1, (box, figure)
+    assert wait_until(lambda: len(_ellipses(page)) > len(before)
+                      or any(not np.allclose(a, b) for a, b in zip(_ellipses(page), before)), 30)
     after = _ellipses(page)
     # the fixed points, outside the new S-base, get ellipses too
     assert len(after) >= len(before)
     assert len(after) > len(before) or any(not np.allclose(a, b) for a, b in zip(after, before)), \
         "ellipse data did not change"
-    assert page.locator(".sbase-note").count() >= 1
-    assert page.locator(".sbase-note").get_by_text("r and w unchanged").count() >= 1
+    expect(page.locator(".sbase-note").get_by_text("r and w unchanged").first).to_be_visible(timeout=30_000)
 
     page.locator(".robust-select select").first.select_option("danish")
     assert wait_until(lambda: state.robust is not None and state.robust.method == "danish", 60)
-    page.wait_for_timeout(800)
     page.screenshot(path=str(screenshots / "network-precision-sbase.png"))
     click_tab(page, "Find errors")
-    page.wait_for_timeout(1000)
-    assert page.locator(".robust-info").get_by_text("danish").count() >= 1
+    expect(page.locator(".robust-info").get_by_text("danish").first).to_be_visible(timeout=30_000)
     page.get_by_role("button", name="Run iterative data snooping").click()
     assert wait_until(lambda: state.snoop is not None, 60)
-    page.wait_for_timeout(1500)
-    assert page.locator(".loo-table .tabulator-row").count() == len(state.snoop_loo)
+    expect(page.locator(".loo-table .tabulator-row")).to_have_count(len(state.snoop_loo), timeout=30_000)
     page.screenshot(path=str(screenshots / "network-find-errors.png"))
     click_tab(page, "Tests table")
-    page.wait_for_timeout(800)
-    assert page.get_by_text("robust weight").count() >= 1
+    expect(page.get_by_text("robust weight").first).to_be_visible(timeout=30_000)
     page.screenshot(path=str(screenshots / "network-robust-table.png"))
     assert real_errors(errors) == []
 
@@ -302,22 +312,21 @@ def test_block_robust_suspects_and_injection(page, block_app, screenshots):
     assert wait_until(lambda: state.robust is not None and state.robust.method == "r84", 90)
     click_tab(page, "w")
     wait_for_title(page, "|w|")
-    page.wait_for_timeout(1500)
     page.screenshot(path=str(screenshots / "block-robust-map.png"))
     click_tab(page, "Find errors")
-    page.wait_for_timeout(1000)
-    assert page.locator(".robust-table .tabulator-row").count() == len(state.robust.suspects)
+    expect(page.locator(".robust-table .tabulator-row")).to_have_count(len(state.robust.suspects),
+                                                                       timeout=30_000)
     page.screenshot(path=str(screenshots / "block-find-errors.png"))
     obs, _ = state.frames()
     i = int(obs["r"].iloc[:12].to_numpy().argmax())        # a well-controlled one on screen
     click_tab(page, "Tests table")
+    expect(page.locator(".tests-table .tabulator-row").nth(i)).to_be_visible(timeout=30_000)
     page.locator(".tests-table .tabulator-row").nth(i).click()
     assert wait_until(lambda: state.selected_obs == i), state.selected_obs
     click_tab(page, "Teaching")
     page.get_by_role("button", name="Inject and adjust").click()
     assert wait_until(lambda: state.injection is not None, 60)
-    page.wait_for_timeout(1000)
-    assert page.locator(".inject-result").get_by_text("a copy of the data").count() >= 1
+    expect(page.locator(".inject-result").get_by_text("a copy of the data").first).to_be_visible(timeout=30_000)
     page.screenshot(path=str(screenshots / "block-inject.png"))
     assert state.injection["index"] == i and real_errors(errors) == []
 
@@ -334,21 +343,22 @@ def test_criterion_tab_fits_and_shows_lambda(page, network_app, screenshots):
     c = state.criterion
     assert c is not None and c["fitted"] and c["kind"] == "logarithmic"
     info = page.locator(".criterion-info")
-    assert info.get_by_text(f"λmin = {c['lam_min']:.4g}").count() >= 1
+    expect(info).to_contain_text(f"λmin = {c['lam_min']:.4g}", timeout=30_000)
     page.locator(".criterion-kind select").first.select_option("linear")
     page.get_by_role("button", name="Fit C1, C2").click()
     assert wait_until(lambda: state.criterion is not None and state.criterion["kind"] == "linear", 60)
     c = state.criterion
     assert c["lam_max"] == pytest.approx(1.0, rel=1e-9) and c["lam_min"] < 1
-    page.wait_for_timeout(1500)
-    assert info.get_by_text(f"Fitted linear criterion").count() >= 1
-    assert info.get_by_text(f"λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}").count() >= 1
-    assert any(t.startswith("Eigenvector of λmax") and f"λmax = {c['lam_max']:.3g}" in t
-               for t in page.evaluate(JS_TITLES))
+    expect(info).to_contain_text("Fitted linear criterion", timeout=30_000)
+    expect(info).to_contain_text(f"λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}")
+    wait_for_titles(page, lambda ts: any(t.startswith("Eigenvector of λmax") and f"λmax = {c['lam_max']:.3g}" in t
+                                         for t in ts))
     e, n, _, _ = display_xy(state.problem, state.results.coordinates)
     d = (display_matrix(state.problem) @ c["pattern"].T).T
     scale = ARROW_SHARE * max(np.ptp(e), np.ptp(n)) / np.hypot(*d.T).max()
-    ends = [np.asarray(x, dtype=float) for x in page.evaluate(JS_COLUMN, "x1") if len(x) == len(e)]
-    assert any(np.allclose(x, e + scale * d[:, 0]) for x in ends), "pattern arrows not in the page"
+    def arrows():
+        ends = [np.asarray(x, dtype=float) for x in page.evaluate(JS_COLUMN, "x1") if len(x) == len(e)]
+        return any(np.allclose(x, e + scale * d[:, 0]) for x in ends)
+    assert wait_until(arrows, 30), "pattern arrows not in the page"
     page.screenshot(path=str(screenshots / "network-criterion.png"))
     assert real_errors(errors) == []
