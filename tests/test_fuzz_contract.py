@@ -44,7 +44,9 @@ NOT_CONVERGED = getattr(cli, "EXIT_NOT_CONVERGED", getattr(cli, "NOT_CONVERGED",
 OK_CODES = {0, 2} | ({NOT_CONVERGED} if NOT_CONVERGED is not None else set())
 ERROR_LINE = re.compile(r"baarda: error: [^\n]*?:(\d+|byte \d+)(:[^\s:][^\n:]*)?: [^\n]+\n")
 CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069\u2028\u2029]")
-NAN = re.compile(r"\b(nan|inf)\b", re.IGNORECASE)   # "near infinity" is prose
+# a number printed as nan/inf (" = nan", "a posteriori inf", "[nan, ..."); ids and titles come
+# from the file and may be the word "nan" ("from=nan", a title "nan benchmarks")
+NAN = re.compile(r"(\s=\s+|posteriori\s+|priori\s+|\[)[+-]?(nan|inf)\b", re.IGNORECASE)
 
 
 # --------------------------------------------------------------------------------------------
