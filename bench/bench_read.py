@@ -5,7 +5,8 @@ in ~3 images, 800 cameras) to a temporary directory — never into the repositor
 with ``--bz2``, bzip2-compressed, then reads each in a fresh process and prints a table: file,
 size, seconds, peak RSS of the process (``ru_maxrss``), for baarda's chunked reader and for the
 naive baseline "read the text, split it into tokens, convert them" that the reader used before
-(each token a Python string with its line number).
+(each token a Python string with its line number). CPU seconds (user + system) are printed
+beside the wall-clock seconds: on a loaded machine they are the steadier figure.
 
     python bench/bench_read.py [--obs 5000000] [--dir /tmp/baarda-bench] [--bz2] [--no-before]
     python bench/bench_read.py --colmap 40 50000     # COLMAP text and binary: baarda vs pycolmap
@@ -74,7 +75,8 @@ else:
     rest = np.array(toks[3 + 4 * nobs:], dtype=float)
     n = nobs
 dt = time.perf_counter() - t
-print(json.dumps({"seconds": dt, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "obs": n}))
+ru = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({"seconds": dt, "cpu": ru.ru_utime + ru.ru_stime, "rss_mb": ru.ru_maxrss / 1024, "obs": n}))
 """
 
 
@@ -109,7 +111,8 @@ def measure(path: Path, how: str, child: str = CHILD) -> dict:
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     out = subprocess.run([sys.executable, "-c", child, str(path), how], capture_output=True, text=True, env=env)
     if out.returncode:
-        return {"seconds": float("nan"), "rss_mb": float("nan"), "obs": 0, "error": out.stderr.strip()[-200:]}
+        return {"seconds": float("nan"), "cpu": float("nan"), "rss_mb": float("nan"), "obs": 0,
+                "error": out.stderr.strip()[-200:]}
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -170,13 +173,15 @@ def main(argv=None):
         if not zpath.exists():
             subprocess.run(["bzip2", "-k", "-f", str(path)], check=True)
         files.append(zpath)
-    print(f"{'file':<24s} {'MB':>8s} {'reader':<10s} {'image pts':>10s} {'seconds':>8s} {'peak RSS MB':>12s}")
+    print(f"{'file':<24s} {'MB':>8s} {'reader':<10s} {'image pts':>10s} {'seconds':>8s} {'CPU s':>7s} "
+          f"{'peak RSS MB':>12s}")
     for f in files:
         size = f.stat().st_size / 1e6
         hows = ["baarda"] + ([] if args.no_before or f.suffix == ".bz2" else ["before"])
         for how in hows:
             r = measure(f, how)
-            print(f"{f.name:<24s} {size:8.1f} {how:<10s} {r['obs']:>10d} {r['seconds']:8.2f} {r['rss_mb']:12.0f}"
+            print(f"{f.name:<24s} {size:8.1f} {how:<10s} {r['obs']:>10d} {r['seconds']:8.2f} "
+                  f"{r.get('cpu', float('nan')):7.2f} {r['rss_mb']:12.0f}"
                   + (f"  {r['error']}" if "error" in r else ""))
     if tmp is not None:
         tmp.cleanup()

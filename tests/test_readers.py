@@ -359,3 +359,86 @@ def test_convert_refuses_fx_ne_fy(tmp_path, capsys):
     write_model(rec, tmp_path / "m")
     assert main(["convert", str(tmp_path / "m"), str(tmp_path / "n.json")]) == 2
     assert "f_x ≠ f_y" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------
+# memory discipline: numbers held once, lying headers and malformed files refused early
+# --------------------------------------------------------------------------------------------
+def big_bal(path: Path, nobs: int, seed: int = 3) -> Path:
+    """A valid BAL file of nobs image points (3 per point, 20 cameras)."""
+    rng = np.random.default_rng(seed)
+    npt, ncam = nobs // 3, 20
+    cam = np.repeat(np.arange(npt) % ncam, 3) + np.tile([0, 7, 13], npt)
+    obs = np.c_[cam % ncam, np.repeat(np.arange(npt), 3), rng.normal(scale=300, size=(3 * npt, 2))]
+    with open(path, "w") as f:
+        f.write(f"{ncam} {npt} {3 * npt}\n")
+        np.savetxt(f, obs, fmt=["%d", "%d", "%.6e", "%.6e"])
+        np.savetxt(f, np.c_[rng.normal(scale=0.1, size=(ncam, 6)), np.full(ncam, 500.0),
+                            np.zeros((ncam, 2))].reshape(-1, 1), fmt="%.16e")
+        np.savetxt(f, rng.normal(scale=10, size=(3 * npt, 1)), fmt="%.16e")
+    return path
+
+
+def peak_bytes(fn):
+    """(result or exception, peak of the memory allocated through Python and numpy)."""
+    import tracemalloc
+    tracemalloc.start()
+    try:
+        try:
+            out = fn()
+        except InputError as err:
+            out = err
+        return out, tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_bal_numbers_are_held_once(tmp_path):
+    path = big_bal(tmp_path / "big.txt", 300_000)
+    size = path.stat().st_size
+    block, peak = peak_bytes(lambda: read_bal(path, check=False))
+    assert block.obs_image.size == 300_000
+    # the values as Python parses them, token by token (an independent reading)
+    toks = path.read_bytes().split()
+    ref = np.array(toks[3:3 + 4 * 300_000], dtype=float).reshape(-1, 4)
+    assert np.array_equal(block.xy, ref[:, 2:]) and np.array_equal(block.obs_point, ref[:, 1])
+    assert np.array_equal(block.X.ravel(), np.array(toks[3 + 4 * 300_000 + 9 * 20:], dtype=float))
+    # the text is never held whole, and its numbers once (a token list alone took ~10× the file)
+    print(f"file {size / 1e6:.1f} MB, peak {peak / 1e6:.1f} MB")
+    assert peak < 3.5 * size                               # the reader before: 10.9 × (192 MB here)
+
+
+def test_bal_header_that_lies_is_refused_before_its_numbers_are_held(tmp_path):
+    lines = (VALID / "bal-valid.txt").read_text().splitlines()
+    lies = tmp_path / "lies.txt"
+    lies.write_text("\n".join(["3 16 100000000"] + lines[1:]) + "\n")
+    err, peak = peak_bytes(lambda: read_bal(lies))
+    assert isinstance(err, InputError) and err.line == 1
+    assert "(400000075 numbers) but the file of" in err.message and "cannot hold them" in err.message
+    assert peak < 8e6                                    # not the 3.2 GB the header asks for
+    # one number fewer, one more than announced: the counts at the end of the file
+    short = tmp_path / "short.txt"
+    short.write_text("\n".join(lines[:-1]) + "\n")
+    with pytest.raises(InputError, match=r"^.*:1: the header announces .* \(267 numbers\) but the file holds 266"):
+        read_bal(short)
+    extra = tmp_path / "extra.txt"
+    extra.write_text("\n".join(lines + ["0.5"]) + "\n")
+    with pytest.raises(InputError, match=rf":{len(lines) + 1}: unexpected '0.5' after the last point"):
+        read_bal(extra)
+
+
+def test_malformed_big_bal_is_refused_early(tmp_path):
+    """A broken number near the start: refused with the memory of a few chunks, the same for a
+    file twice as long (the reader before held the whole file's tokens first: 10× its size)."""
+    peaks = []
+    for nobs in (150_000, 300_000):
+        path = big_bal(tmp_path / f"big{nobs}.txt", nobs)
+        data = path.read_bytes().split(b"\n")
+        data[1000] = data[1000][:-3] + b"x12"
+        path.write_bytes(b"\n".join(data))
+        del data
+        err, peak = peak_bytes(lambda: read_bal(path))
+        assert isinstance(err, InputError) and err.line == 1001 and "x12' is not a number" in err.message
+        print(f"file {path.stat().st_size / 1e6:.1f} MB, peak {peak / 1e6:.1f} MB")
+        peaks.append(peak)
+    assert peaks[1] < 1.25 * peaks[0] and peaks[1] < 48e6

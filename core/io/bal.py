@@ -279,7 +279,9 @@ def _read_bal(path, num: Numbers, src, sigma_px, refine_intrinsics) -> SfmBlock:
         return InputError(path, head_line, f"{announce} but the file holds {before + t.have} numbers after it")
 
     try:
-        v, first, last = num.take(4 * nobs, 4)
+        v, first, last = num.take(4 * nobs, 4, what=lambda k: (
+            (f"observation {k // 4 + 1}: camera and point index", "int") if k % 4 < 2 else
+            (f"observation {k // 4 + 1}: image coordinates", "finite")))
     except Truncated as t:
         raise truncated(0, t) from None
     split = np.flatnonzero(first != last)
@@ -307,14 +309,14 @@ def _read_bal(path, num: Numbers, src, sigma_px, refine_intrinsics) -> SfmBlock:
                          f"{npt} points)")
     base = 3 + 4 * nobs
     try:
-        cams, cl, _ = num.take(9 * ncam)
+        cams, cl, _ = num.take(9 * ncam, what=lambda k: (f"9 parameters for each of the {ncam} cameras", "finite"))
     except Truncated as t:
         raise truncated(4 * nobs, t) from None
     num.check_finite(cams, cl, lambda j: base + j, lambda j: f"9 parameters for each of the {ncam} cameras")
     cams = cams.reshape(ncam, 9)
     base += 9 * ncam
     try:
-        X, pl, _ = num.take(3 * npt)
+        X, pl, _ = num.take(3 * npt, what=lambda k: (f"3 coordinates for each of the {npt} points", "finite"))
     except Truncated as t:
         raise truncated(4 * nobs + 9 * ncam, t) from None
     num.check_finite(X, pl, lambda j: base + j, lambda j: f"3 coordinates for each of the {npt} points")

@@ -144,7 +144,7 @@ def read_text(path) -> str:
 # --------------------------------------------------------------------------------------------
 # numbers in chunks
 # --------------------------------------------------------------------------------------------
-_AHEAD = 3
+_AHEAD = 2
 _POOL = None
 
 
@@ -202,7 +202,7 @@ class Numbers:
     starting with it (after blanks) are skipped. ``line`` is the line of the next number.
     """
 
-    def __init__(self, path, stream, first_line: int = 1, comment: str | None = None, chunk: int = 1 << 22,
+    def __init__(self, path, stream, first_line: int = 1, comment: str | None = None, chunk: int = 1 << 21,
                  prefix: bytes = b""):
         self.path = str(path)
         self.stream = stream
@@ -287,23 +287,35 @@ class Numbers:
             self.odd[index] = text
 
     def _parse_slow(self, buf: bytes, first: int):
-        text = decode(self.path, buf, first)
-        vals, lines, texts = [], [], []
-        for ln, s in enumerate(text.split("\n"), first):
-            if self.comment and s.lstrip().startswith(self.comment):
-                continue
-            for t in s.split():
+        """A chunk numpy refused, token by token: an unreadable token becomes NaN (its text is
+        kept for the message); the checks of the caller then say what is wrong."""
+        try:
+            buf.decode("utf-8")
+        except UnicodeDecodeError:
+            decode(self.path, buf, first)                   # bad UTF-8: refused at its line
+        if self.comment:
+            c = self.comment.encode()
+            buf = b"\n".join(b"" if ln.lstrip().startswith(c) else ln for ln in buf.split(b"\n"))
+        b = np.frombuffer(buf, dtype=np.uint8)
+        ws = _WS[b]
+        start = ~ws
+        start[1:] &= ws[:-1]
+        starts = np.flatnonzero(start)
+        end = ~ws
+        end[:-1] &= ws[1:]
+        ends = np.flatnonzero(end) + 1
+        vals = np.empty(starts.size)
+        nan = float("nan")
+        for k in range(0, starts.size, 4096):
+            for j, a, e in zip(range(k, k + 4096), starts[k:k + 4096].tolist(), ends[k:k + 4096].tolist()):
                 try:
-                    v = float(t) if t.isascii() else float("nan")
+                    vals[j] = float(buf[a:e])
                 except ValueError:
-                    v = float("nan")
-                vals.append(v)
-                lines.append(ln)
-                texts.append(t)
-        self._set_chunk(np.array(vals, dtype=float), np.array(lines, dtype=np.int64), texts)
-        for j, v in enumerate(self.vals):
-            if not np.isfinite(v):
-                self._note(self.base + j, texts[j])
+                    vals[j] = nan
+        lines = first + np.searchsorted(np.flatnonzero(b == 10), starts)
+        self._set_chunk(vals, lines.astype(np.int64), None, buf, starts)
+        for j in np.flatnonzero(~np.isfinite(vals))[:1000]:
+            self._note(self.base + int(j), self._raw(int(j)))
 
     # -- reading -----------------------------------------------------------------------------
     @property
@@ -322,28 +334,37 @@ class Numbers:
             return self.texts[j] if self.texts is not None else self._raw(j)
         return "" if value is None else f"{value:.17g}".replace("e+", "e")
 
-    def take(self, n: int, group: int = 1):
+    def take(self, n: int, group: int = 1, what=None):
         """The next ``n`` numbers: (values (n,), the line of the first and of the last number of
-        each group of ``group``, (n // group,) each). Raises :class:`Truncated` at the end."""
+        each group of ``group``, (n // group,) each). Raises :class:`Truncated` at the end.
+
+        what(k) → (description, "finite" or "int") of number k: then a number that is not
+        finite (or not a number at all) is refused in the chunk where it is, before the rest of
+        the file is read.
+
+        The arrays grow with what the file really holds, chunk by chunk, whatever a header
+        announced."""
         pieces, firsts, lasts = [], [], []
-        got = 0
+        got, base = 0, self.consumed
         while got < n:
             if self.i >= self.vals.size and not self._read_chunk():
                 raise Truncated(got)
             k = min(n - got, self.vals.size - self.i)
-            sl = slice(self.i, self.i + k)
-            pos = got + np.arange(k) if group > 1 else None
-            pieces.append(self.vals[sl])
-            if group == 1:
-                firsts.append(self.lines[sl])
-            else:
-                lines = self.lines[sl]
-                firsts.append(lines[pos % group == 0])
-                lasts.append(lines[pos % group == group - 1])
+            v, ln = self.vals[self.i:self.i + k], self.lines[self.i:self.i + k]
+            if what is not None and not np.isfinite(v).all():
+                j = int(np.flatnonzero(~np.isfinite(v))[0])
+                desc, kind = what(got + j)
+                self._fail(v[j:j + 1], ln[j:j + 1], lambda _: base + got + j, lambda _: desc, 0, kind)
+            j0, j1 = (-got) % group, (group - 1 - got) % group     # first and last of a group here
+            f, la = ln[j0::group], ln[j1::group]
+            pieces.append(v)
+            firsts.append(f)
+            lasts.append(la)
             self.i += k
             self.consumed += k
             got += k
-        vals = pieces[0] if len(pieces) == 1 else np.concatenate(pieces) if pieces else np.zeros(0)
+        vals = np.concatenate(pieces) if pieces else np.zeros(0)
+        del pieces
         first = np.concatenate(firsts) if firsts else np.zeros(0, dtype=np.int64)
         last = first if group == 1 else (np.concatenate(lasts) if lasts else np.zeros(0, dtype=np.int64))
         return vals, first, last
