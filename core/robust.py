@@ -191,7 +191,7 @@ def estimate(problem, method: str = "danish", options: Options | None = None, to
     out = sorted(j for d in suspects for j in d["members"])
     keep = np.setdiff1d(np.arange(problem.n), out)
     final = None
-    if keep.size < problem.n:
+    if 0 < keep.size < problem.n:      # every observation suspect: nothing left to adjust
         try:
             final = adjust(subset(problem, keep), options, x0=adj.x)
         except BaardaError:

@@ -274,7 +274,7 @@ def make_case(seed: dict, rng: random.Random) -> dict[str, bytes]:
     return files
 
 
-def run_case(name: str, files: dict[str, bytes], tmp: Path, what: str = "") -> int:
+def run_case(name: str, files: dict[str, bytes], tmp: Path, what: str = "", extra=()) -> int:
     seed = SEEDS[name]
     if tmp.exists():
         shutil.rmtree(tmp)
@@ -283,19 +283,19 @@ def run_case(name: str, files: dict[str, bytes], tmp: Path, what: str = "") -> i
         (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp / rel).write_bytes(data)
     out = tmp / "result.json"
-    argv = ["analyze", str(tmp / seed["input"]), "--json", str(out), "--top", "3"]
+    argv = ["analyze", str(tmp / seed["input"]), "--json", str(out), "--top", "3", *extra]
     if seed["control"]:
         argv += ["--control", str(tmp / seed["control"])]
     return check_contract(argv, out, what or name)
 
 
-def fuzz(name: str, n: int, tmp: Path, base_seed: int = 0) -> dict[int, int]:
+def fuzz(name: str, n: int, tmp: Path, base_seed: int = 0, extra=()) -> dict[int, int]:
     """``n`` mutated cases of seed ``name``; returns how many ended with each exit status."""
     counts: dict[int, int] = {}
     for k in range(n):
         rng = random.Random(f"{name}:{base_seed}:{k}")
         files = make_case(SEEDS[name], rng)
-        code = run_case(name, files, tmp / "case", what=f"{name} case {k} (seed {base_seed})")
+        code = run_case(name, files, tmp / "case", what=f"{name} case {k} (seed {base_seed})", extra=extra)
         counts[code] = counts.get(code, 0) + 1
     return counts
 
@@ -320,6 +320,17 @@ def test_fuzz_contract_fast(name, tmp_path):
     assert sum(counts.values()) == FAST.get(name, 25)
 
 
+# the analyses after the adjustment print their own logs (ids, σ̂0, weights)
+ANALYSES = ["--snoop", "--robust", "huber", "--variance-components"]
+
+
+@pytest.mark.parametrize("name", ["gama-loop", "native-levelling", "bal"])
+def test_fuzz_contract_with_snooping_robust_and_variance_components(name, tmp_path):
+    assert run_case(name, SEEDS[name]["files"], tmp_path / "valid", extra=ANALYSES) == 0
+    counts = fuzz(name, 15, tmp_path, base_seed=3, extra=ANALYSES)
+    assert sum(counts.values()) == 15
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(SEEDS))
 def test_fuzz_contract_slow(name, tmp_path):
@@ -329,7 +340,7 @@ def test_fuzz_contract_slow(name, tmp_path):
     assert counts.get(2, 0) > 0          # the mutations do reach the readers' checks
 
 
-if __name__ == "__main__":   # exploration: python tests/test_fuzz_contract.py NAME N [SEED]
+if __name__ == "__main__":   # exploration: python tests/test_fuzz_contract.py NAME N [SEED [OPTION...]]
     import sys
     import tempfile
 
@@ -341,7 +352,7 @@ if __name__ == "__main__":   # exploration: python tests/test_fuzz_contract.py N
             rng = random.Random(f"{name}:{base}:{k}")
             files = make_case(SEEDS[name], rng)
             try:
-                run_case(name, files, Path(d) / "case", what=f"{name} case {k} (seed {base})")
+                run_case(name, files, Path(d) / "case", what=f"{name} case {k} (seed {base})", extra=sys.argv[4:])
             except AssertionError as e:
                 fails += 1
                 print(str(e)[:400])
