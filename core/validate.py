@@ -98,6 +98,8 @@ def check_numeric_range(problem, path, control=None) -> None:
     if bad_l.any():
         i = int(np.flatnonzero(bad_l)[0])
         f, line = _where(problem, i, path, control)
+        if not np.isfinite(l[i]):
+            raise InputError(f, line, f"{_label(problem, i)}: the value is not a finite number", field="value")
         raise InputError(f, line, f"{_label(problem, i)}: value {l[i]:.6g} is outside ±{VALUE_LIMIT:.0e}: "
                          f"too large to adjust in double precision", field="value")
     with np.errstate(all="ignore"):
@@ -131,8 +133,9 @@ def check_numeric_range(problem, path, control=None) -> None:
     bad_x = ~np.isfinite(x0) | (np.abs(x0) > VALUE_LIMIT)
     if bad_x.any():
         j = int(np.flatnonzero(bad_x)[0])
-        raise InputError(path, 0, f"{problem.params.labels[j]}: coordinate or parameter {x0[j]:.6g} is "
-                         f"outside ±{VALUE_LIMIT:.0e}: too large to adjust in double precision",
+        what = (f"{x0[j]:.6g} is outside ±{VALUE_LIMIT:.0e}: too large to adjust in double precision"
+                if np.isfinite(x0[j]) else "is not a finite number (no approximate value could be computed)")
+        raise InputError(path, 0, f"{problem.params.labels[j]}: coordinate or parameter {what}",
                          field=problem.params.labels[j])
 
 
