@@ -1,4 +1,5 @@
-"""Least-squares adjustment: Gauss-Newton on the sparse normal equations (F80 eq. 1-3, 8).
+"""Least-squares adjustment: Gauss-Newton and Levenberg-Marquardt on the sparse normal equations
+(F80 eq. 1-3, 8).
 
 Model E(l) = f(x), D(l) = σ0² Q = C, P = C⁻¹. At each iteration the observation equations are
 linearised at x, A = ∂f/∂x over the estimated parameters, and
@@ -13,17 +14,37 @@ holding d parameters at their values (a minimum constraint, :mod:`baarda.datum`)
 S-transforming the increment so that the S-base points keep the minimum sum of squared shifts
 from their input coordinates (Gama's free-network convention).
 
-A Gauss-Newton step that raises vᵀPv by more than ``DIVERGENCE`` (or meets a singular system after
-the first iteration) switches the solver to Levenberg-Marquardt for the rest of the run: damping
-N + λ diag(N), a step accepted only when vᵀPv decreases, λ updated after Nielsen (1999) from the
-gain ratio. The damping falls to 0 near the solution, so the last iterations are plain
-Gauss-Newton and the result is the least-squares fixed point. Networks whose Gauss-Newton
-converges never see the damping.
+Iteration (the style of SciPy's ``least_squares``: a loop of named steps — :func:`gain_ratio`,
+:func:`update_radius`, :func:`check_termination` — that ends with a status of :data:`STATUS`).
+The first step is undamped (a singular system there is a defect to diagnose). Then:
 
-Convergence criterion (checked once λ < 1e-6): every increment is below ``tol`` times the conditional standard deviation
-of its parameter, |Δx_i| < tol / √N_ii (unit-free, so metres, radians and pixels can share it),
-with tol = 1e-9 by default; or the increments have reached round-off (below 1e-6 and no longer
-shrinking by half per iteration); at most ``max_iter`` iterations. A loose tolerance biases tests
+- networks (``Options.method="auto"`` without point elimination): Gauss-Newton; a step that
+  raises vᵀPv by more than ``DIVERGENCE`` switches to Levenberg-Marquardt;
+- bundle blocks (points eliminated, :mod:`baarda.schur`): Levenberg-Marquardt from the second
+  step, with Ceres Solver's trust-region strategy (Agarwal, Mierle et al., Ceres Solver,
+  ``LevenbergMarquardtStrategy``; Nielsen 1999; Madsen, Nielsen & Tingleff 2004, §3.2):
+  (N + λ D) Δx = −AᵀP v with D = diag(N), λ = 1/μ, μ0 = 10⁴; the gain ratio
+  ρ = (vᵀPv − v'ᵀPv') / Δxᵀ(g + λDΔx) accepts a step when ρ > 10⁻³; accepted,
+  μ ← μ / max(1/3, 1 − (2ρ − 1)³); rejected, μ ← μ / f and f ← 2f (f reset to 2 on success).
+  A free block's damped steps solve for every unknown, the gauge included (the damping makes the
+  system regular, as in Ceres, which fixes no gauge); its undamped steps hold the datum's d
+  coordinates.
+
+End game: an accepted damped step that changes vᵀPv by less than ``FUNCTION_TOL`` (Ceres'
+function tolerance) does not end the run: undamped Gauss-Newton steps follow (accepted while
+vᵀPv does not grow beyond round-off), each S-transformed, until the increment criterion below
+holds — the optimum in the parameters, not only in the cost. When an undamped step fails and far
+points (:func:`baarda.datum.far_points`) are what drifts — points running off along their rays,
+whose cost keeps falling towards an infimum with no finite optimum — they are held where the
+trust region left them and the rest is finished undamped (status 4); otherwise the trust region
+takes over again (at most ``MAX_END_GAMES`` times, then status −2).
+
+Convergence criterion (undamped steps only): every increment is below ``tol`` times the
+conditional standard deviation of its parameter, |Δx_i| < tol / √N_ii (unit-free, so metres,
+radians and pixels can share it), with tol = 1e-9 by default (status 1); or the increments have
+reached round-off (below 1e-6 and no longer shrinking by half per iteration, status 2); or, once
+damped, the scaled gradient max |AᵀPv|_i / √N_ii is below 1e-10 √(vᵀPv) (status 3). At most
+``max_iter`` iterations (status 0: not converged; ``baarda analyze`` exits with status 4). A loose tolerance biases tests
 of strongly correlated parameters (additional parameters): their T grows with the leftover
 increments.
 
@@ -92,7 +113,10 @@ class Options:
 
     alpha: size α0 of the one-dimensional tests (data snooping). beta: power β0.
     b_method: derive α of multi-dimensional tests from α0 and β0 (Baarda's B-method).
-    tol, max_iter: Gauss-Newton convergence (see the module docstring).
+    tol, max_iter: convergence and the iteration limit (module docstring; ``baarda analyze
+    --max-iter``). method: ``"auto"`` (Levenberg-Marquardt after the first step where points are
+    eliminated, Gauss-Newton first otherwise), ``"gauss-newton"`` (damped only after a diverging
+    step) or ``"levenberg-marquardt"``.
     solver: ``"auto"`` (eliminate points through the reduced camera system when that pays,
     :meth:`baarda.schur.Structure.worthwhile`), ``"schur"`` (whenever the structure allows it) or
     ``"generic"`` (one sparse Cholesky of N). backend: the pair loops of the Schur path,
@@ -482,7 +506,9 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     keep, st = keep_all, st_all
     if plan.defect:
         old = plan.eliminate
-        plan = datum_mod.plan(problem, x, A, P, free)
+        # the datum at the solution; a block keeps its held coordinates where they still fix
+        # the gauge (the reduced system, and so the structure, stay as they are)
+        plan = datum_mod.plan(problem, x, A, P, free) if st is None else _replan(problem, x, A, P, free, plan)
         if st is not None and not np.array_equal(old, plan.eliminate):
             keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
             Ar = lin.reduced(A, keep)
@@ -514,7 +540,8 @@ def check_termination(step: float, previous: float | None, tol: float) -> int:
 
 def _replan(problem, x, A, P, free, plan):
     """The datum plan at ``x`` (:func:`baarda.datum.plan`), holding the same coordinates as
-    ``plan`` when they still fix the gauge (so the reduced system keeps its structure)."""
+    ``plan`` when they still fix the gauge (so the reduced system keeps its structure); else
+    the new plan with its own choice."""
     new = datum_mod.plan(problem, x, A, P, free)
     if np.array_equal(new.eliminate, plan.eliminate):
         return new
@@ -522,7 +549,7 @@ def _replan(problem, x, A, P, free, plan):
     g = g / np.maximum(np.linalg.norm(g, axis=0), 1e-300)
     if g.shape[0] == new.defect and np.linalg.svd(g, compute_uv=False).min() > 1e-6:
         return dataclasses.replace(new, eliminate=plan.eliminate)
-    return plan
+    return new
 
 
 def _far_columns(problem, x, cols) -> np.ndarray:

@@ -234,7 +234,7 @@ class ProjectionSet:
             lr = np.arange(m)
             jrows = np.concatenate([np.repeat(2 * lr, q), np.repeat(2 * lr + 1, q)])
             jcols = np.concatenate([C.ravel(), C.ravel()])
-            keep = jcols >= 0
+            keep = _kept_entries(jcols, m)
             pos = np.full(keep.size, -1, dtype=np.int64)
             pos[keep] = np.arange(int(keep.sum()))
             pos = np.ascontiguousarray(pos.reshape(2, m, q).transpose(1, 0, 2))
@@ -292,8 +292,21 @@ class ProjectionSet:
         jrows = np.concatenate([np.repeat(2 * lr, q), np.repeat(2 * lr + 1, q)])
         jcols = np.concatenate([C.ravel(), C.ravel()])
         jvals = np.concatenate([V[:, 0].ravel(), V[:, 1].ravel()])
-        keep = jcols >= 0
+        keep = _kept_entries(jcols, m)
         return f, jrows[keep], jcols[keep], jvals[keep]
+
+
+#: the (row, column) of the 2 × 17 value block that are zero by the model: x does not depend on
+#: f_y, c_y, nor y on f_x, c_x (left out, so a camera sharing f for f_x and f_y gets one entry)
+_STRUCTURAL_ZERO = ((0, 10), (0, 12), (1, 9), (1, 11))
+
+
+def _kept_entries(jcols: np.ndarray, m: int) -> np.ndarray:
+    """Mask over the (2, m, 17) entries (x rows first): parameters that exist, structural zeros out."""
+    keep = (jcols >= 0).reshape(2, m, 17)
+    for r, j in _STRUCTURAL_ZERO:
+        keep[r, :, j] = False
+    return keep.ravel()
 
 
 def _projection_kernel(x, ipt, irot, itr, iint, s, pos, f, jv):
