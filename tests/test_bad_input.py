@@ -169,3 +169,29 @@ def test_uncontrolled_observation_is_shown_as_not_testable(tmp_path, capsys):
     assert "∞ (uncontrolled)" in out
     spur = [o for o in json.loads(js.read_text(), parse_constant=float)["observations"] if o.get("to") == "D"]
     assert spur[0]["w"] is None and abs(spur[0]["redundancy"]) < 1e-9
+
+
+@pytest.mark.parametrize("factor,refused", [(1.01, False), (0.99, True)])
+def test_sigma_at_the_rounding_of_its_value(factor, refused, tmp_path):
+    """σ ≥ 2⁻⁴⁸·|value| (baarda.validate.RELATIVE): a dh of 1000 m with σ just above the limit
+    (≈ 3.6e-12 m) is adjusted, just below it is refused at its line, field sigma."""
+    import json
+
+    from baarda.errors import InputError
+    from baarda.io import read_problem
+    from baarda.validate import RELATIVE
+
+    doc = json.loads((VALID / "levelling-valid.json").read_text())
+    doc["points"][1]["H"] = 1100.0
+    doc["observations"][0]["dh"] = 1000.0
+    doc["observations"][0]["sigma"] = factor * RELATIVE * 1000.0
+    f = tmp_path / "tight.json"
+    f.write_text(json.dumps(doc, indent=1))
+    if not refused:
+        assert read_problem(f).n == 3
+        return
+    with pytest.raises(InputError) as exc:
+        read_problem(f)
+    assert exc.value.field == "sigma" and "below the rounding error of the value 1000" in exc.value.message
+    lines = f.read_text().splitlines()
+    assert exc.value.line == lines.index(' "observations": [') + 2      # where observations[0] starts
