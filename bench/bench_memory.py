@@ -6,7 +6,8 @@ committed) is analysed end to end in a fresh subprocess — read, build the Prob
 and the 2D test of every image point), optionally the JSON document — and a 2D network of
 10⁵ points and 3·10⁵ distances likewise (build the network, build the Problem, adjust,
 reliability). After each stage the table shows its seconds, the process's peak resident set so
-far (``ru_maxrss``) and its resident set after the stage (what the stage keeps).
+far (``ru_maxrss``) and its resident set after the stage (what the stage keeps), with wall and CPU
+seconds (CPU seconds are the fairer figure on a shared machine).
 
     OPENBLAS_NUM_THREADS=1 python bench/bench_memory.py [--sizes 1e6 2.5e6 5e6] [--network 100000]
         [--json] [--limit-gb 8]
@@ -38,17 +39,22 @@ def rss_mb() -> float:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
 
 
+def cpu_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
 class Stages:
     def __init__(self):
-        self.t = time.perf_counter()
+        self.t, self.c = time.perf_counter(), cpu_s()
 
     def __call__(self, name: str, **extra) -> None:
-        now = time.perf_counter()
-        row = {"stage": name, "seconds": round(now - self.t, 2), "peak_mb": round(peak_mb()),
-               "rss_mb": round(rss_mb())}
+        now, c = time.perf_counter(), cpu_s()
+        row = {"stage": name, "seconds": round(now - self.t, 2), "cpu": round(c - self.c, 2),
+               "peak_mb": round(peak_mb()), "rss_mb": round(rss_mb())}
         row.update(extra)
         print(json.dumps(row), flush=True)
-        self.t = time.perf_counter()
+        self.t, self.c = time.perf_counter(), cpu_s()
 
 
 def reliability(adj) -> dict:
@@ -143,21 +149,24 @@ def run(args: list[str], limit_gb: float | None) -> list[dict]:
     rows = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
     if proc.returncode != 0:
         tail = proc.stderr.strip().splitlines()[-1:] or ["(no message)"]
-        rows.append({"stage": "FAILED", "seconds": 0, "peak_mb": 0, "rss_mb": 0, "error": tail[0][:120]})
+        rows.append({"stage": "FAILED", "seconds": 0, "cpu": 0, "peak_mb": 0, "rss_mb": 0, "error": tail[0][:120]})
     return rows
 
 
 def table(name: str, rows: list[dict], limit_gb: float | None) -> None:
     print(f"\n{name}")
-    print(f"{'stage':<12} {'seconds':>8} {'peak RSS':>10} {'RSS after':>10}  notes")
-    total = 0.0
+    print(f"{'stage':<12} {'seconds':>8} {'CPU s':>8} {'peak RSS':>10} {'RSS after':>10}  notes")
+    total = cpu = 0.0
     for r in rows:
         total += r["seconds"]
-        notes = ", ".join(f"{k}={v}" for k, v in r.items() if k not in ("stage", "seconds", "peak_mb", "rss_mb"))
-        print(f"{r['stage']:<12} {r['seconds']:>8.1f} {r['peak_mb'] / 1024:>8.2f} GB {r['rss_mb'] / 1024:>7.2f} GB  {notes}")
+        cpu += r.get("cpu", 0.0)
+        notes = ", ".join(f"{k}={v}" for k, v in r.items()
+                          if k not in ("stage", "seconds", "cpu", "peak_mb", "rss_mb"))
+        print(f"{r['stage']:<12} {r['seconds']:>8.1f} {r.get('cpu', 0.0):>8.1f} {r['peak_mb'] / 1024:>8.2f} GB "
+              f"{r['rss_mb'] / 1024:>7.2f} GB  {notes}")
     peak = max((r["peak_mb"] for r in rows), default=0) / 1024
     verdict = "" if not limit_gb else (" within" if peak <= limit_gb else " OVER") + f" the {limit_gb:g} GB limit"
-    print(f"{'total':<12} {total:>8.1f} {peak:>8.2f} GB peak{verdict}")
+    print(f"{'total':<12} {total:>8.1f} {cpu:>8.1f} {peak:>8.2f} GB peak{verdict}")
 
 
 def main(argv=None) -> int:
