@@ -67,7 +67,7 @@ def reliability(adj) -> dict:
             "finite_ext": int(np.isfinite(ext).sum()), "groups": len(groups)}
 
 
-def worker_bal(path: str, with_json: bool) -> None:
+def worker_bal(path: str, with_json: bool, until: str = "") -> None:
     import numpy as np
 
     from baarda.adjust import Options, adjust
@@ -76,9 +76,13 @@ def worker_bal(path: str, with_json: bool) -> None:
     st = Stages()
     model = read_model(path, "bal")
     st("read", image_points=int(model.obs_image.size))
+    if until == "read":
+        return
     problem = build(model)
     del model
     st("build", n=int(problem.n), unknowns=int(problem.params.size))
+    if until == "build":
+        return
     adj = adjust(problem, Options())
     st("adjust", iterations=int(adj.iterations), converged=bool(adj.converged),
        cost=float(0.5 * adj.vPv))
@@ -176,11 +180,13 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="also build the JSON document (results.to_dict)")
     ap.add_argument("--limit-gb", type=float, default=8.0)
     ap.add_argument("--dir", default="/tmp", help="where the synthetic BAL files are written")
+    ap.add_argument("--until", choices=("read", "build", ""), default="",
+                    help="stop the BAL runs after this stage (blocks too big for the machine)")
     ap.add_argument("--worker", nargs="+", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.worker:
         if a.worker[0] == "bal":
-            worker_bal(a.worker[1], a.json)
+            worker_bal(a.worker[1], a.json, a.until)
         else:
             worker_network(int(a.worker[1]))
         return 0
@@ -190,7 +196,8 @@ def main(argv=None) -> int:
             subprocess.run([sys.executable, str(HERE / "make_big_bal.py"), "--obs", str(size), "-o", str(path)],
                            check=True)
         head = path.open().readline().split()
-        rows = run(["bal", str(path)] + (["--json"] if a.json else []), a.limit_gb)
+        rows = run(["bal", str(path)] + (["--json"] if a.json else []) + (["--until", a.until] if a.until else []),
+                   a.limit_gb)
         table(f"BAL {path.name}: {int(head[0])} images, {int(head[1])} points, {int(head[2])} image points",
               rows, a.limit_gb)
     if a.network:
