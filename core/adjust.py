@@ -579,7 +579,15 @@ def _factor(st, Ar, P, labels, backend, lam, problem, plan):
 
 
 def _schur_or_diagnose(st, Ar, P, labels, backend, damping=0.0):
+    """The step's factor: :class:`baarda.schur.StepFactor` where it applies (one compiled pass),
+    else :class:`baarda.schur.SchurFactor` (always for ``backend="numpy"``, the reference)."""
+    fast = st.__dict__.get("_step_applicable")
+    if fast is None or fast[0] is not P:
+        fast = (P, backend != "numpy" and schur.StepFactor.applicable(st, P))
+        st.__dict__["_step_applicable"] = fast
     try:
+        if fast[1]:
+            return schur.StepFactor(st, Ar, P, damping=damping)
         return schur.SchurFactor(st, Ar, P, backend=backend, damping=damping)
     except SingularError as err:
         raise _defect_error(err, (Ar.T @ P @ Ar).tocsr(), labels) from None

@@ -1147,3 +1147,271 @@ class SchurFactor:
             X = self.solve(Em)
             out[rest] = X[i[rest], inv]
         return out.reshape(shape)
+
+
+# ------------------------------------------------------------------------------------------
+# the step of one iteration: a fused compiled pass (no selected inverse, no reliability blocks)
+# ------------------------------------------------------------------------------------------
+def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, a, b, Pd, lam, pivot_tol,
+                        S, E, Ci, dC, dU, bad):
+    """One pass over the entities for N + λ diag(N) (the module docstring's formulas in normal-
+    equation form, every cluster seeing one supernode of K unknowns, diagonal P_c):
+    U = Σ a_cᵀP_c a_c into the diagonal blocks of S (its diagonal into dU), E_c = a_cᵀP_c b_c,
+    C_j = Σ b_cᵀP_c b_c
+    (+ λ diag), its inverse Ci_j (3 × 3, equilibrated Cholesky; a missing coordinate gets 1),
+    and S −= E_c C_j⁻¹ E_c'ᵀ for every pair of clusters of point j. bad[e] = coordinate whose
+    pivot fails, else −1."""
+    M = a.shape[1]
+    K = a.shape[2]
+    C = np.zeros((3, 3))
+    L = np.zeros((3, 3))
+    Li = np.zeros((3, 3))
+    dd = np.empty(3)
+    Z = np.zeros((K, 3))
+    for e in range(ent_ptr.size - 1):
+        c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+        C[:, :] = 0.0
+        for c in range(c0, c1):
+            g = cl_sn[c, 0]
+            d0 = bstart[sn_diag[g]]
+            for r in range(M):
+                p = Pd[c, r]
+                if p == 0.0:
+                    continue
+                for i in range(K):
+                    pa = p * a[c, r, i]
+                    if pa == 0.0:
+                        continue
+                    dU[g, i] += pa * a[c, r, i]
+                    for j in range(K):
+                        S[d0 + i * K + j] += pa * a[c, r, j]
+                    for q in range(3):
+                        E[c, i, q] += pa * b[c, r, q]
+                for i in range(3):
+                    pb = p * b[c, r, i]
+                    for j in range(3):
+                        C[i, j] += pb * b[c, r, j]
+        if ent_cols[e, 0] < 0 and ent_cols[e, 1] < 0 and ent_cols[e, 2] < 0:
+            continue
+        for k in range(3):
+            dC[e, k] = C[k, k]
+            if ent_cols[e, k] < 0:
+                C[k, :] = 0.0
+                C[:, k] = 0.0
+                C[k, k] = 1.0
+            else:
+                C[k, k] *= 1.0 + lam
+        # equilibrated Cholesky C = D L Lᵀ D, D = diag(√C_kk)
+        for k in range(3):
+            dd[k] = np.sqrt(C[k, k]) if C[k, k] > 0.0 else 0.0
+        ok = True
+        for k in range(3):
+            if dd[k] == 0.0:
+                bad[e] = k
+                ok = False
+                break
+        if not ok:
+            continue
+        L[:, :] = 0.0
+        for j in range(3):
+            s = C[j, j] / (dd[j] * dd[j])
+            for k in range(j):
+                s -= L[j, k] * L[j, k]
+            if s <= pivot_tol:
+                bad[e] = j
+                ok = False
+                break
+            L[j, j] = np.sqrt(s)
+            for i in range(j + 1, 3):
+                t = C[i, j] / (dd[i] * dd[j])
+                for k in range(j):
+                    t -= L[i, k] * L[j, k]
+                L[i, j] = t / L[j, j]
+        if not ok:
+            continue
+        # C⁻¹ = D⁻¹ L⁻ᵀ L⁻¹ D⁻¹
+        Li[:, :] = 0.0
+        for i in range(3):
+            Li[i, i] = 1.0 / L[i, i]
+            for j in range(i):
+                t = 0.0
+                for k in range(j, i):
+                    t -= L[i, k] * Li[k, j]
+                Li[i, j] = t / L[i, i]
+        for i in range(3):
+            for j in range(3):
+                t = 0.0
+                for k in range(max(i, j), 3):
+                    t += Li[k, i] * Li[k, j]
+                Ci[e, i, j] = t / (dd[i] * dd[j])
+        for c in range(c0, c1):
+            g = cl_sn[c, 0]
+            for i in range(K):
+                for q in range(3):
+                    Z[i, q] = E[c, i, 0] * Ci[e, 0, q] + E[c, i, 1] * Ci[e, 1, q] + E[c, i, 2] * Ci[e, 2, q]
+            for c2 in range(c, c1):
+                h = cl_sn[c2, 0]
+                b1 = bstart[_find_block(bptr, bcol, g, h)]
+                b2 = bstart[_find_block(bptr, bcol, h, g)]
+                for i in range(K):
+                    for j in range(K):
+                        y = Z[i, 0] * E[c2, j, 0] + Z[i, 1] * E[c2, j, 1] + Z[i, 2] * E[c2, j, 2]
+                        S[b1 + i * K + j] -= y
+                        if c2 != c:
+                            S[b2 + j * K + i] -= y
+
+
+def _step_solve_kernel(ent_ptr, ent_cols, col_S, E, Ci, bp, rhs_c):
+    """rhs_c −= Σ_c E_c C_j⁻¹ b_p,j (the reduced right-hand side); returns t = C⁻¹ b_p."""
+    K = E.shape[1]
+    t = np.zeros((ent_ptr.size - 1, 3))
+    for e in range(ent_ptr.size - 1):
+        for q in range(3):
+            t[e, q] = Ci[e, q, 0] * bp[e, 0] + Ci[e, q, 1] * bp[e, 1] + Ci[e, q, 2] * bp[e, 2]
+        for c in range(ent_ptr[e], ent_ptr[e + 1]):
+            for i in range(K):
+                k = col_S[c, i]
+                if k >= 0:
+                    rhs_c[k] -= E[c, i, 0] * t[e, 0] + E[c, i, 1] * t[e, 1] + E[c, i, 2] * t[e, 2]
+    return t
+
+
+def _step_back_kernel(ent_ptr, col_S, E, Ci, bp, xc):
+    """x_p,j = C_j⁻¹ (b_p,j − Σ_c E_cᵀ x_c)."""
+    K = E.shape[1]
+    ne = ent_ptr.size - 1
+    xp = np.zeros((ne, 3))
+    s = np.zeros(3)
+    for e in range(ne):
+        s[0], s[1], s[2] = bp[e, 0], bp[e, 1], bp[e, 2]
+        for c in range(ent_ptr[e], ent_ptr[e + 1]):
+            for i in range(K):
+                k = col_S[c, i]
+                if k >= 0:
+                    for q in range(3):
+                        s[q] -= E[c, i, q] * xc[k]
+        for q in range(3):
+            xp[e, q] = Ci[e, q, 0] * s[0] + Ci[e, q, 1] * s[1] + Ci[e, q, 2] * s[2]
+    return xp
+
+
+def _step_kernels():
+    if "step" not in _KERNELS:
+        _KERNELS["step"] = numba.njit(cache=True)(_step_factor_kernel)
+        _KERNELS["step_solve"] = numba.njit(cache=True)(_step_solve_kernel)
+        _KERNELS["step_back"] = numba.njit(cache=True)(_step_back_kernel)
+    return _KERNELS
+
+
+class StepFactor:
+    """N + λ diag(N) factored for the step of one iteration of :func:`baarda.adjust.adjust`:
+    the same reduced camera system as :class:`SchurFactor`, by one fused compiled pass over the
+    points in normal-equation form (3 × 3 point blocks by an equilibrated Cholesky factor), and
+    nothing of what reliability needs (no square-root elimination, no selected inverse).
+
+    For blocks whose every cluster sees one supernode (:func:`_uniform6`: an image's pose with
+    its camera's constants) and a diagonal weight per cluster, with numba (:meth:`applicable`);
+    otherwise :class:`SchurFactor` takes the step (and it stays the reference: the same steps,
+    tests/test_adjust.py). Interface: ``solve``, ``diagonal`` (undamped diag(N)), ``m``.
+    """
+
+    def __init__(self, st: Structure, Ar, P, damping: float = 0.0, pivot_tol: float = PIVOT_TOL):
+        Ar = _canonical(Ar)
+        if not st.matches(Ar):
+            raise ValueError("design matrix pattern differs from the analysed structure")
+        self.st, self.m, self.labels = st, st.u, st.labels
+        nc, M, K = st.cl_id.size, st.M, st.K
+        a = np.zeros(nc * M * K)
+        a[st.dest_a] = Ar.data[st.nnz_a]
+        b = np.zeros(nc * M * 3)
+        b[st.dest_b] = Ar.data[st.nnz_b]
+        Pd = self.cluster_diagonal(st, P)
+        nsn = st.sn_ptr.size - 1
+        sn_diag = st.__dict__.get("_sn_diag")
+        if sn_diag is None:
+            sn_diag = np.array([_find_block(st.bptr, st.bcol, g, g) for g in range(nsn)], dtype=np.int64)
+            st.__dict__["_sn_diag"] = sn_diag
+        ne = st.ent_size.size
+        S = np.zeros(int(st.bstart[-1]))
+        E = np.zeros((nc, K, 3))
+        Ci = np.zeros((ne, 3, 3))
+        dC = np.zeros((ne, 3))
+        dU = np.zeros((nsn, K))
+        bad = np.full(ne, -1, dtype=np.int64)
+        _step_kernels()["step"](st.ent_ptr, st.ent_cols, st.cl_sn, st.bptr, st.bcol, st.bstart, sn_diag,
+                                a.reshape(nc, M, K), b.reshape(nc, M, 3), Pd, float(damping),
+                                min(pivot_tol, POINT_PIVOT_TOL), S, E, Ci, dC, dU, bad)
+        if (bad >= 0).any():
+            e = int(np.flatnonzero(bad >= 0)[0])
+            raise self._singular(int(st.ent_cols[e, bad[e]]))
+        diag_c = self._camera_diagonal(st, dU)              # diag(U) by S index
+        if damping:
+            dsel = st.flat_r == st.flat_c
+            S[dsel] += damping * diag_c[st.flat_r[dsel]]
+        self.E, self.Ci = E, Ci
+        nc_ = st.cam.size
+        Smat = sp.csr_matrix((S, (st.flat_r, st.flat_c)), shape=(nc_, nc_))
+        try:
+            self.S = SPDFactor(Smat, labels=None if st.labels is None else st.labels[st.cam],
+                               pivot_tol=pivot_tol, perm=_order(Smat, st))
+        except SingularError as err:
+            raise self._singular(int(st.cam[err.index])) from None
+        diag = np.empty(st.u)
+        diag[st.cam] = diag_c
+        okc = st.ent_cols >= 0
+        diag[st.ent_cols[okc]] = dC[okc]
+        self.diagonal = diag
+        pflat = np.flatnonzero(st.ent_cols.ravel() >= 0)
+        self._pflat, self._pcols = pflat, st.ent_cols.ravel()[pflat]
+
+    @staticmethod
+    def applicable(st: Structure, P) -> bool:
+        """numba is there, every cluster sees one supernode, and P is diagonal."""
+        if numba is None or not _uniform6(st) or not (np.diff(st.sn_ptr) == st.K).all():
+            return False
+        Pc = sp.csr_matrix(P)
+        rows = np.repeat(np.arange(Pc.shape[0]), np.diff(Pc.indptr))
+        return not np.any(Pc.data[rows != Pc.indices])
+
+    @staticmethod
+    def cluster_diagonal(st: Structure, P) -> np.ndarray:
+        """The diagonal weights of every cluster position (nc, M), kept with the structure."""
+        cached = st.__dict__.get("_step_weights")
+        if cached is not None and cached[0] is P:
+            return cached[1]
+        w = np.asarray(sp.csr_matrix(P).diagonal())
+        Pd = np.zeros(st.cl_id.size * st.M)
+        Pd[st.cl_pos[st.cluster] * st.M + st.rpos] = w
+        Pd = Pd.reshape(-1, st.M)
+        st.__dict__["_step_weights"] = (P, Pd)
+        return Pd
+
+    @staticmethod
+    def _camera_diagonal(st, dU):
+        """diag(U) per S index (supernodes in order, K each)."""
+        return dU.ravel()[: st.cam.size] if dU.shape[1] * dU.shape[0] == st.cam.size else \
+            np.concatenate([dU[g, : st.sn_ptr[g + 1] - st.sn_ptr[g]] for g in range(dU.shape[0])])
+
+    def _singular(self, col):
+        name = self.labels[col] if self.labels is not None else f"unknown {col}"
+        err = SingularError(f"normal matrix is singular: {name} is not determined by the observations")
+        err.index = col
+        return err
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """(N + λ diag N)⁻¹ b for a vector b over the reduced unknowns."""
+        st = self.st
+        b = np.asarray(b, dtype=float)
+        ne = st.ent_size.size
+        bp = np.zeros(ne * 3)
+        bp[self._pflat] = b[self._pcols]
+        bp = bp.reshape(ne, 3)
+        k = _step_kernels()
+        rhs = b[st.cam].copy()
+        k["step_solve"](st.ent_ptr, st.ent_cols, st.col_S, self.E, self.Ci, bp, rhs)
+        xc = self.S.solve(rhs)
+        xp = k["step_back"](st.ent_ptr, st.col_S, self.E, self.Ci, bp, xc)
+        out = np.empty(self.m)
+        out[st.cam] = xc
+        out[self._pcols] = xp.ravel()[self._pflat]
+        return out

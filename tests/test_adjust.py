@@ -139,3 +139,29 @@ def test_trafalgar_reaches_ceres_optimum_in_cost_and_parameters():
     assert np.abs(plan0.K @ shift).max() < 1e-9 * np.abs(shift).max()
     again = adjust(problem, Options(method="gauss-newton", max_iter=1), x0=adj.x)
     assert again.history[0] < 1e-4
+
+
+def test_step_factor_equals_schur_factor():
+    """The fused compiled factor of the iterations (schur.StepFactor) takes the steps of the
+    reference SchurFactor (square-root elimination), damped and undamped, on BAL Ladybug
+    (far points: 3 × 3 blocks of condition 1e12) after a few iterations; same diag(N)."""
+    pytest.importorskip("numba")
+    from baarda import schur
+
+    require_extdata(BAL)
+    problem = read_problem(BAL / "problem-49-7776-pre.txt")
+    adj = adjust(problem, Options(max_iter=5))
+    st, Ar, P = adj.schur_structure, adj.Ar, adj.P
+    assert schur.StepFactor.applicable(st, P)
+    g = -(Ar.T @ (P @ adj.v))
+    for lam in (0.0, 1e-6, 1e-2):
+        ref, fast = schur.SchurFactor(st, Ar, P, damping=lam), schur.StepFactor(st, Ar, P, damping=lam)
+        assert np.allclose(fast.diagonal, ref.diagonal, rtol=1e-12, atol=0)
+        d = np.sqrt(ref.diagonal)
+        x_ref, x_fast = ref.solve(g) * d, fast.solve(g) * d        # in conditional σ
+        assert np.abs(x_fast - x_ref).max() <= 1e-6 * max(np.abs(x_ref).max(), 1.0)
+    # the numpy backend keeps the reference factor for the steps: same result
+    a = adjust(problem, Options(max_iter=8, backend="numpy"))
+    b = adjust(problem, Options(max_iter=8))
+    assert a.iterations == b.iterations
+    assert abs(a.vPv - b.vPv) <= 1e-9 * a.vPv
