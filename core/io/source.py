@@ -477,8 +477,16 @@ class Numbers:
         finite (or not a number at all) is refused in the chunk where it is, before the rest of
         the file is read.
 
-        The arrays grow with what the file really holds, chunk by chunk, whatever a header
-        announced."""
+        A plain file whose size can hold the n numbers gets its arrays allocated once and
+        filled chunk by chunk (memory is taken only as they fill); otherwise — compressed
+        input, whose size says nothing — the arrays grow with what the file really holds.
+        """
+        size = getattr(getattr(self.stream, "source", None), "size", None)
+        ng = n // group
+        whole = size is not None and n <= (size + 1) // 2
+        if whole:
+            vals, first = np.empty(n), np.empty(ng, dtype=np.int64)
+            last = first if group == 1 else np.empty(ng, dtype=np.int64)
         pieces, firsts, lasts = [], [], []
         got, base = 0, self.consumed
         while got < n:
@@ -492,12 +500,22 @@ class Numbers:
                 self._fail(v[j:j + 1], ln[j:j + 1], lambda _: base + got + j, lambda _: desc, 0, kind)
             j0, j1 = (-got) % group, (group - 1 - got) % group     # first and last of a group here
             f, la = ln[j0::group], ln[j1::group]
-            pieces.append(v)
-            firsts.append(f)
-            lasts.append(la)
+            if whole:
+                vals[got:got + k] = v
+                g0 = (got + j0) // group
+                first[g0:g0 + f.size] = f
+                if group > 1:
+                    g1 = (got + j1) // group
+                    last[g1:g1 + la.size] = la
+            else:
+                pieces.append(v)
+                firsts.append(f)
+                lasts.append(la)
             self.i += k
             self.consumed += k
             got += k
+        if whole:
+            return vals, first, last
         vals = np.concatenate(pieces) if pieces else np.zeros(0)
         del pieces
         first = np.concatenate(firsts) if firsts else np.zeros(0, dtype=np.int64)
