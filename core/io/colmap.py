@@ -29,6 +29,7 @@ IMAGE_ID, POINT3D_ID and CAMERA_ID; the image names are kept in ``Problem.extra[
 
 from __future__ import annotations
 
+import math
 import struct
 from pathlib import Path
 
@@ -133,7 +134,10 @@ def _pose(path, line, iid, q, t) -> tuple:
     t = np.asarray(t, dtype=float)
     if not (np.isfinite(q).all() and np.isfinite(t).all()):
         raise InputError(path, line, f"image {iid}: the pose has non-finite numbers")
-    nq = float(np.linalg.norm(q))
+    m = float(np.abs(q).max())
+    nq = m * float(np.linalg.norm(q / m)) if m > 0 else 0.0     # scaled: 1e200² would overflow
+    if not math.isfinite(nq):
+        raise InputError(path, line, f"image {iid}: the quaternion QW QX QY QZ has norm > 1e308, not 1")
     if abs(nq - 1.0) > 1e-3:
         raise InputError(path, line, f"image {iid}: the quaternion QW QX QY QZ has norm {nq:.6g}, not 1")
     rho = rodrigues_from_R(R_from_quaternion(q))

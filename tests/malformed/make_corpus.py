@@ -295,6 +295,7 @@ def issue12(bl: list[str], ul: list[str], col: dict[str, str]):
     il, pl = cl["images.txt"], cl["points3D.txt"]
     write_dir("colmap-unicode-digit", {**col, "images.txt": edited(il, {3: token_changed(il[3], 8, "\u00b2")})})
     write_dir("colmap-int-5000", {**col, "points3D.txt": edited(pl, {2: token_changed(pl[2], 0, "1" * 5000)})})
+    write_dir("colmap-quaternion-huge", {**col, "images.txt": edited(il, {1: token_changed(il[1], 1, "1e200")})})
     write_dir("colmap-value-huge", {**col, "points3D.txt": edited(pl, {4: token_changed(pl[4], 1, "1e308")})})
     # control CSV: a 200,000-character field (csv's field size limit), σ = 1e-300, an id with ESC
     write("control-long-field.csv", "id,X,Y,Z,sx,sy,sz\n\"" + "7" * 200_000 + "\",0.1,0.2,0.3,0.01,0.01,0.02\n")
