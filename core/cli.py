@@ -337,7 +337,7 @@ def _analyze(args) -> int:
                 prec_lines.append(f"  radial variance model (F80 §2.1, {est.iterations} iterations"
                                   f"{'' if est.converged else ', NOT converged'}):")
                 for d in est.as_dict():
-                    prec_lines.append(f"    {d['component']:<8s} θ = {d['theta']:.4g} ± {d['std_error']:.2g}   "
+                    prec_lines.append(f"    {d['component']:<8s} θ = {number(d['theta'])} ± {number(d['std_error'], '.2g')}   "
                                       f"redundancy {d['redundancy']:.2f}")
                 vc = None
             else:
@@ -357,7 +357,7 @@ def _analyze(args) -> int:
             for k, st in enumerate(snoop.steps, 1):
                 ids = printable(" ".join(f"{a}={b}" for a, b in info.ids[st.removed].items()))
                 print(f"    {k:>2d}. #{st.removed:<5d} {info.kind[st.removed]:<15s} {ids:<40s} "
-                      f"|w| = {st.statistic:7.2f} > {st.critical:.2f}  ∇̂ = {st.nabla:+.4g}")
+                      f"|w| = {number(st.statistic, '7.2f')} > {number(st.critical, '.2f')}  ∇̂ = {number(st.nabla, '+.4g')}")
         for line in prec_lines:
             print(printable(line))
         if rob is not None:
@@ -366,16 +366,16 @@ def _analyze(args) -> int:
                   f"{'' if rob.converged else ', NOT converged'}): {len(rob.suspects)} suspect(s)")
             for sp in rob.suspects:
                 ids = printable(" ".join(f"{a}={b}" for a, b in sp["ids"].items()))
-                print(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {sp['size_sigma']:6.1f}σ "
+                print(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {number(sp['size_sigma'], '6.1f')}σ "
                       f"({sp['class']}), weight {sp['weight']:.3f}")
             if rob.final is not None:
                 print(f"    least squares without them: {int(rob.final.rejected.sum())} rejected by data snooping, "
-                      f"σ̂0 = {rob.final.sigma0_post:.4g}")
+                      f"σ̂0 = {number(rob.final.sigma0_post)}")
         if vc is not None:
             print(f"  variance components (F80 eq. 9, {vc.iterations} iterations"
                   f"{'' if vc.converged else ', NOT converged'}):")
             for d in vc.as_dict():
-                print(f"    {d['group']:<20s} σ̂²/σ² = {d['factor']:8.4f} ± {d['std_error']:.4f}   "
+                print(f"    {d['group']:<20s} σ̂²/σ² = {number(d['factor'], '8.4f')} ± {number(d['std_error'], '.4f')}   "
                       f"redundancy {d['redundancy']:.2f}")
             va = vc.adjustment
             print(f"    with these components: {int(va.rejected.sum())} observation(s) rejected "
