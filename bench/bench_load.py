@@ -56,8 +56,9 @@ def write_block(folder: Path) -> Path:
 
 def start_server(path: Path, port: int) -> subprocess.Popen:
     env = dict(os.environ, DISPLAY="", BROWSER="false", OPENBLAS_NUM_THREADS="1")
+    log = open(path.with_suffix(".log"), "w")
     proc = subprocess.Popen([sys.executable, "-m", "baarda.cli", "serve", str(path), "--port", str(port),
-                             "--address", "127.0.0.1"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                             "--address", "127.0.0.1"], stdout=subprocess.PIPE, stderr=log,
                             text=True, start_new_session=True, env=env)
     proc.stdout.readline()                 # "baarda dashboard: URL" once it is about to listen
     deadline = time.time() + 60
@@ -75,8 +76,10 @@ async def open_session(context, url, t0, timeout_ms):
     await page.goto(url, timeout=timeout_ms)
     await page.locator(".summary").get_by_text("Global test").first.wait_for(timeout=timeout_ms)
     out["summary"] = time.perf_counter() - t0
+    print(f"  summary after {out['summary']:.1f} s", file=sys.stderr, flush=True)
     await page.locator(".tests-table .tabulator-row").first.wait_for(timeout=timeout_ms)
     out["maps"] = time.perf_counter() - t0
+    print(f"  maps after {out['maps']:.1f} s", file=sys.stderr, flush=True)
     return out
 
 
@@ -141,9 +144,12 @@ async def run(args) -> int:
             server.wait(timeout=20)
         except subprocess.TimeoutExpired:
             os.killpg(server.pid, signal.SIGKILL)
-        for f in folder.iterdir():
-            f.unlink()
-        folder.rmdir()
+        if args.keep:
+            print(f"server log: {path.with_suffix('.log')}", file=sys.stderr)
+        else:
+            for f in folder.iterdir():
+                f.unlink()
+            folder.rmdir()
     width = max(len(r[0]) for r in rows)
     print(f"{'':{width}}  {'min':>6} {'median':>6} {'max':>6}  limit")
     for r in rows:
@@ -157,6 +163,7 @@ def main() -> int:
     ap.add_argument("--sessions", type=int, default=20)
     ap.add_argument("--clicks", type=int, default=5)
     ap.add_argument("--timeout", type=float, default=600.0, help="bound of the whole run (s)")
+    ap.add_argument("--keep", action="store_true", help="keep the block and the server log")
     args = ap.parse_args()
     return asyncio.run(run(args))
 

@@ -10,12 +10,15 @@ first Gama network under ``data/`` (``demo-levelling.gkf`` preferred).
 from __future__ import annotations
 
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import holoviews as hv
 import panel as pn
+from panel.io.state import set_curdoc
 
 from .state import State
+from .text import html_text
 from .views.controls import MAX_UPLOAD_MB
 from .views import (MAP_VIEWS, AnalysisPanel, Controls, CriterionView, FilePanel, HypothesisPanel, ImageResidualView,
                     RiskView, SelectionPanel, SummaryHeader, TaskPanel, TeachingView, TestsTable, InjectPanel)
@@ -59,6 +62,9 @@ def _extensions():
 #: interpreter for a second or two, and the event loop (pages of new sessions, clicks in
 #: others) competes with one builder instead of twenty.
 _BUILD_LOCK = threading.Lock()
+#: The thread that builds the views of served sessions (one at a time, after the summaries):
+#: the task threads that read files are never held up by it.
+_BUILDER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="baarda-build")
 #: Sessions whose summary is not there yet: the maps of other sessions wait for them (at most
 #: :data:`SUMMARY_FIRST` seconds), so that twenty users opening the page at once all see their
 #: summary first, and the heavy maps and tables come after.
@@ -121,14 +127,31 @@ def create_app(path=None, problem=None, background: bool | None = None):
             waits["summary"] = False
             _pending(-1)
 
+    def build():
+        try:
+            with _BUILD_LOCK:
+                main = _main(state)
+        except Exception as err:  # noqa: BLE001 - a message in the page, never a silent blank
+            main = pn.pane.HTML(f"<b>The views could not be built:</b> {html_text(type(err).__name__)}: "
+                                f"{html_text(err)}", css_classes=["main-error"])
+        content.objects = [main]
+
+    def build_later():
+        # on the builder thread: wait for the summaries of waiting sessions, then build on
+        # the event loop (HoloViews is not thread-safe) and wait for it: one build at a time
+        _summaries_first()
+        try:
+            state.on_loop(build)
+        except Exception:  # noqa: BLE001 - the session ended meanwhile
+            pass
+
     def rebuild(*_):
         # a new problem gets new views (map extents, frame sizes and widgets depend on it)
         summary_shown()
-        if background:
-            _summaries_first()
-        with _BUILD_LOCK:
-            main = _main(state)
-        content.objects = [main]
+        if background and state._loop_call is not None:
+            _BUILDER.submit(build_later)
+        else:
+            build()
 
     if state.results is not None:
         rebuild()
@@ -143,7 +166,17 @@ def create_app(path=None, problem=None, background: bool | None = None):
             state.param.watch(summary_shown, ["results", "error"])
             pn.state.onload(lambda: state.submit(f"reading {shown}", state.load, path))
 
+        doc = pn.state.curdoc
+        if doc is not None and doc.session_context is not None:
+            def loop_call(fn, doc=doc):
+                def run():
+                    with set_curdoc(doc):
+                        fn()
+                doc.add_next_tick_callback(run)
+            state._loop_call = loop_call
+
         def destroyed(_context):
+            state._closed = True
             summary_shown()
             state.cancel()
             files.cleanup()

@@ -270,6 +270,8 @@ class State(param.Parameterized):
         self._frames = None
         self._cov = None
         self._cancel = threading.Event()
+        self._loop_call = None        # schedules a callable on the session's event loop (served)
+        self._closed = False
         if problem is not None:
             self.set_problem(problem, source=str(path or problem.source))
         elif path is not None:
@@ -309,6 +311,30 @@ class State(param.Parameterized):
             finally:
                 self.task = ""
         return TASKS.submit(run)
+
+    def on_loop(self, fn):
+        """``fn()`` where the session's document may be changed, and its result: on the
+        server's event loop when called from a worker thread of a served session (HoloViews
+        and Bokeh objects are not thread-safe; the worker waits), here otherwise."""
+        call = self._loop_call
+        if call is None or not threading.current_thread().name.startswith("baarda-"):
+            return fn()
+        done, out = threading.Event(), {}
+
+        def run():
+            try:
+                out["value"] = fn()
+            except BaseException as err:  # noqa: BLE001 - handed back to the worker
+                out["error"] = err
+            finally:
+                done.set()
+        call(run)
+        while not done.wait(1.0):
+            if self._closed:
+                raise Cancelled()
+        if "error" in out:
+            raise out["error"]
+        return out.get("value")
 
     def cancel(self) -> None:
         """Ask the running background computation to stop: snooping stops after its current
@@ -379,7 +405,7 @@ class State(param.Parameterized):
                             _LOADED.pop(next(iter(_LOADED)))
                         _LOADED[key] = hit
         self._check_cancel()
-        ok = self._set_loaded(hit, source=str(name if name is not None else path))
+        ok = self.on_loop(lambda: self._set_loaded(hit, source=str(name if name is not None else path)))
         if ok:
             self.file_name = shown
         return ok
@@ -945,7 +971,7 @@ class State(param.Parameterized):
         self._check_cancel()
         if self.results is not adj or self.robust_method != method:    # stale
             return
-        self.robust = rr
+        self.on_loop(lambda: setattr(self, "robust", rr))
         self.timings = {**self.timings, "robust": time.perf_counter() - t0}
 
     @param.depends("robust_method", watch=True)
@@ -1004,7 +1030,7 @@ class State(param.Parameterized):
             return False
         if self.results is not adj:     # the problem changed meanwhile: the result is stale
             return False
-        self.param.update(snoop=res, snoop_loo=loo, analysis_error="")
+        self.on_loop(lambda: self.param.update(snoop=res, snoop_loo=loo, analysis_error=""))
         return True
 
     def snoop_log(self) -> pd.DataFrame:
@@ -1056,7 +1082,7 @@ class State(param.Parameterized):
                     self._check_cancel()
                     if self.results.problem is not problem:
                         return False
-                    self.param.update(components=est, variance=None, analysis_error="")
+                    self.on_loop(lambda: self.param.update(components=est, variance=None, analysis_error=""))
                     return True
                 vc = variance.estimate(problem, options=self.options())
                 self._check_cancel()
@@ -1066,7 +1092,7 @@ class State(param.Parameterized):
             return False
         if self.results.problem is not problem:
             return False
-        self.param.update(variance=vc, components=None, analysis_error="")
+        self.on_loop(lambda: self.param.update(variance=vc, components=None, analysis_error=""))
         return True
 
     def variance_table(self) -> pd.DataFrame:
