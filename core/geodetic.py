@@ -242,8 +242,12 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
         rows = np.asarray(rows, dtype=np.int64)
         if kd in ("distance", "direction", "azimuth", "angle"):
             roles = 3 if kd == "angle" else 2
-            ix = np.array([[pidx(obs[r].points[j], "x") for j in range(roles)] + [0] * (3 - roles) for r in rows])
-            iy = np.array([[pidx(obs[r].points[j], "y") for j in range(roles)] + [0] * (3 - roles) for r in rows])
+            # point of each role looked up once, then the x and y parameters of all at once
+            pts = np.array([[pindex[obs[r].points[j]] for j in range(roles)] for r in rows.tolist()],
+                           dtype=np.int64).reshape(rows.size, roles)
+            ix = np.zeros((rows.size, 3), dtype=np.int64)
+            iy = np.zeros((rows.size, 3), dtype=np.int64)
+            ix[:, :roles], iy[:, :roles] = index[pts, 0], index[pts, 1]
             ori = np.array([ori_index.get(obs[r].set_id, -1) for r in rows], dtype=np.int64)
             sets.append(PlanarSet(kd, rows, ix, iy, ori, float(net.angle_sign), float(net.azimuth_offset)))
         elif kd in ("slope-distance", "zenith-angle"):
