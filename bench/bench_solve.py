@@ -1,11 +1,13 @@
 """Solve speed on real BAL problems: baarda's adjustment beside pycolmap's Ceres, same run.
 
-For each problem: baarda's solve (read and build excluded; numba kernels warmed up on a small
-problem first), then pycolmap's bundle adjustment (Ceres, one thread; focal length, k1, k2
-refined per camera as BAL defines; the block written as a COLMAP RADIAL model with flipped axes,
-:func:`bench_blocks.bal_as_colmap`), the ratio of the two times, both final costs ½Σr² (Ceres'
-measured in BAL's model, so the points behind a camera that COLMAP ignores count too),
-iterations, and the end-to-end ``baarda analyze FILE --json`` time (a subprocess).
+For each problem: baarda's solve (``adjust``: datum analysis, structure, iterations; read and
+build excluded; numba kernels warmed up on a small problem first), then pycolmap's Ceres bundle
+adjuster (set-up and solve; one thread; focal length, k1, k2 refined per camera as BAL defines;
+the block written as a COLMAP RADIAL model with flipped axes, :func:`bench_blocks.bal_as_colmap`),
+the ratio of the two times, both final costs ½Σr² (Ceres' evaluated in BAL's model over the image
+points COLMAP kept: it drops those whose point is behind the camera), both iteration counts
+(Ceres: successful + unsuccessful steps) and the end-to-end ``baarda analyze FILE --json`` time
+(a subprocess).
 
 Usage: ``python bench/bench_solve.py [--problems DIR/FILE ...] [--no-analyze] [--repeat N]``.
 Compressed BAL files are decompressed to a temporary file when the reader does not take them.
@@ -53,7 +55,9 @@ def readable(path: Path, tmp: Path) -> Path:
 
 
 def ceres(block, threads: int = 1):
-    """pycolmap's bundle adjustment of ``block``: (seconds, ½Σr² in BAL's model, iterations)."""
+    """pycolmap's Ceres bundle adjustment of ``block`` (problem set-up and solve timed, as
+    baarda's ``adjust``): (seconds, ½Σr² in BAL's model over the image points Ceres kept,
+    iterations, how many of them, Ceres' termination)."""
     import pycolmap
 
     pycolmap.logging.minloglevel = 2
@@ -68,17 +72,20 @@ def ceres(block, threads: int = 1):
         ba.refine_principal_point = False
         ba.print_summary = False
         ba.ceres.solver_options.num_threads = threads
+        config = pycolmap.BundleAdjustmentConfig()
+        for i in rec.reg_image_ids():
+            config.add_image(i)
         t0 = time.perf_counter()
-        summary = pycolmap.bundle_adjustment(rec, ba)
+        adjuster = pycolmap.create_default_ceres_bundle_adjuster(ba, config, rec)
+        summary = adjuster.solve().todict()["ceres_summary"]
         t = time.perf_counter() - t0
         out = Path(tmp) / "out"
         out.mkdir()
         rec.write_text(str(out))
-        cost = initial_cost(read_problem(out, "colmap"))
-    its = getattr(summary, "num_successful_steps", None)
-    if its is not None:
-        its = int(its) + int(getattr(summary, "num_unsuccessful_steps", 0))
-    return t, cost, its
+        problem = read_problem(out, "colmap")
+        cost = initial_cost(problem)
+    its = int(summary["num_successful_steps"]) + int(summary["num_unsuccessful_steps"])
+    return t, cost, its, problem.n // 2, str(summary["termination_type"]).split(".")[-1]
 
 
 def warm_up():
@@ -115,9 +122,12 @@ def main():
             t_b = time.perf_counter() - t0
             cost_b = 0.5 * float(adj.v @ adj.v)
             t_c = cost_c = its_c = None
+            note = ""
             if not args.no_ceres:
                 try:
-                    t_c, cost_c, its_c = ceres(block, args.threads)
+                    t_c, cost_c, its_c, kept, term = ceres(block, args.threads)
+                    note = f"; Ceres {term}" + (f" over {kept} of {problem.n // 2} image points" if kept != problem.n // 2
+                                                 else "")
                 except ImportError:
                     pass
             t_a = None
@@ -134,7 +144,7 @@ def main():
             rel = abs(cost_b - cost_c) / cost_c if cost_c else None
             print(f"{path.name:<28} {t_b:>8.2f} {adj.iterations:>4} {cost_b:>16,.6f} {fmt(t_c, '>8.2f')} "
                   f"{fmt(its_c, '>4')} {fmt(cost_c, '>16,.6f')} {fmt(ratio, '>6.2f')} {fmt(rel, '>9.1e')} "
-                  f"{fmt(t_a, '>9.2f')}  {adj.termination}", flush=True)
+                  f"{fmt(t_a, '>9.2f')}  {adj.termination}{note}", flush=True)
             del adj, problem, block
 
 
