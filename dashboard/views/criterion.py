@@ -147,7 +147,7 @@ class RiskView(pn.viewable.Viewer):
             rc = self.state.risk_curve(float(self.p.value), float(self.L1.value), float(self.L2.value),
                                        float(self.lam.value))
         except (TypeError, ValueError) as err:
-            self.info.object = f"**Risk:** {md_text(err)}"
+            self.info.object = f"**Risk:** {err}"     # the core's message about p, L1, L2, λtol
             return
         self.rc = rc
         self.info.object = (f"C = **{rc['C']:.4f}** (closed form), α_C = {rc['alpha']:.3g}, "

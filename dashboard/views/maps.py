@@ -24,7 +24,7 @@ from bokeh.events import Tap
 from baarda.hypotheses import HypothesisTest
 
 from ..state import State, display_matrix
-from ..text import labels, md_text, plain
+from ..text import html_text, labels, plain
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
                      round_scale, selection_layer, suspects_layer)
 
@@ -449,7 +449,7 @@ class PrecisionMap(MapView):
             sizing_mode="stretch_width", visible=s.problem.points.dim > 1, stylesheets=[INLINE_DROPDOWN])
         self.sbase.param.watch(lambda e: setattr(s, "sbase", list(e.new)), "value")
         s.param.watch(lambda e: setattr(self.sbase, "value", list(e.new)), "sbase")
-        self.note = pn.pane.Markdown(pn.bind(lambda *_: md_text(s.sbase_check()), s.param.solution, s.param.sbase),
+        self.note = pn.pane.HTML(pn.bind(lambda *_: html_text(s.sbase_check()), s.param.solution, s.param.sbase),
                                      css_classes=["sbase-note"], sizing_mode="stretch_width",
                                      visible=s.problem.points.dim > 1)
 
