@@ -102,7 +102,8 @@ else:
             xy.append(rec.images[el.image_id].points2D[el.point2D_idx].xy)
     n = len(img)
 dt = time.perf_counter() - t
-print(json.dumps({"seconds": dt, "read": t_read, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+ru = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({"seconds": dt, "read": t_read, "cpu": ru.ru_utime + ru.ru_stime, "rss_mb": ru.ru_maxrss / 1024,
                   "obs": n}))
 """
 
@@ -129,8 +130,8 @@ def colmap_table(d: Path, frames: int, points: int) -> None:
         for kind in ("txt", "bin"):
             (base / kind).mkdir(parents=True, exist_ok=True)
             (rec.write_text if kind == "txt" else rec.write_binary)(str(base / kind))
-    print(f"{'COLMAP model':<24s} {'MB':>8s} {'reader':<10s} {'image pts':>10s} {'seconds':>8s} {'peak RSS MB':>12s}"
-          "  (pycolmap: its own read)")
+    print(f"{'COLMAP model':<24s} {'MB':>8s} {'reader':<10s} {'image pts':>10s} {'seconds':>8s} {'CPU s':>7s} "
+          f"{'peak RSS MB':>12s}  (pycolmap: its own read)")
     for kind in ("txt", "bin"):
         m = base / kind
         size = sum(f.stat().st_size for f in m.iterdir()) / 1e6
@@ -138,7 +139,8 @@ def colmap_table(d: Path, frames: int, points: int) -> None:
             r = measure(m, how, COLMAP_CHILD)
             extra = f"  ({r['read']:.2f} s)" if how == "pycolmap" and "read" in r else ""
             print(f"{base.name + '/' + kind:<24s} {size:8.1f} {how:<10s} {r['obs']:>10d} {r['seconds']:8.2f} "
-                  f"{r['rss_mb']:12.0f}{extra}" + (f"  {r['error']}" if "error" in r else ""))
+                  f"{r.get('cpu', float('nan')):7.2f} {r['rss_mb']:12.0f}{extra}"
+                  + (f"  {r['error']}" if "error" in r else ""))
 
 
 def main(argv=None):
