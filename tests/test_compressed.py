@@ -135,6 +135,12 @@ def test_numbers_across_chunk_boundaries_and_comments(tmp_path):
     assert lines.tolist() == [2, 2, 4, 4, 6, 6, 7]
     assert num.text(5) == "nan"
     assert read_text(f) == text
+    # all on one line, longer than a chunk: cut between numbers
+    one = tmp_path / "one.txt"
+    one.write_text(" ".join(f"{k}.25" for k in range(3000)))
+    with open_binary(one) as s:
+        vals, lines = Numbers(one, s, chunk=100).take_rest()
+    assert vals.tolist() == [k + 0.25 for k in range(3000)] and set(lines.tolist()) == {1}
 
 
 @pytest.mark.parametrize("name,ncam,npt,nobs,cost", [

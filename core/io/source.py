@@ -368,6 +368,8 @@ class Numbers:
             else:
                 data = self.tail + data
                 cut = data.rfind(b"\n")
+                if cut < 0 and not self.comment:   # one long line: cut between two numbers instead
+                    cut = max(data.rfind(b" "), data.rfind(b"\t"))
                 if cut < 0:
                     self.tail = data
                     continue
