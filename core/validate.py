@@ -75,9 +75,10 @@ def check_numeric_range(problem, path, control=None) -> None:
                          f"and the statistics scaled by it cannot be formed in double precision", field="sigma0")
     l = np.asarray(problem.l, dtype=float)
     n = l.size
-    if n == 0 or problem.params.free.size == 0:
+    n_free = int(np.count_nonzero(~np.asarray(problem.params.fixed, dtype=bool)))
+    if n == 0 or n_free == 0:
         left = len(problem.extra.get("local_defects", ()) or ())
-        raise InputError(path, 0, f"nothing to adjust: {n} observations for {problem.params.free.size} "
+        raise InputError(path, 0, f"nothing to adjust: {n} observations for {n_free} "
                          f"unknowns" + (f" after leaving out {left} undetermined points, images or "
                                         f"cameras" if left else ""))
     # σ of every observation: the diagonal of its covariance block; the block must be PD

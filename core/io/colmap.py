@@ -312,8 +312,8 @@ def _int(path, line, tok, what, allow_negative=False):
     t = tok[1:] if allow_negative and tok.startswith("-") else tok
     if not (t.isascii() and t.isdigit()):         # str.isdigit accepts '²' and '①', int() does not
         raise InputError(path, line, f"{what}: '{tok[:40]}' is not an integer")
-    if len(t) > 20:                                  # COLMAP ids are 64-bit at most
-        raise InputError(path, line, f"{what}: {tok[:40]}... is too large")
+    if len(t) > 19 or int(t) >= 2**63:               # ids are kept as 64-bit integers
+        raise InputError(path, line, f"{what}: {tok[:40]}{'...' if len(tok) > 40 else ''} is too large")
     return int(tok)
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..validate import SIGMA0_MAX, SIGMA0_MIN
+from ..validate import SIGMA0_MAX, SIGMA0_MIN, SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
 
 FORMAT = "baarda-block"
 VERSIONS = (1,)
@@ -120,6 +120,12 @@ class _Reader:
             self.fail(key, i, f"{key}[{i}]: '{name}' must be > 0 (got {v})", field=name)
         if nonneg and v < 0:
             self.fail(key, i, f"{key}[{i}]: '{name}' must be ≥ 0 (got {v})", field=name)
+        if abs(v) > VALUE_LIMIT and name != "sigma0":     # its square overflows (baarda.validate)
+            self.fail(key, i, f"{key}[{i}]: '{name}' = {v:g} is outside ±{VALUE_LIMIT:g}, too large to adjust "
+                      f"in double precision", field=name)
+        if name.startswith("sigma") and name != "sigma0" and not SIGMA_MIN <= v <= SIGMA_MAX:
+            self.fail(key, i, f"{key}[{i}]: '{name}' = {v:g} is outside [{SIGMA_MIN:g}, {SIGMA_MAX:g}]: its "
+                      f"weight 1/σ² cannot be formed in double precision", field=name)
         return v
 
     def vector(self, e, name, key, i, size, positive=False):
