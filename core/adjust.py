@@ -37,7 +37,8 @@ holds — the optimum in the parameters, not only in the cost. When an undamped 
 points (:func:`baarda.datum.far_points`) are what drifts — points running off along their rays,
 whose cost keeps falling towards an infimum with no finite optimum — they are held where the
 trust region left them and the rest is finished undamped (status 4); otherwise the trust region
-takes over again (at most ``MAX_END_GAMES`` times, then status −2).
+takes over again, and waits 2^k damped steps at the function tolerance before the k-th next
+try (a curved valley, where the undamped step overshoots).
 
 Convergence criterion (undamped steps only): every increment is below ``tol`` times the
 conditional standard deviation of its parameter, |Δx_i| < tol / √N_ii (unit-free, so metres,
@@ -103,7 +104,6 @@ STATUS = {
     4: ("converged: every increment below tol conditional standard deviations with {n_far} far "
         "point(s) held where Levenberg-Marquardt left them (they drift along their rays towards "
         "infinity: no finite optimum for them)"),
-    -2: "not converged: vᵀPv no longer changes but undamped steps keep failing",
 }
 
 
@@ -354,6 +354,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     trace = []                     # (λ, step, vᵀPv at the trial point, gain ratio) per solved step
     last_undamped = None           # size of the last accepted undamped step
     failed = 0                     # undamped end games that failed
+    quiet = 0                      # damped steps in a row at the function tolerance
     n_far = 0                      # far points held in the end game
     status = 0
     v = problem.misclosure(f)
@@ -396,15 +397,17 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         # to diagnose (DatumDefectError), not something to damp away
         first = it == 1
         lam = 1.0 / mu if damped and not endgame and not first else 0.0
-        if plan.defect and st_all is not None:
-            # a free block's damped steps move all unknowns, the gauge too (the damping makes
-            # N + λD regular, as in Ceres, which fixes no gauge); its undamped steps hold the
-            # datum's coordinates and are S-transformed. (Holding coordinates while damped
-            # makes the way much longer: 72 instead of 19 iterations on BAL Dubrovnik-16.)
+        if plan.defect:
+            # a free network's or block's damped steps move all unknowns, the gauge too (the
+            # damping makes N + λD regular, as in Ceres, which fixes no gauge); its undamped
+            # steps hold the datum's coordinates and are S-transformed. (Holding coordinates
+            # while damped makes the way much longer: 72 instead of 19 iterations on BAL
+            # Dubrovnik-16; a two-view Bundler block did not converge in 50.)
             if lam > 0.0 and keep is keep_all:
                 if free_gauge is None:
                     every = np.arange(free.size)
-                    free_gauge = (every, schur_structure(problem, lin.reduced(A, every), every, "schur"))
+                    free_gauge = (every, None if st_all is None else
+                                  schur_structure(problem, lin.reduced(A, every), every, "schur"))
                 keep, st = free_gauge
                 Ar = lin.reduced(A, keep)
             elif lam == 0.0 and free_gauge is not None and keep is free_gauge[0]:
@@ -443,6 +446,12 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         trace.append((lam, step, cost_new, rho))
         if lam > 0.0:
             ok = rho > MIN_RELATIVE_DECREASE
+            if not ok and np.isfinite(cost_new) and abs(cost_new - cost) <= ROUNDOFF_COST * cost:
+                # vᵀPv changes at round-off only: the gain ratio is noise, the damping has done
+                # its work (Ceres would stop here); the undamped end game decides
+                endgame, quiet = True, 0
+                history.append(step)
+                continue
             mu, decrease = update_radius(mu, decrease, rho, ok)
             if not ok and mu < MIN_RADIUS:
                 history.append(step)
@@ -465,9 +474,6 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                 damped = ever_damped = True
         history.append(step)
         if not ok:
-            if failed > MAX_END_GAMES:
-                status = -2
-                break
             continue
         dx = np.zeros(free.size)
         dx[keep] = step_keep
@@ -499,8 +505,14 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         elif abs(rel_drop) < FUNCTION_TOL or step < options.tol:
             # Levenberg-Marquardt's function tolerance (Ceres): vᵀPv no longer changes; far,
             # weakly determined points may still drift along their rays, so finish with
-            # undamped steps until the increments themselves are negligible
-            endgame = True
+            # undamped steps until the increments themselves are negligible. After a failed
+            # end game (a curved valley: the undamped step overshoots), wait 2, 4, 8 ... damped
+            # steps at the function tolerance before the next try
+            quiet += 1
+            if quiet >= (2 ** failed if failed else 1):
+                endgame, quiet = True, 0
+        else:
+            quiet = 0
     if keep is not keep_all:
         Ar = lin.reduced(A, keep_all)
     keep, st = keep_all, st_all
