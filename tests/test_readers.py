@@ -470,3 +470,14 @@ def test_chunk_parser_gives_pythons_numbers(fmt, path, monkeypatch):
     ref = np.array([float(t) for t in toks])
     assert np.array_equal(vals, ref) and np.array_equal(np.signbit(vals), np.signbit(ref))
     assert lines.tolist() == [1 + k // 4 for k in range(len(toks))]
+
+
+def test_bundler_header_that_lies_is_refused_before_its_numbers_are_held(tmp_path):
+    lines = (VALID / "bundler-valid.out").read_text().splitlines()
+    assert lines[1].split() == ["3", "16"]
+    lies = tmp_path / "lies.out"
+    lies.write_text("\n".join([lines[0], "3 90000000"] + lines[2:]) + "\n")
+    err, peak = peak_bytes(lambda: read_bundler(lies))
+    assert isinstance(err, InputError) and err.line == 2
+    assert "(at least 630000045 numbers) but the file of" in err.message and "cannot hold them" in err.message
+    assert peak < 8e6

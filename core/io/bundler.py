@@ -54,10 +54,36 @@ def read_bundler(path, sigma_px: float = 1.0, refine_intrinsics: bool = True, ch
                     prefix = raw
                     ln -= 1
                 break
+        _check_header_size(path, f, ln, prefix)
         num = Numbers(path, f, first_line=ln + 1, comment="#", prefix=prefix)
         vals, lines = num.take_rest()
     block = _bundler_block(path, num, vals, lines, sigma_px, refine_intrinsics)
     return check_block(path, block) if check else block
+
+
+def _check_header_size(path, f, ln: int, prefix: bytearray | bytes) -> None:
+    """Refuse a header 'num_cameras num_points' that announces more numbers than the file's
+    size can hold (a plain file), before any number is read: the header is ``prefix`` (a line
+    already read) or the first non-blank line ahead in the stream, peeked at, not consumed."""
+    src = getattr(f, "source", None)
+    size = getattr(src, "size", None)
+    if size is None:
+        return
+    head, line = prefix, ln + 1
+    if not head.strip():
+        peek = f.peek(4096)[:4096]
+        for k, raw in enumerate(peek.split(b"\n")[:-1]):
+            if raw.strip():
+                head, line = raw, ln + 1 + k
+                break
+    toks = head.split()
+    if len(toks) < 2 or not (toks[0].isdigit() and toks[1].isdigit()) or len(toks[0]) > 12 or len(toks[1]) > 12:
+        return                          # the reader says what is wrong with it
+    ncam, npt = int(toks[0]), int(toks[1])
+    need = 15 * ncam + 7 * npt
+    if need > (size + 1) // 2:
+        raise InputError(path, line, f"the header announces {ncam} cameras and {npt} points (at least {need} "
+                         f"numbers) but the file of {size} bytes cannot hold them (at most {(size + 1) // 2})")
 
 
 def _bundler_block(path, num, vals, lines, sigma_px, refine_intrinsics) -> SfmBlock:
