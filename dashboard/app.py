@@ -156,6 +156,8 @@ def create_app(path=None, problem=None, background: bool | None = None):
     if state.results is not None:
         rebuild()
     state.param.watch(rebuild, "problem")
+    state.param.watch(lambda e: setattr(content, "objects", [pn.pane.HTML("<i>Adjusting the new file…</i>")]),
+                      "replacing")
     template.main.append(pn.Column(SummaryHeader(state=state), content, sizing_mode="stretch_width"))
     template.sidebar.extend([TaskPanel(state=state), Controls(state=state), SelectionPanel(state=state)])
     if background:

@@ -243,6 +243,8 @@ class State(param.Parameterized):
     error = param.String(default="", doc="A message for the user (bad file, failed exclusion).")
     busy = param.Boolean(default=False, doc="True while a computation runs.")
     task = param.String(default="", doc="The background computation running now ('' = none).")
+    replacing = param.Event(doc="Another problem is about to become current (the app drops the views "
+                            "of the old one before they would redraw with the new results).")
     progress = param.String(default="", doc="What the background computation has done so far.")
     background = param.Boolean(default=False, doc="Run long computations on a worker thread "
                                "(set by the served app; scripts and tests compute in place).")
@@ -413,6 +415,8 @@ class State(param.Parameterized):
     def _set_loaded(self, hit, source: str) -> bool:
         """Make a cached (problem, adjustment, …) current without adjusting again."""
         problem, adj, kept, index, frames = hit
+        if self.problem is not None:
+            self.param.trigger("replacing")
         with param.parameterized.discard_events(self):
             self.problem = problem
             self.sigma0_mode = (problem.sigma_act if problem.sigma_act in ("apriori", "aposteriori")

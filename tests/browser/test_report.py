@@ -23,9 +23,12 @@ def test_report_opens_offline_with_plots(page, tmp_path, screenshots, capsys):
     n_plots = page.evaluate(
         "Bokeh.documents.reduce((n, d) => n + d.all_models.size && "
         "[...d.all_models].filter(m => m.type === 'Figure' || (m.constructor && m.constructor.__name__ === 'Figure')).length, 0)")
-    page.wait_for_function("document.querySelectorAll('canvas').length >= 3 || "
-                           "[...document.querySelectorAll('div')].some(d => d.shadowRoot && "
-                           "d.shadowRoot.querySelector('canvas'))", timeout=60_000)
+    # the plots are drawn: canvases inside Bokeh's (nested) shadow roots
+    page.wait_for_function("""() => {
+        const count = (root) => { let n = root.querySelectorAll('canvas').length;
+            for (const el of root.querySelectorAll('*')) if (el.shadowRoot) n += count(el.shadowRoot);
+            return n; };
+        return count(document) >= 3; }""", timeout=60_000)
     page.screenshot(path=str(screenshots / "report-top.png"))
     page.screenshot(path=str(screenshots / "report.png"), full_page=True)
     assert n_plots >= 3
