@@ -200,7 +200,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     npt = int(point.max(initial=-1)) + 1
     m = is_pt[col]
     key = _unique_sorted(ccl[m] * max(npt, 1) + point[col[m]])
-    del m
+    del m, ccl                                    # (the clusters of the entries are made again below)
     kc, kp = key // max(npt, 1), key % max(npt, 1)
     del key
     per_cl = np.bincount(kc, minlength=ncl)
@@ -292,8 +292,14 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     loc = np.searchsorted(skey, akey[run])
     local = np.repeat(cl_off[sp_[loc], slot[loc]], np.diff(np.r_[run, akey.size])) + off_of[colc]
     del loc, run, akey
-    dest_a = _narrow((pa * M + rpos[rowc]) * K + local, nc * M * K)
-    del local, pa, colc, rowc
+    dest_a = pa                                   # (pa·M + rpos)·K + local, in place
+    del pa
+    dest_a *= M
+    dest_a += rpos[rowc]
+    dest_a *= K
+    dest_a += local
+    del local, colc, rowc
+    dest_a = _narrow(dest_a, nc * M * K)
     col_S = np.full((nc, K), -1, dtype=np.int64)
     for s_ in range(G):                          # a cluster sees every column of its supernodes
         g = cl_sn[:, s_]
@@ -304,8 +310,15 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     cb = col[~cm]
     coord_col = np.full(u, -1, dtype=np.int64)
     coord_col[ecols] = coord
-    dest_b = _narrow((cl_pos[ccl[~cm]] * M + rpos[row[~cm]]) * 3 + coord_col[cb], nc * M * 3)
-    del cb, ccl, row, cm
+    rowb = row[~cm]
+    del row, cm
+    dest_b = cl_pos[cluster[rowb]]
+    dest_b *= M
+    dest_b += rpos[rowb]
+    dest_b *= 3
+    dest_b += coord_col[cb]
+    del cb, rowb
+    dest_b = _narrow(dest_b, nc * M * 3)
     rpos = _narrow(rpos, M)
 
     # block pattern of S: supernodes sharing an entity (plus the diagonal)
