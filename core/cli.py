@@ -12,6 +12,7 @@ converged: ...`` goes to stderr.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -564,6 +565,12 @@ def main(argv=None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:            # the reader of our output went away (`baarda ... | head`)
+        try:
+            sys.stdout = open(os.devnull, "w")   # no second error when Python flushes at exit
+        except OSError:
+            pass
+        return 141
     except Exception as err:  # an internal error: say so in one line, traceback with --debug
         if getattr(args, "debug", False):
             raise

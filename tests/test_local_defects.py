@@ -5,6 +5,7 @@ by hand (an independent reference: the block built without them from the start).
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -395,3 +396,59 @@ def test_camera_with_too_few_points_for_its_intrinsics(balbianello):
     reference = adjust(build_sfm_problem(b))
     np.testing.assert_allclose(adj.r, reference.r, rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(adj.w, reference.w, rtol=1e-6, atol=1e-6)
+
+
+# --------------------------------------------------------------------------------------------
+# files with single-ray points and starved images: read, the defects named, the rest analysed
+# --------------------------------------------------------------------------------------------
+DEFECT_FILES = Path(__file__).resolve().parent / "defects"
+VALID_SEEDS = Path(__file__).resolve().parent / "malformed" / "valid"
+
+
+@pytest.mark.parametrize("name,entity,ident", [("bal-one-view.txt", "point", "5"),
+                                               ("bundler-one-view.out", "point", "15"),
+                                               ("bal-camera-two-points.txt", "image", "2")])
+def test_file_with_local_defect_is_analysed_and_strict_refuses_it(name, entity, ident, tmp_path, capsys):
+    from baarda.cli import main
+
+    path = DEFECT_FILES / name
+    before = path.read_bytes()
+    out = tmp_path / "r.json"
+    code = main(["analyze", str(path), "--quiet", "--json", str(out), "--no-refine-intrinsics"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    named = [(d["entity"], d["id"]) for d in doc["summary"]["local_defects"]]
+    assert named == [(entity, ident)]
+    # the rest analysed: the reduced problem has observations and a finite r for each
+    r = [o["redundancy"] for o in doc["observations"]]
+    assert len(r) > 0 and all(-1e-9 <= x <= 1.0 + 1e-9 for x in r)
+    assert doc["summary"]["converged"] is True
+    assert main(["analyze", str(path), "--quiet", "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"baarda: error: {path}:")
+    assert f"{entity} {ident} " in err and "--strict" in err
+    assert path.read_bytes() == before
+
+
+def test_single_ray_point_from_file_equals_the_file_without_it(tmp_path):
+    """The same BAL file with the single-ray point's only observation removed by hand (and the
+    point itself) gives the same r and w: an independent reference for what is left out."""
+    from baarda.adjust import Options
+
+    text = (DEFECT_FILES / "bal-one-view.txt").read_text().split()
+    nc, npt, nobs = (int(t) for t in text[:3])
+    obs = [text[3 + 4 * k: 7 + 4 * k] for k in range(nobs)]
+    params = text[3 + 4 * nobs:]
+    cams, pts = params[: 9 * nc], params[9 * nc:]
+    keep = [o for o in obs if int(o[1]) != 5]
+    renum = {p: (p if p < 5 else p - 1) for p in range(npt) if p != 5}
+    lines = [f"{nc} {npt - 1} {len(keep)}"] + [f"{o[0]} {renum[int(o[1])]} {o[2]} {o[3]}" for o in keep]
+    lines += cams + [v for p in range(npt) if p != 5 for v in pts[3 * p: 3 * p + 3]]
+    by_hand = tmp_path / "by-hand.txt"
+    by_hand.write_text("\n".join(lines) + "\n")
+    a, _ = adjust_block(build(read_model(DEFECT_FILES / "bal-one-view.txt")), Options())
+    b = adjust(build(read_model(by_hand)), Options())
+    assert a.problem.n == b.problem.n
+    np.testing.assert_allclose(a.r, b.r, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(a.w, b.w, rtol=1e-6, atol=1e-8)

@@ -83,10 +83,20 @@ def test_bal_counts_and_ids():
     assert "footprint" not in im
 
 
-def test_bal_dubrovnik_1_1_is_refused_with_reason():
+def test_bal_dubrovnik_1_1_is_refused_with_reason(capsys):
+    """One image, one point, one image point: both are local defects (a single ray, an image on
+    one point); left out, nothing remains, and that is the error, naming the file."""
+    from baarda.cli import main
+
     require_extdata(BAL)
+    block = read_bal(BAL / "dubrovnik-1-1-pre.txt")
+    assert (len(block.images), len(block.points), block.obs_image.size) == (1, 1, 1)
+    assert main(["analyze", str(BAL / "dubrovnik-1-1-pre.txt")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "dubrovnik-1-1-pre.txt:" in err and "nothing to adjust" in err
+    from baarda.io.bal import check_block           # the readers' own check, with rays=True
     with pytest.raises(InputError, match="point 0 is seen by 1 image"):
-        read_bal(BAL / "dubrovnik-1-1-pre.txt")
+        check_block(BAL / "dubrovnik-1-1-pre.txt", block, rays=True)
 
 
 def test_bundler_balbianello():

@@ -41,8 +41,12 @@ def read_text(path) -> str:
 # --------------------------------------------------------------------------------------------
 # checks shared by the SfM readers
 # --------------------------------------------------------------------------------------------
-def check_block(path, block: SfmBlock, image_path=None) -> SfmBlock:
+def check_block(path, block: SfmBlock, image_path=None, rays: bool = False) -> SfmBlock:
     """Validate the structure of a block (module docstring); return it or raise InputError.
+
+    Points on fewer than two rays and images on fewer than three points are local defects
+    (:mod:`baarda.sfm_defects` names them all and leaves them out, ``--strict`` refuses them);
+    rays=True refuses them here instead, at the first one's line.
 
     A COLMAP block (``block.extra["obs_keypoint"]``) may observe a point by several keypoints of
     one image; only the same keypoint twice is an error there. COLMAP errors name the point's
@@ -91,10 +95,11 @@ def check_block(path, block: SfmBlock, image_path=None) -> SfmBlock:
                          f"point {block.points[pp[b]]} is measured twice in image "
                          f"{block.images[ii[b]].id} (first at line {block.obs_line[a]})")
     # rays per point and points per image count distinct (image, point) pairs
+    few_none = np.zeros(0, dtype=np.int64)
     first = np.ones(n, dtype=bool)
     first[order[1:]] = np.diff(key[order]) != 0
     per_point = np.bincount(pp[first], minlength=npt)
-    few = np.flatnonzero(per_point < 2)
+    few = np.flatnonzero(per_point < 2) if rays else few_none
     if few.size:
         p = int(few[0])
         where = np.flatnonzero(pp == p)
@@ -103,7 +108,7 @@ def check_block(path, block: SfmBlock, image_path=None) -> SfmBlock:
             f"point {block.points[p]} is seen by {per_point[p]} image{'' if per_point[p] == 1 else 's'}; "
             f"at least 2 are needed to intersect it{more}")
     per_image = np.bincount(ii[first], minlength=ni)
-    few = np.flatnonzero(per_image < 3)
+    few = np.flatnonzero(per_image < 3) if rays else few_none
     if few.size:
         k = int(few[0])
         more = f" (and {few.size - 1} more images)" if few.size > 1 else ""
@@ -111,13 +116,22 @@ def check_block(path, block: SfmBlock, image_path=None) -> SfmBlock:
                           f"{'' if per_image[k] == 1 else 's'}; at least 3 are needed to orient it{more}")
     graph = coo_matrix((np.ones(n), (ii, ni + pp)), shape=(ni + npt, ni + npt))
     nc, label = connected_components(graph, directed=False)
+    if not rays:
+        # an image or point without any observation is a local defect (sfm_defects), not a part
+        seen = np.zeros(ni + npt, dtype=bool)
+        seen[ii] = True
+        seen[ni + pp] = True
+        _, label = np.unique(np.where(seen, label, -1), return_inverse=True)
+        if not seen.all():
+            label = label - 1                  # -1: unobserved
+        nc = int(label.max()) + 1
     if nc > 1:
         parts = []
         for c in range(nc):
             imgs = [block.images[k].id for k in np.flatnonzero(label[:ni] == c)]
             npts = int((label[ni:] == c).sum())
             parts.append(f"images {', '.join(imgs[:6])}{' ...' if len(imgs) > 6 else ''} with {npts} points")
-        sizes = np.bincount(label[:ni], minlength=nc)
+        sizes = np.bincount(label[:ni][label[:ni] >= 0], minlength=nc)
         small = int(np.argmin(sizes))
         k = int(np.flatnonzero(label[:ni] == small)[0])
         raise at_image(k)(f"the block falls apart into {nc} parts that share no point: "

@@ -133,6 +133,11 @@ def write(name: str, text: str):
     (HERE / name).write_text(text)
 
 
+def write_defect(name: str, text: str):
+    """Local defects are findings, not bad input: these files go to tests/defects/."""
+    (HERE.parent / "defects" / name).write_text(text)
+
+
 def write_dir(name: str, files: dict[str, str]):
     d = HERE / name
     if d.exists():
@@ -192,9 +197,9 @@ def main():
     first = bl[2].split()
     write("bal-split-obs.txt", "\n".join(bl[:2] + [" ".join(first[:3]), first[3]] + bl[3:]) + "\n")
     # point 5 seen by image 0 only
-    write("bal-one-view.txt", bal_text(cams, X, [o for o in obs if not (o[1] == 5 and o[0] > 0)]))
+    write_defect("bal-one-view.txt", bal_text(cams, X, [o for o in obs if not (o[1] == 5 and o[0] > 0)]))
     # image 2 sees two points only
-    write("bal-camera-two-points.txt", bal_text(cams, X, [o for o in obs if not (o[0] == 2 and o[1] > 1)]))
+    write_defect("bal-camera-two-points.txt", bal_text(cams, X, [o for o in obs if not (o[0] == 2 and o[1] > 1)]))
     # two blocks sharing no point: images 0, 1 see points 0-3, images 2, 3 points 4-7
     c4, X4, o4 = simulate(-1.0, seed=3, ncam=4)
     write("bal-disconnected.txt", bal_text(c4, X4, [o for o in o4 if (o[0] < 2) == (o[1] < 4)]))
@@ -211,7 +216,7 @@ def main():
     write("bundler-not-rotation.out", edited(ul, {3: "1.5 0 0"}))
     write("bundler-view-range.out", edited(ul, {len(ul) - 1: token_changed(ul[-1], 1, "9")}))
     write("bundler-nan.out", edited(ul, {2 + 3 * 5: "nan 0.1 0.2"}))
-    write("bundler-one-view.out", edited(ul, {len(ul) - 1: "1 " + " ".join(ul[-1].split()[1:5])}))
+    write_defect("bundler-one-view.out", edited(ul, {len(ul) - 1: "1 " + " ".join(ul[-1].split()[1:5])}))
     write("bundler-unreconstructed-view.out", edited(ul, {k: "0 0 0" for k in range(2, 7)}))
     write("bundler-empty.out", "# Bundle file v0.3\n0 0\n")
 
