@@ -99,6 +99,15 @@ def _file_key(path, options) -> tuple | None:
         return None
 
 
+def _lower_priority() -> None:
+    """Lower the scheduling priority of this worker thread (Linux: nice per thread), so that
+    the event loop thread answers clicks first when the CPUs are busy."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+    except (AttributeError, OSError):
+        pass
+
+
 def clear_cache() -> None:
     """Forget every cached file (tests; a server frees the memory)."""
     with _LOADED_GUARD:
@@ -305,6 +314,7 @@ class State(param.Parameterized):
         self.param.update(task=label, progress="")
 
         def run():
+            _lower_priority()
             try:
                 return fn(*args)
             except Cancelled:
