@@ -348,20 +348,27 @@ def test_malformed_native_files(tmp_path, name, transform, where):
     assert info.value.path == str(path)
 
 
-def test_point_seen_by_one_image_is_an_error(tmp_path):
+def test_point_seen_by_one_image_is_a_local_defect(tmp_path, capsys):
+    """A tie point on one ray is read, named as a local defect and left out; --strict refuses it at
+    the file (tests/test_local_defects.py checks the rest against the block without it)."""
+    from baarda.cli import main
+
     blk, _ = simulate_block(seed=9, strips=2, images_per_strip=3)
     path = tmp_path / "b.json"
     write_native(blk, path)
     doc = json.loads(path.read_text())
-    pid = doc["points"][0]["id"]
+    pid = next(p["id"] for p in doc["points"] if p.get("status") == "tie")
     seen = [i for i, o in enumerate(doc["observations"]) if o["point"] == pid]
     doc["observations"] = [o for i, o in enumerate(doc["observations"]) if i not in seen[1:]]
-    write_text = json.dumps(doc, indent=1)
-    path.write_text(write_text)
-    with pytest.raises(InputError, match="seen by 1 images") as info:
-        read_native(path)
-    # the line where the point's entry starts (its "{" in this indented layout)
-    assert info.value.line == _line_of(write_text, f'"id": "{pid}"') - 1
+    path.write_text(json.dumps(doc, indent=1))
+    assert len(read_native(path).points) == len(blk.points)
+    out = tmp_path / "r.json"
+    assert main(["analyze", str(path), "--quiet", "--json", str(out)]) == 0, capsys.readouterr().err
+    named = [(d["entity"], d["id"]) for d in json.loads(out.read_text())["summary"]["local_defects"]]
+    assert named == [("point", pid)]
+    assert main(["analyze", str(path), "--quiet", "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"point {pid} " in err
 
 
 @pytest.mark.parametrize("cal", [(0.0, 0.0, 0.0, 0.0, 0.0), (2e-5, -3e-9, 1e-13, 4e-6, -5e-6)])

@@ -340,7 +340,8 @@ def _read_bundle(rd, sigma0):
         xy[k] = (rd.number(e, "x", "observations", k), rd.number(e, "y", "observations", k))
         cov[k] = rd.covariance(e, "observations", k)
         line[k] = rd.loc.of("observations", k)
-    _track_check(rd, "points", np.bincount(op, minlength=len(points)), [p.id for p in points], "images")
+    # a point on fewer than two rays is a local defect (baarda.sfm_defects names it and leaves it
+    # out, --strict refuses it), not bad input; a weighted control point on one ray is determined
     datum, sbase = _datum(rd, pt_ids)
     extra = rd.doc.get("extra", {})
     return Block(cameras=tuple(cameras), images=tuple(images), points=tuple(points),
