@@ -89,6 +89,10 @@ GRADIENT_TOL = 1e-10
 #: increments (in conditional standard deviations) below which round-off is reached when they
 #: stop shrinking
 ROUNDOFF_STEP = 1e-6
+#: an S-transformation of an undamped step that raises vᵀPv by more than this factor (a long
+#: gauge drift, linearised) is skipped; smaller rises are second order and the next undamped
+#: steps remove them
+GAUGE_COST = 1.0
 #: undamped end games (after the function tolerance) that may fail before the run stops
 MAX_END_GAMES = 3
 #: an undamped end-game step may raise vᵀPv by this much (relative) and still count as round-off
@@ -483,11 +487,16 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             # the undamped steps at the end)
             # S-transform the total shift from the input coordinates to the S-base (M84 §2)
             total = x[free] + dx - x_ref[free]
-            x_new = x.copy()
-            x_new[free] += plan.transform(total) - (x[free] - x_ref[free])
-            f_new, parts_new = lin.evaluate(x_new)
-            v_new = problem.misclosure(f_new)
-            cost_new = float(v_new @ (P @ v_new))
+            x_s = x.copy()
+            x_s[free] += plan.transform(total) - (x[free] - x_ref[free])
+            f_s, parts_s = lin.evaluate(x_s)
+            v_s = problem.misclosure(f_s)
+            cost_s = float(v_s @ (P @ v_s))
+            # the linearised S-transformation of a long gauge drift can blow vᵀPv up: then the
+            # step stays in the minimal constraint's gauge (the statistics do not depend on
+            # it; the S-base is applied to the covariances through the plan)
+            if cost_s <= max(cost_new, cost) * (1.0 + GAUGE_COST):
+                x_new, f_new, parts_new, v_new, cost_new = x_s, f_s, parts_s, v_s, cost_s
         if not np.isfinite(x_new).all():
             raise SingularError("the adjustment diverged (non-finite parameters)")
         rel_drop = (cost - cost_new) / cost if cost > 0 else 0.0
@@ -643,3 +652,4 @@ def diagnose(N, labels, max_dense: int = 6000) -> list[str]:
     weight = np.sqrt((V[:, null] ** 2).sum(axis=1))
     idx = np.flatnonzero(weight > 0.05)
     return [str(labels[i]) for i in idx[np.argsort(-weight[idx])]]
+

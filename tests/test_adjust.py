@@ -165,3 +165,36 @@ def test_step_factor_equals_schur_factor():
     b = adjust(problem, Options(max_iter=8))
     assert a.iterations == b.iterations
     assert abs(a.vPv - b.vPv) <= 1e-9 * a.vPv
+
+
+def _two_view_bundler(path, src):
+    """Balbianello (Bundler v0.3, extdata) cut to its first two views: the other cameras all
+    zeros (as Bundler writes cameras it did not reconstruct), points seen by both views kept."""
+    lines = src.read_text().split("\n")
+    ncam, npt = map(int, lines[1].split())
+    out = []
+    for i in range(ncam):
+        out += lines[2 + 5 * i: 7 + 5 * i] if i < 2 else ["0 0 0"] * 5
+    rest, pts = lines[2 + 5 * ncam:], []
+    for k in range(npt):
+        view = rest[3 * k + 2].split()
+        v = [view[1 + 4 * j: 5 + 4 * j] for j in range(int(view[0]))]
+        v = [e for e in v if int(e[0]) < 2]
+        if len(v) == 2:
+            pts += [rest[3 * k], rest[3 * k + 1], " ".join(["2"] + [" ".join(e) for e in v])]
+    path.write_text("\n".join(["# Bundle file v0.3", f"{ncam} {len(pts) // 3}"] + out + pts) + "\n")
+
+
+def test_two_view_bundler_block_with_zero_cameras_converges(tmp_path):
+    """A two-view Bundler block (f, k1, k2 of both cameras free: a long curved valley) stopped
+    unconverged; now the trust region and the end game reach the fixed point: converged, and
+    one more undamped step from it is round-off."""
+    require_extdata(BAL)
+    path = tmp_path / "two-view.out"
+    _two_view_bundler(path, BAL / "Balbianello.out")
+    problem = read_problem(path)
+    adj = adjust(problem, Options(max_iter=300))
+    assert adj.converged, adj.termination
+    again = adjust(problem, Options(method="gauss-newton", max_iter=1), x0=adj.x)
+    assert again.history[0] < 1e-4
+    assert main(["analyze", str(path), "--quiet", "--max-iter", "300"]) == 0
