@@ -32,7 +32,8 @@ The first step is undamped (a singular system there is a defect to diagnose). Th
 
 End game: an accepted damped step that changes vᵀPv by less than ``FUNCTION_TOL`` (Ceres'
 function tolerance) does not end the run: undamped Gauss-Newton steps follow (accepted while
-vᵀPv does not grow beyond round-off), each S-transformed, until the increment criterion below
+vᵀPv does not grow beyond round-off), each S-transformed (unless the linearised transformation
+of a long gauge drift would more than double vᵀPv: ``GAUGE_COST``), until the increment criterion below
 holds — the optimum in the parameters, not only in the cost. When an undamped step fails and far
 points (:func:`baarda.datum.far_points`) are what drifts — points running off along their rays,
 whose cost keeps falling towards an infimum with no finite optimum — they are held where the
