@@ -181,7 +181,9 @@ def _assert_not_least_squares(problem, adj, ref):
 @pytest.mark.parametrize("path", CASES, ids=IDS)
 def test_redundancy_and_standardised_residuals(path, cache):
     problem, adj, ref, pairs, dropped, full = _get(cache, path)
-    assert abs(adj.r.sum() - ref.dof) < 1e-8
+    # Σ r_i = f holds to round-off, which grows with the number of observations (the railway
+    # survey, 3,694 observations: 2e-8 with two BLAS threads, 1.4e-7 with one)
+    assert abs(adj.r.sum() - ref.dof) < max(1e-8, 1e-10 * problem.n)
     used = ref.used
     checked = 0
     for k, i in pairs:
