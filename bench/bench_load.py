@@ -10,7 +10,8 @@ mode, seed 1) is written with ``baarda simulate`` into a temporary directory and
    shows, and until its maps are there;
 2. starts iterative data snooping in one session and, while it runs, clicks rows of the tests
    table in another one and times each click until the selection panel shows the observation;
-3. cancels the snooping and times until the session says it stopped.
+3. cancels the snooping and times until the session says it stopped;
+4. requests the page ``--sessions`` times at once without a browser (the server's share).
 
 Everything is bounded (``--timeout`` seconds in all); the server is stopped at the end.
 
@@ -68,6 +69,15 @@ def start_server(path: Path, port: int) -> subprocess.Popen:
                 return proc
         time.sleep(0.2)
     raise RuntimeError("server did not come up")
+
+
+def get_page(url) -> float:
+    import urllib.request
+
+    t = time.perf_counter()
+    with urllib.request.urlopen(url, timeout=120) as r:
+        r.read()
+    return time.perf_counter() - t
 
 
 async def open_session(context, url, t0, timeout_ms):
@@ -138,6 +148,10 @@ async def run(args) -> int:
             stop = time.perf_counter() - start
             rows.append(("snooping cancelled: stopped after (s)", "", f"{stop:.1f}", "", ""))
             await browser.close()
+        # the server's share: the same number of page requests at once, without a browser
+        gets = sorted(await asyncio.gather(*(asyncio.to_thread(get_page, url) for _ in range(args.sessions))))
+        rows.append((f"server only: {args.sessions} page requests at once (s)", f"{gets[0]:.1f}",
+                     f"{statistics.median(gets):.1f}", f"{gets[-1]:.1f}", ""))
     finally:
         os.killpg(server.pid, signal.SIGTERM)
         try:
