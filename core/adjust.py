@@ -133,7 +133,7 @@ class Options:
     beta: float = 0.80
     b_method: bool = False
     tol: float = 1e-9
-    max_iter: int = 50
+    max_iter: int = 200
     solver: str = "auto"
     backend: str | None = None
     method: str = "auto"

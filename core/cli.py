@@ -35,8 +35,8 @@ def _add_test_options(p):
 
 
 def _add_iteration_option(p):
-    p.add_argument("--max-iter", type=_positive_int, default=50, metavar="N",
-                   help="at most N iterations of the adjustment (default 50); a run that does not "
+    p.add_argument("--max-iter", type=_positive_int, default=200, metavar="N",
+                   help="at most N iterations of the adjustment (default 200); a run that does not "
                         "converge writes its results marked as such and exits with status 4")
 
 
