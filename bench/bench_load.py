@@ -143,7 +143,7 @@ async def run(args) -> int:
             ok &= max(times) <= CLICK_LIMIT and running
             start = time.perf_counter()
             if await task.is_visible():
-                await snooper.get_by_role("button", name="Cancel").click()
+                await snooper.locator(".task-cancel button").first.click()
                 await task.wait_for(state="hidden", timeout=ms)
             stop = time.perf_counter() - start
             rows.append(("snooping cancelled: stopped after (s)", "", f"{stop:.1f}", "", ""))
