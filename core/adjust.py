@@ -252,9 +252,13 @@ class _Linearisation:
         self._key = tuple((jr, jc) for jr, jc, _ in parts)
         # entries of the free columns in CSR order; duplicates (one parameter feeding two
         # intrinsics) summed by reduceat over their runs
-        self._take = np.flatnonzero(m)[order]
+        itype = np.int32 if m.size < 2 ** 31 - 1 else np.int64
+        self._take = np.flatnonzero(m).astype(itype)[order]
         self._first = None if first.size == ks.size else first
-        self._indptr, self._indices = indptr, (uniq % max(self.u, 1)).astype(np.int32 if self.u < 2**31 else np.int64)
+        del order, key, ks, cols, rows, m
+        small = uniq.size < 2 ** 31 - 1 and self.u < 2 ** 31 - 1       # int32 indices where they fit
+        self._indptr = indptr.astype(np.int32 if small else np.int64)
+        self._indices = (uniq % max(self.u, 1)).astype(np.int32 if small else np.int64)
         self._reduced = None
 
     def _same(self, parts) -> bool:
@@ -344,6 +348,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     lin = _Linearisation(problem, free)
     f, parts = lin.evaluate(x)
     A = lin.design(parts)
+    del parts                      # the entries live on in A
     plan = datum_mod.plan(problem, x, A, P, free)
     keep_all = np.setdiff1d(np.arange(free.size), plan.eliminate)
     keep = keep_all                # the unknowns solved for (far points held in the end game)
@@ -441,6 +446,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             status = 3
             break
         step_keep = factor.solve(g)
+        del factor                 # not alive while the trial point is evaluated
         step = float((np.abs(step_keep) * np.sqrt(diagN)).max(initial=0.0))
         trial = x.copy()
         trial[free[keep]] += step_keep
@@ -502,7 +508,9 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             raise SingularError("the adjustment diverged (non-finite parameters)")
         rel_drop = (cost - cost_new) / cost if cost > 0 else 0.0
         x, f, v, cost = x_new, f_new, v_new, cost_new
+        A = Ar = None              # the old matrices are freed before the new ones are made
         A = lin.design(parts_new)
+        parts_new = parts_s = None
         Ar = lin.reduced(A, keep)
         if progress is not None:
             progress(it, step)

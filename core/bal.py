@@ -231,14 +231,23 @@ class ProjectionSet:
             m = self.ipt.shape[0]
             C = np.concatenate([self.ipt, self.itr, self.irot, self.iint], 1)
             q = C.shape[1]
-            lr = np.arange(m)
-            jrows = np.concatenate([np.repeat(2 * lr, q), np.repeat(2 * lr + 1, q)])
-            jcols = np.concatenate([C.ravel(), C.ravel()])
-            keep = _kept_entries(jcols, m)
-            pos = np.full(keep.size, -1, dtype=np.int64)
-            pos[keep] = np.arange(int(keep.sum()))
+            # int32 where the numbers fit (the pattern is kept for the whole adjustment)
+            nnz = 2 * m * q
+            small = nnz < 2 ** 31 - 1 and (C.size == 0 or int(C.max()) < 2 ** 31 - 1)
+            itype = np.int32 if small else np.int64
+            keep = _kept_entries(np.concatenate([C.ravel(), C.ravel()]), m)
+            kr = keep.reshape(2, m, q)
+            lr = np.arange(m, dtype=itype)
+            jrows = np.concatenate([np.repeat(2 * lr, q)[kr[0].ravel()],
+                                    np.repeat(2 * lr + 1, q)[kr[1].ravel()]])
+            C = C.astype(itype, copy=False).ravel()
+            jcols = np.concatenate([C[kr[0].ravel()], C[kr[1].ravel()]])
+            del C
+            pos = np.full(keep.size, -1, dtype=itype)
+            pos[keep] = np.arange(int(keep.sum()), dtype=itype)
+            del keep, kr
             pos = np.ascontiguousarray(pos.reshape(2, m, q).transpose(1, 0, 2))
-            pat = (jrows[keep], jcols[keep], pos)
+            pat = (jrows, jcols, pos)
             self.__dict__["_pat"] = pat
         return pat
 
