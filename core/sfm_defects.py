@@ -544,6 +544,34 @@ def _local(named, model) -> bool:
             and len(named["camera"]) <= max(0, len(v.camera_ids) // 4))
 
 
+def _intrinsics_refined(model) -> bool:
+    """Whether ``model`` is a structure-from-motion block whose intrinsics are estimated."""
+    from .bal import SfmBlock
+
+    return isinstance(model, SfmBlock) and model.refine_intrinsics
+
+
+def _hold_intrinsics(model, problem, cameras):
+    """The block with every camera's intrinsics held at the file's values, rebuilt; the cameras
+    whose intrinsics the adjustment found undetermined are recorded as local defects."""
+    from .bal import CAMERA_MODELS
+
+    held = model.replace(refine_intrinsics=False)
+    found = []
+    for cid, cam in zip(_View(model).camera_ids, model.cameras):
+        if cid in cameras:
+            names = tuple(n for n in CAMERA_MODELS[cam.model][0] if n not in ("cx", "cy"))
+            found.append(LocalDefect("camera", str(cid), names,
+                                     "the observations do not determine its intrinsics "
+                                     "(singular normal equations with them estimated)",
+                                     "intrinsics of all cameras held at the file's values"))
+    old = list(problem.extra.get("local_defects", []))
+    reduced, more = find_defects(held)
+    problem = build(reduced)
+    problem.extra["local_defects"] = old + found + more
+    return reduced, problem
+
+
 def adjust_block(problem, options=None, progress=None, strict: bool = False):
     """Adjust ``problem``; if it is a block from :func:`build` and the adjustment finds unknowns
     the observations do not determine that belong to a few points, images or cameras, leave
@@ -565,6 +593,12 @@ def adjust_block(problem, options=None, progress=None, strict: bool = False):
             if model is None or strict:
                 raise
             named = _entities(err.undetermined, model)
+            if named is not None and named["camera"] and _intrinsics_refined(model):
+                # the cameras' f, k1, k2 are part of the null space: adjust what is determined,
+                # holding the intrinsics at the file's values (as gama-local adjusts a point in
+                # x, y when its height is undetermined), then look again
+                model, problem = _hold_intrinsics(model, problem, named["camera"])
+                continue
             if not _local(named, model):
                 raise first from None
             found = []

@@ -361,20 +361,34 @@ def test_arrays_in_extra_are_cut_like_the_block(balbianello):
     assert reduced.extra["note"] == "kept" and b.extra["obs_keypoint"].size == n
 
 
-def test_whole_block_defect_is_still_diagnosed(capsys):
-    """dubrovnik-3-7 (38 equations for 48 unknowns) is underdetermined as a whole: no local
-    defect is found or made up; the datum-defect diagnosis names its unknowns as before."""
+@pytest.mark.parametrize("where", ["extdata", "corpus"])
+def test_undetermined_intrinsics_are_held_and_the_rest_adjusted(where, tmp_path, capsys):
+    """dubrovnik-3-7 (38 equations for 48 unknowns with f, k1, k2 of its three cameras estimated)
+    and a block of its pattern: no point or image is a local defect, but the cameras' intrinsics
+    are undetermined. They are named and held at the file's values and the rest is adjusted —
+    the same r and w as the file read with --no-refine-intrinsics (an independent route);
+    --strict gives the whole-block diagnosis as before."""
+    from baarda.adjust import Options
     from baarda.cli import main
 
-    path = require_extdata(EXTDATA / "bal" / "dubrovnik-3-7-pre.txt")
+    path = (require_extdata(EXTDATA / "bal" / "dubrovnik-3-7-pre.txt") if where == "extdata"
+            else Path(__file__).resolve().parent / "defects" / "bal-underdetermined.txt")
     model = read_model(path)
     assert find_defects(model)[1] == []
-    with pytest.raises(DatumDefectError):
-        adjust_block(build(model))
-    assert main(["analyze", str(path), "--quiet"]) == 2
+    adj, problem = adjust_block(build(model), Options())
+    named = problem.extra["local_defects"]
+    assert {(d.entity, d.id) for d in named} == {("camera", "0"), ("camera", "1"), ("camera", "2")}
+    assert all(d.components == ("f", "k1", "k2") for d in named)
+    ref = adjust(build(read_model(path, refine_intrinsics=False)), Options())
+    assert adj.converged and ref.converged and adj.problem.n == ref.problem.n == 38
+    np.testing.assert_allclose(adj.r, ref.r, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(adj.w, ref.w, rtol=1e-6, atol=1e-8)
+    out = tmp_path / "r.json"
+    assert main(["analyze", str(path), "--quiet", "--json", str(out)]) == 0
+    assert len(json.loads(out.read_text())["summary"]["local_defects"]) == 3
+    assert main(["analyze", str(path), "--quiet", "--strict"]) == 2
     err = capsys.readouterr().err
-    assert "38 observations for 48 unknowns" in err and "do not determine" in err
-    assert "local defect" not in err
+    assert "38 observations for 48 unknowns" in err and "do not determine" in err and err.count("\n") == 1
 
 
 def test_camera_with_too_few_points_for_its_intrinsics(balbianello):

@@ -207,7 +207,7 @@ def main():
     pattern = {(0, 0), (1, 0), (2, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2), (0, 3), (1, 3), (2, 3),
                (0, 4), (1, 4), (2, 4), (0, 5), (1, 5), (0, 6), (1, 6), (2, 6)}
     c3, X7, o3 = simulate(-1.0, seed=4, npt=7)
-    write("bal-underdetermined.txt", bal_text(c3, X7, [o for o in o3 if (o[0], o[1]) in pattern]))
+    write_defect("bal-underdetermined.txt", bal_text(c3, X7, [o for o in o3 if (o[0], o[1]) in pattern]))
 
     # ---- Bundler
     ul = bun.splitlines()
