@@ -145,13 +145,15 @@ def keep_columns(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
     A = sp.csr_matrix(A)
     if keep.size == A.shape[1]:
         return A
-    colmap = np.full(A.shape[1], -1, dtype=np.int64)
+    colmap = np.full(A.shape[1], -1, dtype=A.indices.dtype)
     colmap[keep] = np.arange(keep.size)
     new = colmap[A.indices]
     m = new >= 0
-    cm = np.concatenate([[0], np.cumsum(m)])
-    out = sp.csr_matrix((A.data[m], new[m].astype(A.indices.dtype), cm[A.indptr].astype(A.indptr.dtype)),
-                        shape=(A.shape[0], keep.size))
+    cm = np.zeros(m.size + 1, dtype=A.indptr.dtype)        # kept entries before each entry
+    np.cumsum(m, out=cm[1:])
+    indptr = cm[A.indptr]
+    del cm
+    out = sp.csr_matrix((A.data[m], new[m], indptr), shape=(A.shape[0], keep.size))
     out.has_sorted_indices = A.has_sorted_indices
     return out
 
@@ -260,6 +262,10 @@ class _Linearisation:
         self._indptr = indptr.astype(np.int32 if small else np.int64)
         self._indices = (uniq % max(self.u, 1)).astype(np.int32 if small else np.int64)
         self._reduced = None
+
+    def release(self) -> None:
+        """Forget the layout of A (kept for the next :meth:`design`); :meth:`reduced` still works."""
+        self._key = self._take = self._first = None
 
     def _same(self, parts) -> bool:
         if self._key is None or len(self._key) != len(parts):
@@ -531,9 +537,15 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                 endgame, quiet = True, 0
         else:
             quiet = 0
-    if keep is not keep_all:
+    # what only the iterations needed is freed before the datum at the solution is analysed
+    back = keep is not keep_all
+    keep, st, free_gauge = keep_all, st_all, None
+    lin.release()
+    for s in problem.sets:
+        getattr(s, "release", lambda: None)()
+    if back:
+        Ar = None
         Ar = lin.reduced(A, keep_all)
-    keep, st = keep_all, st_all
     if plan.defect:
         old = plan.eliminate
         # the datum at the solution; a block keeps its held coordinates where they still fix

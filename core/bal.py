@@ -251,6 +251,10 @@ class ProjectionSet:
             self.__dict__["_pat"] = pat
         return pat
 
+    def release(self) -> None:
+        """Forget the cached Jacobian pattern (made again by the next :meth:`evaluate`)."""
+        self.__dict__.pop("_pat", None)
+
     def _evaluate_numpy(self, x):
         """The reference formulas (vectorised numpy); :meth:`evaluate` compiles the same."""
         m = self.ipt.shape[0]
