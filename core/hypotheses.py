@@ -86,10 +86,19 @@ class HypothesisTest:
         return np.sqrt(np.maximum(np.diag(self.nabla_cov), 0.0))
 
     def lower_bound(self, direction) -> np.ndarray:
-        """∇0s in a direction s: s δ0 / √(sᵀW s) (F80 eq. 13)."""
+        """∇0s in a direction s: s δ0 / √(sᵀW s) (F80 eq. 13).
+
+        sᵀW s is taken over the eigenvalues of W the test counts (q of them; the others are
+        round-off, possibly negative): a direction the test cannot see at all (sᵀW s = 0 there)
+        has no finite lower bound (±inf along s)."""
         s = np.asarray(direction, dtype=float)
         s = s / np.linalg.norm(s)
-        return s * self.delta0 / np.sqrt(s @ self.W @ s)
+        pos = np.isfinite(self.ellipse_axes)
+        lam = (self.delta0 / self.ellipse_axes[pos]) ** 2          # axes = δ0/√λ (F80 eq. 14)
+        sws = float(lam @ (self.ellipse_dirs[:, pos].T @ s) ** 2)
+        if not sws > 0:
+            return np.where(s == 0, 0.0, np.copysign(np.inf, s))
+        return s * self.delta0 / np.sqrt(sws)
 
     def ellipse(self, n: int = 73) -> np.ndarray:
         """Points of the lower-bound ellipse ∇0sᵀ W ∇0s = δ0² (q = 2), n × 2."""
@@ -151,10 +160,16 @@ def deformation(adj, h: HypothesisTest, nabla_s=None) -> np.ndarray:
     """∇0x = Σ AᵀP H ∇0s over the free parameters (F80 §6, eq. 16 for the k-part).
 
     ``nabla_s`` defaults to the lower bound in the direction of the smallest eigenvalue of W_s
-    (the largest error the test cannot see at power β0).
+    the test counts (the largest error the test cannot see at power β0); a hypothesis the test
+    cannot see at all (q = 0) or an infinite ``nabla_s`` has no deformation (ValueError).
     """
     if nabla_s is None:
-        s = h.ellipse_dirs[:, 0]
-        nabla_s = h.lower_bound(s)
-    err = np.asarray(h.H @ np.asarray(nabla_s, dtype=float)).ravel()
+        pos = np.flatnonzero(np.isfinite(h.ellipse_axes))
+        if not pos.size:
+            raise ValueError("the test sees no error of this hypothesis (q = 0): no lower bound")
+        nabla_s = h.lower_bound(h.ellipse_dirs[:, pos[0]])   # smallest eigenvalue the test counts
+    nabla_s = np.asarray(nabla_s, dtype=float)
+    if not np.isfinite(nabla_s).all():
+        raise ValueError("the test cannot see this error (infinite lower bound)")
+    err = np.asarray(h.H @ nabla_s).ravel()
     return adj.deformation(err)

@@ -12,7 +12,8 @@ Hypothesis specifications are plain dicts, ``{"kind": ..., "active": bool, ...}`
 
 - ``{"kind": "observation", "index": i}`` — one observation (q = 1, T = w²);
 - ``{"kind": "group", "group": g}`` — a test group of the problem (GNSS vector, image point);
-- ``{"kind": "image-point", "image": j, "point": p}`` — both coordinates of one image point;
+- ``{"kind": "image-point", "image": j, "point": p[, "keypoint": k]}`` — both coordinates of one
+  image point (``keypoint`` tells apart several keypoints of one image on one COLMAP point);
 - ``{"kind": "control", "point": p}`` — every observation of a control (weighted) point;
 - ``{"kind": "transfer", "point": p, "images": [j1, j2, ...]}`` — one 2D point-transfer error
   common to the image coordinates of point p in the images listed (F80 §2.2, H = (0 … I₂ … I₂ … 0)ᵀ);
@@ -60,7 +61,9 @@ from .text import plain
 OPTION_FREE = ("v", "keep", "Ar", "factor", "Pv", "vPv", "_cluster_stats", "_sbase_Z")
 
 #: Keys of ``ObservationInfo.ids`` that name something other than a point.
-NOT_POINT_KEYS = ("image", "component", "group", "set")
+#: (A COLMAP keypoint index is a number too: without "keypoint" here keypoint 7 would be
+#: taken for the point whose id is 7.)
+NOT_POINT_KEYS = ("image", "keypoint", "component", "group", "set")
 
 #: Robust methods of the controls ("none": plain least squares).
 ROBUST_METHODS = ("none", *robust.METHODS)
@@ -644,14 +647,15 @@ class State(param.Parameterized):
         if kind == "group":
             return [np.flatnonzero(np.asarray(info.group) == int(spec["group"]))]
         if kind == "image-point":
-            return [np.array(self.image_point_rows(spec["image"], spec["point"]), dtype=np.int64)]
+            return [np.array(self.image_point_rows(spec["image"], spec["point"], spec.get("keypoint")),
+                             dtype=np.int64)]
         if kind == "control":
             rows = [i for i, ids in enumerate(info.ids) if str(ids.get("id")) == str(spec["point"])]
             return [np.array(rows, dtype=np.int64)]
         if kind == "transfer":
             comps = {}
             rows = sorted(i for j in {str(j) for j in spec["images"]}
-                          for i in self.image_point_rows(j, spec["point"]))
+                          for i in self.point_rows_in_image(j, spec["point"]))
             for i in rows:
                 comp = info.ids[i].get("component") or info.kind[i].rsplit("-", 1)[-1]
                 comps.setdefault(str(comp), []).append(i)
@@ -692,7 +696,8 @@ class State(param.Parameterized):
             first = observation_label(self.problem, int(rows[0])).split(" ", 2)[-1] if rows.size else ""
             return f"group {spec['group']} ({first})"
         if kind == "image-point":
-            return f"image point {spec['point']} in image {spec['image']}"
+            kp = f" (keypoint {spec['keypoint']})" if spec.get("keypoint") is not None else ""
+            return f"image point {spec['point']} in image {spec['image']}{kp}"
         if kind == "control":
             return f"control point {spec['point']}"
         if kind == "transfer":
@@ -750,7 +755,11 @@ class State(param.Parameterized):
         image_rows: dict = {}
         for i, ids in enumerate(p.info.ids):
             if "image" in ids and "point" in ids:
-                image_rows.setdefault((str(ids["image"]), str(ids["point"])), []).append(i)
+                # one image point = (image, point, keypoint): COLMAP may observe a point by
+                # several keypoints of one image, each an image point of its own
+                kp = ids.get("keypoint")
+                key = (str(ids["image"]), str(ids["point"]), None if kp is None else str(kp))
+                image_rows.setdefault(key, []).append(i)
         self._index = {"obs_points": obs_points, "inc_obs": inc_obs, "inc_pt": inc_pt,
                        "line_obs": lines[:, 0], "line_from": lines[:, 1], "line_to": lines[:, 2],
                        "labels": [plain(observation_label(p, i).split(" ", 2)[-1]) for i in range(p.n)],
@@ -762,13 +771,35 @@ class State(param.Parameterized):
         """:func:`display_factor` of the current problem (computed once)."""
         return self.problem_index()["factor"]
 
-    def image_point_rows(self, image, point) -> list[int]:
-        """Full indices of the observations of ``point`` in ``image`` (a block's image point)."""
-        return self.problem_index()["image_rows"].get((str(image), str(point)), [])
+    def keypoints_of(self, image, point) -> list[str | None]:
+        """The keypoints by which ``image`` observes ``point``: ``[None]`` for an ordinary image
+        point, the keypoint indices (sorted) where a COLMAP image has several on the point."""
+        im, pid = str(image), str(point)
+        return sorted((kp for (j, q, kp) in self.problem_index()["image_rows"] if j == im and q == pid),
+                      key=lambda k: (k is not None, len(k or ""), k or ""))
+
+    def image_point_rows(self, image, point, keypoint=None) -> list[int]:
+        """Full indices of the observations of one image point: ``point`` in ``image``, measured
+        by ``keypoint`` where the image has several keypoints on the point (COLMAP); without
+        ``keypoint`` such an image point is ambiguous (ValueError)."""
+        rows = self.problem_index()["image_rows"]
+        if keypoint is not None:
+            return rows.get((str(image), str(point), str(keypoint)), [])
+        kps = self.keypoints_of(image, point)
+        if len(kps) > 1:
+            raise ValueError(f"image {plain(image)} observes point {plain(point)} by keypoints "
+                             f"{', '.join(map(str, kps))}: choose one")
+        return rows.get((str(image), str(point), kps[0]), []) if kps else []
+
+    def point_rows_in_image(self, image, point) -> list[int]:
+        """Full indices of every observation of ``point`` in ``image`` (all its keypoints)."""
+        im, pid = str(image), str(point)
+        return sorted(i for (j, q, _), rows in self.problem_index()["image_rows"].items()
+                      if j == im and q == pid for i in rows)
 
     def images_of_point(self, point) -> list[str]:
         """The images in which ``point`` is measured (sorted ids)."""
-        return sorted(im for im, pid in self.problem_index()["image_rows"] if pid == str(point))
+        return sorted({im for im, pid, _ in self.problem_index()["image_rows"] if pid == str(point)})
 
     def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
         """``(observations, points)`` tables of the current results (cached until they change).
@@ -870,7 +901,7 @@ class State(param.Parameterized):
         k = self.selected_hypothesis if k is None else k
         m = len(self.problem.points.ids)
         h = self.hyp_results[k] if k is not None and k < len(self.hyp_results) else None
-        if not isinstance(h, HypothesisTest) or not np.isfinite(h.delta0):
+        if not isinstance(h, HypothesisTest) or not np.isfinite(h.delta0) or h.q == 0:
             return np.zeros((m, 3))
         return self.results.point_shifts(deformation(self.results, h))
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import re
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -30,7 +31,7 @@ from bokeh.models import ColumnDataSource  # noqa: E402
 
 from baarda import stats  # noqa: E402
 from baarda.adjust import Options, adjust  # noqa: E402
-from baarda.dashboard.state import State  # noqa: E402
+from baarda.dashboard.state import State, observation_points  # noqa: E402
 from baarda.dashboard.subset import without  # noqa: E402
 from baarda.hypotheses import selection  # noqa: E402
 from extdata import GAMA, require_extdata  # noqa: E402
@@ -851,3 +852,87 @@ def test_teaching_mdb_plot_thins_large_blocks_but_keeps_every_cell():
                        zip(d["kind"], np.clip(d["r"], 0, 1), 400 * (np.log(d["mdb_sigma"]) - np.log(obs["mdb_sigma"]).min())
                            / np.ptp(np.log(obs["mdb_sigma"])))}
     assert cells(few) == cells(obs)
+
+
+# --------------------------------------------------------------------------------------------
+# COLMAP image points observed by several keypoints of one image
+# --------------------------------------------------------------------------------------------
+def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
+    from baarda.io import read_problem
+    from test_colmap import duplicate_model
+
+    txt, _, _, added = duplicate_model(tmp_path)
+    p = read_problem(txt)
+    st = State(problem=p)
+    assert st.error == "" and st.results is not None, st.error
+    ids = p.info.ids
+    # a keypoint index is not a point id: every image observation names exactly its own point,
+    # also when points are named like the keypoints (added here: ids "0" … "64")
+    kp_rows = [i for i, d in enumerate(ids) if "keypoint" in d]
+    assert kp_rows
+    named = SimpleNamespace(points=SimpleNamespace(ids=tuple(p.points.ids) + tuple(
+        str(k) for k in range(65) if str(k) not in p.points.ids)), info=p.info)
+    pid_index = {pid: k for k, pid in enumerate(named.points.ids)}
+    assert all(str(ids[i]["keypoint"]) in pid_index for i in kp_rows)
+    for pts, d in zip(observation_points(named), ids):
+        if "image" in d:
+            assert pts == [pid_index[str(d["point"])]]
+    assert st.obs_points == observation_points(p)
+    for iid, pid, kp in added:
+        both = [i for i, d in enumerate(ids) if d.get("image") == str(iid) and d.get("point") == str(pid)]
+        assert len(both) == 4
+        mine = [i for i in both if ids[i].get("keypoint") == kp]
+        assert len(mine) == 2 and st.image_point_rows(iid, pid, kp) == mine
+        assert st.point_rows_in_image(iid, pid) == both
+        assert len(st.keypoints_of(iid, pid)) == 2
+        with pytest.raises(ValueError, match="keypoints"):
+            st.image_point_rows(iid, pid)
+        # the hypothesis of one keypoint's image point: q = 2, the core's test of those two rows
+        k = st.add_hypothesis({"kind": "image-point", "image": str(iid), "point": str(pid), "keypoint": kp})
+        h = st.hyp_results[k]
+        ref = st.results.test(selection(st.results.n, mine))
+        assert h.q == 2 and h.T == pytest.approx(ref.T, rel=1e-12)
+        assert f"keypoint {kp}" in st.describe(st.hypotheses[k])
+
+
+# --------------------------------------------------------------------------------------------
+# lower bound of a hypothesis the test cannot see (F80 eq. 13)
+# --------------------------------------------------------------------------------------------
+def dangling_levelling(m: int, sigma: float):
+    """A levelling loop of m points and one point X hanging on one height difference (r = 0)."""
+    from networks import Cluster, NetObservation, NetPoint, Network, levelling_loop, problem
+
+    net = levelling_loop(m, sigma)
+    pts = net.points + (NetPoint("X", z=50.0, adjusted="z"),)
+    obs = net.observations + (NetObservation("height-diff", ("H1", "X"), 0.1234567),)
+    cl = net.clusters + (Cluster((len(net.observations),), np.array([[sigma ** 2]])),)
+    return problem(Network(pts, obs, cl, sigma_act="apriori"))
+
+
+def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
+    import warnings
+
+    from baarda import hypotheses
+
+    seen_negative = False
+    for m, sigma in [(6, 0.0007), (7, 0.003), (8, 0.003), (6, 0.003), (7, 0.001)]:
+        adj = adjust(dangling_levelling(m, sigma))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            # the loop's observations: q = 1, ∇0 = MDB (F80 eq. 13 = M84's minimal detectable bias)
+            h = hypotheses.test(adj, selection(adj.n, [0]))
+            assert h.q == 1
+            assert abs(h.lower_bound([1.0])[0]) == pytest.approx(adj.mdb[0], rel=1e-9)
+            # the dangling observation (r = 0): W is round-off (of either sign), q = 0
+            h = hypotheses.test(adj, selection(adj.n, [adj.n - 1]))
+            seen_negative |= float(h.W[0, 0]) < 0
+            assert h.q == 0 and np.isinf(h.lower_bound([1.0])).all()
+            with pytest.raises(ValueError, match="q = 0"):
+                hypotheses.deformation(adj, h)
+    assert seen_negative               # the case that gave "invalid value encountered in sqrt"
+    st = State(problem=dangling_levelling(6, 0.0007))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        k = st.add_hypothesis({"kind": "observation", "index": st.problem.n - 1})
+        assert st.hyp_results[k].q == 0
+        assert not st.hypothesis_deformation(k).any()

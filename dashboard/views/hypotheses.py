@@ -150,7 +150,21 @@ class HypothesisPanel(pn.viewable.Viewer):
         p = self.state.problem
         ims = sorted({str(ids["image"]) for ids in p.info.ids
                       if str(ids.get("point")) == str(self.point.value) and "image" in ids})
-        self.image.options = text_options(ims)
+        # an image with several keypoints on the point (COLMAP): one entry per keypoint,
+        # its value (image, keypoint)
+        opts: dict = {}
+        for im in ims:
+            kps = self.state.keypoints_of(im, self.point.value) if self.point.value is not None else [None]
+            if len(kps) > 1:
+                for kp in kps:
+                    label = f"{plain(im)} (keypoint {kp})"
+                    opts[label if label not in opts else f"{label} ({len(opts)})"] = (im, kp)
+            else:
+                label, k = plain(im), 2
+                while label in opts:
+                    label, k = f"{plain(im)} ({k})", k + 1
+                opts[label] = im
+        self.image.options = opts
         self.images.options = labels(ims)
         self.images.value = ims[:2] if len(ims) >= 2 else ims
 
@@ -171,6 +185,9 @@ class HypothesisPanel(pn.viewable.Viewer):
         if kind == "group":
             return {"kind": kind, "group": int(self.group.value)}
         if kind == "image-point":
+            if isinstance(self.image.value, tuple):
+                im, kp = self.image.value
+                return {"kind": kind, "image": im, "point": self.point.value, "keypoint": kp}
             return {"kind": kind, "image": self.image.value, "point": self.point.value}
         if kind == "control":
             return {"kind": kind, "point": self.point.value}
