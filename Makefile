@@ -28,9 +28,13 @@ test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow and not browser"
 
 bench: install
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_solve.py
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_read.py
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_memory.py
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_network.py
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_blocks.py
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_dashboard.py
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_load.py
 
 clean:
 	rm -rf $(VENV) out build *.egg-info
