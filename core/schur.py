@@ -189,7 +189,6 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     row = np.repeat(np.arange(n, dtype=_index_dtype(n)), counts)
     col = Ar.indices                              # no copy: indices of any integer type index alike
     del counts
-    ccl = cluster[row]
     order = np.argsort(cluster, kind="stable")
     cstart = np.concatenate([[0], np.cumsum(csize)[:-1]])
     rpos = np.empty(n, dtype=np.int64)
@@ -198,9 +197,12 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     # eliminable points: candidates seen by no cluster together with another point
     is_pt = (kind == "k") & (point >= 0)
     npt = int(point.max(initial=-1)) + 1
-    m = is_pt[col]
-    key = _unique_sorted(ccl[m] * max(npt, 1) + point[col[m]])
-    del m, ccl                                    # (the clusters of the entries are made again below)
+    m = np.flatnonzero(is_pt[col])
+    key = cluster[row[m]]                         # clusters of the point entries only
+    key *= max(npt, 1)
+    key += point[col[m]]
+    del m
+    key = _unique_sorted(key)
     kc, kp = key // max(npt, 1), key % max(npt, 1)
     del key
     per_cl = np.bincount(kc, minlength=ncl)
@@ -273,8 +275,10 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
 
     # supernode slots of each cluster position
     nc = ncl
-    pa = cl_pos[cluster[rowc]]
-    akey = pa * max(nsn, 1) + sn_of[colc]
+    pa = cluster[rowc]
+    np.take(cl_pos, pa, out=pa)
+    akey = pa * max(nsn, 1)
+    akey += sn_of[colc]
     run = np.flatnonzero(np.r_[True, akey[1:] != akey[:-1]]) if akey.size else np.zeros(0, dtype=np.int64)
     skey = _unique_sorted(akey[run])
     sp_, sg = skey // max(nsn, 1), skey % max(nsn, 1)
@@ -290,8 +294,9 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     nnz = col.size
     nnz_a = np.flatnonzero(cm).astype(_index_dtype(nnz))
     loc = np.searchsorted(skey, akey[run])
-    local = np.repeat(cl_off[sp_[loc], slot[loc]], np.diff(np.r_[run, akey.size])) + off_of[colc]
+    local = np.repeat(cl_off[sp_[loc], slot[loc]], np.diff(np.r_[run, akey.size]))
     del loc, run, akey
+    local += off_of[colc]
     dest_a = pa                                   # (pa·M + rpos)·K + local, in place
     del pa
     dest_a *= M
