@@ -136,3 +136,28 @@ def test_theory_options_reachable_from_the_cli(tmp_path, capsys):
     assert main(["risk", "--p", "0.01", "--L1", "1", "--L2", "10", "--lambda-tol", "17"]) == 0
     assert "critical value C" in capsys.readouterr().out
     assert main(["analyze", str(src), "--sbase", "nope"]) == 2
+
+
+def test_convert_of_a_network_the_native_format_cannot_hold_is_refused(tmp_path, capsys):
+    """Only levelling networks have a native form: a levelling network converts and analyses the
+    same; a network with directions is refused with the reason (it wrote 'H': null before)."""
+    src = tmp_path / "loop.gkf"
+    src.write_text(LEVELLING)
+    out = tmp_path / "loop.json"
+    assert main(["convert", str(src), str(out), "--quiet"]) == 0
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    assert main(["analyze", str(src), "--quiet", "--json", str(a)]) == 0
+    assert main(["analyze", str(out), "--quiet", "--json", str(b)]) == 0
+    ra = [o["redundancy"] for o in json.loads(a.read_text())["observations"]]
+    rb = [o["redundancy"] for o in json.loads(b.read_text())["observations"]]
+    assert ra == pytest.approx(rb, abs=1e-12)
+    capsys.readouterr()
+    plan = tmp_path / "plan.gkf"
+    plan.write_text(LEVELLING.replace('<point id="C" z="102" adj="z"/>',
+                                      '<point id="C" x="0" y="0" z="102" adj="z"/><point id="D" x="10" y="0"/>')
+                    .replace("</height-differences>", "</height-differences><obs from=\"C\">"
+                             "<direction to=\"D\" val=\"0\" stdev=\"10\"/></obs>"))
+    assert main(["convert", str(plan), str(tmp_path / "plan.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "levelling networks only" in err and "direction" in err
+    assert not (tmp_path / "plan.json").exists()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import BaardaError, InputError
 from ..validate import SIGMA0_MAX, SIGMA0_MIN, SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
 
 FORMAT = "baarda-block"
@@ -477,6 +477,13 @@ def write_native(block, path) -> None:
         doc = _imodel_doc(block)
         lists = ("models", "points", "observations")
     else:
+        other = sorted({o.kind for o in block.observations} - {"height-diff"})
+        unknown_h = [p.id for p in block.points if p.z is None]
+        if other or unknown_h:
+            why = (f"it has {', '.join(other)} observations" if other
+                   else f"point {unknown_h[0]} has no height")
+            raise BaardaError(f"{block.source or 'input'}:0: the native format holds levelling networks "
+                              f"only, and {why}; keep this network in GNU Gama's format")
         doc = _levelling_doc(block)
         lists = ("points", "observations")
     Path(path).write_text(_dump(doc, lists), encoding="utf-8")
