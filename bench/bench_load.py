@@ -56,7 +56,7 @@ def write_block(folder: Path) -> Path:
 
 
 def start_server(path: Path, port: int) -> subprocess.Popen:
-    env = dict(os.environ, DISPLAY="", BROWSER="false", OPENBLAS_NUM_THREADS="1")
+    env = dict(os.environ, DISPLAY="", BROWSER="false", OPENBLAS_NUM_THREADS="1", BAARDA_TIMING="1")
     log = open(path.with_suffix(".log"), "w")
     proc = subprocess.Popen([sys.executable, "-m", "baarda.cli", "serve", str(path), "--port", str(port),
                              "--address", "127.0.0.1"], stdout=subprocess.PIPE, stderr=log,
@@ -82,14 +82,42 @@ def get_page(url) -> float:
 
 async def open_session(context, url, t0, timeout_ms):
     page = await context.new_page()
-    out = {"page": page}
+    out = {"page": page, "created": time.perf_counter() - t0}
     await page.goto(url, timeout=timeout_ms)
+    out["loaded"] = time.perf_counter() - t0
     await page.locator(".summary").get_by_text("Global test").first.wait_for(timeout=timeout_ms)
     out["summary"] = time.perf_counter() - t0
     print(f"  summary after {out['summary']:.1f} s", file=sys.stderr, flush=True)
     await page.locator(".tests-table .tabulator-row").first.wait_for(timeout=timeout_ms)
     out["maps"] = time.perf_counter() - t0
     print(f"  maps after {out['maps']:.1f} s", file=sys.stderr, flush=True)
+    return out
+
+
+def stat_row(label, values, fmt="{:.1f}"):
+    v = sorted(values)
+    if not v:
+        return (label, "", "", "", "")
+    return (label, fmt.format(v[0]), fmt.format(statistics.median(v)), fmt.format(v[-1]), "")
+
+
+def server_rows(log: Path, t0_wall: float) -> list[tuple]:
+    """Per session, the server's own timestamps (``BAARDA_TIMING``): request received, the
+    page's websocket up (onload), summary set, maps built, relative to the start of the run;
+    and how long each session's maps took to build on the event loop."""
+    events: dict = {}
+    for line in log.read_text(errors="replace").splitlines():
+        parts = line.split()
+        if len(parts) == 4 and parts[0] == "baarda-timing":
+            events.setdefault(parts[2], {}).setdefault(parts[3], float(parts[1]))
+    out = []
+    for ev, what in (("request", "request received"), ("onload", "page's websocket up (onload)"),
+                     ("summary", "summary set"), ("build-start", "maps build started"),
+                     ("maps", "maps built")):
+        out.append(stat_row(f"  server: {what} (s)", [e[ev] - t0_wall for e in events.values() if ev in e]))
+    out.append(stat_row("  server: maps build per session (s)",
+                        [e["maps"] - e["build-start"] for e in events.values() if "maps" in e and "build-start" in e],
+                        "{:.2f}"))
     return out
 
 
@@ -107,7 +135,7 @@ async def run(args) -> int:
         async with async_playwright() as pw:
             browser = await pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
             context = await browser.new_context(viewport={"width": 1600, "height": 1000})
-            t0 = time.perf_counter()
+            t0, t0_wall = time.perf_counter(), time.time()
             sessions = await asyncio.wait_for(
                 asyncio.gather(*(open_session(context, url, t0, ms) for _ in range(args.sessions))),
                 timeout=args.timeout)
@@ -118,6 +146,9 @@ async def run(args) -> int:
                          f"≤ {SUMMARY_LIMIT:g}"))
             rows.append(("  … maps and tests table shown (s)", f"{maps[0]:.1f}", f"{statistics.median(maps):.1f}",
                          f"{maps[-1]:.1f}", ""))
+            for key, what in (("created", "browser: page created"), ("loaded", "browser: page's load event")):
+                rows.append(stat_row(f"  {what} (s)", [s[key] for s in sessions]))
+            rows.extend(server_rows(path.with_suffix(".log"), t0_wall))
             ok &= summary[-1] <= SUMMARY_LIMIT
             for s in sessions[2:]:
                 await s["page"].close()

@@ -9,7 +9,10 @@ first Gama network under ``data/`` (``demo-levelling.gkf`` preferred).
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -84,6 +87,14 @@ def _summaries_first(timeout: float = SUMMARY_FIRST) -> None:
         _PENDING_CV.wait_for(lambda: _PENDING[0] <= 0, timeout)
 
 
+def _timing(session: str, event: str) -> None:
+    """With ``BAARDA_TIMING=1`` in the server's environment, a line ``baarda-timing WALL SESSION
+    EVENT`` on stderr (request, onload, summary, build-start, maps): where a session's seconds
+    go (``bench/bench_load.py`` reads them)."""
+    if os.environ.get("BAARDA_TIMING"):
+        print(f"baarda-timing {time.time():.3f} {session} {event}", file=sys.stderr, flush=True)
+
+
 def _served() -> bool:
     doc = pn.state.curdoc
     return doc is not None and doc.session_context is not None
@@ -99,6 +110,8 @@ def create_app(path=None, problem=None, background: bool | None = None):
     """
     _extensions()
     background = _served() if background is None else bool(background)
+    sid = pn.state.curdoc.session_context.id if background and _served() else "-"
+    _timing(sid, "request")
     if problem is not None:
         state = State(problem=problem, path=path)
     else:
@@ -125,16 +138,19 @@ def create_app(path=None, problem=None, background: bool | None = None):
     def summary_shown(*_):
         if waits["summary"]:
             waits["summary"] = False
+            _timing(sid, "summary")
             _pending(-1)
 
     def build():
         try:
             with _BUILD_LOCK:
+                _timing(sid, "build-start")
                 main = _main(state)
         except Exception as err:  # noqa: BLE001 - a message in the page, never a silent blank
             main = pn.pane.HTML(f"<b>The views could not be built:</b> {html_text(type(err).__name__)}: "
                                 f"{html_text(err)}", css_classes=["main-error"])
         content.objects = [main]
+        _timing(sid, "maps")
 
     def build_later():
         # on the builder thread: wait for the summaries of waiting sessions, then build on
@@ -166,7 +182,10 @@ def create_app(path=None, problem=None, background: bool | None = None):
             waits["summary"] = True
             _pending(+1)
             state.param.watch(summary_shown, ["results", "error"])
-            pn.state.onload(lambda: state.submit(f"reading {shown}", state.load, path))
+            def onload():
+                _timing(sid, "onload")
+                state.submit(f"reading {shown}", state.load, path)
+            pn.state.onload(onload)
 
         doc = pn.state.curdoc
         if doc is not None and doc.session_context is not None:

@@ -510,34 +510,49 @@ class State(param.Parameterized):
         return Options(alpha=float(self.alpha0), beta=float(self.beta0), b_method=bool(self.b_method))
 
     def _readjust(self) -> bool:
-        """Adjust the problem without the excluded observations; False (and ``error``) on failure."""
+        """Adjust the problem without the excluded observations; False (and ``error``) on failure.
+
+        On a worker thread (a background computation) the adjustment runs there and only its
+        result is made current on the session's event loop (:meth:`on_loop`)."""
         import time
 
         t0 = time.perf_counter()
+        problem, excluded, mode, options = self.problem, self.excluded, self.sigma0_mode, self.options()
         try:
             with self._busy():
-                reduced, kept = without(self.problem, self.excluded)
-                reduced = replace(reduced, sigma_act=self.sigma0_mode)
-                adj = adjust(reduced, self.options())
+                reduced, kept = without(problem, excluded)
+                reduced = replace(reduced, sigma_act=mode)
+                adj = adjust(reduced, options)
+        except Cancelled:
+            raise
         except BaardaError as err:
-            self.error = f"Adjustment failed: {err}"
+            msg = f"Adjustment failed: {err}"
+            self.on_loop(lambda: setattr(self, "error", msg))
             return False
         except Exception as err:  # noqa: BLE001
-            self.error = f"Adjustment failed: {type(err).__name__}: {err}"
+            msg = f"Adjustment failed: {type(err).__name__}: {err}"
+            self.on_loop(lambda: setattr(self, "error", msg))
             return False
-        self._frames = None
-        self._cov = None
-        with param.parameterized.batch_call_watchers(self):
-            self.kept = kept
-            self.results = adj
-            self.solution += 1
-            self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
-            self.components, self.criterion, self.criterion_error = None, None, ""
-            self.analysis_error = ""
-            self._run_hypotheses()
-            self._run_robust()
-            self.timings = {**self.timings, "adjust": time.perf_counter() - t0}
-        return True
+        if self._cancel.is_set() and threading.current_thread().name.startswith("baarda-task"):
+            return False                      # cancelled: the result is dropped
+
+        def apply() -> bool:
+            if self.problem is not problem or self.excluded != excluded:
+                return False                  # changed meanwhile: this result is stale
+            self._frames = None
+            self._cov = None
+            with param.parameterized.batch_call_watchers(self):
+                self.kept = kept
+                self.results = adj
+                self.solution += 1
+                self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
+                self.components, self.criterion, self.criterion_error = None, None, ""
+                self.analysis_error = ""
+                self._run_hypotheses()
+                self._run_robust()
+                self.timings = {**self.timings, "adjust": time.perf_counter() - t0}
+            return True
+        return bool(self.on_loop(apply))
 
     @param.depends("alpha0", "beta0", "b_method", watch=True)
     def _options_changed(self):
@@ -566,18 +581,28 @@ class State(param.Parameterized):
     def include_all(self) -> bool:
         return self._set_excluded(frozenset())
 
-    def _set_excluded(self, new) -> bool:
+    def _set_excluded(self, new):
+        """Exclude ``new`` (full indices) and adjust again. Served, on a worker thread with the
+        task indicator (:meth:`submit`; returns its Future, None while another task runs);
+        otherwise here (True, or False if the adjustment fails and the old state stays)."""
+        new = frozenset(int(i) for i in new)
+        if new == self.excluded:
+            return True
+        if self.background and not threading.current_thread().name.startswith("baarda-"):
+            return self.submit("excluding and adjusting again", self._set_excluded, new)
         old = self.excluded
-        if new == old:
-            return True
         with param.parameterized.discard_events(self):
-            self.excluded = frozenset(new)
-        if self._readjust():
-            self.param.trigger("excluded")
-            return True
-        with param.parameterized.discard_events(self):
-            self.excluded = old
-        return False
+            self.excluded = new
+        ok = False
+        try:
+            ok = self._readjust()
+        finally:
+            if not ok:
+                with param.parameterized.discard_events(self):
+                    self.excluded = old
+        if ok:
+            self.on_loop(lambda: self.param.trigger("excluded"))
+        return ok
 
     def reduced_index(self, full) -> np.ndarray:
         """Reduced indices of full observation indices (−1 where excluded)."""

@@ -936,3 +936,65 @@ def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
         k = st.add_hypothesis({"kind": "observation", "index": st.problem.n - 1})
         assert st.hyp_results[k].q == 0
         assert not st.hypothesis_deformation(k).any()
+
+
+def test_served_exclusion_adjusts_on_a_worker_and_applies_on_the_loop():
+    """Served, "Exclude" adjusts on a task thread (with the task indicator) and only makes the
+    result current on the session's loop; the result equals a fresh adjustment without it."""
+    import threading
+
+    st = network_state("gama-local.gkf")
+    adj0 = st.results
+    i = int(np.nanargmax(np.abs(adj0.w)))
+    loop_threads, tasks, results_on = [], [], []
+
+    def loop_call(fn):                        # a stand-in for the session's event loop
+        t = threading.Thread(target=fn, name="event-loop")
+        loop_threads.append(t)
+        t.start()
+    st._loop_call = loop_call
+    st.background = True
+    st.param.watch(lambda e: tasks.append(e.new), "task")
+    st.param.watch(lambda e: results_on.append(threading.current_thread().name), "results")
+    fut = st.exclude(i)
+    assert fut is not None and fut.result(timeout=120) is True
+    assert tasks[0] == "excluding and adjusting again" and tasks[-1] == ""
+    assert results_on == ["event-loop"] and loop_threads
+    ref, _ = fresh(st.problem, [i])
+    assert st.excluded == {i} and st.results.vPv == pytest.approx(ref.vPv, rel=1e-10)
+    # a second exclusion while one runs is refused (one computation per session at a time)
+    st.task = "something else"
+    assert st.include(i) is None and st.excluded == {i}
+    st.task = ""
+    assert st.include(i).result(timeout=120) is True and st.excluded == frozenset()
+
+
+def test_a_selection_patches_only_the_selection_sources(block_problem):
+    """A click (selected point / observation) gives the map's two selection sources new data
+    (the rings at the points' map positions, the observation's line); the overlay is not
+    redrawn: every other data source of the figure keeps its data object."""
+    from bokeh.models import GlyphRenderer
+
+    from baarda.dashboard.views import LayoutMap
+
+    st = State(problem=block_problem)
+    view = LayoutMap(state=st)
+    root = pn.panel(view).get_root(Document())
+    rings = [r for r in root.select({"type": GlyphRenderer}) if r.name == "selection-rings"]
+    lines = [r for r in root.select({"type": GlyphRenderer}) if r.name == "selection-lines"]
+    assert len(rings) == len(lines) == 1
+    rings, lines = rings[0].data_source, lines[0].data_source
+    assert rings.data["x"] == [] and lines.data["xs"] == []
+    others = {id(s): s.data for s in root.select({"type": ColumnDataSource}) if s not in (rings, lines)}
+    _, pts = st.frames()
+    st.selected_point = 3
+    assert rings.data["x"] == [pts["x"].iat[3]] and rings.data["y"] == [pts["y"].iat[3]]
+    i = next(i for i, k in enumerate(st.obs_points) if len(k) >= 2) if any(
+        len(k) >= 2 for k in st.obs_points) else 0
+    st.selected_obs = i
+    k = st.obs_points[i]
+    assert rings.data["x"] == [pts["x"].iat[j] for j in k]
+    assert all(s.data is others[id(s)] for s in root.select({"type": ColumnDataSource})
+               if id(s) in others)
+    # the report's static map still draws the selection (HoloViews layers)
+    assert view.static() is not None

@@ -139,9 +139,9 @@ def on_tap(state):
     return select
 
 
-def selection_layer(state) -> hv.Overlay:
-    """Rings around the selected point and the selected observation's points and line (the
-    options are set by the map: ``selection_opts``)."""
+def selection_marks(state) -> tuple[pd.DataFrame, list[np.ndarray]]:
+    """The selection: the points to ring (the selected point, or the selected observation's
+    points; rows of the points table) and the selected observation's lines (2 × 2 arrays)."""
     obs, pts = state.frames()
     ring = pts.iloc[[]]
     line = []
@@ -153,6 +153,21 @@ def selection_layer(state) -> hv.Overlay:
         if len(k) >= 2:
             line = [np.array([[pts["x"].iat[k[0]], pts["y"].iat[k[0]]], [pts["x"].iat[j], pts["y"].iat[j]]])
                     for j in k[1:]]
+    return ring, line
+
+
+def selection_data(state) -> tuple[dict, dict]:
+    """:func:`selection_marks` as the data of two Bokeh sources: rings ``{x, y}`` and lines
+    ``{xs, ys}`` (a map patches these on a click instead of redrawing its overlay)."""
+    ring, line = selection_marks(state)
+    return ({"x": ring["x"].to_numpy(dtype=float).tolist(), "y": ring["y"].to_numpy(dtype=float).tolist()},
+            {"xs": [seg[:, 0].tolist() for seg in line], "ys": [seg[:, 1].tolist() for seg in line]})
+
+
+def selection_layer(state) -> hv.Overlay:
+    """Rings around the selected point and the selected observation's points and line (the
+    options are set by the map: ``selection_opts``)."""
+    ring, line = selection_marks(state)
     return hv.Path(line) * hv.Points(ring, ["x", "y"], ["id"])
 
 

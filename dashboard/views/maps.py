@@ -3,8 +3,11 @@
 Each map is an overlay of layers, and each layer is its own HoloViews DynamicMap over only the
 state parameters it shows (``hv.streams.Params``): the block context (static), the view's data
 layers (``results``), a hypothesis layer (the lower-bound ellipse, the deformation field), the
-robust suspects and the selection. A change redraws only the layers that depend on it; the
-others return their memoized element and Bokeh keeps their data sources as they are. The title
+robust suspects. A change redraws only the layers that depend on it; the others return their
+memoized element and Bokeh keeps their data sources as they are. The selection (rings and the
+selected line) is not a HoloViews layer: two Bokeh glyphs of the map's figure whose sources
+are replaced on a click, so a click costs no overlay update (issue 12: a click answers in
+well under a second while other sessions compute). The title
 is set on the Bokeh figure after every update (:meth:`MapView._hook`). A click on the map goes
 through a ``Tap`` stream into the state (:func:`baarda.dashboard.views.common.on_tap`).
 """
@@ -20,13 +23,14 @@ import pandas as pd
 import panel as pn
 import param
 from bokeh.events import Tap
+from bokeh.models import ColumnDataSource
 
 from baarda.hypotheses import HypothesisTest
 
 from ..state import State, display_matrix
 from ..text import html_text, labels, plain
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
-                     round_scale, selection_layer, suspects_layer)
+                     round_scale, selection_data, selection_layer, suspects_layer)
 
 HOVER_OBS = ["obs", "kind", "ids"]
 
@@ -116,8 +120,10 @@ class MapView(pn.viewable.Viewer):
         self._hooked = set()
         s = self.state
         self._layers = [*self.layers(),
-                        self.layer(self._suspects, "solution", "robust", opts=suspect_opts()),
-                        self.layer(self._selection, "solution", "selection", opts=selection_opts())]
+                        self.layer(self._suspects, "solution", "robust", opts=suspect_opts())]
+        # the selection's Bokeh sources, one pair per figure of this view (same document)
+        self._selection_sources: list[tuple[ColumnDataSource, ColumnDataSource]] = []
+        s.param.watch(self._selection_changed, ["selected_point", "selected_obs", "solution"])
         dmaps = [hv.DynamicMap(lambda render=render, **_: render(),
                                streams=[self._stream(k) for k in kinds]).opts(*opts)
                  for render, kinds, opts in self._layers]
@@ -145,8 +151,9 @@ class MapView(pn.viewable.Viewer):
 
     def static(self) -> hv.Overlay:
         """The map as it is now, as a plain overlay (for the HTML report)."""
+        layers = [*self._layers, self.layer(self._selection, opts=selection_opts())]
         overlay = functools.reduce(operator.mul, [block_context(self.state),
-                                                  *(r().opts(*o) for r, _, o in self._layers)])
+                                                  *(r().opts(*o) for r, _, o in layers)])
         return overlay.opts(self._overlay_opts()).opts(hv.opts.Overlay(title=plain(self.title()), hooks=[]))
 
     def cached(self, name: str, key: tuple, compute):
@@ -165,6 +172,21 @@ class MapView(pn.viewable.Viewer):
             return
         self._hooked.add(fig.id)
         fig.on_event(Tap, lambda event: self.tap.event(x=event.x, y=event.y))
+        rings, lines = selection_data(self.state)
+        rings, lines = ColumnDataSource(rings), ColumnDataSource(lines)
+        fig.multi_line(xs="xs", ys="ys", source=lines, line_color="#e6007e", line_width=4,
+                       nonselection_line_alpha=1.0, name="selection-lines")
+        fig.scatter(x="x", y="y", source=rings, size=22, fill_alpha=0, line_color="#e6007e", line_width=3,
+                    nonselection_line_alpha=1.0, nonselection_fill_alpha=0, name="selection-rings")
+        self._selection_sources.append((rings, lines))
+
+    def _selection_changed(self, *_):
+        """A new selection: only the two selection sources get new data (no overlay update)."""
+        if not self._selection_sources or self.state.results is None:
+            return
+        rings, lines = selection_data(self.state)
+        for r, l in self._selection_sources:
+            r.data, l.data = rings, lines
 
     def _suspects(self):
         return suspects_layer(self.state)
@@ -515,7 +537,7 @@ class ImageResidualView(pn.viewable.Viewer):
         if self._by_image is None:
             p = self.state.problem
             by_image: dict = {}
-            for (im, pid), rows in self.state.problem_index()["image_rows"].items():
+            for (im, pid, _kp), rows in self.state.problem_index()["image_rows"].items():
                 comp = {str(p.info.ids[i].get("component") or p.info.kind[i].rsplit("-", 1)[-1]): i for i in rows}
                 if "x" in comp and "y" in comp:
                     by_image.setdefault(im, []).append((pid, comp["x"], comp["y"]))
