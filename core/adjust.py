@@ -290,6 +290,8 @@ class _Linearisation:
         """A[:, keep] (:func:`keep_columns`), its pattern kept for the next A of this layout."""
         if A.indices is not getattr(self, "_A_indices", None):
             return keep_columns(A, keep)
+        if keep.size == self.u:
+            return A                   # every column (the free gauge's steps): A itself, no copy
         if self._reduced is None or not np.array_equal(self._reduced[0], keep):
             Ar = keep_columns(A, keep)
             colmap = np.full(self.u, -1, dtype=np.int64)
