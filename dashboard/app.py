@@ -231,6 +231,24 @@ def _main(state):
     return main
 
 
+def warm(path):
+    """Read and adjust the served file once at start, on a task thread, into the server's cache
+    (:func:`baarda.dashboard.state.State.load`): the sessions that open the page take it from
+    there instead of waiting for the first one to adjust it. Prints ``baarda dashboard: FILE
+    read and adjusted in S s`` (or why not) when done. Returns the Future."""
+    from .state import TASKS
+
+    def run():
+        t0 = time.perf_counter()
+        st = State()
+        ok = st.load(path)
+        name = Path(str(path)).name
+        print(f"baarda dashboard: {name} read and adjusted in {time.perf_counter() - t0:.1f} s" if ok
+              else f"baarda dashboard: {st.error}", flush=True)
+        return ok
+    return TASKS.submit(run)
+
+
 def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = False, **kwargs):
     """Serve the dashboard on ``address:port`` (loopback by default) and print its URL.
 
@@ -238,6 +256,8 @@ def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = 
     """
     url = f"http://{address}:{port}/"
     print(f"baarda dashboard: {url}", flush=True)
+    if (path or default_path()) is not None:
+        warm(path or default_path())
     kwargs.setdefault("websocket_max_message_size", WEBSOCKET_MAX_MB * 1024 * 1024)
     return pn.serve({"/": lambda: create_app(path)}, port=port, address=address, show=show,
                     websocket_origin=[f"{address}:{port}", f"localhost:{port}"] if address in

@@ -998,3 +998,24 @@ def test_a_selection_patches_only_the_selection_sources(block_problem):
                if id(s) in others)
     # the report's static map still draws the selection (HoloViews layers)
     assert view.static() is not None
+
+
+def test_served_file_is_analysed_at_start_and_sessions_take_it_from_the_cache(tmp_path, monkeypatch, capsys):
+    """``serve`` warms the cache: a session opened afterwards reads and adjusts nothing and
+    shows the same adjustment as a fresh one."""
+    import baarda.io
+    from baarda.dashboard.app import warm
+
+    path = tmp_path / "net.gkf"
+    path.write_bytes((require_extdata(GAMA) / "gama-local.gkf").read_bytes())
+    assert warm(path).result(timeout=120) is True
+    assert "net.gkf read and adjusted in" in capsys.readouterr().out
+
+    def no_read(*a, **k):
+        raise AssertionError("read again")
+    monkeypatch.setattr(baarda.io, "read_problem", no_read)
+    st = State(path)
+    assert st.error == "" and st.results is not None
+    monkeypatch.undo()
+    ref = State(problem=baarda.io.read_problem(path))
+    assert st.results.vPv == pytest.approx(ref.results.vPv, rel=1e-12)

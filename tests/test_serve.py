@@ -1,4 +1,5 @@
-"""`baarda serve` with no file serves the demo block on 127.0.0.1 and prints the URL."""
+"""`baarda serve` with no file serves the demo block on 127.0.0.1, prints the URL, and reads and
+adjusts the file once at start."""
 
 from __future__ import annotations
 
@@ -37,6 +38,20 @@ def test_serve_demo_on_loopback(tmp_path):
             except OSError:
                 time.sleep(0.5)
         assert "baarda" in body
+        # the served file is read and adjusted once at start (the sessions' cache is warm)
+        import threading
+
+        seen = []
+
+        def read():
+            for line in proc.stdout:
+                seen.append(line)
+                if "read and adjusted in" in line:
+                    return
+        t = threading.Thread(target=read, daemon=True)
+        t.start()
+        t.join(120)
+        assert seen and "demo-block.json read and adjusted in" in seen[-1], seen
         # bound to loopback only: no listener on the machine's other addresses
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
             s.settimeout(2)
