@@ -275,9 +275,9 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
 
     # supernode slots of each cluster position
     nc = ncl
-    pa = cluster[rowc]
-    np.take(cl_pos, pa, out=pa)
-    akey = pa * max(nsn, 1)
+    akey = cluster[rowc]                          # cluster position · nsn + supernode, in place
+    np.take(cl_pos, akey, out=akey)
+    akey *= max(nsn, 1)
     akey += sn_of[colc]
     run = np.flatnonzero(np.r_[True, akey[1:] != akey[:-1]]) if akey.size else np.zeros(0, dtype=np.int64)
     skey = _unique_sorted(akey[run])
@@ -297,8 +297,8 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     local = np.repeat(cl_off[sp_[loc], slot[loc]], np.diff(np.r_[run, akey.size]))
     del loc, run, akey
     local += off_of[colc]
-    dest_a = pa                                   # (pa·M + rpos)·K + local, in place
-    del pa
+    dest_a = cluster[rowc]                        # (position·M + rpos)·K + local, in place
+    np.take(cl_pos, dest_a, out=dest_a)
     dest_a *= M
     dest_a += rpos[rowc]
     dest_a *= K
