@@ -878,9 +878,13 @@ def ap_test(adj, camera: str, group: str) -> APTest:
     """
     problem = adj.problem
     labels = problem.extra["ap_groups"][f"{camera}:{group}"]
-    free_labels = np.asarray(problem.params.labels)[problem.params.free]
-    where = {lab: i for i, lab in enumerate(free_labels)}
-    idx = np.array([where[lab] for lab in labels], dtype=np.int64)
+    # the group's parameters found by one pass over the labels (no array of every label)
+    all_labels, want = problem.params.labels, set(labels)
+    where = {all_labels[j]: j for j in range(len(all_labels)) if all_labels[j] in want}
+    free, par = problem.params.free, np.array([where[lab] for lab in labels], dtype=np.int64)
+    idx = np.searchsorted(free, par)
+    if idx.size and (idx.max() >= free.size or not np.array_equal(free[idx], par)):
+        raise KeyError(f"AP group {camera}:{group} has parameters that are not estimated")
     q = idx.size
     u = adj.A.shape[1]
     Eq = np.zeros((u, q))
