@@ -122,14 +122,18 @@ def create_app(path=None, problem=None, background: bool | None = None):
                            "upload a file.")
         elif not background:
             state.load(path)
+        else:
+            # a file the server has analysed (at its start, or for another session): its
+            # summary is in the page as it is sent; only the maps come after
+            state.load_cached(path)
     state.background = background
     template = pn.template.FastListTemplate(title="baarda", accent="#1f4e9c", header_background="#1f4e9c",
                                             sidebar_width=290, main_layout=None, theme_toggle=False,
                                             design=Fast, font="system-ui, sans-serif")
     files = FilePanel(state=state)
     template.sidebar.append(files)
-    waiting = pn.pane.HTML("<i>Reading and adjusting the file…</i>" if (path and state.results is None
-                                                                       and not state.error)
+    waiting = pn.pane.HTML("<i>Drawing the maps…</i>" if state.results is not None else
+                           "<i>Reading and adjusting the file…</i>" if (path and not state.error)
                            else "<i>Upload a file (sidebar).</i>", css_classes=["main-waiting"])
     content = pn.Column(waiting, sizing_mode="stretch_width")
 
@@ -169,7 +173,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
         else:
             build()
 
-    if state.results is not None:
+    if state.results is not None and not background:
         rebuild()
     state.param.watch(rebuild, "problem")
     state.param.watch(lambda e: setattr(content, "objects", [pn.pane.HTML("<i>Adjusting the new file…</i>")]),
@@ -195,6 +199,11 @@ def create_app(path=None, problem=None, background: bool | None = None):
                         fn()
                 doc.add_next_tick_callback(run)
             state._loop_call = loop_call
+        if state.results is not None:
+            # taken from the cache: the summary is in the page; the maps are built once the
+            # page is up, one session at a time, after the summaries of sessions still loading
+            _timing(sid, "summary")
+            pn.state.onload(lambda: _BUILDER.submit(build_later))
 
         def destroyed(_context):
             state._closed = True

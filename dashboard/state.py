@@ -425,6 +425,17 @@ class State(param.Parameterized):
             self.file_name = shown
         return ok
 
+    def load_cached(self, path) -> bool:
+        """Make ``path`` current if the server's cache holds it already (read and adjusted by
+        another session or at the server's start), at once and without waiting; else False."""
+        key = _file_key(path, self.options())
+        hit = _LOADED.get(key) if key is not None else None
+        if hit is None:
+            return False
+        self._set_loaded(hit, source=str(path))
+        self.file_name = plain(Path(str(path)).name)
+        return True
+
     def _set_loaded(self, hit, source: str) -> bool:
         """Make a cached (problem, adjustment, …) current without adjusting again."""
         problem, adj, kept, index, frames = hit

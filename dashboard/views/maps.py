@@ -186,7 +186,15 @@ class MapView(pn.viewable.Viewer):
             return
         rings, lines = selection_data(self.state)
         for r, l in self._selection_sources:
-            r.data, l.data = rings, lines
+            doc = r.document
+            if doc is None or doc.session_context is None:
+                r.data, l.data = rings, lines
+            else:
+                # served: changed on the document's next tick, where Bokeh holds its lock
+                # (a Panel widget's callback, e.g. a table row selected, runs without it)
+                def patch(r=r, l=l):
+                    r.data, l.data = rings, lines
+                doc.add_next_tick_callback(patch)
 
     def _suspects(self):
         return suspects_layer(self.state)
