@@ -132,7 +132,10 @@ def wait_ready(proc, timeout: float) -> float:
     box = {}
 
     def read():
-        box["line"] = proc.stdout.readline()
+        for line in proc.stdout:           # Panel's own "Launching server at …" comes first
+            box["line"] = line
+            if line.startswith("baarda dashboard:"):
+                return
     t = threading.Thread(target=read, daemon=True)
     t.start()
     t.join(timeout)
@@ -152,9 +155,9 @@ async def run(args) -> int:
     server = start_server(path, port)
     ms = int(args.timeout * 1000)
     rows, ok = [], True
-    ready = wait_ready(server, args.timeout)
-    rows.append(("server start: its file read and adjusted, into the cache (s)", "", f"{ready:.1f}", "", ""))
     try:
+        ready = wait_ready(server, args.timeout)
+        rows.append(("server start: its file read and adjusted, into the cache (s)", "", f"{ready:.1f}", "", ""))
         async with async_playwright() as pw:
             browser = await pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
             context = await browser.new_context(viewport={"width": 1600, "height": 1000})
