@@ -162,6 +162,16 @@ class Structure:
         return (Ar.shape == (self.n, self.u) and np.array_equal(Ar.indptr, self.indptr)
                 and np.array_equal(Ar.indices, self.indices))
 
+    def cluster_blocks(self, Ar) -> tuple[np.ndarray, np.ndarray]:
+        """The entries of ``Ar`` (of this pattern) per cluster: a (clusters × M × K) on the
+        camera side, b (clusters × M × 3) on the point side, zero-padded."""
+        nc, M, K = self.cl_id.size, self.M, self.K
+        a = np.zeros(nc * M * K)
+        a[self.dest_a] = Ar.data[self.nnz_a]
+        b = np.zeros(nc * M * 3)
+        b[self.dest_b] = Ar.data[self.nnz_b]
+        return a.reshape(nc, M, K), b.reshape(nc, M, 3)
+
     def worthwhile(self) -> bool:
         """Whether elimination pays (the automatic choice of :func:`baarda.adjust.adjust`)."""
         return self.n_eliminated >= MIN_ELIMINATED and self.n_eliminated >= MIN_SHARE * self.u
@@ -926,11 +936,8 @@ class SchurFactor:
             raise ValueError(f"backend {self.backend!r} not available")
         self.st, self.m, self.labels = st, st.u, st.labels
         nc, M, K = st.cl_id.size, st.M, st.K
-        a = np.zeros(nc * M * K)
-        a[st.dest_a] = Ar.data[st.nnz_a]
-        b = np.zeros(nc * M * 3)
-        b[st.dest_b] = Ar.data[st.nnz_b]
-        self.a, self.b = a.reshape(nc, M, K), b.reshape(nc, M, 3)
+        a, b = st.cluster_blocks(Ar)
+        self.a, self.b = a, b
         # the cluster weights depend on P only: kept with the structure for the next factor of
         # the same P (every Gauss-Newton iteration, the reliability at the solution)
         cached = st.__dict__.get("_weights")
@@ -1339,10 +1346,7 @@ class StepFactor:
             raise ValueError("design matrix pattern differs from the analysed structure")
         self.st, self.m, self.labels = st, st.u, st.labels
         nc, M, K = st.cl_id.size, st.M, st.K
-        a = np.zeros(nc * M * K)
-        a[st.dest_a] = Ar.data[st.nnz_a]
-        b = np.zeros(nc * M * 3)
-        b[st.dest_b] = Ar.data[st.nnz_b]
+        a, b = st.cluster_blocks(Ar)
         Pd = self.cluster_diagonal(st, P)
         nsn = st.sn_ptr.size - 1
         sn_diag = st.__dict__.get("_sn_diag")
@@ -1357,7 +1361,7 @@ class StepFactor:
         dU = np.zeros((nsn, K))
         bad = np.full(ne, -1, dtype=np.int64)
         _step_kernels()["step"](st.ent_ptr, st.ent_cols, st.cl_sn, st.bptr, st.bcol, st.bstart, sn_diag,
-                                a.reshape(nc, M, K), b.reshape(nc, M, 3), Pd, float(damping),
+                                a, b, Pd, float(damping),
                                 min(pivot_tol, POINT_PIVOT_TOL), S, E, Ci, dC, dU, bad)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
