@@ -291,12 +291,14 @@ class _Linearisation:
         if A.indices is not getattr(self, "_A_indices", None):
             return keep_columns(A, keep)
         if keep.size == self.u:
+            self._reduced = None       # (the held gauge's pattern is made again when needed)
             return A                   # every column (the free gauge's steps): A itself, no copy
         if self._reduced is None or not np.array_equal(self._reduced[0], keep):
+            self._reduced = None
             Ar = keep_columns(A, keep)
-            colmap = np.full(self.u, -1, dtype=np.int64)
-            colmap[keep] = np.arange(keep.size)
-            self._reduced = (keep.copy(), colmap[A.indices] >= 0, Ar.indices, Ar.indptr)
+            kept = np.zeros(self.u, dtype=bool)
+            kept[keep] = True
+            self._reduced = (keep.copy(), kept[A.indices], Ar.indices, Ar.indptr)
         _, m, indices, indptr = self._reduced
         Ar = sp.csr_matrix((A.data[m], indices, indptr), shape=(A.shape[0], keep.size), copy=False)
         Ar.has_canonical_format = True
@@ -361,7 +363,8 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     keep_all = np.setdiff1d(np.arange(free.size), plan.eliminate)
     keep = keep_all                # the unknowns solved for (far points held in the end game)
     Ar = lin.reduced(A, keep)
-    st = st_all = schur_structure(problem, Ar, keep, options.solver)
+    st = schur_structure(problem, Ar, keep, options.solver)
+    use_schur = st is not None     # points eliminated (the decision is kept for every later Ar)
     # Levenberg-Marquardt from the start for blocks whose points are eliminated (as Ceres);
     # Gauss-Newton first otherwise, damped only once a step makes the fit much worse
     damped = options.method == "levenberg-marquardt" or (options.method == "auto" and st is not None)
@@ -378,12 +381,20 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     v = problem.misclosure(f)
     cost = float(v @ (P @ v))
 
+    def structure():
+        """The elimination layout of the current Ar. One is held at a time: the previous one
+        (another gauge's, or without far points) is dropped before this one is analysed."""
+        nonlocal st
+        st = None
+        if use_schur:
+            st = schur_structure(problem, Ar, keep, "schur")
+
     def end_game_failed():
         """An undamped step of the end game failed (rejected, or a singular system). When far
         points are what drifts (along their rays towards infinity: vᵀPv falls towards an
         infimum, no finite optimum for them), hold them where they are and finish the rest
         undamped; otherwise back to the trust region."""
-        nonlocal keep, keep_all, Ar, st, st_all, plan, endgame, failed, n_far, last_undamped
+        nonlocal keep, keep_all, Ar, plan, endgame, failed, n_far, last_undamped
         failed += 1
         last_undamped = None
         if n_far == 0 and failed <= MAX_END_GAMES:
@@ -395,21 +406,20 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                     new = np.setdiff1d(np.arange(free.size), plan.eliminate)
                     if not np.array_equal(new, keep_all):
                         keep_all = new
-                        Ar = lin.reduced(A, keep_all)
-                        st_all = None if st_all is None else schur_structure(problem, Ar, keep_all, "schur")
                     far = _far_columns(problem, x, free[keep_all])
                 keep = keep_all[~far]
                 Ar = lin.reduced(A, keep)
-                st = None if st_all is None else schur_structure(problem, Ar, keep, "schur")
+                structure()
                 n_far = int(np.unique(params.point[free[keep_all][far]]).size)
                 return
         if n_far:
-            keep, st, n_far = keep_all, st_all, 0
+            keep, n_far = keep_all, 0
             Ar = lin.reduced(A, keep)
+            structure()
         endgame = False
 
     it = 0
-    free_gauge = None              # (all unknowns, their structure): damped steps of a free block
+    free_gauge = None              # all unknowns: the damped steps of a free block
     for it in range(1, options.max_iter + 1):
         # the first step is undamped whatever the method: a singular system there is a defect
         # to diagnose (DatumDefectError), not something to damp away
@@ -423,14 +433,14 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             # Dubrovnik-16; a two-view Bundler block did not converge in 50.)
             if lam > 0.0 and keep is keep_all:
                 if free_gauge is None:
-                    every = np.arange(free.size)
-                    free_gauge = (every, None if st_all is None else
-                                  schur_structure(problem, lin.reduced(A, every), every, "schur"))
-                keep, st = free_gauge
+                    free_gauge = np.arange(free.size)
+                keep = free_gauge
                 Ar = lin.reduced(A, keep)
-            elif lam == 0.0 and free_gauge is not None and keep is free_gauge[0]:
-                keep, st = keep_all, st_all
+                structure()
+            elif lam == 0.0 and free_gauge is not None and keep is free_gauge:
+                keep = keep_all
                 Ar = lin.reduced(A, keep)
+                structure()
         if st is not None and not st.matches(Ar):
             st = schur_structure(problem, Ar, keep, "schur")
         try:
@@ -541,22 +551,25 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             quiet = 0
     # what only the iterations needed is freed before the datum at the solution is analysed
     back = keep is not keep_all
-    keep, st, free_gauge = keep_all, st_all, None
+    keep, free_gauge = keep_all, None
+    if back:
+        st = Ar = None             # another gauge's (or the far points') layout
     lin.release()
     for s in problem.sets:
         getattr(s, "release", lambda: None)()
     if back:
-        Ar = None
         Ar = lin.reduced(A, keep_all)
     if plan.defect:
         old = plan.eliminate
         # the datum at the solution; a block keeps its held coordinates where they still fix
         # the gauge (the reduced system, and so the structure, stay as they are)
-        plan = datum_mod.plan(problem, x, A, P, free) if st is None else _replan(problem, x, A, P, free, plan)
-        if st is not None and not np.array_equal(old, plan.eliminate):
+        plan = _replan(problem, x, A, P, free, plan) if use_schur else datum_mod.plan(problem, x, A, P, free)
+        if use_schur and not np.array_equal(old, plan.eliminate):
             keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
             Ar = lin.reduced(A, keep)
-            st = schur_structure(problem, Ar, keep, "schur")
+            structure()
+    if use_schur and st is None:
+        structure()
     t_solve = time.perf_counter() - t0
     adj = Adjustment(problem=problem, options=options, x=x, f=f, A=A, P=P, plan=plan,
                      converged=status > 0, iterations=it, history=tuple(history),
