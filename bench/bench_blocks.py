@@ -2,8 +2,8 @@
 
 For each block prints the phases — build (simulation + problem), solve (Gauss-Newton), reliability
 (factor at the solution, selected inverse, r, w, MDB, δ̄0, u_k/u_t; median of 3 runs) — for the reduced-camera-system
-path (:mod:`baarda.schur`) and, in the same run, its peers: the generic sparse-Cholesky path of
-:mod:`baarda.linalg`, a dense numpy reference (r from the full inverse of N, small blocks only),
+path (:mod:`baarda.solve.schur`) and, in the same run, its peers: the generic sparse-Cholesky path of
+:mod:`baarda.solve.linalg`, a dense numpy reference (r from the full inverse of N, small blocks only),
 and pycolmap (Ceres) ``bundle_adjustment`` + ``estimate_ba_covariance`` on a synthetic
 reconstruction of the same numbers of images and points. Also the time of a 2D point-transfer
 retest (:meth:`baarda.result.Adjustment.test`, q = 2, three images) and of leaving one image
@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from baarda.adjust import Options, adjust
-from baarda.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem, project
-from baarda.hypotheses import common_error
+from baarda.model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem, project
+from baarda.stats.hypotheses import common_error
 from baarda.simulate import simulate_block
 
 LADYBUG = Path("/work/shared/extdata/bal/problem-49-7776-pre.txt")
@@ -205,7 +205,7 @@ def bal_as_colmap(block, directory: Path) -> None:
     """Write a BAL block as a COLMAP text model: one RADIAL camera per image (f, c = 0, k1, k2:
     BAL's camera exactly), the pose turned to COLMAP's look-along-+z convention
     (R' = D R, t' = D t, D = diag(1, −1, −1)), image y → −y. Same residuals, so the same cost."""
-    from baarda.rotation import R_from_rodrigues, quaternion_from_R
+    from baarda.observations.rotation import R_from_rodrigues, quaternion_from_R
 
     D = np.diag([1.0, -1.0, -1.0])
     directory.mkdir(parents=True, exist_ok=True)
@@ -264,7 +264,7 @@ def ladybug_peers(block, x_solution_cost: float, peers=("pycolmap", "scipy")) ->
             out = Path(tmp) / "out"
             out.mkdir()
             rec.write_text(str(out))
-            from baarda.bal import initial_cost
+            from baarda.model.sfm import initial_cost
             from baarda.io import read_problem
             cost = initial_cost(read_problem(out, "colmap"))
             t_cov, ok = pycolmap_covariance(pycolmap, rec, ba)
@@ -275,7 +275,7 @@ def ladybug_peers(block, x_solution_cost: float, peers=("pycolmap", "scipy")) ->
         return rows
     from scipy.optimize import least_squares
 
-    from baarda.bal import build_sfm_problem
+    from baarda.model.sfm import build_sfm_problem
     problem = build_sfm_problem(block)
     free = problem.params.free
     x_all = problem.params.x0.astype(float).copy()
@@ -316,7 +316,7 @@ def main():
     ap.add_argument("--pycolmap-max", type=int, default=50_000, help="largest point count for the pycolmap peer")
     ap.add_argument("--dense-max", type=int, default=4000, help="largest unknown count for the dense reference")
     args = ap.parse_args()
-    from baarda import schur
+    from baarda.solve import schur
     print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
           f"pair kernels: {schur.default_backend()}, load average {os.getloadavg()[0]:.2f}, cores {os.cpu_count()}")
     t0 = time.perf_counter()
@@ -341,7 +341,7 @@ def main():
                 print(f"{name:<18} skipped: {LADYBUG} not found")
                 continue
             try:
-                from baarda.bal import build_sfm_problem
+                from baarda.model.sfm import build_sfm_problem
                 from baarda.io.bal import read_bal
             except ImportError as err:
                 print(f"{name:<18} skipped: BAL reader not available ({err})")

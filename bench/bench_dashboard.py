@@ -37,7 +37,7 @@ import numpy as np
 import panel as pn
 from bokeh.document import Document
 
-from baarda.bundle import build_block_problem
+from baarda.model.bundle import build_block_problem
 from baarda.dashboard import views as V
 from baarda.dashboard.state import State
 from baarda.io import read_problem

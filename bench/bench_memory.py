@@ -100,7 +100,7 @@ def network(n_points: int, seed: int = 1):
     per point (right, up and one diagonal neighbour), σ = 2 mm, two fixed points."""
     import numpy as np
 
-    from baarda.network import Cluster, NetObservation, NetPoint, Network
+    from baarda.model.network import Cluster, NetObservation, NetPoint, Network
 
     rng = np.random.default_rng(seed)
     side = int(round(np.sqrt(n_points)))
@@ -127,7 +127,7 @@ def network(n_points: int, seed: int = 1):
 
 def worker_network(n_points: int) -> None:
     from baarda.adjust import Options, adjust
-    from baarda.geodetic import build_problem
+    from baarda.observations.geodetic import build_problem
 
     st = Stages()
     net = network(n_points)

@@ -17,8 +17,8 @@ import time
 import numpy as np
 
 from baarda.adjust import adjust
-from baarda.geodetic import build_problem
-from baarda.network import Cluster, NetObservation, NetPoint, Network
+from baarda.observations.geodetic import build_problem
+from baarda.model.network import Cluster, NetObservation, NetPoint, Network
 
 
 def grid(n_side: int, spacing=100.0, seed=1) -> Network:

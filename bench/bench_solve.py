@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_blocks import bal_as_colmap  # noqa: E402
 
 from baarda.adjust import Options, adjust  # noqa: E402
-from baarda.bal import build_sfm_problem, initial_cost  # noqa: E402
+from baarda.model.sfm import build_sfm_problem, initial_cost  # noqa: E402
 from baarda.errors import InputError  # noqa: E402
 from baarda.io.bal import read_bal  # noqa: E402
 

@@ -20,7 +20,7 @@ T, R       multi-dimensional test statistics of a hypothesis H (F80 eq. 12)
 from .adjust import Options, adjust
 from .datum import Datum
 from .errors import BaardaError, DatumDefectError, InputError, SingularError
-from .hypotheses import HypothesisTest, common_error, selection
+from .stats.hypotheses import HypothesisTest, common_error, selection
 
 __all__ = ["Options", "adjust", "Datum", "BaardaError", "DatumDefectError", "InputError",
            "SingularError", "HypothesisTest", "common_error", "selection"]

@@ -6,9 +6,9 @@ linearised at x, A = ∂f/∂x over the estimated parameters, and
 
     N Δx = −Aᵀ P (f(x) − l),   N = AᵀPA,
 
-is solved with a sparse Cholesky factor (:mod:`baarda.linalg`) or, for bundle blocks with many
+is solved with a sparse Cholesky factor (:mod:`baarda.solve.linalg`) or, for bundle blocks with many
 point unknowns that only nuisance parameters couple, through the reduced camera system
-(:mod:`baarda.schur`: the points are eliminated blockwise, the Schur complement S is factored and
+(:mod:`baarda.solve.schur`: the points are eliminated blockwise, the Schur complement S is factored and
 the points back-substituted; ``Options.solver``, chosen automatically by default). A datum defect is removed by
 holding d parameters at their values (a minimum constraint, :mod:`baarda.datum`) and then
 S-transforming the increment so that the S-base points keep the minimum sum of squared shifts
@@ -20,7 +20,7 @@ The first step is undamped (a singular system there is a defect to diagnose). Th
 
 - networks (``Options.method="auto"`` without point elimination): Gauss-Newton; a step that
   raises vᵀPv by more than ``DIVERGENCE`` switches to Levenberg-Marquardt;
-- bundle blocks (points eliminated, :mod:`baarda.schur`): Levenberg-Marquardt from the second
+- bundle blocks (points eliminated, :mod:`baarda.solve.schur`): Levenberg-Marquardt from the second
   step, with Ceres Solver's trust-region strategy (Agarwal, Mierle et al., Ceres Solver,
   ``LevenbergMarquardtStrategy``; Nielsen 1999; Madsen, Nielsen & Tingleff 2004, §3.2):
   (N + λ D) Δx = −AᵀP v with D = diag(N), λ = 1/μ, μ0 = 10⁴; the gain ratio
@@ -65,9 +65,9 @@ import scipy.sparse as sp
 
 from . import datum as datum_mod
 from .errors import DatumDefectError, SingularError
-from . import schur
-from .linalg import SPDFactor
-from .problem import take
+from .solve import schur
+from .solve.linalg import SPDFactor
+from .model.problem import take
 
 SOLVERS = ("auto", "schur", "generic")
 
@@ -123,7 +123,7 @@ class Options:
     eliminated, Gauss-Newton first otherwise), ``"gauss-newton"`` (damped only after a diverging
     step) or ``"levenberg-marquardt"``.
     solver: ``"auto"`` (eliminate points through the reduced camera system when that pays,
-    :meth:`baarda.schur.Structure.worthwhile`), ``"schur"`` (whenever the structure allows it) or
+    :meth:`baarda.solve.schur.Structure.worthwhile`), ``"schur"`` (whenever the structure allows it) or
     ``"generic"`` (one sparse Cholesky of N). backend: the pair loops of the Schur path,
     ``"numba"`` or ``"numpy"`` (None: numba when installed). Every choice gives the same
     numbers to round-off.
@@ -159,7 +159,7 @@ def keep_columns(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
 
 
 def weight_matrix(cov) -> sp.csr_matrix:
-    """P = C⁻¹ block by block: :meth:`baarda.problem.Covariance.weight`, vectorised per cluster
+    """P = C⁻¹ block by block: :meth:`baarda.model.problem.Covariance.weight`, vectorised per cluster
     size (the same batched inverses, so the same numbers)."""
     from .result import size_groups, size_weights
 
@@ -175,7 +175,7 @@ def weight_matrix(cov) -> sp.csr_matrix:
 
 
 def schur_structure(problem, Ar, keep, solver: str = "auto"):
-    """The point-elimination layout of :mod:`baarda.schur` for the reduced design matrix ``Ar``,
+    """The point-elimination layout of :mod:`baarda.solve.schur` for the reduced design matrix ``Ar``,
     or None when the generic solver is to be used (``solver``: see :class:`Options`)."""
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r} (known: {', '.join(SOLVERS)})")
@@ -194,7 +194,7 @@ def schur_structure(problem, Ar, keep, solver: str = "auto"):
 
 class _Labels:
     """The labels of the free parameters, made only when an error names one (labels may be
-    generated lazily, :class:`baarda.problem.LazySequence`)."""
+    generated lazily, :class:`baarda.model.problem.LazySequence`)."""
 
     def __init__(self, labels, free):
         self.labels, self.idx = labels, np.asarray(free)
@@ -636,8 +636,8 @@ def _factor(st, Ar, P, labels, backend, lam, problem, plan):
 
 
 def _schur_or_diagnose(st, Ar, P, labels, backend, damping=0.0):
-    """The step's factor: :class:`baarda.schur.StepFactor` where it applies (one compiled pass),
-    else :class:`baarda.schur.SchurFactor` (always for ``backend="numpy"``, the reference)."""
+    """The step's factor: :class:`baarda.solve.schur.StepFactor` where it applies (one compiled pass),
+    else :class:`baarda.solve.schur.SchurFactor` (always for ``backend="numpy"``, the reference)."""
     fast = st.__dict__.get("_step_applicable")
     if fast is None or fast[0] is not P:
         fast = (P, backend != "numpy" and schur.StepFactor.applicable(st, P))

@@ -1,4 +1,4 @@
-"""Approximate coordinates for the points of a :class:`~baarda.network.Network` lacking them.
+"""Approximate coordinates for the points of a :class:`~baarda.model.network.Network` lacking them.
 
 gama-local computes missing approximate coordinates itself before adjusting; baarda does the
 same here so that Gauss-Newton starts close enough to converge. The methods are the classical
@@ -18,7 +18,7 @@ ones of surveying computations (e.g. Ghilani, *Adjustment Computations*, ch. 11-
 
 Coordinates already given in the network are never changed. Bearings follow the network's
 convention ``bearing = angle_sign·atan2(Δy, Δx) + azimuth_offset`` (see
-:mod:`baarda.network`).
+:mod:`baarda.model.network`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from baarda.errors import InputError
-from baarda.network import Network
+from baarda.model.network import Network
 
 __all__ = ["approximate_coordinates"]
 
@@ -571,7 +571,7 @@ def approximate_coordinates(net: Network, missing: str = "error") -> Network:
     :class:`~baarda.errors.InputError` naming every one of them (at the line of the first);
     ``missing="keep"`` leaves their coordinates ``None`` and records them, with the reason, in
     ``Network.extra["approx_missing"]`` (``{id: (axes, reason)}``) for
-    :func:`baarda.geodetic.build_network` to treat as local defects.
+    :func:`baarda.observations.geodetic.build_network` to treat as local defects.
     """
     if missing not in ("error", "keep"):
         raise ValueError("missing must be 'error' or 'keep'")

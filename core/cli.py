@@ -84,7 +84,7 @@ def _adjust_with_defects(problem, options, progress=None, strict=False):
     """Adjust; local defects found by the adjustment are set aside (networks: geodetic, blocks:
     sfm_defects) unless ``strict``. Returns ``(adjustment, problem adjusted)``."""
     if "network_model" in problem.extra:
-        from .geodetic import adjust_network
+        from .observations.geodetic import adjust_network
         return adjust_network(problem, options, progress=progress, strict=strict)
     from .sfm_defects import adjust_block
     return adjust_block(problem, options, progress=progress, strict=strict)
@@ -286,14 +286,14 @@ def _analyze(args) -> int:
         doc["planted"] = findings
     snoop = None
     if args.snoop:
-        from . import snooping
+        from .stats import snooping
         snoop = snooping.iterate(problem, options)
         doc["snooping"] = [s.__dict__ for s in snoop.steps]
     import numpy as np
 
     prec_lines = []
     if args.sbase or args.criterion:
-        from . import precision
+        from .stats import precision
         ids = problem.points.ids
         base = [b.strip() for b in args.sbase.split(",")] if args.sbase else list(ids[:2])
         unknown = [b for b in base if b not in ids]
@@ -323,12 +323,12 @@ def _analyze(args) -> int:
                               f"C2 = {fit['C2']:.4g} m, λmax/λmin = {fit['ratio']:.3g}")
     rob = None
     if args.robust:
-        from . import robust
+        from .stats import robust
         rob = robust.estimate(problem, args.robust, options)
         doc["robust"] = rob.as_dict()
     vc = None
     if args.variance_components:
-        from . import variance
+        from .stats import variance
         try:
             if args.variance_components == "radial":
                 comps = variance.radial_components(problem)
@@ -419,7 +419,7 @@ def _defect_message(err, problem) -> str:
 
 
 def cmd_convert(args) -> int:
-    from .bal import SfmBlock, to_block
+    from .model.sfm import SfmBlock, to_block
     from .io import read_model
     from .io.native import write_native
 
@@ -550,7 +550,7 @@ def main(argv=None) -> int:
         if args.command == "report":
             return cmd_report(args)
         if args.command == "risk":
-            from . import risk
+            from .stats import risk
             try:
                 C = risk.critical_value(args.p, args.L1, args.L2, args.lambda_tol)
             except ValueError as err:

@@ -35,7 +35,7 @@ import scipy.linalg as la
 import scipy.sparse as sp
 
 from .errors import DatumDefectError
-from .linalg import SPDFactor
+from .solve.linalg import SPDFactor
 
 TRANSFORMS = {
     1: ("translation z",),

@@ -14,12 +14,12 @@ free network), H = AΣAᵀ, C_vv = C − H (F80 eq. 8). Per observation i:
   unknowns, δ0 √((1 − r_i)/r_i).
 
 Everything per observation needs only a_i Σ a_jᵀ for observations i, j of one covariance
-cluster, i.e. entries of Σ on the pattern of N: the selected inverse of :mod:`baarda.linalg`, or
+cluster, i.e. entries of Σ on the pattern of N: the selected inverse of :mod:`baarda.solve.linalg`, or
 for bundle blocks (``solver == "schur"``) the blocks of Σ that the reduced camera system of
-:mod:`baarda.schur` delivers without ever forming N.
+:mod:`baarda.solve.schur` delivers without ever forming N.
 
 :meth:`Adjustment.exclude` leaves observations out at the same linearisation point by a
-low-rank (Woodbury) update of the factor and of these blocks (:class:`baarda.linalg.LowRankUpdate`).
+low-rank (Woodbury) update of the factor and of these blocks (:class:`baarda.solve.linalg.LowRankUpdate`).
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
-from . import stats
-from .linalg import LowRankUpdate, SPDFactor
-from .problem import LazySequence
+from .stats import distributions
+from .solve.linalg import LowRankUpdate, SPDFactor
+from .model.problem import LazySequence
 
 R_EPS = 1e-10
 #: :meth:`Adjustment.exclude` updates by Woodbury when the left-out clusters hold at most this
@@ -98,7 +98,7 @@ def size_groups(cov) -> tuple:
     """Clusters grouped by their size: ((m, cluster ids (k,), members (k, m), C (k, m, m)), ...).
 
     Cached per (immutable) covariance object: the stacks are built once (a stacked covariance,
-    :meth:`baarda.problem.Covariance.from_groups`, has them already).
+    :meth:`baarda.model.problem.Covariance.from_groups`, has them already).
     """
     if getattr(cov, "groups", None) is not None:
         return tuple((int(m), cl, members, C) for m, cl, members, C in cov.groups)
@@ -128,7 +128,7 @@ def size_weights(cov) -> tuple:
 
 def _mm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """Stacked small-matrix products (compiled loops when numba is there)."""
-    from .schur import _bmm
+    from .solve.schur import _bmm
 
     return _bmm(np.ascontiguousarray(X), np.ascontiguousarray(Y))
 
@@ -207,7 +207,7 @@ class Adjustment:
     iterations: int
     history: tuple = ()
     timings: dict = field(default_factory=dict)
-    solver: str = "generic"   # "generic" (sparse Cholesky of N) or "schur" (baarda.schur)
+    solver: str = "generic"   # "generic" (sparse Cholesky of N) or "schur" (baarda.solve.schur)
 
     # -- basic quantities -------------------------------------------------------------------
     @cached_property
@@ -228,7 +228,7 @@ class Adjustment:
 
     @cached_property
     def schur_structure(self):
-        """The point-elimination layout (:mod:`baarda.schur`), None for the generic solver."""
+        """The point-elimination layout (:mod:`baarda.solve.schur`), None for the generic solver."""
         if self.solver != "schur":
             return None
         from .adjust import schur_structure
@@ -236,13 +236,13 @@ class Adjustment:
 
     @cached_property
     def factor(self):
-        """Factor of N = AᵀPA over the kept unknowns: :class:`baarda.linalg.SPDFactor`, or
-        :class:`baarda.schur.SchurFactor` for the reduced camera system."""
+        """Factor of N = AᵀPA over the kept unknowns: :class:`baarda.solve.linalg.SPDFactor`, or
+        :class:`baarda.solve.schur.SchurFactor` for the reduced camera system."""
         import time
 
         t0 = time.perf_counter()
         if self.schur_structure is not None:
-            from .schur import SchurFactor
+            from .solve.schur import SchurFactor
             f = SchurFactor(self.schur_structure, self.Ar, self.P, backend=getattr(self.options, "backend", None))
         else:
             labels = np.asarray(self.problem.params.labels)[self.problem.params.free][self.keep]
@@ -293,11 +293,11 @@ class Adjustment:
 
     @cached_property
     def delta0(self) -> float:
-        return stats.delta0(self.options.alpha, self.options.beta, 1)
+        return distributions.delta0(self.options.alpha, self.options.beta, 1)
 
     @cached_property
     def global_test(self) -> dict:
-        return stats.global_test(self.vPv, self.dof, getattr(self.problem, "conf_pr", 0.95))
+        return distributions.global_test(self.vPv, self.dof, getattr(self.problem, "conf_pr", 0.95))
 
     # -- per-observation reliability ----------------------------------------------------------
     @cached_property
@@ -459,11 +459,11 @@ class Adjustment:
 
     @cached_property
     def critical_w(self) -> float:
-        return stats.critical_normal(self.options.alpha)
+        return distributions.critical_normal(self.options.alpha)
 
     @cached_property
     def critical_tau(self) -> float:
-        return stats.critical_tau(self.options.alpha, self.dof)
+        return distributions.critical_tau(self.options.alpha, self.dof)
 
     @cached_property
     def rejected(self) -> np.ndarray:
@@ -514,7 +514,7 @@ class Adjustment:
         A sequence of dicts (group, members, T, dimension, redundancy, critical, rejected, alpha,
         nabla) ordered by group id, kept as arrays (:class:`GroupTests`): a block of a million
         image points holds a few arrays, not a million dicts."""
-        from .hypotheses import selection, test
+        from .stats.hypotheses import selection, test
 
         gid = self.problem.info.group
         if (gid < 0).all():
@@ -568,7 +568,7 @@ class Adjustment:
     def _cluster_group_stacks(self) -> list:
         """Tests of the groups that are exactly one covariance cluster (an image point, a GNSS
         vector), all at once from the cluster blocks of C_vv: W = P_c C_vv P_c, T = gᵀW⁺g with
-        g = (Pv)_c, ∇ŝ = −W⁺g — the formulas of :func:`baarda.hypotheses.test` with H the
+        g = (Pv)_c, ∇ŝ = −W⁺g — the formulas of :func:`baarda.stats.hypotheses.test` with H the
         selection of the cluster, without a solve per group. Returns, per cluster size, stacks
         (members (k, m) sorted per row, T (k,), q (k,), α (k,), T_crit (k,), ∇ŝ (k, m) in the
         order of the sorted members).
@@ -603,9 +603,9 @@ class Adjustment:
             alpha = np.empty(q.size)
             crit = np.empty(q.size)
             for qq in np.unique(q).tolist():
-                a = stats.alpha_b_method(o.alpha, o.beta, int(qq)) if (o.b_method and qq) else o.alpha
+                a = distributions.alpha_b_method(o.alpha, o.beta, int(qq)) if (o.b_method and qq) else o.alpha
                 alpha[q == qq] = a
-                crit[q == qq] = stats.critical_chi2(a, int(qq)) if qq else float("inf")
+                crit[q == qq] = distributions.critical_chi2(a, int(qq)) if qq else float("inf")
             srt = np.argsort(mem, axis=1)
             out.append((np.take_along_axis(mem, srt, 1), T, q, alpha, crit, np.take_along_axis(nabla, srt, 1)))
         return out
@@ -689,7 +689,7 @@ class Adjustment:
     # -- hypotheses and deformations -----------------------------------------------------------
     def test(self, H, label: str = ""):
         """Multi-dimensional test of an arbitrary hypothesis matrix H (n × q), F80 eq. 10-15."""
-        from .hypotheses import test
+        from .stats.hypotheses import test
         return test(self, H, label=label)
 
     def deformation(self, error: np.ndarray) -> np.ndarray:
@@ -719,7 +719,7 @@ class Adjustment:
 
         ``method``: ``"woodbury"`` updates the cached factor, N' = N + VᵀMV with V the design
         rows of the covariance clusters touched and M = −P_c (+ the weight of the members that
-        stay), N'⁻¹ = N⁻¹ − Y T Yᵀ (:class:`baarda.linalg.LowRankUpdate`); the blocks a_iΣ'a_jᵀ
+        stay), N'⁻¹ = N⁻¹ − Y T Yᵀ (:class:`baarda.solve.linalg.LowRankUpdate`); the blocks a_iΣ'a_jᵀ
         of every cluster are the cached ones minus (a_iY) T (a_jY)ᵀ, so all statistics follow
         in O(n·k) after k solves. ``"refactor"`` builds and factors N' anew. ``"auto"`` takes
         Woodbury when the touched clusters hold at most :data:`WOODBURY_MAX` observations —
@@ -730,7 +730,7 @@ class Adjustment:
         import time
 
         from .adjust import adjust, weight_matrix
-        from .problem import subset
+        from .model.problem import subset
 
         t0 = time.perf_counter()
         rows = np.unique(np.asarray(rows, dtype=np.int64))

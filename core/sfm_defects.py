@@ -1,7 +1,7 @@
 """Local defects of bundle blocks: points, images and cameras the observations do not determine.
 
-A structure-from-motion block (:class:`baarda.bal.SfmBlock`) or a photogrammetric block
-(:class:`baarda.bundle.Block`) may hold entities whose unknowns its image points leave
+A structure-from-motion block (:class:`baarda.model.sfm.SfmBlock`) or a photogrammetric block
+(:class:`baarda.model.bundle.Block`) may hold entities whose unknowns its image points leave
 undetermined, while the rest of the block is sound: a point seen from two images with the same
 projection centre (zero baseline), a point on a single ray, an image that sees fewer than three
 points, a camera whose refined intrinsics (or APs) get fewer equations than unknowns. Such a
@@ -84,7 +84,7 @@ class _View:
     """Arrays the pre-pass needs, from an SfmBlock or a Block (read only)."""
 
     def __init__(self, model):
-        from .bal import CAMERA_MODELS, SfmBlock
+        from .model.sfm import CAMERA_MODELS, SfmBlock
 
         self.model = model
         self.sfm = isinstance(model, SfmBlock)
@@ -113,7 +113,7 @@ class _View:
             self.controlled = np.array([p in controlled for p in b.points], dtype=bool)
             self.pose_names = POSE_SFM
         else:
-            from .bundle import AP_GROUPS
+            from .model.bundle import AP_GROUPS
 
             b = model
             self.image_ids = [im.id for im in b.images]
@@ -442,7 +442,7 @@ def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
             obs_line=np.array(np.asarray(b.obs_line)[keep]),
             control=tuple(cp for cp in b.control if cp.id in kept_ids),
             extra=extra)
-    from .bundle import ImageObservations
+    from .model.bundle import ImageObservations
 
     b = model
     o = b.obs
@@ -485,8 +485,8 @@ def build(model, strict: bool = False):
     ``problem.extra["local_model"]`` holds the reduced block :func:`adjust_block` reduces further
     if needed. strict: raise :class:`baarda.errors.InputError` naming all defects instead.
     """
-    from .bal import SfmBlock, build_sfm_problem
-    from .bundle import build_block_problem
+    from .model.sfm import SfmBlock, build_sfm_problem
+    from .model.bundle import build_block_problem
 
     reduced, defects = find_defects(model)
     if defects and strict:
@@ -510,7 +510,7 @@ def _entities(labels, model):
             for nm in POSE_SFM:
                 owner[f"image {iid}.{nm}"] = ("image", iid)
         for cid, cam in zip(v.camera_ids, model.cameras):
-            from .bal import CAMERA_MODELS
+            from .model.sfm import CAMERA_MODELS
             for nm in CAMERA_MODELS[cam.model][0]:
                 owner[f"camera {cid}.{nm}"] = ("camera", cid)
     else:
@@ -546,7 +546,7 @@ def _local(named, model) -> bool:
 
 def _intrinsics_refined(model) -> bool:
     """Whether ``model`` is a structure-from-motion block whose intrinsics are estimated."""
-    from .bal import SfmBlock
+    from .model.sfm import SfmBlock
 
     return isinstance(model, SfmBlock) and model.refine_intrinsics
 
@@ -554,7 +554,7 @@ def _intrinsics_refined(model) -> bool:
 def _hold_intrinsics(model, problem, cameras):
     """The block with every camera's intrinsics held at the file's values, rebuilt; the cameras
     whose intrinsics the adjustment found undetermined are recorded as local defects."""
-    from .bal import CAMERA_MODELS
+    from .model.sfm import CAMERA_MODELS
 
     held = model.replace(refine_intrinsics=False)
     found = []

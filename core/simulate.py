@@ -24,7 +24,7 @@ above large):
   strip of a point also seen by another strip (a point-transfer error);
 - ``"exchange"``: two neighbouring points swapped in one image;
 - a systematic image deformation: ``radial`` = a1 of Brown's basis (camera units at the
-  reference radius, :mod:`baarda.bundle`), added to every image point.
+  reference radius, :mod:`baarda.model.bundle`), added to every image point.
 
 *Design mode* (``design=True``): no noise, approximations equal to the truth — the
 observations are exact projections, so reliability measures depend only on geometry
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bundle import Block, Camera, Image, ImageObservations, ObjectPoint, project
+from .model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, project
 
 CAMERAS = {
     "aerial": {"id": "RC30", "c": 153.0, "width": 230.0, "height": 230.0, "unit": "mm"},
@@ -77,7 +77,7 @@ def simulate_block(**recipe) -> tuple[Block, dict]:
     Returns (Block, truth): truth = {"format": "baarda-truth", "version": 1, "recipe": ...,
     "errors": [{"kind", "class", "ids", "rows", "vector", "unit", "size_sigma",
     "size_base"}], "radial": ..., "points": {id: [X, Y, Z]}, "images": {id: [X0, Y0, Z0,
-    ω, φ, κ]}}. ``rows`` are the rows of the errors in :func:`baarda.bundle.build_block_problem`.
+    ω, φ, κ]}}. ``rows`` are the rows of the errors in :func:`baarda.model.bundle.build_block_problem`.
     """
     unknown = set(recipe) - set(DEFAULTS)
     if unknown:
@@ -340,7 +340,7 @@ def _plant(r, rng, images, pid, obs_i, obs_p, xy, ref, status, sigma, sh, sv, ca
 
 
 def _rows(e, inv, block) -> list[int]:
-    """Problem rows of a planted error (layout of :func:`baarda.bundle.build_block_problem`)."""
+    """Problem rows of a planted error (layout of :func:`baarda.model.bundle.build_block_problem`)."""
     if e["kind"] == "control":
         row = 2 * block.obs.size
         for p in block.points:
@@ -386,7 +386,7 @@ def simulate_imodel(strips: int = 2, models_per_strip: int = 5, base: float = 92
                     strip_distance: float = 1700.0, model_scale: float = 0.102, sigma_model: float = 0.01,
                     sigma_control: float = 0.05, control: str = "perimeter", errors=(), design: bool = False,
                     datum: str = "control", seed: int = 0, title: str = ""):
-    """A planimetric independent-model block (:mod:`baarda.imodel`) and its truth.
+    """A planimetric independent-model block (:mod:`baarda.model.imodel`) and its truth.
 
     Model j of strip i covers the overlap of images j and j + 1: six points in the von Gruber
     positions X = jB, (j + 1)B, Y = iA + (−A/2, 0, A/2) (base B and strip distance A in m);
@@ -395,7 +395,7 @@ def simulate_imodel(strips: int = 2, models_per_strip: int = 5, base: float = 92
     (mm). Control: "corners" or "perimeter" (every other point on the block edge). Errors:
     [{"kind": "model-point", "size": σ-multiple}, {"kind": "control", "size": ..., "axis"}].
     """
-    from .imodel import IModelBlock, Model, ModelObservations, PlanPoint
+    from .model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
 
     rng = np.random.default_rng(seed)
     xs = np.arange(models_per_strip + 1) * base

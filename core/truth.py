@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import bundle
+from .model import bundle
 
 
 def _hypothesis(adj, e):

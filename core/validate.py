@@ -158,8 +158,8 @@ def check_model_range(model, path) -> None:
     """Before a bundle block is built (its builder already squares coordinates to find local
     defects and far points): approximate coordinates, image coordinates and camera parameters
     within ±VALUE_LIMIT. Networks are checked on their problem only (:func:`check_numeric_range`)."""
-    from .bal import SfmBlock
-    from .bundle import Block
+    from .model.sfm import SfmBlock
+    from .model.bundle import Block
 
     if isinstance(model, SfmBlock):
         def part(name, lines):      # a COLMAP model directory: the file inside it (binary: no lines)

@@ -18,15 +18,15 @@ Hypothesis specifications are plain dicts, ``{"kind": ..., "active": bool, ...}`
 - ``{"kind": "transfer", "point": p, "images": [j1, j2, ...]}`` — one 2D point-transfer error
   common to the image coordinates of point p in the images listed (F80 §2.2, H = (0 … I₂ … I₂ … 0)ᵀ);
 - ``{"kind": "ap-group", "camera": c, "group": g}`` — a group of additional parameters of a
-  block's camera: tested by :func:`baarda.bundle.ap_test` when the group is estimated
+  block's camera: tested by :func:`baarda.model.bundle.ap_test` when the group is estimated
   (``extra["ap_groups"]``), otherwise as the hypothesis H = ∂f/∂s of
-  :func:`baarda.bundle.h_ap_group` (F80 §7.2).
+  :func:`baarda.model.bundle.h_ap_group` (F80 §7.2).
 
 Besides the adjustment the state keeps the results of the core's other analyses, each run on the
 current (reduced) problem: the coordinate covariance in a chosen S-base
-(:func:`baarda.precision.covariance`), robust reweighting (:func:`baarda.robust.estimate`),
-iterative data snooping with the leave-one-out view (:mod:`baarda.snooping`), variance components
-(:func:`baarda.variance.estimate`) and an adjustment with an injected error (teaching).
+(:func:`baarda.stats.precision.covariance`), robust reweighting (:func:`baarda.stats.robust.estimate`),
+iterative data snooping with the leave-one-out view (:mod:`baarda.stats.snooping`), variance components
+(:func:`baarda.stats.variance.estimate`) and an adjustment with an injected error (teaching).
 """
 
 from __future__ import annotations
@@ -47,11 +47,12 @@ import scipy.sparse as sp
 
 from types import SimpleNamespace
 
-from baarda import bundle, precision, risk, robust, snooping, variance
+from baarda.model import bundle
+from baarda.stats import precision, risk, robust, snooping, variance
 from baarda.adjust import Options, adjust
 from baarda.datum import Datum
 from baarda.errors import BaardaError
-from baarda.hypotheses import HypothesisTest, common_error, deformation, selection
+from baarda.stats.hypotheses import HypothesisTest, common_error, deformation, selection
 
 from .subset import without
 from .text import plain
@@ -232,7 +233,7 @@ class State(param.Parameterized):
 
     source = param.String(default="", doc="Path of the problem file.")
     file_name = param.String(default="", doc="The file's name as shown (an upload's own name).")
-    problem = param.Parameter(default=None, doc="The full problem as read (baarda.problem.Problem).")
+    problem = param.Parameter(default=None, doc="The full problem as read (baarda.model.problem.Problem).")
     alpha0 = param.Number(default=0.001, bounds=(1e-6, 0.5), doc="Size α0 of the 1D tests.")
     beta0 = param.Number(default=0.80, bounds=(0.5, 0.999), doc="Power β0.")
     b_method = param.Boolean(default=False, doc="Baarda's B-method for multi-dimensional tests.")
@@ -932,7 +933,7 @@ class State(param.Parameterized):
 
     def hypothesis_deformation(self, k: int | None = None) -> np.ndarray:
         """∇0x of hypothesis ``k`` (default the selected one) as point shifts (m × 3, metres):
-        the core's :func:`baarda.hypotheses.deformation` — the lower bound ∇0s in the direction
+        the core's :func:`baarda.stats.hypotheses.deformation` — the lower bound ∇0s in the direction
         the test sees worst. Zero for an inactive hypothesis, a failed one or an AP-group test."""
         k = self.selected_hypothesis if k is None else k
         m = len(self.problem.points.ids)
@@ -977,7 +978,7 @@ class State(param.Parameterized):
         return [pid for pid in ids if pid in named]
 
     def coordinate_covariance(self):
-        """The core's :class:`~baarda.precision.CoordinateCovariance` in the chosen S-base
+        """The core's :class:`~baarda.stats.precision.CoordinateCovariance` in the chosen S-base
         (``sbase``; [] = the problem's datum), or None if the core refuses that base
         (``sbase_error`` says why)."""
         key = (self.results, tuple(self.sbase))
@@ -1090,9 +1091,9 @@ class State(param.Parameterized):
         return sorted({int(self.kept[j]) for d in self.robust.suspects for j in d["members"]})
 
     def run_snooping(self) -> bool:
-        """Iterative data snooping (:func:`baarda.snooping.iterate`) of the current problem with
+        """Iterative data snooping (:func:`baarda.stats.snooping.iterate`) of the current problem with
         w (σ0 a priori) or τ (a posteriori), and σ̂0 with each of the ``LOO_SUSPECTS`` largest
-        |w| left out in turn (:func:`baarda.snooping.leave_one_out`)."""
+        |w| left out in turn (:func:`baarda.stats.snooping.leave_one_out`)."""
         adj = self.results
 
         def step(k, st):
@@ -1147,9 +1148,9 @@ class State(param.Parameterized):
         return self._set_excluded(self.excluded | removed)
 
     def run_variance(self) -> bool:
-        """Variance components per observation family (:func:`baarda.variance.estimate`), or
+        """Variance components per observation family (:func:`baarda.stats.variance.estimate`), or
         with ``variance_model == "radial"`` the radial model σ² = a² + b²c²/cos⁴α of a block
-        (:func:`baarda.variance.radial_components`, :func:`~baarda.variance.estimate_components`,
+        (:func:`baarda.stats.variance.radial_components`, :func:`~baarda.stats.variance.estimate_components`,
         F80 §2.1) started at θ0 = (σ²/2, σ²/2, 1), σ² the median a priori image variance."""
         try:
             with self._busy():
@@ -1209,7 +1210,7 @@ class State(param.Parameterized):
 
     def _criterion_setup(self, sbase):
         """Covariance G in the S-base, point positions, S-base flags and the null space (the
-        arguments of :func:`baarda.precision.fit_criterion`, as ``baarda analyze --criterion``)."""
+        arguments of :func:`baarda.stats.precision.fit_criterion`, as ``baarda analyze --criterion``)."""
         adj = self.results
         cc = precision.covariance(adj, list(sbase))
         _, Gfull, _ = precision.release_null_space(adj)
@@ -1220,9 +1221,9 @@ class State(param.Parameterized):
                           sbase=None) -> dict | None:
         """Compare the coordinate covariance with a chaotic criterion matrix (M84 §2).
 
-        Without ``C1`` the criterion is fitted (:func:`baarda.precision.fit_criterion`, M84 §2.3:
+        Without ``C1`` the criterion is fitted (:func:`baarda.stats.precision.fit_criterion`, M84 §2.3:
         C1 so that λmax = 1, C2 so that λmax/λmin is smallest); with ``C1`` (m²/m) and ``C2`` (m)
-        the user's criterion is compared (:func:`~baarda.precision.compare`). Keeps λmax, λmin,
+        the user's criterion is compared (:func:`~baarda.stats.precision.compare`). Keeps λmax, λmin,
         "satisfied" (λmax < 1) and the eigenvector of λmax as a displacement pattern per point
         (m × 2, x, y, largest component 1) in ``criterion``; None and ``criterion_error`` if the
         core refuses.
@@ -1252,8 +1253,8 @@ class State(param.Parameterized):
         return out
 
     def risk_curve(self, p: float, L1: float, L2: float, lam_tol: float | None = None, n: int = 300) -> dict:
-        """The risk-minimising critical value C (:func:`baarda.risk.critical_value`, M84 §3.3),
-        its α_C = 1 − Φ(C) and β_C = 1 − Φ(C − √λtol) (the definitions of :mod:`baarda.risk`),
+        """The risk-minimising critical value C (:func:`baarda.stats.risk.critical_value`, M84 §3.3),
+        its α_C = 1 − Φ(C) and β_C = 1 − Φ(C − √λtol) (the definitions of :mod:`baarda.stats.risk`),
         and r_C (:func:`baarda.risk.risk`) over C for the plot. λtol defaults to δ0² of the
         adjustment. Raises ValueError for p ∉ (0, 1) or non-positive L1, L2, λtol."""
         from scipy import stats as sps

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from baarda.problem import ObservationInfo
+from baarda.model.problem import ObservationInfo
 
 
 @dataclass(frozen=True, eq=False)

@@ -146,7 +146,7 @@ def test_step_factor_equals_schur_factor():
     reference SchurFactor (square-root elimination), damped and undamped, on BAL Ladybug
     (far points: 3 × 3 blocks of condition 1e12) after a few iterations; same diag(N)."""
     pytest.importorskip("numba")
-    from baarda import schur
+    from baarda.solve import schur
 
     require_extdata(BAL)
     problem = read_problem(BAL / "problem-49-7776-pre.txt")

@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from statsmodels.stats.outliers_influence import OLSInfluence
 
 from baarda import InputError, Options, adjust
-from baarda import rotation as rot
-from baarda.bundle import (Camera, ap_test, build_block_problem, check_points, h_ap_group, h_control_point,
+from baarda.observations import rotation as rot
+from baarda.model.bundle import (Camera, ap_test, build_block_problem, check_points, h_ap_group, h_control_point,
                            h_exchanged, h_image_coordinate, h_image_point, h_point_transfer, image_rows)
 from baarda.io.native import read_native, write_native
 from baarda.simulate import simulate_block
@@ -379,7 +379,7 @@ def test_compiled_collinearity_equals_the_numpy_formulas(cal):
 
     import scipy.sparse as sp
 
-    from baarda.bundle import CollinearitySet, _compiled_collinearity
+    from baarda.model.bundle import CollinearitySet, _compiled_collinearity
 
     if _compiled_collinearity() is None:
         pytest.skip("numba not installed: only the numpy path exists")

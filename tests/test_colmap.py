@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from baarda.adjust import adjust
-from baarda.bal import initial_cost
+from baarda.model.sfm import initial_cost
 from baarda.cli import main
 from baarda.errors import InputError
 from baarda.io import read_problem

@@ -8,7 +8,7 @@
 - bad files give a message, never a traceback; the HTML report is self-contained.
 
 The tiny block (2 strips × 3 images, 25 points; :func:`tiny_block_problem`) is built with the
-core's :mod:`baarda.bundle`; ``data/demo-block.json`` is used as well when it exists.
+core's :mod:`baarda.model.bundle`; ``data/demo-block.json`` is used as well when it exists.
 """
 
 from __future__ import annotations
@@ -29,11 +29,11 @@ import panel as pn  # noqa: E402
 from bokeh.document import Document  # noqa: E402
 from bokeh.models import ColumnDataSource  # noqa: E402
 
-from baarda import stats  # noqa: E402
+from baarda.stats import distributions
 from baarda.adjust import Options, adjust  # noqa: E402
 from baarda.dashboard.state import State, observation_points  # noqa: E402
 from baarda.dashboard.subset import without  # noqa: E402
-from baarda.hypotheses import selection  # noqa: E402
+from baarda.stats.hypotheses import selection  # noqa: E402
 from extdata import GAMA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
@@ -43,7 +43,7 @@ NETWORKS = ["gama-local.gkf", "krumm/1D/Niemeier_Height_free.gkf", "tetrahedron.
             "krumm/2D/Grossmann_Direction_fix.gkf"]
 
 
-from baarda.bundle import (Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem,
+from baarda.model.bundle import (Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem,
                            project)
 
 
@@ -142,7 +142,7 @@ def test_group_hypothesis_matches_core_groups():
 
 
 def test_block_hypotheses_match_bundle_builders(block_problem):
-    from baarda import bundle
+    from baarda.model import bundle
 
     st = State(problem=block_problem)
     adj = st.results
@@ -166,7 +166,7 @@ def test_hypothesis_follows_exclusion_and_alpha():
     j = int(st.reduced_index([10])[0])
     assert st.hyp_results[k].T == pytest.approx(adj.test(selection(adj.n, [j])).T, rel=1e-12)
     st.alpha0 = 0.05
-    assert st.hyp_results[k].critical_T == pytest.approx(stats.critical_chi2(0.05, 1))
+    assert st.hyp_results[k].critical_T == pytest.approx(distributions.critical_chi2(0.05, 1))
     st.exclude(10)
     assert isinstance(st.hyp_results[k], str) and "no (included) observations" in st.hyp_results[k]
 
@@ -249,9 +249,9 @@ def test_alpha_changes_delta0_and_mdb_plot_data():
     root = pn.panel(view).get_root(Document())
     d_old = st.results.delta0
     before = [np.asarray(s.data["mdb_sigma"], dtype=float).copy() for s in sources_with(root, "mdb_sigma")]
-    assert before and d_old == pytest.approx(stats.delta0(0.001, 0.8, 1))
+    assert before and d_old == pytest.approx(distributions.delta0(0.001, 0.8, 1))
     st.alpha0 = 0.01
-    assert st.results.delta0 == pytest.approx(stats.delta0(0.01, 0.8, 1))
+    assert st.results.delta0 == pytest.approx(distributions.delta0(0.01, 0.8, 1))
     ref = adjust(replace(st.results.problem), Options(alpha=0.01))
     np.testing.assert_allclose(st.results.mdb, ref.mdb, rtol=1e-9)
     after = [np.asarray(s.data["mdb_sigma"], dtype=float) for s in sources_with(root, "mdb_sigma")]
@@ -259,7 +259,7 @@ def test_alpha_changes_delta0_and_mdb_plot_data():
     for b, a in zip(before, after):
         np.testing.assert_allclose(a, b * ratio, rtol=1e-9)
     st.beta0 = 0.9
-    assert st.results.delta0 == pytest.approx(stats.delta0(0.01, 0.9, 1))
+    assert st.results.delta0 == pytest.approx(distributions.delta0(0.01, 0.9, 1))
 
 
 def test_sigma0_mode_switches_decision_and_covariance():
@@ -367,7 +367,7 @@ def test_controls_drive_state():
     st = network_state("gama-local.gkf")
     c = Controls(state=st)
     c.alpha.value = 0.05
-    assert st.alpha0 == 0.05 and st.results.delta0 == pytest.approx(stats.delta0(0.05, 0.8, 1))
+    assert st.alpha0 == 0.05 and st.results.delta0 == pytest.approx(distributions.delta0(0.05, 0.8, 1))
     assert "δ0 = " in c._delta_text(st.results)
     st.beta0 = 0.9
     assert c.beta.value == 0.9
@@ -462,7 +462,7 @@ FREE_2D = "krumm/2D/Hoepke_Distance_free.gkf"
 
 
 def test_sbase_changes_ellipses_but_not_r_and_w():
-    from baarda import precision
+    from baarda.stats import precision
     from baarda.dashboard.views import PrecisionMap
 
     st = network_state(FREE_2D)
@@ -496,7 +496,7 @@ def test_sbase_changes_ellipses_but_not_r_and_w():
 
 
 def test_sbase_of_fixed_network_transforms_the_covariance_only():
-    from baarda import precision
+    from baarda.stats import precision
 
     st = network_state("gama-local.gkf")
     free = [pid for pid, s in zip(st.problem.points.ids, st.problem.points.status) if s != "fixed"]
@@ -509,7 +509,7 @@ def test_sbase_of_fixed_network_transforms_the_covariance_only():
 
 
 def test_hypothesis_deformation_is_drawn_on_external_map():
-    from baarda.hypotheses import deformation
+    from baarda.stats.hypotheses import deformation
     from baarda.dashboard.views import ExternalMap
 
     st = network_state("gama-local.gkf")
@@ -540,7 +540,7 @@ def display_xy_shifts(st, shifts):
 
 @pytest.fixture(scope="module")
 def ap_block():
-    from baarda.bundle import build_block_problem
+    from baarda.model.bundle import build_block_problem
     from baarda.simulate import simulate_block
 
     blk, _ = simulate_block(strips=2, images_per_strip=4, ap=["brown"], seed=3)
@@ -548,7 +548,7 @@ def ap_block():
 
 
 def test_ap_group_hypotheses_match_bundle(ap_block):
-    from baarda import bundle
+    from baarda.model import bundle
     from baarda.dashboard.views import HypothesisPanel
 
     st = State(problem=ap_block)
@@ -576,7 +576,7 @@ def test_ap_group_hypotheses_match_bundle(ap_block):
 
 
 def test_ap_group_hypothesis_with_exclusions(block_problem):
-    from baarda import bundle
+    from baarda.model import bundle
 
     st = State(problem=block_problem)
     st.exclude(5)
@@ -589,7 +589,7 @@ def test_ap_group_hypothesis_with_exclusions(block_problem):
 
 
 def test_robust_selector_runs_core_and_marks_suspects():
-    from baarda import robust
+    from baarda.stats import robust
     from baarda.dashboard.views import AnalysisPanel, Controls, LayoutMap, TestsTable
 
     st = network_state(FREE_2D)
@@ -618,7 +618,7 @@ def test_robust_selector_runs_core_and_marks_suspects():
 
 
 def test_snooping_log_leave_one_out_and_accept():
-    from baarda import snooping
+    from baarda.stats import snooping
 
     st = network_state(FREE_2D)
     st.sigma0_mode = "apriori"
@@ -638,7 +638,7 @@ def test_snooping_log_leave_one_out_and_accept():
 
 
 def test_variance_components_and_core_errors_as_messages():
-    from baarda import variance
+    from baarda.stats import variance
     from baarda.dashboard.views import AnalysisPanel
 
     st = network_state("gama-local.gkf")
@@ -694,7 +694,7 @@ def test_inject_error_on_a_copy_and_keep(block_problem):
 # criterion matrices, risk, radial variance model (M84 §2, §3.3; F80 §2.1) — against the core
 # --------------------------------------------------------------------------------------------
 def test_criterion_fit_and_given_c1_c2_match_the_core():
-    from baarda import precision
+    from baarda.stats import precision
     from baarda.dashboard.views import CriterionView
 
     st = network_state(FREE_2D)
@@ -751,7 +751,7 @@ def test_criterion_refused_for_blocks_and_levelling(block_problem):
 def test_risk_panel_matches_closed_form():
     from scipy import stats as sps
 
-    from baarda import risk
+    from baarda.stats import risk
     from baarda.dashboard.views import RiskView
 
     st = network_state(FREE_2D)
@@ -772,8 +772,8 @@ def test_risk_panel_matches_closed_form():
 
 
 def test_radial_variance_model_matches_core_and_refusal_is_a_message(block_problem):
-    from baarda import variance
-    from baarda.bundle import build_block_problem
+    from baarda.stats import variance
+    from baarda.model.bundle import build_block_problem
     from baarda.dashboard.views import AnalysisPanel
     from baarda.simulate import simulate_block
 
@@ -912,7 +912,7 @@ def dangling_levelling(m: int, sigma: float):
 def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
     import warnings
 
-    from baarda import hypotheses
+    from baarda.stats import hypotheses
 
     seen_negative = False
     for m, sigma in [(6, 0.0007), (7, 0.003), (8, 0.003), (6, 0.003), (7, 0.001)]:

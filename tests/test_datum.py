@@ -8,8 +8,8 @@ from hypothesis import given, settings, strategies as st
 
 from baarda import datum
 from baarda.adjust import adjust, weight_matrix
-from baarda.bundle import build_block_problem
-from baarda.problem import Covariance
+from baarda.model.bundle import build_block_problem
+from baarda.model.problem import Covariance
 from baarda.simulate import simulate_block
 
 from networks import grid_network, problem, vector_network

@@ -395,7 +395,7 @@ def test_adjustment_safety_net_for_points_a_single_direction_leaves_open(tmp_pat
     aside with its observation and adjusts the rest (the traverse as without it); --strict and
     the plain adjustment keep the datum-defect error."""
     from baarda.errors import DatumDefectError
-    from baarda.geodetic import adjust_network
+    from baarda.observations.geodetic import adjust_network
 
     f = _knin3d(tmp_path, extra_points='<point id="X8" x="1075200" y="758900" adj="xy"/>\n',
                 extra_obs='<obs from="4262">\n<direction to="X8" val="33.3330"/>\n'

@@ -7,7 +7,7 @@ import statsmodels.api as sm
 from statsmodels.stats.outliers_influence import OLSInfluence
 
 from baarda import adjust
-from baarda.imodel import build_imodel_problem, h_model_point
+from baarda.model.imodel import build_imodel_problem, h_model_point
 from baarda.io.native import read_native, write_native
 from baarda.simulate import simulate_imodel
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from baarda.adjust import adjust
-from baarda.bal import SfmCamera, SfmImage, build_sfm_problem
+from baarda.model.sfm import SfmCamera, SfmImage, build_sfm_problem
 from baarda.errors import DatumDefectError, InputError
 from baarda.io import build, read_model
 from baarda.sfm_defects import adjust_block, find_defects
@@ -255,11 +255,11 @@ def test_cli_names_zero_baseline_points_and_strict_refuses(balbianello, tmp_path
 
 
 # --------------------------------------------------------------------------------------------
-# native photogrammetric blocks (baarda.bundle.Block)
+# native photogrammetric blocks (baarda.model.bundle.Block)
 # --------------------------------------------------------------------------------------------
 def add_native(block, images=(), cameras=(), points=(), obs=()):
     """A native Block with extra cameras, images, points and error-free image points."""
-    from baarda.bundle import ImageObservations, project
+    from baarda.model.bundle import ImageObservations, project
 
     cams = block.cameras + tuple(cameras)
     imgs = block.images + tuple(images)
@@ -285,7 +285,7 @@ def test_native_block(tmp_path):
     determined by its control and stays."""
     from dataclasses import replace
 
-    from baarda.bundle import Camera, ObjectPoint, build_block_problem
+    from baarda.model.bundle import Camera, ObjectPoint, build_block_problem
     from baarda.simulate import simulate_block
 
     base, _ = simulate_block(strips=2, images_per_strip=4, control="perimeter", seed=1)

@@ -12,12 +12,12 @@ import pytest
 import scipy.sparse as sp
 
 from baarda.adjust import Options, adjust
-from baarda.bal import CAMERA_MODELS, ControlPoint, build_sfm_problem
+from baarda.model.sfm import CAMERA_MODELS, ControlPoint, build_sfm_problem
 from baarda.datum import normal_diagonal
-from baarda.hypotheses import selection
-from baarda.hypotheses import test as general_test
+from baarda.stats.hypotheses import selection
+from baarda.stats.hypotheses import test as general_test
 from baarda.io.bal import read_bal
-from baarda.problem import Categorical, Covariance, JoinedLabels, RecordIds, subset
+from baarda.model.problem import Categorical, Covariance, JoinedLabels, RecordIds, subset
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 
@@ -135,7 +135,7 @@ def test_build_memory_per_image_point():
     index arrays) where one dict and one array per image point took over 700."""
     mk = _make_big_bal()
     cams, X, oc, op, xy = mk.make(60_000, 20_000, seed=5)
-    from baarda.bal import SfmBlock, SfmCamera, SfmImage
+    from baarda.model.sfm import SfmBlock, SfmCamera, SfmImage
     cameras = tuple(SfmCamera(str(c), "BAL", tuple(float(v) for v in cams[c, 6:9])) for c in range(cams.shape[0]))
     images = tuple(SfmImage(str(c), str(c), tuple(float(v) for v in cams[c, :3]), tuple(float(v) for v in cams[c, 3:6]))
                    for c in range(cams.shape[0]))
@@ -185,7 +185,7 @@ def test_adjust_memory_per_image_point(block):
     adjust(build_sfm_problem(block), Options())               # compiled kernels made outside the trace
     mk = _make_big_bal()
     cams, X, oc, op, xy = mk.make(60_000, 20_000, seed=5)
-    from baarda.bal import SfmBlock, SfmCamera, SfmImage
+    from baarda.model.sfm import SfmBlock, SfmCamera, SfmImage
     cameras = tuple(SfmCamera(str(c), "BAL", tuple(float(v) for v in cams[c, 6:9])) for c in range(cams.shape[0]))
     images = tuple(SfmImage(str(c), str(c), tuple(float(v) for v in cams[c, :3]), tuple(float(v) for v in cams[c, 3:6]))
                    for c in range(cams.shape[0]))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from baarda import precision, risk
+from baarda.stats import precision, risk
 from baarda.adjust import adjust
 
 from networks import grid_network, problem

@@ -9,9 +9,9 @@ import scipy.linalg as la
 from hypothesis import given, settings, strategies as st
 from scipy import stats as sps
 
-from baarda import stats
+from baarda.stats import distributions
 from baarda.adjust import Options, adjust
-from baarda.hypotheses import selection
+from baarda.stats.hypotheses import selection
 
 from networks import grid_network, levelling_loop, problem, vector_network, with_values
 
@@ -34,29 +34,29 @@ def dense_reference(adj):
 # -- test distributions (THEORY.md §4, §10) ----------------------------------------------------
 
 def test_delta0_one_dimensional_matches_normal_formula():
-    assert abs(stats.critical_normal(0.001) - 3.2905) < 1e-4
-    d = stats.delta0(0.001, 0.80, 1)
-    assert abs(d - stats.delta0_normal(0.001, 0.80)) < 1e-6
+    assert abs(distributions.critical_normal(0.001) - 3.2905) < 1e-4
+    d = distributions.delta0(0.001, 0.80, 1)
+    assert abs(d - distributions.delta0_normal(0.001, 0.80)) < 1e-6
     assert round(d, 2) == 4.13 and abs(d * d - 17.07) < 0.01
 
 
 @pytest.mark.parametrize("q", [1, 2, 3, 6])
 def test_delta0_has_the_asked_power(q):
-    d = stats.delta0(0.01, 0.9, q)
+    d = distributions.delta0(0.01, 0.9, q)
     c = sps.chi2.isf(0.01, q)
     assert abs(sps.ncx2.sf(c, q, d * d) - 0.9) < 1e-9
 
 
 @pytest.mark.parametrize("q", [2, 3, 7])
 def test_b_method_gives_the_one_dimensional_delta0(q):
-    a_q = stats.alpha_b_method(0.001, 0.80, q)
+    a_q = distributions.alpha_b_method(0.001, 0.80, q)
     assert a_q > 0.001
-    assert abs(stats.delta0(a_q, 0.80, q) - stats.delta0(0.001, 0.80, 1)) < 1e-6
+    assert abs(distributions.delta0(a_q, 0.80, q) - distributions.delta0(0.001, 0.80, 1)) < 1e-6
 
 
 def test_tau_critical_value_matches_beta_distribution():
     r, alpha = 12, 0.01
-    c = stats.critical_tau(alpha, r)
+    c = distributions.critical_tau(alpha, r)
     # τ²/r ~ Beta(1/2, (r−1)/2): P(|τ| > c) = α
     assert abs(sps.beta.sf(c * c / r, 0.5, (r - 1) / 2) - alpha) < 1e-10
 
@@ -146,8 +146,8 @@ def test_hat_blocks_with_round_off_are_recomputed_by_solves(make):
 def test_group_tests_from_cluster_blocks_equal_the_general_test(b_method):
     """Groups that are one covariance cluster (image points) are tested from the cluster blocks
     of C_vv at once; the general test with H the selection gives the same T, q, ∇ŝ."""
-    from baarda.bundle import build_block_problem
-    from baarda.hypotheses import test
+    from baarda.model.bundle import build_block_problem
+    from baarda.stats.hypotheses import test
     from baarda.simulate import simulate_block
 
     block, _ = simulate_block(strips=3, images_per_strip=6, seed=4)
@@ -269,13 +269,13 @@ def test_monte_carlo_size_and_power_of_w_and_2d_tests():
     # a 2D test (two observations together) with δ0 from the non-central χ²
     m = np.array([0, 1])
     Wg = R[np.ix_(m, m)]
-    d0 = stats.delta0(0.001, 0.80, 2)
+    d0 = distributions.delta0(0.001, 0.80, 2)
     lam, V = la.eigh(Wg)
     nab = V[:, 0] * d0 / np.sqrt(lam[0])      # lower bound in the weakest direction
     G = -(R[m] @ E)
     G_err = G - (R[np.ix_(m, m)] @ nab)[:, None]
     T0 = np.einsum("in,ij,jn->n", G, np.linalg.inv(Wg), G)
     T1 = np.einsum("in,ij,jn->n", G_err, np.linalg.inv(Wg), G_err)
-    c2 = stats.critical_chi2(0.001, 2)
+    c2 = distributions.critical_chi2(0.001, 2)
     assert abs(np.mean(T0 > c2) - 0.001) < 3 * se
     assert abs(np.mean(T1 > c2) - 0.80) < 3 * np.sqrt(0.8 * 0.2 / n_sim)

@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from baarda import robust, snooping
+from baarda.stats import robust, snooping
 from baarda.adjust import adjust
-from baarda.bundle import build_block_problem
+from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
 
 

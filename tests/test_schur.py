@@ -1,4 +1,4 @@
-"""The reduced-camera-system path (baarda.schur) against the generic path and dense references."""
+"""The reduced-camera-system path (baarda.solve.schur) against the generic path and dense references."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from baarda import schur
+from baarda.solve import schur
 from baarda.adjust import Options, adjust
-from baarda.bundle import build_block_problem, h_point_transfer
+from baarda.model.bundle import build_block_problem, h_point_transfer
 from baarda.errors import DatumDefectError
-from baarda.linalg import LowRankUpdate, SPDFactor, block_partition
-from baarda.problem import subset
+from baarda.solve.linalg import LowRankUpdate, SPDFactor, block_partition
+from baarda.model.problem import subset
 from baarda.simulate import simulate_block
 
 BACKENDS = ["numpy"] + (["numba"] if schur.numba is not None else [])

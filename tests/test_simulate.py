@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from baarda import adjust
-from baarda.bundle import build_block_problem, project
+from baarda.model.bundle import build_block_problem, project
 from baarda.io.native import read_native
 from baarda.simulate import error_class, simulate_block, simulate_to_files
 

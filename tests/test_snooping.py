@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from baarda.adjust import Options, adjust
-from baarda.bundle import build_block_problem
+from baarda.model.bundle import build_block_problem
 from baarda.io import read_problem, read_truth
 from baarda.simulate import simulate_block
-from baarda.snooping import iterate, leave_one_out
+from baarda.stats.snooping import iterate, leave_one_out
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

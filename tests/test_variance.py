@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from baarda import variance
+from baarda.stats import variance
 from baarda.adjust import adjust
 from baarda.errors import BaardaError
-from baarda.network import Cluster
+from baarda.model.network import Cluster
 
 from networks import grid_network, problem
 
@@ -73,7 +73,7 @@ def test_additive_components_agree_with_group_factors():
 def test_radial_components_shape():
     """The radial model's C_j (F80 §2.1): a² on image coordinates, b²c²/cos⁴α growing with the
     radius, control kept apart."""
-    from baarda.bundle import build_block_problem
+    from baarda.model.bundle import build_block_problem
     from baarda.simulate import simulate_block
 
     block, _ = simulate_block(strips=2, images_per_strip=4, design=True, seed=3, approx_sigma=0.0)
@@ -93,7 +93,7 @@ def test_radial_components_shape():
 
 def test_radial_model_recovers_a_and_b():
     """F80 §2.1: image noise with σ² = a² + b²c²/cos⁴α is recovered within its standard errors."""
-    from baarda.bundle import build_block_problem
+    from baarda.model.bundle import build_block_problem
     from baarda.simulate import simulate_block
 
     # the two components are nearly collinear (1/cos⁴α from 1 to 3.1 in a 153 mm camera): a block

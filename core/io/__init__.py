@@ -111,10 +111,10 @@ def build(model, strict: bool = False):
     cameras the observations do not determine), listed in ``problem.extra["local_defects"]``;
     strict: refuse them instead (InputError naming them all).
     """
-    from ..bal import SfmBlock
-    from ..bundle import Block
-    from ..imodel import IModelBlock, build_imodel_problem
-    from ..network import Network
+    from ..model.sfm import SfmBlock
+    from ..model.bundle import Block
+    from ..model.imodel import IModelBlock, build_imodel_problem
+    from ..model.network import Network
 
     if isinstance(model, (SfmBlock, Block)):
         from ..sfm_defects import build as build_block
@@ -122,13 +122,13 @@ def build(model, strict: bool = False):
     if isinstance(model, IModelBlock):
         return build_imodel_problem(model)
     if isinstance(model, Network):
-        from ..geodetic import build_network
+        from ..observations.geodetic import build_network
         return build_network(model, strict=strict)
     raise TypeError(f"cannot build a problem from {type(model).__name__}")
 
 
 def read_problem(path, fmt: str = "auto", control=None, strict: bool = False, **options):
-    """Read ``path`` and return a :class:`baarda.problem.Problem` ready to adjust.
+    """Read ``path`` and return a :class:`baarda.model.problem.Problem` ready to adjust.
 
     control: optional control-point CSV (:func:`baarda.io.control.add_control`); strict: local
     defects are an error (:func:`build`); options go to :func:`read_model`.

@@ -9,7 +9,7 @@ Format (Agarwal et al. 2010, https://grail.cs.washington.edu/projects/bal/)::
 
 Parameters are one number a line in the published files; the reader takes any whitespace
 layout. Image coordinates are pixels with the origin at the image centre, y up; the projection
-is that of :mod:`baarda.bal` with s = −1 (P = R X + t, p = −P/P_z, p' = f (1 + k1‖p‖² +
+is that of :mod:`baarda.model.sfm` with s = −1 (P = R X + t, p = −P/P_z, p' = f (1 + k1‖p‖² +
 k2‖p‖⁴) p). Camera and point ids are the file's 0-based indices, as strings.
 
 Every reader of structure-from-motion files reports errors as
@@ -27,7 +27,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ..bal import SfmBlock, SfmCamera, SfmImage
+from ..model.sfm import SfmBlock, SfmCamera, SfmImage
 from ..errors import InputError
 from .source import Numbers, Truncated, open_binary
 from .source import read_text as _read_text
@@ -166,7 +166,7 @@ def looks_like_bal(head: str) -> bool:
 
 
 def read_bal(path, sigma_px: float = 1.0, refine_intrinsics: bool = True, check: bool = True) -> SfmBlock:
-    """Read a BAL problem file into an :class:`baarda.bal.SfmBlock` (module docstring).
+    """Read a BAL problem file into an :class:`baarda.model.sfm.SfmBlock` (module docstring).
 
     sigma_px: σ of each image coordinate (pixels). refine_intrinsics: estimate f, k1, k2 of
     every camera (BAL's definition; False holds them at the file's values). check: apply

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bal import SfmBlock
+from ..model.sfm import SfmBlock
 from ..errors import InputError
-from ..rotation import rodrigues_from_R
+from ..observations.rotation import rodrigues_from_R
 from .bal import bal_block, check_block, check_rotation
 from .source import Numbers, open_binary
 
@@ -33,7 +33,7 @@ def looks_like_bundler(head: str) -> bool:
 
 
 def read_bundler(path, sigma_px: float = 1.0, refine_intrinsics: bool = True, check: bool = True) -> SfmBlock:
-    """Read a Bundler v0.3 file into an :class:`baarda.bal.SfmBlock` (module docstring).
+    """Read a Bundler v0.3 file into an :class:`baarda.model.sfm.SfmBlock` (module docstring).
 
     The file (plain or compressed) is read in chunks into one array of numbers
     (:class:`baarda.io.source.Numbers`); the structure (cameras, then points with their

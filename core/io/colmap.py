@@ -18,9 +18,9 @@ files name the byte offset of the record at fault (``points3D.bin:byte 812: ...`
 be compressed (``images.txt.gz``, :mod:`baarda.io.source`).
 
 Conventions: the pose (q, t) maps world to camera, q = (w, x, y, z) scalar first
-(:func:`baarda.rotation.R_from_quaternion`); the camera looks down +z; pixel coordinates have
+(:func:`baarda.observations.rotation.R_from_quaternion`); the camera looks down +z; pixel coordinates have
 their origin at the upper-left corner of the image (the centre of the first pixel is at
-0.5, 0.5), y down. Projection: :mod:`baarda.bal` with s = +1; supported camera models:
+0.5, 0.5), y down. Projection: :mod:`baarda.model.sfm` with s = +1; supported camera models:
 SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV. Intrinsics are held fixed unless
 ``refine_intrinsics``; then, like COLMAP's bundle adjuster, the focal lengths and distortion
 parameters are estimated and the principal point stays fixed. Ids in the output are COLMAP's
@@ -35,9 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bal import CAMERA_MODELS, SfmBlock, SfmCamera, SfmImage
+from ..model.sfm import CAMERA_MODELS, SfmBlock, SfmCamera, SfmImage
 from ..errors import InputError
-from ..rotation import R_from_quaternion, rodrigues_from_R
+from ..observations.rotation import R_from_quaternion, rodrigues_from_R
 from .bal import check_block
 from .source import _WS, EXTENSIONS, Numbers, logical_path, open_binary, read_bytes, read_text
 
@@ -605,7 +605,7 @@ def _points_bin(path) -> _Points:
 # --------------------------------------------------------------------------------------------
 def write_colmap_text(block: SfmBlock, directory) -> None:
     """Write a COLMAP-convention block as ``cameras.txt``, ``images.txt``, ``points3D.txt``."""
-    from ..rotation import R_from_rodrigues, quaternion_from_R
+    from ..observations.rotation import R_from_rodrigues, quaternion_from_R
 
     if block.convention != "colmap":
         raise ValueError("only COLMAP blocks can be written as a COLMAP model")

@@ -1,4 +1,4 @@
-"""Reader of GNU Gama's gama-local XML input (``.gkf``) into a :class:`baarda.network.Network`.
+"""Reader of GNU Gama's gama-local XML input (``.gkf``) into a :class:`baarda.model.network.Network`.
 
 The format is documented in the GNU Gama manual, chapter "XML input data format for
 gama-local" (https://www.gnu.org/software/gama/manual/). Conventions taken from it and
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.errors import InputError
-from baarda.network import Cluster, NetObservation, NetPoint, Network
+from baarda.model.network import Cluster, NetObservation, NetPoint, Network
 from baarda.validate import SIGMA0_MAX, SIGMA0_MIN, VALUE_LIMIT
 
 __all__ = ["read_gama", "bearing_convention", "UndefinedPointsWarning", "GON", "CC", "DEG", "ARCSEC", "MM"]
@@ -737,10 +737,10 @@ class _Reader:
 
 
 def read_gama(path, *, unknown_points: str = "error") -> Network:
-    """Read a gama-local XML input file (``.gkf``) into a :class:`~baarda.network.Network`.
+    """Read a gama-local XML input file (``.gkf``) into a :class:`~baarda.model.network.Network`.
 
     Values are converted to SI (metres, radians) and every observation is put in exactly one
-    :class:`~baarda.network.Cluster` with its covariance in SI². Raises
+    :class:`~baarda.model.network.Cluster` with its covariance in SI². Raises
     :class:`baarda.errors.InputError` (with the line number) for malformed or inconsistent
     input. See the module docstring for the conventions.
 

@@ -170,8 +170,8 @@ class _Reader:
 # reading
 # --------------------------------------------------------------------------------------------
 def read_native(path):
-    """Read a native file: a :class:`baarda.bundle.Block`, :class:`baarda.imodel.IModelBlock`
-    or (``kind: "levelling"``) a :class:`baarda.network.Network`. Raises InputError."""
+    """Read a native file: a :class:`baarda.model.bundle.Block`, :class:`baarda.model.imodel.IModelBlock`
+    or (``kind: "levelling"``) a :class:`baarda.model.network.Network`. Raises InputError."""
     from .source import read_text
 
     p = Path(path)
@@ -258,7 +258,7 @@ def _track_check(rd, key, counts, points, what):
 
 
 def _read_bundle(rd, sigma0):
-    from ..bundle import AP_GROUPS, Block, Camera, Image, ImageObservations, ObjectPoint
+    from ..model.bundle import AP_GROUPS, Block, Camera, Image, ImageObservations, ObjectPoint
 
     cams_in = rd.entries("cameras")
     if not cams_in:
@@ -350,7 +350,7 @@ def _read_bundle(rd, sigma0):
 
 
 def _read_imodel(rd, sigma0):
-    from ..imodel import IModelBlock, Model, ModelObservations, PlanPoint
+    from ..model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
 
     mods_in = rd.entries("models")
     if not mods_in:
@@ -404,7 +404,7 @@ def _read_imodel(rd, sigma0):
 
 
 def _read_levelling(rd, sigma0):
-    from ..network import Cluster, NetObservation, NetPoint, Network
+    from ..model.network import Cluster, NetObservation, NetPoint, Network
 
     pts_in = rd.entries("points")
     if not pts_in:
@@ -467,8 +467,8 @@ def _f(v) -> float:
 
 def write_native(block, path) -> None:
     """Write a Block, IModelBlock or levelling Network in the native format (version 1)."""
-    from ..bundle import Block
-    from ..imodel import IModelBlock
+    from ..model.bundle import Block
+    from ..model.imodel import IModelBlock
 
     if isinstance(block, Block):
         doc = _bundle_doc(block)

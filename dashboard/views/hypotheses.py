@@ -9,7 +9,7 @@ import pandas as pd
 import panel as pn
 import param
 
-from baarda.bundle import AP_GROUPS, APTest
+from baarda.model.bundle import AP_GROUPS, APTest
 
 from ..state import State, observation_label
 from ..text import labels, md_text, plain

@@ -25,7 +25,7 @@ import param
 from bokeh.events import Tap
 from bokeh.models import ColumnDataSource
 
-from baarda.hypotheses import HypothesisTest
+from baarda.stats.hypotheses import HypothesisTest
 
 from ..state import State, display_matrix
 from ..text import html_text, labels, plain

@@ -2,7 +2,7 @@
 
 The left plot shows the density of T under H0 (central χ²(q)) and under Ha (non-central
 χ'²(q, δ0²)), the critical value k = χ²_{1−α}(q) with the size α (area of H0 right of k) and
-the power β0 (area of Ha right of k). δ0 and k come from the core (:mod:`baarda.stats`); the
+the power β0 (area of Ha right of k). δ0 and k come from the core (:mod:`baarda.stats.distributions`); the
 densities are only drawn here. The right plot is ∇0l/σ = δ0/√r (F80 §5) with the observations
 of the problem on it.
 """
@@ -15,7 +15,7 @@ import panel as pn
 import param
 from scipy import stats as sps
 
-from baarda import stats
+from baarda.stats import distributions
 
 from ..state import State
 
@@ -53,9 +53,9 @@ class TeachingView(pn.viewable.Viewer):
     def _power(self, **_):
         o = self.state.results.options
         q = self.q
-        alpha = stats.alpha_b_method(o.alpha, o.beta, q) if o.b_method else o.alpha
-        d0 = stats.delta0(alpha, o.beta, q)
-        k = stats.critical_chi2(alpha, q)
+        alpha = distributions.alpha_b_method(o.alpha, o.beta, q) if o.b_method else o.alpha
+        d0 = distributions.delta0(alpha, o.beta, q)
+        k = distributions.critical_chi2(alpha, q)
         lam = d0 ** 2
         top = max(lam + q + 5 * np.sqrt(2 * (q + 2 * lam)), k * 1.3)
         x = np.linspace(1e-3, top, 600)

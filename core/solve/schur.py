@@ -20,7 +20,7 @@ unknowns as "cameras" c (all unknowns that are not eliminated) and points p:
 
 Z_j has non-zero columns only for the cameras K_j that observe point j, and every pair of them is
 a non-zero block of S; so the selected inverse of S on its own pattern (Takahashi,
-:class:`baarda.linalg.SPDFactor`) gives every block that a_i Σ a_iᵀ of an observation of point j
+:class:`baarda.solve.linalg.SPDFactor`) gives every block that a_i Σ a_iᵀ of an observation of point j
 needs. Per covariance cluster c (one image point, one control point) of point j, with a_c its
 camera columns, b_c its point columns, P_c its weight, E_c = a_cᵀ P_c b_c and E_c C_j⁻¹ = Q_c:
 
@@ -35,7 +35,7 @@ of the same formulas gives the same numbers to round-off (``backend="numpy"``).
 Cameras are grouped into *supernodes*, columns that the same observation rows touch (the six
 orientation unknowns of one image, the APs of one camera), and S is stored as dense blocks
 between supernodes on the pattern of point-sharing (a block-sparse matrix). S is then factored by
-:class:`baarda.linalg.SPDFactor` (reverse Cuthill-McKee, block tridiagonal; a small or densely
+:class:`baarda.solve.linalg.SPDFactor` (reverse Cuthill-McKee, block tridiagonal; a small or densely
 connected S becomes one dense LAPACK Cholesky). Nothing larger than the band of S is ever dense;
 :data:`DENSE_LIMIT` bounds the size of a dense S.
 
@@ -63,8 +63,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .errors import SingularError
-from .problem import LazySequence
+from ..errors import SingularError
+from ..model.problem import LazySequence
 from .linalg import SPDFactor, block_partition
 
 try:                       # optional: compiled pair loops
@@ -921,7 +921,7 @@ class _Permuted:
 class SchurFactor:
     """N = AᵀPA factored through the reduced camera system (module docstring).
 
-    Has the interface of :class:`baarda.linalg.SPDFactor` (``m``, ``solve``, ``entries``,
+    Has the interface of :class:`baarda.solve.linalg.SPDFactor` (``m``, ``solve``, ``entries``,
     ``logdet``, ``dense_inverse``) plus the blocks reliability needs (:meth:`hat_blocks`).
     Raises SingularError naming an unknown the observations do not determine.
     """
@@ -1132,7 +1132,7 @@ class SchurFactor:
     def hat_blocks(self, cov):
         """a_i Σ a_jᵀ and a_i Σ_t a_jᵀ (nuisance part) for all pairs within each covariance
         cluster, laid out as :func:`baarda.result.cluster_pairs` lays them out."""
-        from .result import _by_size
+        from ..result import _by_size
 
         H, Ht, _ = self._selected()
         out_h, out_t = [], []

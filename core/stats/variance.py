@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .adjust import Options, adjust
-from .errors import BaardaError
+from ..adjust import Options, adjust
+from ..errors import BaardaError
 
 #: a group with less redundancy than this cannot be estimated (its factor would be noise)
 MIN_GROUP_REDUNDANCY = 0.5

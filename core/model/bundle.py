@@ -2,11 +2,11 @@
 
 The file-level model is a frozen :class:`Block` (cameras, images with exterior orientation,
 object points, image measurements, control); :func:`build_block_problem` turns it into the
-generic :class:`baarda.problem.Problem` that :func:`baarda.adjust.adjust` works on.
+generic :class:`baarda.model.problem.Problem` that :func:`baarda.adjust.adjust` works on.
 
 Collinearity (sign convention)
 ------------------------------
-With R = R_ω R_φ R_κ (:mod:`baarda.rotation`, R turns image vectors into object space) and the
+With R = R_ω R_φ R_κ (:mod:`baarda.observations.rotation`, R turns image vectors into object space) and the
 object-to-image vector (U, V, W)ᵀ = Rᵀ (X − X0, Y − Y0, Z − Z0)ᵀ,
 
 .. math::
@@ -68,13 +68,13 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
-from . import stats
-from .datum import Datum
-from .geodetic import LinearSet
-from .hypotheses import common_error, selection
-from .linalg import SPDFactor
+from ..stats import distributions
+from ..datum import Datum
+from ..observations.geodetic import LinearSet
+from ..stats.hypotheses import common_error, selection
+from ..solve.linalg import SPDFactor
 from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
-from .rotation import R_opk, R_opk_derivatives
+from ..observations.rotation import R_opk, R_opk_derivatives
 
 EO_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 AP_GROUPS = {
@@ -549,7 +549,7 @@ def footprint(image: Image, camera: Camera, Z: float) -> list[list[float]]:
 
 
 def build_block_problem(block: Block) -> Problem:
-    """Turn a :class:`Block` into an adjustment :class:`~baarda.problem.Problem`.
+    """Turn a :class:`Block` into an adjustment :class:`~baarda.model.problem.Problem`.
 
     Layout of parameters and observations, datum and units: see the module docstring.
     ``Problem.extra`` holds ``"block"`` (geometry for the dashboard: images with strip, EO and
@@ -748,7 +748,7 @@ def h_control_point(problem, point: str):
 def h_point_transfer(problem, point: str, images) -> sp.csc_matrix:
     """H (n × 2) of a point-transfer error: one 2D error common to the measurements of
     ``point`` in every image of ``images`` (F80 §2.2; H = (0 … I₂ … I₂ … 0)ᵀ via
-    :func:`baarda.hypotheses.common_error`). ∇s is in image units (x, y)."""
+    :func:`baarda.stats.hypotheses.common_error`). ∇s is in image units (x, y)."""
     problem = _problem(problem)
     rows = np.array([image_rows(problem, im, point) for im in images])
     return common_error(problem.n, [rows[:, 0], rows[:, 1]])
@@ -896,9 +896,9 @@ def ap_test(adj, camera: str, group: str) -> APTest:
     W = 0.5 * (W + W.T)
     T = float(s_hat @ W @ s_hat)
     o = adj.options
-    alpha = stats.alpha_b_method(o.alpha, o.beta, q) if o.b_method else o.alpha
-    d1 = stats.delta0(o.alpha, o.beta, 1)
-    dq = stats.delta0(o.alpha, o.beta, 1) if o.b_method else stats.delta0(alpha, o.beta, q)
+    alpha = distributions.alpha_b_method(o.alpha, o.beta, q) if o.b_method else o.alpha
+    d1 = distributions.delta0(o.alpha, o.beta, 1)
+    dq = distributions.delta0(o.alpha, o.beta, 1) if o.b_method else distributions.delta0(alpha, o.beta, q)
     kind = problem.params.kind[problem.params.free]
     k = np.flatnonzero(kind == "k")
     # group: effect on k of unit AP errors, ∇k = Σ_kŝ Σ_ŝŝ⁻¹ ∇s
@@ -921,7 +921,7 @@ def ap_test(adj, camera: str, group: str) -> APTest:
         rel[j] = d1 * np.sqrt(max(Mj, 0.0) * Sss[j, j])
     lam = np.maximum(la.eigvalsh(Sss), 0.0)
     return APTest(labels=tuple(labels), estimate=s_hat, cov=Sss, T=T, q=q, alpha=alpha,
-                  critical=stats.critical_chi2(alpha, q), delta0_1=d1, delta0_q=dq,
+                  critical=distributions.critical_chi2(alpha, q), delta0_1=d1, delta0_q=dq,
                   determinability=d1 * np.sqrt(np.diag(Sss)), ellipsoid_axes=dq * np.sqrt(lam),
                   reliability=rel, reliability_max=rel_max, delta0_prime_max=dprime,
                   weakest=weakest, most_influential=most)

@@ -3,11 +3,11 @@
 Bundle Adjustment in the Large (BAL), Bundler and COLMAP store the same thing — cameras with a
 pose (world → camera), pinhole intrinsics with radial (and tangential) distortion, 3D points
 and their image points — in different conventions. :class:`SfmBlock` holds any of them;
-:func:`build_sfm_problem` turns it into a :class:`baarda.problem.Problem`.
+:func:`build_sfm_problem` turns it into a :class:`baarda.model.problem.Problem`.
 
 Projection (one formula for all three formats)
 ----------------------------------------------
-With the camera's Rodrigues vector ρ (R = exp([ρ]×), :func:`baarda.rotation.R_from_rodrigues`)
+With the camera's Rodrigues vector ρ (R = exp([ρ]×), :func:`baarda.observations.rotation.R_from_rodrigues`)
 and translation t, a world point X is, in the camera frame,
 
 .. math::
@@ -66,11 +66,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .datum import Datum
-from .geodetic import LinearSet
+from ..datum import Datum
+from ..observations.geodetic import LinearSet
 from .problem import (Categorical, Covariance, JoinedLabels, ObservationInfo, Parameters, PointInfo, Problem,
                       RecordIds)
-from .rotation import R_from_rodrigues, _skew
+from ..observations.rotation import R_from_rodrigues, _skew
 
 INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
 
@@ -429,7 +429,7 @@ def _compiled_projection():
 # the Problem
 # --------------------------------------------------------------------------------------------
 def build_sfm_problem(block: SfmBlock) -> Problem:
-    """Turn an :class:`SfmBlock` into an adjustment :class:`~baarda.problem.Problem`.
+    """Turn an :class:`SfmBlock` into an adjustment :class:`~baarda.model.problem.Problem`.
 
     Layout, datum and units: see the module docstring. ``Problem.extra["block"]`` holds the
     geometry the dashboard draws (images with their projection centres X0, Y0, Z0; no
@@ -572,17 +572,17 @@ def initial_cost(problem: Problem) -> float:
 
 
 def to_block(block: SfmBlock):
-    """The block as a :class:`baarda.bundle.Block` (ω-φ-κ collinearity) for the native format.
+    """The block as a :class:`baarda.model.bundle.Block` (ω-φ-κ collinearity) for the native format.
 
     Exact for the projection (same residuals at the initial values) with the intrinsics held at
     their values: the native format has no per-camera f, k1, k2 refinement. Mapping (module
-    docstring and :mod:`baarda.bundle`): BAL/Bundler R_ωφκ = Rᵀ, image points as they are;
+    docstring and :mod:`baarda.model.bundle`): BAL/Bundler R_ωφκ = Rᵀ, image points as they are;
     COLMAP R_ωφκ = (D R)ᵀ with D = diag(1, −1, −1), y → −y, x0 = c_x, y0 = −c_y, p1' = p2/f,
     p2' = −p1/f; always k1' = k1/f², k2' = k2/f⁴ (Brown's coefficients in pixel units).
     ValueError for a camera with f_x ≠ f_y or control with sx ≠ sy.
     """
     from .bundle import Block, Camera, Image, ImageObservations, ObjectPoint
-    from .rotation import opk_from_R
+    from ..observations.rotation import opk_from_R
 
     colmap = block.convention == "colmap"
     D = np.diag([1.0, -1.0, -1.0]) if colmap else np.eye(3)

@@ -10,7 +10,7 @@ Convention (the aerial one, e.g. Kraus, *Photogrammetry* vol. 1, and PAT-B):
     R_κ = \\begin{pmatrix}\\cos κ&-\\sin κ&0\\\\\\sin κ&\\cos κ&0\\\\0&0&1\\end{pmatrix}.
 
 R turns image-space vectors into object space: X − X0 = λ R (x − x0, y − y0, −c)ᵀ; its
-transpose turns object vectors into the image frame (see :mod:`baarda.bundle`). ω rotates about
+transpose turns object vectors into the image frame (see :mod:`baarda.model.bundle`). ω rotates about
 the (fixed) object X axis, φ about the once-rotated Y axis, κ about the image z axis. Angles in
 radians. All functions are vectorised: angle arrays of shape (...) give matrices (..., 3, 3).
 

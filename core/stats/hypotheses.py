@@ -23,7 +23,7 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
-from . import stats
+from . import distributions
 
 
 def selection(n: int, members, weights=None) -> sp.csc_matrix:
@@ -138,10 +138,10 @@ def test(adj, H, label: str = "") -> HypothesisTest:
     vPv = adj.vPv
     R = float((T / q) / ((vPv - T) / (dof - q))) if (q and dof > q and vPv > T) else float("nan")
     o = adj.options
-    alpha = stats.alpha_b_method(o.alpha, o.beta, q) if (o.b_method and q) else o.alpha
-    d0 = stats.delta0(alpha, o.beta, max(q, 1)) if not o.b_method else stats.delta0(o.alpha, o.beta, 1)
-    crit_T = stats.critical_chi2(alpha, q) if q else float("inf")
-    crit_R = stats.critical_f(alpha, q, dof - q) if q and dof > q else float("inf")
+    alpha = distributions.alpha_b_method(o.alpha, o.beta, q) if (o.b_method and q) else o.alpha
+    d0 = distributions.delta0(alpha, o.beta, max(q, 1)) if not o.b_method else distributions.delta0(o.alpha, o.beta, 1)
+    crit_T = distributions.critical_chi2(alpha, q) if q else float("inf")
+    crit_R = distributions.critical_f(alpha, q, dof - q) if q and dof > q else float("inf")
     axes = np.where(pos, d0 / np.sqrt(np.where(pos, lam, 1.0)), np.inf)
     # weakest direction: largest generalized eigenvalue of (HᵀPH, W) (F80 §7.3)
     if q == q_cols:

@@ -30,7 +30,7 @@ import scipy.linalg as la
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from .errors import SingularError
+from ..errors import SingularError
 
 MIN_BLOCK = 48
 

@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .adjust import Options, adjust
-from .errors import BaardaError
-from .problem import subset
+from ..adjust import Options, adjust
+from ..errors import BaardaError
+from ..model.problem import subset
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,8 @@
 """Observation equations of local geodetic networks, and the Problem built from a Network.
 
 All equations are vectorised over the observations of one kind and return their Jacobian in
-COO form (see :class:`baarda.problem.ObservationSet`). Angle conventions are those of
-:mod:`baarda.network`: bearing(i→j) = s·atan2(Δy, Δx) + c with the network's ``angle_sign`` s
+COO form (see :class:`baarda.model.problem.ObservationSet`). Angle conventions are those of
+:mod:`baarda.model.network`: bearing(i→j) = s·atan2(Δy, Δx) + c with the network's ``angle_sign`` s
 and ``azimuth_offset`` c.
 
 - distance (horizontal) d = √(Δx² + Δy²)
@@ -26,10 +26,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .datum import Datum
-from .errors import InputError
-from .network import ANGULAR_KINDS, Network
-from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
+from ..datum import Datum
+from ..errors import InputError
+from ..model.network import ANGULAR_KINDS, Network
+from ..model.problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
 
 AXES = "xyz"
 NEEDS = {
@@ -351,7 +351,7 @@ def build_network(net: Network, strict: bool = False) -> Problem:
     for one no observation involves. A defect of the whole network (its datum) is diagnosed by
     the adjustment as before.
     """
-    from .approx import approximate_coordinates
+    from ..approx import approximate_coordinates
 
     if any(getattr(p, a) is None for p in net.points for a in "xyz"
            if a in (p.adjusted + p.constrained).lower()):
@@ -381,9 +381,9 @@ def adjust_network(problem: Problem, options=None, progress=None, strict: bool =
     unknowns (orientations), or any defect with ``strict`` raises
     :class:`~baarda.errors.DatumDefectError` as :func:`baarda.adjust.adjust` does.
     """
-    from .adjust import adjust
-    from .defects import LocalDefect
-    from .errors import DatumDefectError
+    from ..adjust import adjust
+    from ..defects import LocalDefect
+    from ..errors import DatumDefectError
 
     first = None
     for _ in range(MAX_ROUNDS + 1):
@@ -437,7 +437,7 @@ def _set_aside_local_defects(net: Network):
     """``(network, defects)``: undetermined adjusted coordinates removed (see :func:`build_network`)."""
     from dataclasses import replace
 
-    from .defects import LocalDefect
+    from ..defects import LocalDefect
 
     reasons = dict(net.extra.get("approx_missing", {}))
     found: dict[str, dict] = {}   # id -> {"axes": set, "why": [..], "lines": [..]}

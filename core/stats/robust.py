@@ -35,9 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .adjust import Options, adjust
-from .errors import BaardaError
-from .problem import subset
+from ..adjust import Options, adjust
+from ..errors import BaardaError
+from ..model.problem import subset
 
 METHODS = ("huber", "danish", "r84")
 #: smallest weight factor: keeps a downweighted observation's parameters determined

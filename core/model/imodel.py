@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .datum import Datum
-from .geodetic import LinearSet
+from ..datum import Datum
+from ..observations.geodetic import LinearSet
 from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
 
 SIM_NAMES = ("a", "b", "c", "d")
@@ -131,7 +131,7 @@ class SimilaritySet:
 
 
 def build_imodel_problem(block: IModelBlock) -> Problem:
-    """Turn an :class:`IModelBlock` into an adjustment :class:`~baarda.problem.Problem`."""
+    """Turn an :class:`IModelBlock` into an adjustment :class:`~baarda.model.problem.Problem`."""
     labels, x0, kind, point, axis = [], [], [], [], []
 
     def add(label, value, k, p=-1, a=-1):
@@ -209,7 +209,7 @@ def build_imodel_problem(block: IModelBlock) -> Problem:
 
 def h_model_point(problem, model: str, point: str):
     """H (n × 2) of a 2D error in one point's model coordinates (F80 §2.2)."""
-    from .hypotheses import selection
+    from ..stats.hypotheses import selection
 
     rows = [None, None]
     for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids)):

@@ -28,8 +28,8 @@ import numpy as np
 import scipy.linalg as la
 from scipy import optimize
 
-from . import datum as datum_mod
-from .errors import BaardaError
+from .. import datum as datum_mod
+from ..errors import BaardaError
 
 
 @dataclass(frozen=True, eq=False)
