@@ -254,6 +254,22 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     camcols = np.flatnonzero(~elig)
     cm = ~elig[col]
     colc, rowc = col[cm], row[cm]
+    # the point side first (its destinations in b), so that the row of every entry goes early
+    nnz = col.size
+    nnz_a = np.flatnonzero(cm).astype(_index_dtype(nnz))
+    nnz_b = np.flatnonzero(~cm).astype(_index_dtype(nnz))
+    cb = col[~cm]
+    rowb = row[~cm]
+    del row, cm
+    coord_col = np.full(u, -1, dtype=np.int64)
+    coord_col[ecols] = coord
+    dest_b = cl_pos[cluster[rowb]]
+    dest_b *= M
+    dest_b += rpos[rowb]
+    dest_b *= 3
+    dest_b += coord_col[cb]
+    del cb, rowb
+    dest_b = _narrow(dest_b, ncl * M * 3)
     rng = np.random.default_rng(12345)
     h1 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
     h2 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
@@ -301,39 +317,26 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     sizes = np.where(cl_sn >= 0, sn_size[np.maximum(cl_sn, 0)], 0)
     cl_off = np.cumsum(sizes, axis=1) - sizes
     K = max(int(sizes.sum(axis=1).max(initial=0)), 1)
-    nnz = col.size
-    nnz_a = np.flatnonzero(cm).astype(_index_dtype(nnz))
+    # (position·M + rpos)·K + local, in place, in the narrowest type that holds nc·M·K
+    itype = _index_dtype(nc * M * K)
     loc = np.searchsorted(skey, akey[run])
-    local = np.repeat(cl_off[sp_[loc], slot[loc]], np.diff(np.r_[run, akey.size]))
+    local = np.repeat(cl_off[sp_[loc], slot[loc]].astype(itype), np.diff(np.r_[run, akey.size]))
     del loc, run, akey
-    local += off_of[colc]
-    dest_a = cluster[rowc]                        # (position·M + rpos)·K + local, in place
-    np.take(cl_pos, dest_a, out=dest_a)
+    local += off_of.astype(itype)[colc]
+    del colc
+    dest_a = cl_pos.astype(itype)[cluster].take(rowc)
     dest_a *= M
-    dest_a += rpos[rowc]
+    dest_a += rpos.astype(itype)[rowc]
+    del rowc
     dest_a *= K
     dest_a += local
-    del local, colc, rowc
-    dest_a = _narrow(dest_a, nc * M * K)
+    del local
     col_S = np.full((nc, K), -1, dtype=np.int64)
     for s_ in range(G):                          # a cluster sees every column of its supernodes
         g = cl_sn[:, s_]
         for i in range(int(sn_size.max(initial=0))):
             p_ = np.flatnonzero((g >= 0) & (i < sn_size[np.maximum(g, 0)]))
             col_S[p_, cl_off[p_, s_] + i] = sn_ptr[g[p_]] + i
-    nnz_b = np.flatnonzero(~cm).astype(_index_dtype(nnz))
-    cb = col[~cm]
-    coord_col = np.full(u, -1, dtype=np.int64)
-    coord_col[ecols] = coord
-    rowb = row[~cm]
-    del row, cm
-    dest_b = cl_pos[cluster[rowb]]
-    dest_b *= M
-    dest_b += rpos[rowb]
-    dest_b *= 3
-    dest_b += coord_col[cb]
-    del cb, rowb
-    dest_b = _narrow(dest_b, nc * M * 3)
     rpos = _narrow(rpos, M)
 
     # block pattern of S: supernodes sharing an entity (plus the diagonal)
@@ -1112,6 +1115,7 @@ class SchurFactor:
             _kernels()["hat6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol,
                                st.bstart, self.Q, self.a, self.b, Sig, Sigt, H, Ht, Spp)
             self._blocks = (H, Ht, _bmm(_bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
+            self.a = self.b = None         # only these blocks needed them (solve uses E and R)
             return self._blocks
         if self.backend == "numba":
             Gc, SA, SAt = np.zeros((nc, K, 3)), np.zeros((nc, K, M)), np.zeros((nc, K, M))
@@ -1127,6 +1131,7 @@ class SchurFactor:
         H = _bmm(a, SA) + FbT + _T(FbT) + _bmm(_bmm(b, Spp[st.cl_ent]), _T(b))
         Ht = _bmm(a, SAt)
         self._blocks = (H, Ht, _bmm(_bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
+        self.a = self.b = None
         return self._blocks
 
     def hat_blocks(self, cov):
