@@ -245,19 +245,22 @@ class _Linearisation:
         cols = self.col[np.concatenate([jc for _, jc, _ in parts])]
         m = cols >= 0
         key = rows[m] * max(self.u, 1) + cols[m]
+        del rows, cols             # (the temporaries go as soon as they are used)
         order = np.argsort(key, kind="stable")
         ks = key[order]
+        del key
         first = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]]) if ks.size else np.zeros(0, dtype=np.int64)
-        uniq = ks[first]
+        uniq = ks if first.size == ks.size else ks[first]
         n = problem.n
         indptr = np.searchsorted(uniq // max(self.u, 1), np.arange(n + 1)).astype(np.int64)
         self._key = tuple((jr, jc) for jr, jc, _ in parts)
         # entries of the free columns in CSR order; duplicates (one parameter feeding two
         # intrinsics) summed by reduceat over their runs
         itype = np.int32 if m.size < 2 ** 31 - 1 else np.int64
-        self._take = np.flatnonzero(m).astype(itype)[order]
         self._first = None if first.size == ks.size else first
-        del order, key, ks, cols, rows, m
+        del ks, first
+        self._take = np.flatnonzero(m).astype(itype)[order]
+        del order, m
         small = uniq.size < 2 ** 31 - 1 and self.u < 2 ** 31 - 1       # int32 indices where they fit
         self._indptr = indptr.astype(np.int32 if small else np.int64)
         self._indices = (uniq % max(self.u, 1)).astype(np.int32 if small else np.int64)
@@ -462,6 +465,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         g = -(Ar.T @ (P @ v))
         if damped and not n_far and _gradient_small(g, diagN, cost):
             status = 3
+            del factor             # not alive while the datum at the solution is analysed
             break
         step_keep = factor.solve(g)
         del factor                 # not alive while the trial point is evaluated
@@ -576,6 +580,8 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                      timings={"solve": t_solve}, solver="schur" if st is not None else "generic")
     if st is not None:
         adj.__dict__["schur_structure"] = st
+    if np.array_equal(adj.keep, keep):
+        adj.__dict__["Ar"] = Ar    # (its pattern is the structure's: not made a second time)
     adj.__dict__["damped"] = ever_damped          # Levenberg-Marquardt took part
     adj.__dict__["status"] = status
     adj.__dict__["trace"] = tuple(trace)
