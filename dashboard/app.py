@@ -18,6 +18,7 @@ from pathlib import Path
 
 import holoviews as hv
 import panel as pn
+from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 
 from .state import State
@@ -54,6 +55,48 @@ class Fast(pn.theme.fast.Fast):
     """
 
     _resources = {**pn.theme.fast.Fast._resources, "font": {}}
+
+
+#: The page as Panel's FastListTemplate writes it, and the summary of a file the server has
+#: analysed written into it as HTML (``first_summary``, the cards of :func:`summary_html`, every
+#: string from the file escaped): it shows as soon as the browser has the page, before Bokeh has
+#: rendered anything. A script puts it where the live summary will be and removes it once Bokeh
+#: renders the main area.
+FIRST_PAGE = """{% extends "fast/list/fast_list_template.html" %}
+{% block inner_body %}
+{{ super() }}
+{% if first_summary %}
+<div id="baarda-first-summary" class="summary first-summary" style="margin:5px 10px">{{ first_summary }}</div>
+<script type="text/javascript">
+(function () {
+  var first = document.getElementById("baarda-first-summary");
+  var root = document.querySelector("#main [data-root-id]");
+  if (!root) { first.remove(); return; }
+  root.parentNode.insertBefore(first, root);
+  new MutationObserver(function (_, obs) {
+    if (root.childNodes.length) { first.remove(); obs.disconnect(); }
+  }).observe(root, {childList: true});
+})();
+</script>
+{% endif %}
+{% endblock %}
+"""
+
+
+class FastListTemplate(pn.template.FastListTemplate):
+    """Panel's FastListTemplate whose page carries the summary before any JavaScript runs
+    (:data:`FIRST_PAGE`). The class keeps Panel's name: Panel finds a template's bundled
+    files by its class name."""
+
+    def __init__(self, first_summary: str = "", **params):
+        super().__init__(**params)
+        self.template = self.nb_template = parse_template(FIRST_PAGE)
+        self.first_summary = first_summary
+
+    def server_doc(self, doc=None, title=None, location=True):
+        doc = super().server_doc(doc, title, location)
+        doc.template_variables["first_summary"] = self.first_summary
+        return doc
 
 
 def _extensions():
@@ -127,7 +170,8 @@ def create_app(path=None, problem=None, background: bool | None = None):
             # summary is in the page as it is sent; only the maps come after
             state.load_cached(path)
     state.background = background
-    template = pn.template.FastListTemplate(title="baarda", accent="#1f4e9c", header_background="#1f4e9c",
+    first = SummaryHeader.html(state) if background and state.results is not None else ""
+    template = FastListTemplate(first_summary=first, title="baarda", accent="#1f4e9c", header_background="#1f4e9c",
                                             sidebar_width=290, main_layout=None, theme_toggle=False,
                                             design=Fast, font="system-ui, sans-serif")
     files = FilePanel(state=state)

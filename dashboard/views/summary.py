@@ -51,12 +51,18 @@ class SummaryHeader(pn.viewable.Viewer):
         self.pane = pn.pane.HTML(pn.bind(self._html, self.state.param.results, self.state.param.task),
                                  sizing_mode="stretch_width", css_classes=["summary"])
 
+    @staticmethod
+    def html(state: State) -> str:
+        """The header of ``state``'s results: title and :func:`summary_html` cards (every string
+        from the file escaped). Also written into the first page (``app.FIRST_PAGE``)."""
+        s = state.summary()
+        title = html_text(s["title"] or Path(s["source"]).name)
+        return f"<div style='font-size:15px;margin-bottom:4px'><b>{title}</b></div>" + summary_html(s)
+
     def _html(self, adj, task=""):
         if adj is None:
             return f"<i>{html_text(task)}…</i>" if task else "<i>No problem loaded.</i>"
-        s = self.state.summary()
-        title = html_text(s["title"] or Path(s["source"]).name)
-        return f"<div style='font-size:15px;margin-bottom:4px'><b>{title}</b></div>" + summary_html(s)
+        return self.html(self.state)
 
     def __panel__(self):
         return self.pane

@@ -68,7 +68,36 @@ def hostile_app(serve_app, tmp_path_factory):
     from baarda.dashboard.app import create_app
 
     path = hostile_block(tmp_path_factory.mktemp("hostile"))
-    return serve_app(lambda: create_app(path))
+    served = serve_app(lambda: create_app(path))
+    served.path = path
+    return served
+
+
+def test_first_page_carries_the_summary_as_text(page, hostile_app):
+    """A file the server has analysed: its summary is in the HTML of the page as the server
+    sends it (shown before any JavaScript runs), every string from the file escaped; once Bokeh
+    renders, the live summary replaces it."""
+    import urllib.request
+
+    from baarda.dashboard.state import State
+    from baarda.dashboard.text import html_text
+
+    assert State().load(hostile_app.path)          # the server's cache holds the file now
+    with urllib.request.urlopen(hostile_app.url, timeout=120) as r:
+        html = r.read().decode("utf-8")
+    first = html[html.index('id="baarda-first-summary"'):]
+    first = first[:first.index("<script")]
+    title = f"{IFRAME} title <b>b</b>\nsecond \x1b[31mred"
+    assert html_text(title) in first and "Global test" in first
+    assert "<iframe" not in first and "<b>b</b>" not in first and "\x1b" not in first
+    dialogs = []
+    page.on("dialog", lambda d: (dialogs.append(d.message), d.dismiss()))
+    page.goto(hostile_app.url)
+    live = page.locator(".summary:not(.first-summary)")
+    expect(live).to_contain_text(printable(title), timeout=90_000)
+    expect(page.locator("#baarda-first-summary")).to_have_count(0)
+    assert page.locator(".summary").get_by_text("Global test").count() == 1
+    assert dialogs == []
 
 
 def test_hostile_ids_are_text_everywhere(page, hostile_app, tmp_path, screenshots):
