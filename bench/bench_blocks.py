@@ -29,6 +29,7 @@ import os
 
 os.environ.setdefault("GLOG_minloglevel", "2")     # quiet pycolmap/Ceres
 import resource
+import sys
 import time
 from pathlib import Path
 
@@ -38,6 +39,9 @@ from baarda.adjust import Options, adjust
 from baarda.model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem, project
 from baarda.stats.hypotheses import common_error
 from baarda.simulate import simulate_block
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from oracle import redundancy  # noqa: E402  (the tests' dense oracle, F80 §5)
 
 LADYBUG = Path("/work/shared/extdata/bal/problem-49-7776-pre.txt")
 AERIAL = {"aerial-100": (5, 20), "aerial-1000": (20, 50), "aerial-5000": (50, 100)}
@@ -101,14 +105,6 @@ def dubrovnik_like(n_images=356, n_points=227_000, mean_track=5.5, seed=0) -> Bl
     obs = ImageObservations(image=obs_i, point=obs_p, xy=xy, cov=cov, line=np.zeros(m, dtype=np.int64))
     return Block(cameras=(cam,), images=tuple(images), points=points, obs=obs, datum="free",
                  title="Dubrovnik-shaped")
-
-
-def dense_r(adj) -> np.ndarray:
-    """Dense reference: r_i = 1 − (A N⁻¹ Aᵀ P)_ii with N⁻¹ from numpy (2 × 2 clusters, P block)."""
-    A = adj.Ar.toarray()
-    PA = adj.P @ A
-    Ninv = np.linalg.inv(A.T @ PA)
-    return 1.0 - ((A @ Ninv) * PA).sum(axis=1)
 
 
 def analyse(problem, solver, repeat: int = 3):
@@ -397,7 +393,7 @@ def main():
             del g
         if "dense" in args.peers and adj.Ar.shape[1] <= args.dense_max:
             t0 = time.perf_counter()
-            rd = dense_r(adj)
+            rd = redundancy(adj.Ar, adj.P)
             t_d = time.perf_counter() - t0
             print(f"{'':<18} {'dense':<8} {'':>6} {'':>7} {'':>8} {'':>8} {'':>8} {t_d:>8.2f} {peak_mb():>8.0f}"
                   f"  max|Δr| {np.abs(rd - adj.r).max():.1e}; ratio {t_d / t_rel:.1f}×", flush=True)

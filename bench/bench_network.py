@@ -12,13 +12,18 @@ from __future__ import annotations
 
 import argparse
 import resource
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
 from baarda.adjust import adjust
 from baarda.observations.geodetic import build_problem
 from baarda.model.network import Cluster, NetObservation, NetPoint, Network
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from oracle import redundancy  # noqa: E402  (the tests' dense oracle, F80 §5)
 
 
 def grid(n_side: int, spacing=100.0, seed=1) -> Network:
@@ -55,14 +60,6 @@ def grid(n_side: int, spacing=100.0, seed=1) -> Network:
     return Network(tuple(pts), tuple(obs), clusters, sigma_act="apriori")
 
 
-def dense_r(adj) -> np.ndarray:
-    A = adj.Ar.toarray()
-    p = adj.P.diagonal()
-    N = A.T @ (A * p[:, None])
-    Ninv = np.linalg.inv(N)
-    return 1.0 - ((A @ Ninv) * A).sum(axis=1) * p
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[10, 30, 60, 100],
@@ -85,7 +82,7 @@ def main():
         dense_s = ratio = dr = float("nan")
         if side * side <= args.dense_max:
             t4 = time.perf_counter()
-            rd = dense_r(adj)
+            rd = redundancy(adj.Ar, adj.P)
             dense_s = time.perf_counter() - t4
             ratio = dense_s / (t3 - t2)
             dr = float(np.abs(rd - r).max())

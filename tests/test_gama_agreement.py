@@ -13,7 +13,6 @@ reason, and the test asserts that reason instead.
 
 from __future__ import annotations
 
-import sys
 import warnings
 from pathlib import Path
 
@@ -30,8 +29,7 @@ from baarda.model.problem import subset
 
 from extdata import GAMA, gama_cases, require_extdata
 
-sys.path.insert(0, str(Path(__file__).parent))
-from gama_result import read_gama_result  # noqa: E402
+from gama_result import read_gama_result
 
 CASES = gama_cases()
 IDS = [str(p.relative_to(GAMA)) for p in CASES] if CASES else []

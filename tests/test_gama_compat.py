@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -34,9 +33,8 @@ from baarda.errors import InputError
 from baarda.io import read_model, read_problem
 from baarda.io.gama import GON, UndefinedPointsWarning, read_gama
 
-sys.path.insert(0, str(Path(__file__).parent))
-from extdata import GAMA, require_extdata  # noqa: E402
-from gama_result import read_gama_result  # noqa: E402
+from extdata import GAMA, require_extdata
+from gama_result import read_gama_result
 
 SCHEMA = json.loads((Path(__file__).parents[1] / "core" / "schema" / "analysis.schema.json").read_text())
 

@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import collections
 import math
-import os
-import sys
 import warnings
 from pathlib import Path
 
@@ -20,23 +18,12 @@ from baarda.approx import approximate_coordinates
 from baarda.errors import InputError
 from baarda.io.gama import ARCSEC, CC, GON, MM, read_gama
 
-sys.path.insert(0, str(Path(__file__).parent))
-from gama_result import read_gama_result  # noqa: E402
-
-
-def extdata_dir() -> Path:
-    """The shared extdata folder; skip (or fail when ``BAARDA_REQUIRE_EXTDATA=1``) if absent."""
-    d = (Path(__file__).parents[1] / ".." / "shared" / "extdata").resolve()
-    if not (d / "gama").is_dir():
-        reason = f"external test data not found at {d}"
-        if os.environ.get("BAARDA_REQUIRE_EXTDATA") == "1":
-            pytest.fail(reason)
-        pytest.skip(reason)
-    return d
+from extdata import GAMA, require_extdata
+from gama_result import read_gama_result
 
 
 def _gama_files():
-    d = (Path(__file__).parents[1] / ".." / "shared" / "extdata" / "gama").resolve()
+    d = GAMA
     if not d.is_dir():
         return [pytest.param(None, id="extdata-missing")]
     return [pytest.param(p, id=str(p.relative_to(d))) for p in sorted(d.rglob("*.gkf"))]
@@ -64,7 +51,7 @@ def _read(path: Path):
 
 
 def _path(path):
-    extdata_dir()
+    require_extdata(GAMA)
     assert path is not None
     return path
 
@@ -171,7 +158,7 @@ def test_every_gkf_parses(path):
 
 
 def test_units_and_defaults(tmp_path):
-    d = extdata_dir() / "gama"
+    d = require_extdata(GAMA)
     net = read_gama(d / "bug" / "tst-tetrahedron-3-deg.gkf")
     a_deg, a_gon = [o for o in net.observations if o.kind == "angle"]
     assert a_deg.unit == "deg" and a_deg.sigma_unit == "arcsec"
@@ -204,7 +191,6 @@ def test_sigmas_match_gama(path):
     size = {i: len(c.indices) for c in net.clusters for i in c.indices}
     cov = {i: c.cov[k, k] for c in net.clusters for k, i in enumerate(c.indices)}
     index = {id(o): i for i, o in enumerate(net.observations)}
-    checked = 0  # noqa: F841 (kept for debugging)
     for o, g in _match(net, res)[0]:
         i = index[id(o)]
         if size[i] > 1 or g.f is None or g.qrr is None:
@@ -215,7 +201,6 @@ def test_sigmas_match_gama(path):
         unit = MM if o.kind in ("distance", "slope-distance", "height-diff") else CC
         sigma_gama = res.apriori * math.sqrt(g.qrr / r) * unit
         assert math.sqrt(cov[i]) == pytest.approx(sigma_gama, rel=0.01), (o.kind, o.line)
-        checked += 1
 
 
 # ------------------------------------------------------------------------------------------
@@ -305,7 +290,7 @@ def test_conventions_reproduce_gama_adjusted_values(path):
 
 def test_azimuth_conventions_cover_sw_and_en():
     """The bearing convention is pinned by azimuths in both axes-xy families."""
-    d = extdata_dir() / "gama"
+    d = require_extdata(GAMA)
     for name, axes in (("azimuth-azimuth", "sw"), ("krumm/2D/Ghilani16_2_DistanceAngleAzimuth_fix", "en")):
         net = read_gama(d / f"{name}.gkf")
         res = read_gama_result(d / f"{name}.xml")

@@ -9,6 +9,7 @@ from baarda.stats import precision, risk
 from baarda.adjust import adjust
 
 from networks import grid_network, problem
+from oracle import reduced_design
 
 
 @pytest.fixture(scope="module")
@@ -30,8 +31,7 @@ def test_s_transformation_to_all_points_is_the_pseudo_inverse(pair):
     _, J = fixed.problem.evaluate(fixed.x)
     A = J.toarray()
     P = fixed.P.toarray()
-    B, Cm = A[:, t], A[:, k]
-    Cbar = Cm - B @ np.linalg.solve(B.T @ P @ B, B.T @ P @ Cm)      # F80 eq. 16
+    Cbar = reduced_design(A, P, t, k)                                # F80 eq. 16
     Nplus = np.linalg.pinv(Cbar.T @ P @ Cbar, rcond=1e-12, hermitian=True)
     np.testing.assert_allclose(a.cov, Nplus, atol=1e-12 + 1e-7 * np.abs(Nplus).max())
 

@@ -14,21 +14,7 @@ from baarda.adjust import Options, adjust
 from baarda.stats.hypotheses import selection
 
 from networks import grid_network, levelling_loop, problem, vector_network, with_values
-
-
-def dense_reference(adj):
-    """F80 eq. 8 with dense matrices: C_vv = C − A N⁻ Aᵀ, N⁻ from a pseudo-inverse."""
-    A = adj.A.toarray()
-    C = adj.problem.cov.matrix().toarray()
-    P = np.linalg.inv(C)
-    N = A.T @ P @ A
-    Ninv = np.linalg.pinv(N, rcond=1e-12, hermitian=True)
-    Cvv = C - A @ Ninv @ A.T
-    v = adj.v
-    r = np.diag(Cvv @ P)
-    pcp = np.diag(P @ Cvv @ P)
-    w = (P @ v) / np.sqrt(pcp)
-    return {"r": r, "w": w, "Cvv": Cvv, "P": P, "A": A, "Ninv": Ninv}
+from oracle import dense, reduced_design
 
 
 # -- test distributions (THEORY.md §4, §10) ----------------------------------------------------
@@ -102,12 +88,12 @@ def test_correlated_clusters_against_dense_formulas():
         for i, ei in zip(c.indices, e):
             vals[i] += ei
     adj = adjust(problem(with_values(net, vals)))
-    ref = dense_reference(adj)
-    np.testing.assert_allclose(adj.r, ref["r"], atol=1e-10)
-    np.testing.assert_allclose(adj.w, ref["w"], atol=1e-8)
+    ref = dense(adj)
+    np.testing.assert_allclose(adj.r, ref.r, atol=1e-10)
+    np.testing.assert_allclose(adj.w, ref.w, atol=1e-8)
     assert abs(adj.r.sum() - adj.dof) < 1e-9
     # the 3D group test of every vector: T = (Pv)_gᵀ (P C_vv P)_gg⁻¹ (Pv)_g
-    P, Cvv = ref["P"], ref["Cvv"]
+    P, Cvv = ref.P, ref.Cvv
     Pv = P @ adj.v
     for g in adj.groups:
         m = g["members"]
@@ -228,17 +214,15 @@ def test_free_network_covariance_is_the_s_transformed_one():
     and the trace over the S-base is minimal (inner constraints: Σ_S = N⁺ when all points are
     in the base)."""
     adj = adjust(problem(grid_network(3, 3, noise_seed=4, datum="free")))
-    ref = dense_reference(adj)
+    ref = dense(adj)
     u = adj.A.shape[1]
     i, j = np.meshgrid(np.arange(u), np.arange(u), indexing="ij")
     S = adj.cov_entries(i, j)
     k = np.flatnonzero(adj.problem.params.kind[adj.problem.params.free] == "k")
     # N⁺ restricted to coordinates after eliminating orientations equals the inner solution
-    A = ref["A"]
-    P = ref["P"]
+    P = ref.P
     t = np.setdiff1d(np.arange(u), k)
-    B, Cm = A[:, t], A[:, k]
-    Cbar = Cm - B @ np.linalg.solve(B.T @ P @ B, B.T @ P @ Cm)
+    Cbar = reduced_design(ref.A, P, t, k)
     Qkk = np.linalg.pinv(Cbar.T @ P @ Cbar, rcond=1e-12, hermitian=True)
     np.testing.assert_allclose(S[np.ix_(k, k)], Qkk, atol=1e-12 + 1e-7 * np.abs(Qkk).max())
 
@@ -248,8 +232,8 @@ def test_free_network_covariance_is_the_s_transformed_one():
 @pytest.mark.slow
 def test_monte_carlo_size_and_power_of_w_and_2d_tests():
     adj = adjust(problem(grid_network(3, 3)))
-    ref = dense_reference(adj)
-    P, Cvv = ref["P"], ref["Cvv"]
+    ref = dense(adj)
+    P, Cvv = ref.P, ref.Cvv
     R = P @ Cvv @ P            # Pv = −R e for an error vector e (linear model, v = Ax̂ − l)
     sd = np.sqrt(np.diag(R))
     L = np.linalg.cholesky(adj.problem.cov.matrix().toarray())

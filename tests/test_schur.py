@@ -16,6 +16,8 @@ from baarda.solve.linalg import LowRankUpdate, SPDFactor, block_partition
 from baarda.model.problem import subset
 from baarda.simulate import simulate_block
 
+from oracle import nuisance_share, redundancy
+
 BACKENDS = ["numpy"] + (["numba"] if schur.numba is not None else [])
 QUANTITIES = ("r", "u_k", "u_t")
 SCALED = ("w", "mdb", "external", "external_all", "tau")
@@ -43,15 +45,9 @@ def _agree(a, b, tol):
 
 
 def _dense_reference(adj):
-    """r, u_t from dense inverses of N and BᵀPB (numpy), uncorrelated 2 × 2 clusters."""
-    A = adj.Ar.toarray()
-    P = adj.P.toarray()
-    Ninv = np.linalg.inv(A.T @ P @ A)
-    r = 1.0 - np.diag(A @ Ninv @ A.T @ P)
-    t = adj._nuisance_columns
-    B = A[:, t]
-    ut = np.diag(B @ np.linalg.inv(B.T @ P @ B) @ B.T @ P)
-    return r, ut
+    """r and u_t of the dense oracle (F80 §5, §6) over the kept unknowns."""
+    kind = adj.problem.params.kind[adj.problem.params.free][adj.keep]
+    return redundancy(adj.Ar, adj.P), nuisance_share(adj.Ar, adj.P, np.flatnonzero(kind == "t"))
 
 
 CASES = {

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import shutil
 import socket
-import sys
 import time
 import urllib.request
 from pathlib import Path
@@ -21,7 +20,6 @@ import pytest
 CHROMIUM = "/usr/bin/chromium"
 ROOT = Path(__file__).resolve().parents[2]
 SCREENSHOTS = ROOT / "screenshots"
-sys.path.insert(0, str(ROOT / "tests"))
 
 
 def _missing() -> str | None:

@@ -54,9 +54,7 @@ def hostile_block(tmp_path: Path) -> Path:
 
 def hostile_levelling() -> bytes:
     """The demo levelling network with its first point ids replaced (XML-escaped)."""
-    from conftest import ROOT
-
-    text = (ROOT / "data" / "demo-levelling.gkf").read_text(encoding="utf-8")
+    text = (Path(__file__).resolve().parents[2] / "data" / "demo-levelling.gkf").read_text(encoding="utf-8")
     for old, new in zip("ABCD", LEVELLING_IDS):
         esc = new.replace("&", "&amp;").replace("&amp;#10;", "&#10;").replace("<", "&lt;").replace('"', "&quot;")
         text = re.sub(rf'(id|from|to)="{old}"', rf'\1="{esc}"', text)
