@@ -1,12 +1,12 @@
 """The adjustment result: residuals, tests and reliability measures, computed lazily.
 
-Notation (THEORY.md; Förstner 1980): C = σ0²Q the a priori covariance of the observations,
+Notation (F80): C = σ0²Q the a priori covariance of the observations,
 P = C⁻¹, A the design matrix at the solution, Σ = N⁻¹ = (AᵀPA)⁻¹ (a generalised inverse for a
 free network), H = AΣAᵀ, C_vv = C − H (F80 eq. 8). Per observation i:
 
 - redundancy number r_i = (C_vv P)_ii (F80 §5), Σ r_i = r;
 - Baarda's w_i = (Pv)_i / √(P C_vv P)_ii (σ0 a priori), Pope's τ_i = w_i σ0 / σ̂0;
-- MDB ∇0l_i = δ0 / √(P C_vv P)_ii (F80 §5, THEORY.md §4), σ_i δ0 / √r_i when uncorrelated;
+- MDB ∇0l_i = δ0 / √(P C_vv P)_ii (F80 §5), σ_i δ0 / √r_i when uncorrelated;
 - contribution to the coordinates u_k,i and to the nuisance parameters u_t,i = (B Σ_t Bᵀ P)_ii
   (F80 eq. 16), u_k,i = 1 − r_i − u_t,i;
 - external reliability δ̄0,i = δ0 √((P H_k P)_ii / (P C_vv P)_ii), which is F80's

@@ -56,8 +56,7 @@ those out, records them and adjusts again (at most :data:`MAX_ROUNDS` times).
 
 The input model is never changed: the returned model is a reduced copy.
 
-References: Kraus, K. (2007), Photogrammetry, 2nd ed., de Gruyter; Hartley, R., Zisserman, A.
-(2004), Multiple View Geometry in Computer Vision, 2nd ed., Cambridge University Press.
+References (full in the package docstring): K07; HZ04.
 """
 
 from __future__ import annotations

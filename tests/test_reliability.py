@@ -1,5 +1,5 @@
 """Reliability measures against independent references: statsmodels' regression diagnostics, a
-dense implementation of F80's formulas, closed forms, and identities (THEORY.md §2-§5, §10)."""
+dense implementation of F80's formulas, closed forms, and identities (F80 §4-§6, eq. 8, eq. 16)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from networks import grid_network, levelling_loop, problem, vector_network, with
 from oracle import dense, reduced_design
 
 
-# -- test distributions (THEORY.md §4, §10) ----------------------------------------------------
+# -- test distributions (F80 §4-§5) ----------------------------------------------------
 
 def test_delta0_one_dimensional_matches_normal_formula():
     assert abs(distributions.critical_normal(0.001) - 3.2905) < 1e-4
@@ -53,7 +53,7 @@ def test_tau_critical_value_matches_beta_distribution():
 def test_levelling_loop(m):
     """One condition among m equal-weight height differences: r_i = 1/m, Σ r_i = 1.
 
-    (THEORY.md §10 prints (m − 1)/m; with Σ r_i = 1 the value per observation is 1/m.)"""
+    (Σ r_i equals the one condition, so each of the m equal observations has 1/m.)"""
     adj = adjust(problem(levelling_loop(m)))
     assert adj.dof == 1
     np.testing.assert_allclose(adj.r, 1.0 / m, atol=1e-12)
@@ -227,7 +227,7 @@ def test_free_network_covariance_is_the_s_transformed_one():
     np.testing.assert_allclose(S[np.ix_(k, k)], Qkk, atol=1e-12 + 1e-7 * np.abs(Qkk).max())
 
 
-# -- Monte Carlo of the tests' size and power (THEORY.md §10) ----------------------------------
+# -- Monte Carlo of the tests' size and power (F80 §4-§5) ----------------------------------
 
 @pytest.mark.slow
 def test_monte_carlo_size_and_power_of_w_and_2d_tests():

@@ -55,9 +55,7 @@ Datum: ``Block.datum == "control"`` — the weighted control points (:class:`Dat
 ``"free"`` — a free block whose 7-parameter defect is removed by inner constraints over the
 S-base (``Block.sbase``, empty = all points); control coordinates are then not used.
 
-References: Förstner (1980) (F80) and THEORY.md; Brown, D. C. (1971), Close-range camera
-calibration, PE 37(8); Ebner, H. (1976), Self calibrating block adjustment, BuL 44;
-Fraser, C. S. (1997), Digital camera self-calibration, ISPRS J. 52.
+References (full in the package docstring): F80; B71 (Brown); E76 (Ebner); F97 (Fraser).
 """
 
 from __future__ import annotations
@@ -698,7 +696,7 @@ def _camera_dict(cam: Camera) -> dict:
 
 
 # --------------------------------------------------------------------------------------------
-# hypotheses for blocks (F80 §2.2, THEORY.md §3)
+# hypotheses for blocks (F80 §2.2, §7.1)
 # --------------------------------------------------------------------------------------------
 def _problem(obj):
     return getattr(obj, "problem", obj)

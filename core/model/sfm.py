@@ -52,11 +52,8 @@ points): the 7-parameter similarity gauge is found by :func:`baarda.datum.null_s
 point coordinates, the camera parameters following by least squares. With control the weighted
 control points define the datum (``"fixed"``).
 
-References: Agarwal, S., Snavely, N., Seitz, S. M., Szeliski, R. (2010), Bundle adjustment in
-the large, ECCV; Snavely, N., Seitz, S. M., Szeliski, R. (2006), Photo tourism, SIGGRAPH
-(Bundler); Schönberger, J. L., Frahm, J.-M. (2016), Structure-from-motion revisited, CVPR
-(COLMAP); Chirikjian, G. S. (2011), Stochastic Models, Information Theory, and Lie Groups,
-vol. 2, Birkhäuser.
+References (full in the package docstring): BAL10; S06 (Bundler); SF16 (COLMAP); B00 (OpenCV);
+C11 (J_r of SO(3)).
 """
 
 from __future__ import annotations

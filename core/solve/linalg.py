@@ -1,7 +1,7 @@
 """Sparse symmetric positive definite factorisation with a selected inverse.
 
 Reliability needs only the blocks of N⁻¹ that couple the unknowns of one observation
-(THEORY.md §11). After a reverse Cuthill-McKee ordering most normal matrices of networks and
+(F80 §5: r_i needs a_i Σ a_iᵀ only). After a reverse Cuthill-McKee ordering most normal matrices of networks and
 strip blocks are banded with a half-bandwidth b ≪ u. Cut into consecutive blocks such that every
 non-zero couples a block only with itself and its neighbours (the cut is greedy: block K + 1 ends
 where the farthest neighbour of block K lies, and at least :data:`MIN_BLOCK` on), the permuted
@@ -11,7 +11,7 @@ block lower bidiagonal
     N = L Lᵀ,  L = [L₀; B₀ L₁; B₁ L₂; ...],
 
 and the entries of Σ = N⁻¹ on the same block pattern follow from the block form of Takahashi's
-recursion (Takahashi, Fagan & Chen 1973), run from the last block up:
+recursion (TFC73), run from the last block up:
 
     X_K = B_K L_K⁻¹
     Σ_{K+1,K} = −Σ_{K+1,K+1} X_K

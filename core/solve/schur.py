@@ -11,7 +11,7 @@ unknowns as "cameras" c (all unknowns that are not eliminated) and points p:
     V = \\operatorname{diag}(C_j),\\quad S = U - W V^{-1} W^T
 
 (S the reduced camera system, the Schur complement of V). With Z_j = C_j⁻¹ W_jᵀ the blocks of
-Σ = N⁻¹ are (THEORY.md §11)
+Σ = N⁻¹ are (the block inverse of N; TFC73 for S)
 
 .. math::
 

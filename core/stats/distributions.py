@@ -1,6 +1,6 @@
 """Test distributions: critical values, the non-centrality δ0, Baarda's B-method.
 
-Förstner (1980) §4-§5; Molenaar (1984) §3.1-§3.2; THEORY.md §3-§4.
+F80 §4-§5; M84 §3.1-§3.2; B68 (w); P76 (τ).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ def critical_f(alpha: float, q: int, dof: float) -> float:
 
 
 def critical_tau(alpha: float, dof: int) -> float:
-    """Critical value of Pope's τ (THEORY.md §3): τ²/r ~ Beta(1/2, (r−1)/2).
+    """Critical value of Pope's τ (P76; F80 §4): τ²/r ~ Beta(1/2, (r−1)/2).
 
     Through t = τ √(r−1) / √(r − τ²) ~ t(r−1): τ_c = √(r t_c² / (r − 1 + t_c²)).
     """
@@ -43,7 +43,7 @@ def delta0(alpha: float, beta: float, q: int = 1) -> float:
 
     Solves P(χ'²(q, δ0²) > χ²_{1−α}(q)) = β with scipy's non-central χ². For q = 1 this is
     the two-sided normal test; its value differs from the approximation
-    Φ⁻¹(1 − α/2) + Φ⁻¹(β) only by the far tail (THEORY.md §4: 4.13 for α = 0.1 %, β = 80 %).
+    Φ⁻¹(1 − α/2) + Φ⁻¹(β) only by the far tail (F80 §5: 4.13 for α = 0.1 %, β = 80 %).
     """
     if not (0 < alpha < 1 and 0 < beta < 1) or q < 1:
         raise ValueError(f"need 0 < alpha, beta < 1 and q ≥ 1 (alpha={alpha}, beta={beta}, q={q})")
@@ -58,7 +58,7 @@ def delta0(alpha: float, beta: float, q: int = 1) -> float:
 
 
 def delta0_normal(alpha: float, beta: float) -> float:
-    """The normal approximation δ0 = Φ⁻¹(1 − α/2) + Φ⁻¹(β) (THEORY.md §4)."""
+    """The normal approximation δ0 = Φ⁻¹(1 − α/2) + Φ⁻¹(β) (F80 §5)."""
     return float(stats.norm.isf(alpha / 2.0) + stats.norm.ppf(beta))
 
 

@@ -11,7 +11,8 @@ points, weighted points, a free network) can be carried to any S-base. Here G is
 the design matrix with *all* points released (fixed ones too), so a network adjusted on fixed
 points can be shown in the S-base of other points.
 
-Criterion matrix of chaotic structure (M84 eq. 2, with the ½ of THEORY.md §8):
+Criterion matrix of chaotic structure (M84 eq. 2; the OCR of M84 prints d² − d_ij²,
+which only rescales the parameters, the ½ makes d_ij² the variance of a difference):
 var(x_i) = var(y_i) = d², cov(x_i, x_j) = cov(y_i, y_j) = d² − ½ d_ij², cov(x, y) = 0, so
 that a coordinate difference has variance d_ij², with d_ij² a function of the distance l_ij
 (linear, logarithmic, exponential). The real covariance G is judged against the criterion H in
@@ -136,7 +137,7 @@ def lambda_bar(adj, error: np.ndarray) -> float:
 # -- criterion matrices (M84 §2) -------------------------------------------------------------------
 
 def chaotic_d2(l: np.ndarray, kind: str, C0: float, C1: float, C2: float = 1.0) -> np.ndarray:
-    """d_ij² of the chaotic criterion matrix as a function of the distance l (THEORY.md §8)."""
+    """d_ij² of the chaotic criterion matrix as a function of the distance l (M84 eq. 2, §2.3)."""
     l = np.asarray(l, dtype=float)
     if kind == "linear":
         return C0 + C1 * l

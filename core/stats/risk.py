@@ -6,7 +6,7 @@ of the tolerance λtol), a critical value C has the risk
 
     r_C = (1 − p) α_C L1 + p (1 − β_C) L2,   α_C = 1 − Φ(C),  β_C = 1 − Φ(C − √λtol),
 
-which is smallest at (THEORY.md §9)
+which is smallest at (M84 §3.3)
 
     C = (ln((1 − p)/p) + ln(L1/L2)) / √λtol + √λtol / 2.
 """
