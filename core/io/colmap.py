@@ -598,36 +598,3 @@ def _points_bin(path) -> _Points:
     if not pts.ids:
         b.fail(0, "no points")
     return pts.done()
-
-
-# --------------------------------------------------------------------------------------------
-# writing (text), for tests and conversions
-# --------------------------------------------------------------------------------------------
-def write_colmap_text(block: SfmBlock, directory) -> None:
-    """Write a COLMAP-convention block as ``cameras.txt``, ``images.txt``, ``points3D.txt``."""
-    from ..observations.rotation import R_from_rodrigues, quaternion_from_R
-
-    if block.convention != "colmap":
-        raise ValueError("only COLMAP blocks can be written as a COLMAP model")
-    d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
-    cams = [f"{c.id} {c.model} {int(c.width)} {int(c.height)} " + " ".join(f"{v:.17g}" for v in c.params)
-            for c in block.cameras]
-    (d / "cameras.txt").write_text("\n".join(cams) + "\n")
-    per_image = [np.flatnonzero(block.obs_image == k) for k in range(len(block.images))]
-    slot = {}
-    lines = []
-    for k, im in enumerate(block.images):
-        q = quaternion_from_R(R_from_rodrigues(np.asarray(im.rodrigues)))
-        lines.append(f"{im.id} " + " ".join(f"{v:.17g}" for v in (*q, *im.t)) + f" {im.camera} {im.name or im.id}")
-        lines.append(" ".join(f"{block.xy[o, 0]:.17g} {block.xy[o, 1]:.17g} {block.points[block.obs_point[o]]}"
-                              for o in per_image[k]))
-        for j, o in enumerate(per_image[k]):
-            slot[o] = j
-    (d / "images.txt").write_text("\n".join(lines) + "\n")
-    pts = []
-    for i, pid in enumerate(block.points):
-        obs = np.flatnonzero(block.obs_point == i)
-        track = " ".join(f"{block.images[block.obs_image[o]].id} {slot[o]}" for o in obs)
-        pts.append(f"{pid} " + " ".join(f"{v:.17g}" for v in block.X[i]) + f" 0 0 0 0 {track}")
-    (d / "points3D.txt").write_text("\n".join(pts) + "\n")

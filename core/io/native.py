@@ -251,12 +251,6 @@ def _datum(rd, point_ids):
     return d.get("kind", "control"), tuple(str(s) for s in sbase)
 
 
-def _track_check(rd, key, counts, points, what):
-    for i, c in enumerate(counts):
-        if c < 2:
-            rd.fail(key, i, f"point '{points[i]}' is seen by {c} {what}; at least 2 are needed", field="id")
-
-
 def _read_bundle(rd, sigma0):
     from ..model.bundle import AP_GROUPS, Block, Camera, Image, ImageObservations, ObjectPoint
 

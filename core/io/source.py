@@ -542,17 +542,6 @@ class Numbers:
             return None
         return self.text(self.consumed), int(self.lines[self.i])
 
-    def count_rest(self) -> int:
-        """How many numbers are left (reads, and drops, them all)."""
-        n = self.vals.size - self.i
-        self.consumed += n
-        self.i = self.vals.size
-        while self._read_chunk():
-            n += self.vals.size
-            self.consumed += self.vals.size
-            self.i = self.vals.size
-        return n
-
     def end(self, what: str):
         """InputError unless the stream has no more numbers."""
         nxt = self.peek()

@@ -194,9 +194,6 @@ class Block:
     source: str = ""
     extra: dict = field(default_factory=dict)
 
-    def camera_of(self, image: Image) -> Camera:
-        return next(c for c in self.cameras if c.id == image.camera)
-
     def replace(self, **changes) -> "Block":
         from dataclasses import replace
         return replace(self, **changes)

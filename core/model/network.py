@@ -29,7 +29,6 @@ KINDS = (
     "distance", "direction", "angle", "azimuth", "slope-distance", "zenith-angle",
     "height-diff", "dx", "dy", "dz", "coordinate-x", "coordinate-y", "coordinate-z",
 )
-ANGULAR_KINDS = frozenset({"direction", "angle", "azimuth", "zenith-angle"})
 
 
 @dataclass(frozen=True)

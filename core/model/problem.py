@@ -87,12 +87,6 @@ class Categorical(LazySequence):
         self.codes = np.asarray(codes)
         self.codes.setflags(write=False)
 
-    @classmethod
-    def from_values(cls, values) -> "Categorical":
-        cats, codes = np.unique(np.asarray(list(values), dtype=object).astype(str), return_inverse=True)
-        dtype = np.int8 if len(cats) < 128 else np.int32
-        return cls(tuple(str(c) for c in cats), codes.astype(dtype))
-
     def __len__(self):
         return self.codes.size
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..datum import Datum
 from ..errors import InputError
-from ..model.network import ANGULAR_KINDS, Network
+from ..model.network import Network
 from ..model.problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
 
 AXES = "xyz"
@@ -325,10 +325,6 @@ def _groups(net: Network) -> np.ndarray:
             key = (ci, tuple(o.points), getattr(o, "group_key", None))
             group[i] = keys.setdefault(key, len(keys))
     return group
-
-
-def is_angular(kind: str) -> bool:
-    return kind in ANGULAR_KINDS
 
 
 def build_network(net: Network, strict: bool = False) -> Problem:

@@ -62,11 +62,6 @@ def delta0_normal(alpha: float, beta: float) -> float:
     return float(stats.norm.isf(alpha / 2.0) + stats.norm.ppf(beta))
 
 
-def power(alpha: float, q: int, delta: float) -> float:
-    """Power of a q-dimensional test of size α against non-centrality δ (F80 eq. 11)."""
-    return float(stats.ncx2.sf(stats.chi2.isf(alpha, q), q, delta * delta))
-
-
 @lru_cache(maxsize=256)
 def alpha_b_method(alpha1: float, beta: float, q: int) -> float:
     """Baarda's B-method: the size α_q of a q-dimensional test with the δ0 of the 1D test.
