@@ -64,7 +64,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import datum as datum_mod
-from .errors import DatumDefectError, SingularError
+from .errors import DatumDefectError, OptionError, SingularError
 from .solve import schur
 from .solve.linalg import SPDFactor
 from .model.problem import take
@@ -178,7 +178,7 @@ def schur_structure(problem, Ar, keep, solver: str = "auto"):
     """The point-elimination layout of :mod:`baarda.solve.schur` for the reduced design matrix ``Ar``,
     or None when the generic solver is to be used (``solver``: see :class:`Options`)."""
     if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r} (known: {', '.join(SOLVERS)})")
+        raise OptionError("solver", solver, SOLVERS, f"unknown solver {solver!r} (known: {', '.join(SOLVERS)})")
     if solver == "generic":
         return None
     params = problem.params
@@ -348,9 +348,10 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
 
     options = options or Options()
     if options.method not in METHODS:
-        raise ValueError(f"unknown method {options.method!r} (known: {', '.join(METHODS)})")
+        raise OptionError("method", options.method, METHODS,
+                          f"unknown method {options.method!r} (known: {', '.join(METHODS)})")
     if int(options.max_iter) < 1:
-        raise ValueError(f"max_iter must be at least 1 (got {options.max_iter})")
+        raise OptionError("max_iter", options.max_iter, (), f"max_iter must be at least 1 (got {options.max_iter})")
     t0 = time.perf_counter()
     params = problem.params
     free = params.free
@@ -667,7 +668,7 @@ def _defect_error(err, N, labels) -> DatumDefectError:
     """The error of a singular normal matrix, naming the unknowns in its null space."""
     undetermined = diagnose(N, labels)
     if not undetermined:
-        undetermined = [str(err).split(": ", 1)[-1].split(" is not")[0]]
+        undetermined = [err.unknown if err.unknown is not None else str(err)]
     return DatumDefectError(
         len(undetermined) if len(undetermined) < 8 else 1, undetermined,
         "the observations do not determine " + ", ".join(undetermined[:20])

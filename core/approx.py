@@ -30,7 +30,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import least_squares
 
-from baarda.errors import InputError
+from baarda.errors import InputError, OptionError
 from baarda.model.network import Network
 
 __all__ = ["approximate_coordinates"]
@@ -574,7 +574,7 @@ def approximate_coordinates(net: Network, missing: str = "error") -> Network:
     :func:`baarda.observations.geodetic.build_network` to treat as local defects.
     """
     if missing not in ("error", "keep"):
-        raise ValueError("missing must be 'error' or 'keep'")
+        raise OptionError("missing", missing, ("error", "keep"), "missing must be 'error' or 'keep'")
     st = _Approx(net)
     need_xy, need_z, ambiguous = st.run()
     undetermined = []

@@ -55,4 +55,83 @@ class DatumDefectError(BaardaError):
 
 
 class SingularError(BaardaError):
-    """A matrix that must be regular (or positive definite) is singular."""
+    """A matrix that must be regular (or positive definite) is singular.
+
+    When a factorisation breaks down at a pivot, ``unknown`` names the unknown there (e.g.
+    ``"P7.x"``) and ``index`` is its column in the matrix; both are None otherwise.
+    """
+
+    def __init__(self, message: str = "", unknown: str | None = None, index: int | None = None):
+        self.unknown = unknown
+        self.index = None if index is None else int(index)
+        if not message:
+            message = f"normal matrix is singular: {unknown} is not determined by the observations"
+        self.message = message
+        super().__init__(message)
+
+    def __reduce__(self):
+        return (type(self), (self.message, self.unknown, self.index))
+
+
+class OptionError(BaardaError, ValueError):
+    """An argument outside the values a function accepts.
+
+    ``option`` names the argument (``"solver"``, ``"alpha"``, a recipe key), ``value`` is what
+    was given and ``allowed`` the accepted values (a tuple; empty when a range is meant, which
+    the message states). A :class:`ValueError` too, as Python's convention for bad values.
+    """
+
+    def __init__(self, option: str, value, allowed=(), message: str = ""):
+        self.option = str(option)
+        self.value = value
+        self.allowed = tuple(allowed)
+        if not message:
+            message = f"{self.option} must be one of {', '.join(map(repr, self.allowed))} (got {value!r})"
+        self.message = message
+        super().__init__(message)
+
+    def __reduce__(self):
+        return (type(self), (self.option, self.value, self.allowed, self.message))
+
+
+class ConversionError(BaardaError, ValueError):
+    """A model that the target format cannot hold: ``item`` names the camera or point (or the
+    model's convention) at fault and ``reason`` says what the format lacks."""
+
+    def __init__(self, item: str, reason: str, message: str = ""):
+        self.item = str(item)
+        self.reason = reason
+        self.message = message or f"{self.item}: {reason}"
+        super().__init__(self.message)
+
+    def __reduce__(self):
+        return (type(self), (self.item, self.reason, self.message))
+
+
+class HypothesisError(BaardaError, ValueError):
+    """A hypothesis H that the test cannot use as asked: ``rows`` is H's number of rows and
+    ``n`` the adjustment's number of observations when they differ; ``q`` the dimension the
+    test sees (0: the test sees no error of this hypothesis) when a lower bound is asked for."""
+
+    def __init__(self, message: str, rows: int | None = None, n: int | None = None, q: int | None = None):
+        self.rows, self.n, self.q = rows, n, q
+        self.message = message
+        super().__init__(message)
+
+    def __reduce__(self):
+        return (type(self), (self.message, self.rows, self.n, self.q))
+
+
+class CovarianceError(BaardaError, ValueError):
+    """The covariance clusters do not fit the observations: ``cluster`` is the cluster at fault
+    (None when the fault is not one cluster's) and ``observations`` the indices of observations
+    that no cluster covers (at most ten), if that is the fault."""
+
+    def __init__(self, message: str, cluster: int | None = None, observations=()):
+        self.cluster = cluster
+        self.observations = tuple(int(i) for i in observations)
+        self.message = message
+        super().__init__(message)
+
+    def __reduce__(self):
+        return (type(self), (self.message, self.cluster, self.observations))

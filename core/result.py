@@ -32,6 +32,7 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
+from .errors import OptionError
 from .stats import distributions
 from .solve.linalg import LowRankUpdate, SPDFactor
 from .model.problem import LazySequence
@@ -750,7 +751,7 @@ class Adjustment:
         if method == "auto":
             method = "woodbury" if Rc.size <= WOODBURY_MAX else "refactor"
         if method not in ("woodbury", "refactor"):
-            raise ValueError(f"unknown method {method!r}")
+            raise OptionError("method", method, ("woodbury", "refactor"), f"unknown method {method!r}")
         P = weight_matrix(problem.cov)
         new = Adjustment(problem=problem, options=self.options, x=self.x, f=self.f[keep_obs], A=A, P=P,
                          plan=self.plan, converged=True, iterations=0, history=(), timings={},

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import OptionError
 from .model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, project
 
 CAMERAS = {
@@ -81,7 +82,7 @@ def simulate_block(**recipe) -> tuple[Block, dict]:
     """
     unknown = set(recipe) - set(DEFAULTS)
     if unknown:
-        raise ValueError(f"unknown recipe keys: {', '.join(sorted(unknown))}")
+        raise OptionError("recipe", sorted(unknown), tuple(DEFAULTS), f"unknown recipe keys: {', '.join(sorted(unknown))}")
     r = {**DEFAULTS, **recipe}
     rng = np.random.default_rng(r["seed"])
     cam = _camera(r["camera"])
@@ -113,7 +114,7 @@ def simulate_block(**recipe) -> tuple[Block, dict]:
     # tie point grid
     nx, ny = (int(v) for v in r["pattern"])
     if ny != 3 or nx not in (3, 5):
-        raise ValueError("pattern must be [3, 3] or [5, 3]")
+        raise OptionError("pattern", [nx, ny], ([3, 3], [5, 3]), "pattern must be [3, 3] or [5, 3]")
     stepx = 2 * B / (nx - 1)
     xs = np.arange(-round(B / stepx), round((m_n - 1) * B / stepx) + round(B / stepx) + 1) * stepx
     ys = np.arange(-1, 2 * s_n) * A / 2
@@ -232,7 +233,7 @@ def _control_configuration(r, gxy, nxs, nys, B, stepx, rng) -> np.ndarray:
     if kind == "dense":
         status[(ix % 2 == 0) & (iy % 2 == 0)] = "control"
         return status
-    raise ValueError(f"unknown control configuration '{kind}'")
+    raise OptionError("control", kind, (), f"unknown control configuration '{kind}'")
 
 
 def _plant(r, rng, images, pid, obs_i, obs_p, xy, ref, status, sigma, sh, sv, cam, B, out):
@@ -332,7 +333,7 @@ def _plant(r, rng, images, pid, obs_i, obs_p, xy, ref, status, sigma, sh, sv, ca
                         "class": error_class(abs(val) / sig, abs(val) / B), "_k": None})
             continue
         else:
-            raise ValueError(f"unknown error kind '{kind}'")
+            raise OptionError("errors.kind", kind, (), f"unknown error kind '{kind}'")
         out.append({"kind": kind, "ids": ids, "vector": vec, "unit": cam.unit,
                     "size_sigma": float(sz / sigma), "size_base": float(sz / b_img),
                     "class": error_class(sz / sigma, sz / b_img), "_k": [int(k) for k in ks]})
@@ -458,7 +459,7 @@ def simulate_imodel(strips: int = 2, models_per_strip: int = 5, base: float = 92
                                  "vector": [val], "unit": "m", "size_sigma": float(spec.get("size", 20.0)),
                                  "class": error_class(float(spec.get("size", 20.0)), 0.0)})
         else:
-            raise ValueError(f"unknown error kind '{spec['kind']}'")
+            raise OptionError("errors.kind", spec["kind"], (), f"unknown error kind '{spec['kind']}'")
     approx = P + (0 if design else rng.normal(0, 0.5, P.shape))
     points = tuple(PlanPoint(ids[k], float(approx[i, 0]), float(approx[i, 1]),
                              "control" if ctrl[i] else "tie",

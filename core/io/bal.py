@@ -28,7 +28,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..model.sfm import SfmBlock, SfmCamera, SfmImage
-from ..errors import InputError
+from ..errors import ConversionError, InputError
 from .source import Numbers, Truncated, open_binary
 from .source import read_text as _read_text
 
@@ -279,7 +279,8 @@ def bal_block(cams, X, idx, xy, obs_line, cam_line, pt_line, convention, path, s
 def write_bal(block: SfmBlock, path) -> None:
     """Write a BAL-convention block (``bal`` or ``bundler``) as a BAL problem file."""
     if block.convention not in ("bal", "bundler"):
-        raise ValueError("only BAL and Bundler blocks can be written as BAL")
+        raise ConversionError(block.convention, "only BAL and Bundler blocks can be written as BAL",
+                              "only BAL and Bundler blocks can be written as BAL")
     out = [f"{len(block.images)} {len(block.points)} {block.obs_image.size}"]
     out += [f"{i} {p} {x:.17g} {y:.17g}" for i, p, (x, y) in zip(block.obs_image, block.obs_point, block.xy)]
     cams = {c.id: c for c in block.cameras}

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baarda.errors import InputError
+from baarda.errors import InputError, OptionError
 from baarda.model.network import Cluster, NetObservation, NetPoint, Network
 from baarda.validate import SIGMA0_MAX, SIGMA0_MIN, VALUE_LIMIT
 
@@ -211,7 +211,8 @@ class _Pending:
 class _Reader:
     def __init__(self, path: Path, unknown_points: str = "error"):
         if unknown_points not in ("error", "drop"):
-            raise ValueError("unknown_points must be 'error' or 'drop'")
+            raise OptionError("unknown_points", unknown_points, ("error", "drop"),
+                              "unknown_points must be 'error' or 'drop'")
         self.unknown_points = unknown_points
         self.path = path
         self.points: dict[str, _PointDef] = {}

@@ -68,6 +68,7 @@ import scipy.sparse as sp
 
 from ..stats import distributions
 from ..datum import Datum
+from ..errors import OptionError
 from ..observations.geodetic import LinearSet
 from ..stats.hypotheses import common_error, selection
 from ..solve.linalg import SPDFactor
@@ -570,7 +571,8 @@ def build_block_problem(block: Block) -> Problem:
         groups = []
         for g in cam.ap:
             if g not in AP_GROUPS:
-                raise ValueError(f"camera {cam.id}: unknown AP group '{g}' (known: {', '.join(AP_GROUPS)})")
+                raise OptionError("ap", g, tuple(AP_GROUPS),
+                                  f"camera {cam.id}: unknown AP group '{g}' (known: {', '.join(AP_GROUPS)})")
             idx = np.array([add(f"{cam.id}.{g}.{nm}", 0.0, "t") for nm in AP_GROUPS[g]], dtype=np.int64)
             groups.append((g, idx))
             ap_groups[f"{cam.id}:{g}"] = [labels[i] for i in idx]

@@ -27,6 +27,8 @@ from typing import Protocol
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import CovarianceError
+
 
 # --------------------------------------------------------------------------------------------
 # array-backed sequences: one entry per observation or parameter without one Python object each
@@ -260,12 +262,14 @@ class Covariance:
             idx = np.asarray(idx, dtype=np.int64)
             cov = np.atleast_2d(np.asarray(cov, dtype=float))
             if cov.shape != (idx.size, idx.size):
-                raise ValueError(f"cluster {c}: covariance of shape {cov.shape} for {idx.size} observations")
+                raise CovarianceError(f"cluster {c}: covariance of shape {cov.shape} for {idx.size} observations",
+                                      cluster=c)
             cluster[idx] = c
             ms.append(idx)
             bs.append(cov)
         if (cluster < 0).any():
-            raise ValueError(f"observations without covariance: {np.flatnonzero(cluster < 0)[:10]}")
+            raise CovarianceError(f"observations without covariance: {np.flatnonzero(cluster < 0)[:10]}",
+                                  observations=np.flatnonzero(cluster < 0)[:10])
         return cls(cluster, tuple(ms), tuple(bs))
 
     @classmethod
@@ -293,18 +297,19 @@ class Covariance:
                 o = np.argsort(cl, kind="stable")
                 cl, mem, C = cl[o], mem[o], C[o]
             if C.shape != (cl.size, m, m) or mem.shape != (cl.size, m):
-                raise ValueError(f"clusters of size {m}: members {mem.shape}, covariances {C.shape}")
+                raise CovarianceError(f"clusters of size {m}: members {mem.shape}, covariances {C.shape}")
             cluster[mem] = cl[:, None]
             for a in (cl, mem, C):
                 if a.flags.writeable:
                     a.setflags(write=False)
             out.append((m, cl, mem, C))
         if (cluster < 0).any():
-            raise ValueError(f"observations without covariance: {np.flatnonzero(cluster < 0)[:10]}")
+            raise CovarianceError(f"observations without covariance: {np.flatnonzero(cluster < 0)[:10]}",
+                                  observations=np.flatnonzero(cluster < 0)[:10])
         total = sum(g[1].size for g in out)
         if total and not np.array_equal(np.bincount(np.concatenate([g[1] for g in out]), minlength=total),
                                         np.ones(total, dtype=np.int64)):
-            raise ValueError("cluster ids must be 0..K-1, each once")
+            raise CovarianceError("cluster ids must be 0..K-1, each once")
         cov = cls(cluster, (), (), tuple(out))
         object.__setattr__(cov, "members", _StackItems(cov, 2))
         object.__setattr__(cov, "blocks", _StackItems(cov, 3))

@@ -64,6 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..datum import Datum
+from ..errors import ConversionError
 from ..observations.geodetic import LinearSet
 from .problem import (Categorical, Covariance, JoinedLabels, ObservationInfo, Parameters, PointInfo, Problem,
                       RecordIds)
@@ -576,7 +577,7 @@ def to_block(block: SfmBlock):
     docstring and :mod:`baarda.model.bundle`): BAL/Bundler R_ωφκ = Rᵀ, image points as they are;
     COLMAP R_ωφκ = (D R)ᵀ with D = diag(1, −1, −1), y → −y, x0 = c_x, y0 = −c_y, p1' = p2/f,
     p2' = −p1/f; always k1' = k1/f², k2' = k2/f⁴ (Brown's coefficients in pixel units).
-    ValueError for a camera with f_x ≠ f_y or control with sx ≠ sy.
+    ConversionError for a camera with f_x ≠ f_y or control with sx ≠ sy.
     """
     from .bundle import Block, Camera, Image, ImageObservations, ObjectPoint
     from ..observations.rotation import opk_from_R
@@ -591,7 +592,7 @@ def to_block(block: SfmBlock):
         val = dict(zip(names, cam.params))
         fx, fy, cx, cy, k1, k2, p1, p2 = (val[nm] if nm is not None else 0.0 for nm in feeds)
         if fx != fy:
-            raise ValueError(f"camera {cam.id}: f_x ≠ f_y ({fx:g}, {fy:g}) has no native equivalent")
+            raise ConversionError(f"camera {cam.id}", f"f_x ≠ f_y ({fx:g}, {fy:g}) has no native equivalent")
         width, height = cam.width, cam.height
         if width <= 0 or height <= 0:
             on = np.isin(block.obs_image, [k for k, im in enumerate(block.images) if im.camera == cam.id])
@@ -616,7 +617,7 @@ def to_block(block: SfmBlock):
             points.append(ObjectPoint(pid, *X, line=int(block.point_line[i])))
             continue
         if cp.sigma[0] != cp.sigma[1]:
-            raise ValueError(f"control point {pid}: the native format takes one horizontal σ (sx = sy)")
+            raise ConversionError(f"control point {pid}", "the native format takes one horizontal σ (sx = sy)")
         points.append(ObjectPoint(pid, *X, status="control", ref=cp.xyz, sigma_h=cp.sigma[0],
                                   sigma_v=cp.sigma[2], line=cp.line))
     m = block.obs_image.size

@@ -142,9 +142,7 @@ class SPDFactor:
     def _singular(self, p):
         orig = int(self.perm[p])
         name = self.labels[orig] if self.labels is not None else f"unknown {orig}"
-        err = SingularError(f"normal matrix is singular: {name} is not determined by the observations")
-        err.index = orig
-        return err
+        return SingularError(unknown=name, index=orig)
 
     # -- solves ---------------------------------------------------------------------------------
     def solve(self, b: np.ndarray) -> np.ndarray:

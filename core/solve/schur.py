@@ -63,7 +63,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import SingularError
+from ..errors import OptionError, SingularError
 from ..model.problem import LazySequence
 from .linalg import SPDFactor, block_partition
 
@@ -936,7 +936,7 @@ class SchurFactor:
             raise ValueError("design matrix pattern differs from the analysed structure")
         self.backend = backend or default_backend()
         if self.backend not in BACKENDS or (self.backend == "numba" and numba is None):
-            raise ValueError(f"backend {self.backend!r} not available")
+            raise OptionError("backend", self.backend, BACKENDS, f"backend {self.backend!r} not available")
         self.st, self.m, self.labels = st, st.u, st.labels
         nc, M, K = st.cl_id.size, st.M, st.K
         a, b = st.cluster_blocks(Ar)
@@ -1028,9 +1028,7 @@ class SchurFactor:
 
     def _singular(self, col):
         name = self.labels[col] if self.labels is not None else f"unknown {col}"
-        err = SingularError(f"normal matrix is singular: {name} is not determined by the observations")
-        err.index = col
-        return err
+        return SingularError(unknown=name, index=col)
 
     def _check_dense(self, Smat):
         nc_ = Smat.shape[0]
@@ -1421,9 +1419,7 @@ class StepFactor:
 
     def _singular(self, col):
         name = self.labels[col] if self.labels is not None else f"unknown {col}"
-        err = SingularError(f"normal matrix is singular: {name} is not determined by the observations")
-        err.index = col
-        return err
+        return SingularError(unknown=name, index=col)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """(N + λ diag N)⁻¹ b for a vector b over the reduced unknowns."""

@@ -10,6 +10,8 @@ from functools import lru_cache
 import numpy as np
 from scipy import optimize, stats
 
+from ..errors import OptionError
+
 
 def critical_normal(alpha: float) -> float:
     """Two-sided critical value of a standard normal test statistic, Φ⁻¹(1 − α/2)."""
@@ -46,7 +48,9 @@ def delta0(alpha: float, beta: float, q: int = 1) -> float:
     Φ⁻¹(1 − α/2) + Φ⁻¹(β) only by the far tail (F80 §5: 4.13 for α = 0.1 %, β = 80 %).
     """
     if not (0 < alpha < 1 and 0 < beta < 1) or q < 1:
-        raise ValueError(f"need 0 < alpha, beta < 1 and q ≥ 1 (alpha={alpha}, beta={beta}, q={q})")
+        bad = "q" if 0 < alpha < 1 and 0 < beta < 1 else "beta" if 0 < alpha < 1 else "alpha"
+        raise OptionError(bad, {"alpha": alpha, "beta": beta, "q": q}[bad], (),
+                          f"need 0 < alpha, beta < 1 and q ≥ 1 (alpha={alpha}, beta={beta}, q={q})")
     c = stats.chi2.isf(alpha, q)
 
     def power_gap(lam):

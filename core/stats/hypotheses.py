@@ -23,6 +23,7 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
+from ..errors import HypothesisError
 from . import distributions
 
 
@@ -119,7 +120,7 @@ def test(adj, H, label: str = "") -> HypothesisTest:
     H = sp.csc_matrix(H) if not sp.issparse(H) else H.tocsc()
     n, q_cols = H.shape
     if n != adj.n:
-        raise ValueError(f"H has {n} rows for {adj.n} observations")
+        raise HypothesisError(f"H has {n} rows for {adj.n} observations", rows=n, n=adj.n)
     PH = (adj.P @ H).toarray() if sp.issparse(adj.P @ H) else np.asarray(adj.P @ H)
     AtPH = adj.Ar.T @ PH
     Y = adj.factor.solve(AtPH)
@@ -166,10 +167,10 @@ def deformation(adj, h: HypothesisTest, nabla_s=None) -> np.ndarray:
     if nabla_s is None:
         pos = np.flatnonzero(np.isfinite(h.ellipse_axes))
         if not pos.size:
-            raise ValueError("the test sees no error of this hypothesis (q = 0): no lower bound")
+            raise HypothesisError("the test sees no error of this hypothesis (q = 0): no lower bound", q=0)
         nabla_s = h.lower_bound(h.ellipse_dirs[:, pos[0]])   # smallest eigenvalue the test counts
     nabla_s = np.asarray(nabla_s, dtype=float)
     if not np.isfinite(nabla_s).all():
-        raise ValueError("the test cannot see this error (infinite lower bound)")
+        raise HypothesisError("the test cannot see this error (infinite lower bound)")
     err = np.asarray(h.H @ nabla_s).ravel()
     return adj.deformation(err)

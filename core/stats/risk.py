@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize, stats
 
+from ..errors import OptionError
+
 
 def risk(C: float, p: float, L1: float, L2: float, lam_tol: float) -> float:
     """r_C for the critical value C (M84 §3.3)."""
@@ -27,7 +29,9 @@ def risk(C: float, p: float, L1: float, L2: float, lam_tol: float) -> float:
 def critical_value(p: float, L1: float, L2: float, lam_tol: float) -> float:
     """The C that minimises r_C (closed form, M84 §3.3)."""
     if not (0 < p < 1) or L1 <= 0 or L2 <= 0 or lam_tol <= 0:
-        raise ValueError("need 0 < p < 1 and positive L1, L2, λtol")
+        bad = next(k for k, ok in (("p", 0 < p < 1), ("L1", L1 > 0), ("L2", L2 > 0), ("lam_tol", lam_tol > 0)) if not ok)
+        raise OptionError(bad, {"p": p, "L1": L1, "L2": L2, "lam_tol": lam_tol}[bad], (),
+                          "need 0 < p < 1 and positive L1, L2, λtol")
     s = np.sqrt(lam_tol)
     return float((np.log((1 - p) / p) + np.log(L1 / L2)) / s + s / 2)
 
