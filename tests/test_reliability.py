@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 import scipy.linalg as la
 from hypothesis import given, settings, strategies as st
-from scipy import stats as sps
 
 from baarda.stats import distributions
 from baarda.adjust import Options, adjust
@@ -15,36 +14,6 @@ from baarda.stats.hypotheses import selection
 
 from networks import grid_network, levelling_loop, problem, vector_network, with_values
 from oracle import dense, reduced_design
-
-
-# -- test distributions (F80 §4-§5) ----------------------------------------------------
-
-def test_delta0_one_dimensional_matches_normal_formula():
-    assert abs(distributions.critical_normal(0.001) - 3.2905) < 1e-4
-    d = distributions.delta0(0.001, 0.80, 1)
-    assert abs(d - distributions.delta0_normal(0.001, 0.80)) < 1e-6
-    assert round(d, 2) == 4.13 and abs(d * d - 17.07) < 0.01
-
-
-@pytest.mark.parametrize("q", [1, 2, 3, 6])
-def test_delta0_has_the_asked_power(q):
-    d = distributions.delta0(0.01, 0.9, q)
-    c = sps.chi2.isf(0.01, q)
-    assert abs(sps.ncx2.sf(c, q, d * d) - 0.9) < 1e-9
-
-
-@pytest.mark.parametrize("q", [2, 3, 7])
-def test_b_method_gives_the_one_dimensional_delta0(q):
-    a_q = distributions.alpha_b_method(0.001, 0.80, q)
-    assert a_q > 0.001
-    assert abs(distributions.delta0(a_q, 0.80, q) - distributions.delta0(0.001, 0.80, 1)) < 1e-6
-
-
-def test_tau_critical_value_matches_beta_distribution():
-    r, alpha = 12, 0.01
-    c = distributions.critical_tau(alpha, r)
-    # τ²/r ~ Beta(1/2, (r−1)/2): P(|τ| > c) = α
-    assert abs(sps.beta.sf(c * c / r, 0.5, (r - 1) / 2) - alpha) < 1e-10
 
 
 # -- closed forms --------------------------------------------------------------------------------

@@ -6,13 +6,12 @@ import dataclasses
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from baarda.solve import schur
 from baarda.adjust import Options, adjust
 from baarda.model.bundle import build_block_problem, h_point_transfer
 from baarda.errors import DatumDefectError
-from baarda.solve.linalg import LowRankUpdate, SPDFactor, block_partition
+from baarda.solve.linalg import LowRankUpdate
 from baarda.model.problem import subset
 from baarda.simulate import simulate_block
 
@@ -233,49 +232,3 @@ def test_exclude_free_datum_and_chained():
     a = adj.exclude(rows[:2]).exclude([rows[2] - 2])
     b = adj.exclude(rows, method="refactor")
     _agree(a, b, 1e-8)
-
-
-# ------------------------------------------------------------------------------------------
-# linear algebra pieces
-# ------------------------------------------------------------------------------------------
-def _banded_spd(m, band, seed=0):
-    rng = np.random.default_rng(seed)
-    A = sp.random(m, m, density=0.02, random_state=rng).toarray()
-    i, j = np.indices((m, m))
-    A[np.abs(i - j) > band] = 0.0
-    N = A @ A.T + np.eye(m) * 0.1
-    perm = rng.permutation(m)
-    return sp.csr_matrix(N[np.ix_(perm, perm)])
-
-
-def test_variable_block_selected_inverse():
-    N = _banded_spd(400, 30)
-    F = SPDFactor(N)
-    assert F.nb > 1
-    Ninv = np.linalg.inv(N.toarray())
-    C = N.tocoo()
-    assert np.abs(F.entries(C.row, C.col) - Ninv[C.row, C.col]).max() <= 1e-10 * np.abs(Ninv).max()
-    i, j = np.random.default_rng(1).integers(0, 400, (2, 300))
-    assert np.abs(F.entries(i, j) - Ninv[i, j]).max() <= 1e-10 * np.abs(Ninv).max()
-
-
-def test_block_partition_is_tridiagonal():
-    rng = np.random.default_rng(2)
-    m = 500
-    pi = rng.integers(0, m, 3000)
-    pj = np.clip(pi + rng.integers(-40, 41, pi.size), 0, m - 1)
-    starts = block_partition(pi, pj, m, 16)
-    blk = np.searchsorted(starts, np.arange(m), side="right") - 1
-    assert np.abs(blk[pi] - blk[pj]).max() <= 1
-
-
-def test_low_rank_update():
-    N = _banded_spd(120, 10, seed=3)
-    F = SPDFactor(N)
-    V = sp.random(4, 120, density=0.3, random_state=4).tocsr()
-    M = np.diag([-0.5, 0.3, -0.2, 0.0])
-    U = LowRankUpdate(F, V, M)
-    N2 = N.toarray() + V.T.toarray() @ M @ V.toarray()
-    inv2 = np.linalg.inv(N2)
-    assert np.abs(U.dense_inverse() - inv2).max() <= 1e-9 * np.abs(inv2).max()
-    assert U.logdet() == pytest.approx(np.linalg.slogdet(N2)[1], rel=1e-10)

@@ -148,10 +148,10 @@ class SPDFactor:
     def solve(self, b: np.ndarray) -> np.ndarray:
         """N⁻¹ b for a vector or a matrix of right-hand sides."""
         b = np.asarray(b, dtype=float)
-        vec = b.ndim == 1
-        B2 = b.reshape(self.m, -1)
         if self.m == 0:
             return b.copy()
+        vec = b.ndim == 1
+        B2 = b.reshape(self.m, -1)
         st = self.starts
         y = B2[self.perm].copy()
         for k in range(self.nb):

@@ -162,7 +162,7 @@ def deformation(adj, h: HypothesisTest, nabla_s=None) -> np.ndarray:
 
     ``nabla_s`` defaults to the lower bound in the direction of the smallest eigenvalue of W_s
     the test counts (the largest error the test cannot see at power β0); a hypothesis the test
-    cannot see at all (q = 0) or an infinite ``nabla_s`` has no deformation (ValueError).
+    cannot see at all (q = 0) or an infinite ``nabla_s`` has no deformation (HypothesisError).
     """
     if nabla_s is None:
         pos = np.flatnonzero(np.isfinite(h.ellipse_axes))
