@@ -110,12 +110,12 @@ def test_redundancy_of_correlated_image_points():
     """With correlated 2×2 clusters (C_vv P)_ii and the whitened leverage differ per
     component (they are similar matrices, not equal); their trace per cluster agrees.
 
-    The unclipped values are used: a component of (C_vv P)_ii can be negative for correlated
-    observations, and ``Adjustment.r`` clips to [0, 1]."""
+    A component of (C_vv P)_ii can be negative for correlated observations; ``Adjustment.r``
+    clips only uncorrelated observations to [0, 1], so these are the values as computed."""
     block, _ = simulate_block(seed=12, strips=2, images_per_strip=4, rho=0.4)
     adj = adjust(build_block_problem(block))
     one_minus_h = _whitened_hat(adj)
-    r_raw = adj._cluster_stats[0]
+    r_raw = adj.r
     for idx in adj.problem.cov.members:
         assert abs(r_raw[idx].sum() - one_minus_h[idx].sum()) <= 1e-8
     assert abs(r_raw.sum() - adj.dof) < 1e-8
