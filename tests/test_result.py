@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from baarda.adjust import Options, adjust
-from baarda.problem import subset
+from baarda.model.problem import subset
 
 from networks import grid_network, problem, vector_network
 from oracle import dense, normal_inverse, nuisance_share, redundancy, reduced_design
