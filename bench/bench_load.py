@@ -84,7 +84,7 @@ def get_page(url) -> float:
     return time.perf_counter() - t
 
 
-async def open_session(context, url, t0, timeout_ms):
+async def open_session(context, url, t0, t0_wall, timeout_ms):
     page = await context.new_page()
     out = {"page": page, "created": time.perf_counter() - t0}
     await page.goto(url, timeout=timeout_ms)
@@ -94,6 +94,10 @@ async def open_session(context, url, t0, timeout_ms):
     print(f"  summary after {out['summary']:.1f} s", file=sys.stderr, flush=True)
     await page.locator(".summary:not(.first-summary)").get_by_text("Global test").first.wait_for(timeout=timeout_ms)
     out["live"] = time.perf_counter() - t0
+    # the browser's first contentful paint (header and summary come in the page's first bytes)
+    fcp = await page.evaluate("(() => { const e = performance.getEntriesByName('first-contentful-paint')[0];"
+                              " return e ? performance.timeOrigin + e.startTime : null; })()")
+    out["paint"] = None if fcp is None else fcp / 1000 - t0_wall
     await page.locator(".tests-table .tabulator-row").first.wait_for(timeout=timeout_ms)
     out["maps"] = time.perf_counter() - t0
     print(f"  maps after {out['maps']:.1f} s", file=sys.stderr, flush=True)
@@ -166,7 +170,7 @@ async def run(args) -> int:
             context = await browser.new_context(viewport={"width": 1600, "height": 1000})
             t0, t0_wall = time.perf_counter(), time.time()
             sessions = await asyncio.wait_for(
-                asyncio.gather(*(open_session(context, url, t0, ms) for _ in range(args.sessions))),
+                asyncio.gather(*(open_session(context, url, t0, t0_wall, ms) for _ in range(args.sessions))),
                 timeout=args.timeout)
             summary = sorted(s["summary"] for s in sessions)
             maps = sorted(s["maps"] for s in sessions)
@@ -175,9 +179,10 @@ async def run(args) -> int:
                          f"≤ {SUMMARY_LIMIT:g}"))
             rows.append(("  … maps and tests table shown (s)", f"{maps[0]:.1f}", f"{statistics.median(maps):.1f}",
                          f"{maps[-1]:.1f}", ""))
-            for key, what in (("created", "browser: page created"), ("loaded", "browser: page's load event"),
+            for key, what in (("created", "browser: page created"), ("paint", "browser: first contentful paint"),
+                              ("loaded", "browser: page's load event"),
                               ("live", "browser: Bokeh's summary pane rendered")):
-                rows.append(stat_row(f"  {what} (s)", [s[key] for s in sessions]))
+                rows.append(stat_row(f"  {what} (s)", [s[key] for s in sessions if s[key] is not None]))
             rows.extend(server_rows(path.with_suffix(".log"), t0_wall))
             ok &= summary[-1] <= SUMMARY_LIMIT
             for s in sessions[2:]:

@@ -59,10 +59,13 @@ class Fast(pn.theme.fast.Fast):
 
 #: The page as Panel's FastListTemplate writes it, and the summary of a file the server has
 #: analysed written into it as HTML (``first_summary``, the cards of :func:`summary_html`, every
-#: string from the file escaped): it shows as soon as the browser has the page, before Bokeh has
-#: rendered anything. A script puts it where the live summary will be and removes it once Bokeh
-#: renders the main area.
+#: string from the file escaped). With a summary, Bokeh's and Panel's scripts (some megabytes,
+#: which twenty pages opened at once parse for seconds) move from the head to the end of the
+#: body, after the summary: it shows as soon as the browser has the page, before any of them
+#: has run. A script puts it where the live summary will be and removes it once Bokeh renders
+#: the main area.
 FIRST_PAGE = """{% extends "fast/list/fast_list_template.html" %}
+{% block js_resources %}{% if not first_summary %}{{ super() }}{% endif %}{% endblock %}
 {% block inner_body %}
 {{ super() }}
 {% if first_summary %}
@@ -78,6 +81,7 @@ FIRST_PAGE = """{% extends "fast/list/fast_list_template.html" %}
   }).observe(root, {childList: true});
 })();
 </script>
+{{ bokeh_js }}
 {% endif %}
 {% endblock %}
 """
@@ -101,7 +105,9 @@ class FastListTemplate(pn.template.FastListTemplate):
 
 def _extensions():
     pn.extension("tabulator", "filedropper", notifications=False, sizing_mode="stretch_width")
-    hv.extension("bokeh", logo=False)
+    # HoloViews' backend is the process's (a sixth of a session's setup when set each time)
+    if hv.Store.current_backend != "bokeh" or "bokeh" not in hv.Store.renderers:
+        hv.extension("bokeh", logo=False)
 
 
 #: Views of different sessions are built one at a time: a session being built holds the
@@ -175,7 +181,11 @@ def create_app(path=None, problem=None, background: bool | None = None):
                                             sidebar_width=290, main_layout=None, theme_toggle=False,
                                             design=Fast, font="system-ui, sans-serif")
     files = FilePanel(state=state)
-    template.sidebar.append(files)
+    # served, the sidebar's views are made with the page's first update (onload): the page the
+    # server sends first is the header and the summary only (a tenth of a second of the event
+    # loop per session, was three quarters)
+    sidebar = pn.Column(sizing_mode="stretch_width", css_classes=["sidebar-views"])
+    template.sidebar.append(sidebar)
     waiting = pn.pane.HTML("<i>Drawing the maps…</i>" if state.results is not None else
                            "<i>Reading and adjusting the file…</i>" if (path and not state.error)
                            else "<i>Upload a file (sidebar).</i>", css_classes=["main-waiting"])
@@ -223,7 +233,14 @@ def create_app(path=None, problem=None, background: bool | None = None):
     state.param.watch(lambda e: setattr(content, "objects", [pn.pane.HTML("<i>Adjusting the new file…</i>")]),
                       "replacing")
     template.main.append(pn.Column(SummaryHeader(state=state), content, sizing_mode="stretch_width"))
-    template.sidebar.extend([TaskPanel(state=state), Controls(state=state), SelectionPanel(state=state)])
+
+    def fill_sidebar():
+        sidebar.objects = [files, TaskPanel(state=state), Controls(state=state), SelectionPanel(state=state)]
+
+    if background:
+        pn.state.onload(fill_sidebar)
+    else:
+        fill_sidebar()
     if background:
         if path is not None and state.results is None and not state.error:
             shown = Path(str(path)).name

@@ -73,8 +73,8 @@ def hostile_app(serve_app, tmp_path_factory):
 
 def test_first_page_carries_the_summary_as_text(page, hostile_app):
     """A file the server has analysed: its summary is in the HTML of the page as the server
-    sends it (shown before any JavaScript runs), every string from the file escaped; once Bokeh
-    renders, the live summary replaces it."""
+    sends it, before the scripts (shown before any JavaScript runs), every string from the file
+    escaped; once Bokeh renders, the live summary replaces it."""
     import urllib.request
 
     from baarda.dashboard.state import State
@@ -83,6 +83,8 @@ def test_first_page_carries_the_summary_as_text(page, hostile_app):
     assert State().load(hostile_app.path)          # the server's cache holds the file now
     with urllib.request.urlopen(hostile_app.url, timeout=120) as r:
         html = r.read().decode("utf-8")
+    # before Bokeh's scripts: nothing waits for them to be parsed
+    assert html.index('id="baarda-first-summary"') < html.index("bokeh.min.js")
     first = html[html.index('id="baarda-first-summary"'):]
     first = first[:first.index("<script")]
     title = f"{IFRAME} title <b>b</b>\nsecond \x1b[31mred"
