@@ -135,3 +135,21 @@ class CovarianceError(BaardaError, ValueError):
 
     def __reduce__(self):
         return (type(self), (self.message, self.cluster, self.observations))
+
+
+class NotFoundError(BaardaError, KeyError):
+    """What a hypothesis names is not in the model: ``what`` says the kind of item (``"image
+    point"``, ``"control point"``, ``"model point"``, ``"AP group"``) and ``ids`` its ids. A
+    :class:`KeyError` too; ``str(err)`` is the message without KeyError's quotes."""
+
+    def __init__(self, what: str, ids: dict, message: str = ""):
+        self.what = str(what)
+        self.ids = dict(ids)
+        self.message = message or f"no {self.what} " + ", ".join(f"{k} {v}" for k, v in self.ids.items())
+        super().__init__(self.message)
+
+    def __str__(self):
+        return self.message
+
+    def __reduce__(self):
+        return (type(self), (self.what, self.ids, self.message))

@@ -12,9 +12,11 @@ import scipy.sparse as sp
 
 from baarda.adjust import METHODS, Options, adjust
 from baarda.errors import (BaardaError, ConversionError, CovarianceError, DatumDefectError, HypothesisError,
-                           InputError, OptionError, SingularError)
+                           InputError, NotFoundError, OptionError, SingularError)
+from baarda.model.bundle import build_block_problem, control_rows, image_rows
 from baarda.model.problem import Covariance
 from baarda.solve.linalg import SPDFactor
+from baarda.simulate import simulate_block
 from baarda.stats import distributions, risk
 
 from networks import grid_network, problem
@@ -87,12 +89,29 @@ def test_covariance_error_names_the_uncovered_observations():
     assert info.value.cluster == 0
 
 
+def test_not_found_names_the_missing_item():
+    """A hypothesis on a measurement the block does not have: the ids as fields, the message
+    without KeyError's quotes (the dashboard shows it as it is)."""
+    block, _ = simulate_block(strips=1, images_per_strip=3, seed=2)
+    pr = build_block_problem(block)
+    image, point = block.images[0].id, block.points[0].id
+    with pytest.raises(NotFoundError) as info:
+        image_rows(pr, image, "no-such-point")
+    err = info.value
+    assert isinstance(err, KeyError) and (err.what, err.ids) == ("image point", {"image": image, "point": "no-such-point"})
+    assert str(err) == f"no measurement of point no-such-point in image {image}"
+    with pytest.raises(NotFoundError) as info:
+        control_rows(pr, "no-such-point")
+    assert info.value.ids == {"point": "no-such-point"}
+
+
 @pytest.mark.parametrize("err", [
     SingularError(unknown="P7.x", index=3), SingularError("the adjustment diverged"),
     OptionError("solver", "x", ("generic", "schur"), "unknown solver 'x'"),
     ConversionError("camera 1", "f_x ≠ f_y has no native equivalent"),
     HypothesisError("no lower bound", q=0), CovarianceError("gap", observations=[2, 4]),
     DatumDefectError(1, ["P7.x"]), InputError("a.txt", 3, "bad number", field="x"),
+    NotFoundError("image point", {"image": "101", "point": "7"}),
 ])
 def test_errors_pickle_with_their_fields(err):
     back = pickle.loads(pickle.dumps(err))

@@ -68,7 +68,7 @@ import scipy.sparse as sp
 
 from ..stats import distributions
 from ..datum import Datum
-from ..errors import OptionError
+from ..errors import NotFoundError, OptionError
 from ..observations.geodetic import LinearSet
 from ..stats.hypotheses import common_error, selection
 from ..solve.linalg import SPDFactor
@@ -702,14 +702,15 @@ def _problem(obj):
 
 
 def image_rows(problem, image: str, point: str) -> np.ndarray:
-    """Rows (x, y) of the measurement of ``point`` in ``image``; KeyError if there is none."""
+    """Rows (x, y) of the measurement of ``point`` in ``image``; NotFoundError if there is none."""
     problem = _problem(problem)
     rows = [None, None]
     for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids)):
         if k.startswith("image-") and ids["image"] == image and ids["point"] == point:
             rows["xy".index(ids["component"])] = i
     if rows[0] is None or rows[1] is None:
-        raise KeyError(f"no measurement of point {point} in image {image}")
+        raise NotFoundError("image point", {"image": image, "point": point},
+                            f"no measurement of point {point} in image {image}")
     return np.array(rows, dtype=np.int64)
 
 
@@ -719,7 +720,7 @@ def control_rows(problem, point: str) -> np.ndarray:
     rows = [i for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids))
             if k.startswith("control-") and ids["id"] == point]
     if not rows:
-        raise KeyError(f"no control observations of point {point}")
+        raise NotFoundError("control point", {"point": point}, f"no control observations of point {point}")
     return np.array(rows, dtype=np.int64)
 
 
@@ -881,7 +882,8 @@ def ap_test(adj, camera: str, group: str) -> APTest:
     free, par = problem.params.free, np.array([where[lab] for lab in labels], dtype=np.int64)
     idx = np.searchsorted(free, par)
     if idx.size and (idx.max() >= free.size or not np.array_equal(free[idx], par)):
-        raise KeyError(f"AP group {camera}:{group} has parameters that are not estimated")
+        raise NotFoundError("AP group", {"camera": camera, "group": group},
+                            f"AP group {camera}:{group} has parameters that are not estimated")
     q = idx.size
     u = adj.A.shape[1]
     Eq = np.zeros((u, q))

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..datum import Datum
+from ..errors import NotFoundError
 from ..observations.geodetic import LinearSet
 from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
 
@@ -216,5 +217,6 @@ def h_model_point(problem, model: str, point: str):
         if k.startswith("model-") and ids["model"] == model and ids["point"] == point:
             rows["xy".index(ids["component"])] = i
     if None in rows:
-        raise KeyError(f"no model coordinates of point {point} in model {model}")
+        raise NotFoundError("model point", {"model": model, "point": point},
+                            f"no model coordinates of point {point} in model {model}")
     return selection(problem.n, rows)
