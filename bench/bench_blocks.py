@@ -7,7 +7,7 @@ path (:mod:`baarda.solve.schur`) and, in the same run, its peers: the generic sp
 and pycolmap (Ceres) ``bundle_adjustment`` + ``estimate_ba_covariance`` on a synthetic
 reconstruction of the same numbers of images and points. Also the time of a 2D point-transfer
 retest (:meth:`baarda.result.Adjustment.test`, q = 2, three images) and of leaving one image
-point out (:meth:`~baarda.result.Adjustment.exclude`, Woodbury) on the analysed block.
+point out (:func:`baarda.exclusion.exclude`, Woodbury) on the analysed block.
 
 Blocks: synthetic aerial blocks (:func:`baarda.simulate.simulate_block`, design mode: exact
 observations, approximations = truth, so Gauss-Newton stops after one step), a block shaped like
@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.adjust import Options, adjust
+from baarda.exclusion import exclude
 from baarda.model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem, project
 from baarda.stats.hypotheses import common_error
 from baarda.simulate import simulate_block
@@ -150,7 +151,7 @@ def retests(adj):
         adj.test(H)
     t_test = (time.perf_counter() - t0) / 5
     t0 = time.perf_counter()
-    adj.exclude([rx[0], ry[0]], method="woodbury").w
+    exclude(adj, [rx[0], ry[0]], method="woodbury").w
     t_excl = time.perf_counter() - t0
     return t_test, t_excl
 
@@ -261,7 +262,7 @@ def ladybug_peers(block, x_solution_cost: float, peers=("pycolmap", "scipy")) ->
             out.mkdir()
             rec.write_text(str(out))
             from baarda.model.sfm import initial_cost
-            from baarda.io import read_problem
+            from baarda.build import read_problem
             cost = initial_cost(read_problem(out, "colmap"))
             t_cov, ok = pycolmap_covariance(pycolmap, rec, ba)
         rows.append(f"{'':<18} {'pycolmap':<8} {'':>6} {'':>7} {'':>8} {'':>8} {t_ba:>8.2f} {t_cov:>8.2f} "

@@ -37,10 +37,10 @@ import numpy as np
 import panel as pn
 from bokeh.document import Document
 
-from baarda.model.bundle import build_block_problem
+from baarda.build import read_problem
 from baarda.dashboard import views as V
 from baarda.dashboard.state import State
-from baarda.io import read_problem
+from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -71,7 +71,8 @@ def worker_bal(path: str, with_json: bool, until: str = "") -> None:
     import numpy as np
 
     from baarda.adjust import Options, adjust
-    from baarda.io import build, read_model
+    from baarda.build import build
+    from baarda.io import read_model
 
     st = Stages()
     model = read_model(path, "bal")

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from baarda.adjust import adjust
-from baarda.observations.geodetic import build_problem
 from baarda.model.network import Cluster, NetObservation, NetPoint, Network
+from baarda.observations.geodetic import build_problem
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from oracle import redundancy  # noqa: E402  (the tests' dense oracle, F80 §5)

@@ -61,7 +61,7 @@ def ceres(block, threads: int = 1):
     import pycolmap
 
     pycolmap.logging.minloglevel = 2
-    from baarda.io import read_problem
+    from baarda.build import read_problem
 
     with tempfile.TemporaryDirectory() as tmp:
         bal_as_colmap(block, Path(tmp) / "in")

@@ -65,12 +65,11 @@ import scipy.sparse as sp
 
 from . import datum as datum_mod
 from .errors import DatumDefectError, OptionError, SingularError
+from .model.problem import take, weight_matrix
+from .result import Adjustment
 from .solve import schur
-from .solve.linalg import SPDFactor
-from .model.problem import take
-
-SOLVERS = ("auto", "schur", "generic")
-
+from .solve.linalg import SPDFactor, keep_columns
+from .solve.schur import schur_structure
 
 METHODS = ("auto", "gauss-newton", "levenberg-marquardt")
 
@@ -137,59 +136,6 @@ class Options:
     solver: str = "auto"
     backend: str | None = None
     method: str = "auto"
-
-
-def keep_columns(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
-    """A[:, keep] for sorted ``keep`` by one pass over the entries (scipy's column indexing
-    costs a gather per entry and a re-sort; here the order is kept and so is canonical form)."""
-    A = sp.csr_matrix(A)
-    if keep.size == A.shape[1]:
-        return A
-    colmap = np.full(A.shape[1], -1, dtype=A.indices.dtype)
-    colmap[keep] = np.arange(keep.size)
-    new = colmap[A.indices]
-    m = new >= 0
-    cm = np.zeros(m.size + 1, dtype=A.indptr.dtype)        # kept entries before each entry
-    np.cumsum(m, out=cm[1:])
-    indptr = cm[A.indptr]
-    del cm
-    out = sp.csr_matrix((A.data[m], new[m], indptr), shape=(A.shape[0], keep.size))
-    out.has_sorted_indices = A.has_sorted_indices
-    return out
-
-
-def weight_matrix(cov) -> sp.csr_matrix:
-    """P = C⁻¹ block by block: :meth:`baarda.model.problem.Covariance.weight`, vectorised per cluster
-    size (the same batched inverses, so the same numbers)."""
-    from .result import size_groups, size_weights
-
-    n = cov.cluster.size
-    rows, cols, vals = [], [], []
-    for (m, _, members, C), W in zip(size_groups(cov), size_weights(cov)):
-        rows.append(np.repeat(members, m, axis=1).ravel())
-        cols.append(np.tile(members, (1, m)).ravel())
-        vals.append(W.ravel())
-    if not rows:
-        return sp.csr_matrix((n, n))
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
-
-
-def schur_structure(problem, Ar, keep, solver: str = "auto"):
-    """The point-elimination layout of :mod:`baarda.solve.schur` for the reduced design matrix ``Ar``,
-    or None when the generic solver is to be used (``solver``: see :class:`Options`)."""
-    if solver not in SOLVERS:
-        raise OptionError("solver", solver, SOLVERS, f"unknown solver {solver!r} (known: {', '.join(SOLVERS)})")
-    if solver == "generic":
-        return None
-    params = problem.params
-    fr = params.free[keep]
-    kind = params.kind[fr]
-    if solver == "auto" and int((kind == "k").sum()) < schur.MIN_ELIMINATED:
-        return None
-    st = schur.analyse(Ar, problem.cov, kind, params.point[fr], take(params.labels, fr))
-    if st is None or (solver == "auto" and not st.worthwhile()):
-        return None
-    return st
 
 
 class _Labels:
@@ -344,8 +290,6 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     Raises DatumDefectError (defect not resolved by the datum, or parameters the observations do
     not determine) — never returns a result from a singular system.
     """
-    from .result import Adjustment
-
     options = options or Options()
     if options.method not in METHODS:
         raise OptionError("method", options.method, METHODS,

@@ -571,7 +571,7 @@ def approximate_coordinates(net: Network, missing: str = "error") -> Network:
     :class:`~baarda.errors.InputError` naming every one of them (at the line of the first);
     ``missing="keep"`` leaves their coordinates ``None`` and records them, with the reason, in
     ``Network.extra["approx_missing"]`` (``{id: (axes, reason)}``) for
-    :func:`baarda.observations.geodetic.build_network` to treat as local defects.
+    :func:`baarda.network_defects.build_network` to treat as local defects.
     """
     if missing not in ("error", "keep"):
         raise OptionError("missing", missing, ("error", "keep"), "missing must be 'error' or 'keep'")

@@ -12,13 +12,30 @@ converged: ...`` goes to stderr.
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
-from . import __version__
-from .errors import BaardaError, InputError
+import numpy as np
+
+from . import __version__, truth
+from .adjust import Options
+from .build import read_problem
+from .errors import BaardaError, DatumDefectError, InputError
+from .io import read_model, read_truth, results
+from .io.control import add_control
+from .io.gama import UndefinedPointsWarning
+from .io.geojson import write_geojson
+from .io.native import write_native
+from .model.sfm import SfmBlock, to_block
+from .network_defects import adjust_network
+from .sfm_defects import adjust_block
+from .simulate import simulate_to_files
+from .stats import precision, risk, robust, snooping, variance
 from .text import number, printable, printable_lines, shorten
 
 #: exit status of a run whose adjustment did not converge (module docstring)
@@ -84,17 +101,12 @@ def _adjust_with_defects(problem, options, progress=None, strict=False):
     """Adjust; local defects found by the adjustment are set aside (networks: geodetic, blocks:
     sfm_defects) unless ``strict``. Returns ``(adjustment, problem adjusted)``."""
     if "network_model" in problem.extra:
-        from .observations.geodetic import adjust_network
         return adjust_network(problem, options, progress=progress, strict=strict)
-    from .sfm_defects import adjust_block
     return adjust_block(problem, options, progress=progress, strict=strict)
 
 
 def _read_quietly(fn, *a, **kw):
     """Call a reader with its UndefinedPointsWarning silenced (the CLI prints its own line)."""
-    import warnings
-
-    from .io.gama import UndefinedPointsWarning
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UndefinedPointsWarning)
         return fn(*a, **kw)
@@ -242,11 +254,6 @@ def cmd_analyze(args) -> int:
 
 
 def _analyze(args) -> int:
-    from .adjust import Options
-    from .errors import DatumDefectError, InputError
-    from .io import read_problem
-    from .io import results
-
     t0 = time.perf_counter()
     problem = _read_quietly(read_problem, args.input, args.format, control=args.control,
                             sigma_px=args.sigma_px, refine_intrinsics=args.refine_intrinsics,
@@ -272,7 +279,6 @@ def _analyze(args) -> int:
     if args.csv:
         results.write_csv(adj, args.csv, doc)
     if args.geojson:
-        from .io.geojson import write_geojson
         write_geojson(adj, args.geojson)
     truth_path = args.truth
     if truth_path is None:
@@ -280,20 +286,15 @@ def _analyze(args) -> int:
         truth_path = guess if guess.exists() else None
     findings = None
     if truth_path is not None:
-        from . import truth
-        from .io import read_truth
         findings = truth.compare(adj, read_truth(truth_path))
         doc["planted"] = findings
     snoop = None
     if args.snoop:
-        from .stats import snooping
         snoop = snooping.iterate(problem, options)
         doc["snooping"] = [s.__dict__ for s in snoop.steps]
-    import numpy as np
 
     prec_lines = []
     if args.sbase or args.criterion:
-        from .stats import precision
         ids = problem.points.ids
         base = [b.strip() for b in args.sbase.split(",")] if args.sbase else list(ids[:2])
         unknown = [b for b in base if b not in ids]
@@ -323,12 +324,10 @@ def _analyze(args) -> int:
                               f"C2 = {fit['C2']:.4g} m, λmax/λmin = {fit['ratio']:.3g}")
     rob = None
     if args.robust:
-        from .stats import robust
         rob = robust.estimate(problem, args.robust, options)
         doc["robust"] = rob.as_dict()
     vc = None
     if args.variance_components:
-        from .stats import variance
         try:
             if args.variance_components == "radial":
                 comps = variance.radial_components(problem)
@@ -383,7 +382,6 @@ def _analyze(args) -> int:
                   f"(before: {int(adj.rejected.sum())}), global test "
                   f"{'passed' if va.global_test['passed'] else 'FAILED'}")
         if findings is not None:
-            from . import truth
             print(printable_lines(truth.text(findings)))
     return _convergence_status(args.input, adj)
 
@@ -419,15 +417,10 @@ def _defect_message(err, problem) -> str:
 
 
 def cmd_convert(args) -> int:
-    from .model.sfm import SfmBlock, to_block
-    from .io import read_model
-    from .io.native import write_native
-
     model = _read_quietly(read_model, args.input, args.format, sigma_px=args.sigma_px,
                           refine_intrinsics=args.refine_intrinsics, drop_undefined=args.drop_undefined)
     _warn_dropped(args.input, model, args.quiet)
     if args.control:
-        from .io.control import add_control
         model = add_control(model, args.control)
     note = ""
     if isinstance(model, SfmBlock):
@@ -463,8 +456,6 @@ def _parse_error(spec: str) -> dict:
 
 
 def cmd_simulate(args) -> int:
-    from .simulate import simulate_to_files
-
     recipe = {"strips": args.strips, "images_per_strip": args.images, "camera": args.camera,
               "flying_height": args.flying_height, "forward_overlap": args.forward_overlap,
               "side_overlap": args.side_overlap, "pattern": list(args.pattern), "control": args.control,
@@ -474,7 +465,6 @@ def cmd_simulate(args) -> int:
               "seed": args.seed, "title": args.title,
               "datum": "free" if args.control == "none" else "control"}
     if args.recipe:
-        import json
         try:
             doc = json.loads(Path(args.recipe).read_text())
         except (OSError, json.JSONDecodeError) as err:
@@ -495,9 +485,6 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_report(args) -> int:
-    from .adjust import Options
-    from .io import read_problem
-
     problem = _read_quietly(read_problem, args.input, args.format, drop_undefined=args.drop_undefined)
     _warn_dropped(args.input, problem, args.quiet)
     try:
@@ -510,7 +497,6 @@ def cmd_report(args) -> int:
     out = Path(args.out) if args.out else Path(args.input).with_suffix(".html")
     if out.resolve() == Path(args.input).resolve():
         raise BaardaError(f"{out}: refusing to overwrite the input file")
-    import logging
 
     logging.getLogger("bokeh").setLevel(logging.ERROR)   # static export warns about server callbacks
     from .dashboard.report import write_report
@@ -550,7 +536,6 @@ def main(argv=None) -> int:
         if args.command == "report":
             return cmd_report(args)
         if args.command == "risk":
-            from .stats import risk
             try:
                 C = risk.critical_value(args.p, args.L1, args.L2, args.lambda_tol)
             except ValueError as err:

@@ -13,6 +13,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .adjust import adjust
+from .errors import DatumDefectError
+
 
 @dataclass(frozen=True)
 class LocalDefect:
@@ -37,3 +40,21 @@ class LocalDefect:
     def text(self) -> str:
         comps = ", ".join(self.components)
         return f"{self.entity} {self.id} ({comps}): {self.reason} — {self.action}"
+
+
+def adjust_setting_aside(problem, options, progress, rounds: int, set_aside):
+    """The safety net around :func:`baarda.adjust.adjust`: ``(adjustment, problem adjusted)``.
+
+    When the adjustment finds the normal equations singular (:class:`~baarda.errors.DatumDefectError`),
+    ``set_aside(problem, err, first)`` returns the problem without the local defects ``err``
+    names (``first`` is the first such error), or raises when the defect is not local; the
+    problem is adjusted again, at most ``rounds`` more times, then ``first`` is raised.
+    """
+    first = None
+    for _ in range(rounds + 1):
+        try:
+            return adjust(problem, options, progress=progress), problem
+        except DatumDefectError as err:
+            first = first or err
+            problem = set_aside(problem, err, first)
+    raise first

@@ -18,30 +18,25 @@ cluster, i.e. entries of Σ on the pattern of N: the selected inverse of :mod:`b
 for bundle blocks (``solver == "schur"``) the blocks of Σ that the reduced camera system of
 :mod:`baarda.solve.schur` delivers without ever forming N.
 
-:meth:`Adjustment.exclude` leaves observations out at the same linearisation point by a
+:func:`baarda.exclusion.exclude` leaves observations out at the same linearisation point by a
 low-rank (Woodbury) update of the factor and of these blocks (:class:`baarda.solve.linalg.LowRankUpdate`).
 """
 
 from __future__ import annotations
 
-import functools
+import time
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-import scipy.linalg as la
 import scipy.sparse as sp
 
-from .errors import OptionError
-from .stats import distributions
-from .solve.linalg import LowRankUpdate, SPDFactor
-from .model.problem import LazySequence
+from .model.problem import LazySequence, by_size, cluster_sizes, size_groups, size_weights
+from .solve.linalg import SPDFactor, keep_columns
+from .solve.schur import SchurFactor, bmm, schur_structure
+from .stats import distributions, hypotheses
 
 R_EPS = 1e-10
-#: :meth:`Adjustment.exclude` updates by Woodbury when the left-out clusters hold at most this
-#: many observations (k solves with the cached factor and O(n·k) for the statistics); more are
-#: refactored, which costs about as much as the first analysis.
-WOODBURY_MAX = 64
 
 
 def _padded_rows(A: sp.csr_matrix):
@@ -85,7 +80,7 @@ def cluster_pairs(cov) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     (row-major), so that ``values[start:start + m*m].reshape(m, m)`` is the cluster's block.
     """
     I, J, Cl = [], [], []
-    for m, clusters, members in _by_size(cov):
+    for m, clusters, members in by_size(cov):
         a = np.repeat(members, m, axis=1)            # (k, m*m): i index
         b = np.tile(members, (1, m))                 # (k, m*m): j index
         I.append(a.ravel())
@@ -94,58 +89,9 @@ def cluster_pairs(cov) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.concatenate(I), np.concatenate(J), np.concatenate(Cl)
 
 
-@functools.lru_cache(maxsize=8)
-def size_groups(cov) -> tuple:
-    """Clusters grouped by their size: ((m, cluster ids (k,), members (k, m), C (k, m, m)), ...).
-
-    Cached per (immutable) covariance object: the stacks are built once (a stacked covariance,
-    :meth:`baarda.model.problem.Covariance.from_groups`, has them already).
-    """
-    if getattr(cov, "groups", None) is not None:
-        return tuple((int(m), cl, members, C) for m, cl, members, C in cov.groups)
-    sizes = np.array([idx.size for idx in cov.members])
-    out = []
-    for m in np.unique(sizes):
-        cl = np.flatnonzero(sizes == m)
-        members = np.array([cov.members[c] for c in cl]).reshape(cl.size, m)
-        C = np.array([cov.blocks[c] for c in cl]).reshape(cl.size, m, m)
-        for a in (cl, members, C):
-            a.setflags(write=False)
-        out.append((int(m), cl, members, C))
-    return tuple(out)
-
-
-@functools.lru_cache(maxsize=8)
-def size_weights(cov) -> tuple:
-    """P_c = C_c⁻¹ (symmetrised) of every cluster, stacked as :func:`size_groups` stacks C."""
-    out = []
-    for _, _, _, C in size_groups(cov):
-        W = np.linalg.inv(C)
-        W = 0.5 * (W + np.swapaxes(W, 1, 2))
-        W.setflags(write=False)
-        out.append(W)
-    return tuple(out)
-
-
 def _mm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """Stacked small-matrix products (compiled loops when numba is there)."""
-    from .solve.schur import _bmm
-
-    return _bmm(np.ascontiguousarray(X), np.ascontiguousarray(Y))
-
-
-@functools.lru_cache(maxsize=8)
-def _cluster_sizes(cov) -> np.ndarray:
-    sizes = np.zeros(sum(g[1].size for g in size_groups(cov)), dtype=np.int64)
-    for m, cl, _, _ in size_groups(cov):
-        sizes[cl] = m
-    return sizes
-
-
-def _by_size(cov):
-    """Clusters grouped by their size: yields (m, cluster ids (k,), members (k, m))."""
-    for m, cl, members, _ in size_groups(cov):
-        yield m, cl, members
+    return bmm(np.ascontiguousarray(X), np.ascontiguousarray(Y))
 
 
 def _cluster_blocks(cov, values):
@@ -224,7 +170,6 @@ class Adjustment:
 
     @cached_property
     def Ar(self) -> sp.csr_matrix:
-        from .adjust import keep_columns
         return keep_columns(self.A, self.keep)
 
     @cached_property
@@ -232,18 +177,14 @@ class Adjustment:
         """The point-elimination layout (:mod:`baarda.solve.schur`), None for the generic solver."""
         if self.solver != "schur":
             return None
-        from .adjust import schur_structure
         return schur_structure(self.problem, self.Ar, self.keep, "schur")
 
     @cached_property
     def factor(self):
         """Factor of N = AᵀPA over the kept unknowns: :class:`baarda.solve.linalg.SPDFactor`, or
         :class:`baarda.solve.schur.SchurFactor` for the reduced camera system."""
-        import time
-
         t0 = time.perf_counter()
         if self.schur_structure is not None:
-            from .solve.schur import SchurFactor
             f = SchurFactor(self.schur_structure, self.Ar, self.P, backend=getattr(self.options, "backend", None))
         else:
             labels = np.asarray(self.problem.params.labels)[self.problem.params.free][self.keep]
@@ -304,8 +245,6 @@ class Adjustment:
     @cached_property
     def _hat_blocks(self):
         """a_i Σ a_jᵀ and a_i Σ_t a_jᵀ (nuisance part) for the pairs of :func:`cluster_pairs`."""
-        import time
-
         factor = self.factor
         t0 = time.perf_counter()
         if hasattr(factor, "hat_blocks"):
@@ -381,8 +320,6 @@ class Adjustment:
     @cached_property
     def _cluster_stats(self):
         """Per observation: (C_vv P)_ii, (P C_vv P)_ii, (P H P)_ii, (P H_k P)_ii (see module doc)."""
-        import time
-
         t0 = time.perf_counter()
         cov = self.problem.cov
         H, Ht = self._hat_blocks
@@ -423,7 +360,7 @@ class Adjustment:
         reported as computed.
         """
         raw = self._cluster_stats[0].copy()
-        single = _cluster_sizes(self.problem.cov)[self.problem.cov.cluster] == 1
+        single = cluster_sizes(self.problem.cov)[self.problem.cov.cluster] == 1
         raw[single] = np.clip(raw[single], 0.0, 1.0)
         return raw
 
@@ -515,8 +452,6 @@ class Adjustment:
         A sequence of dicts (group, members, T, dimension, redundancy, critical, rejected, alpha,
         nabla) ordered by group id, kept as arrays (:class:`GroupTests`): a block of a million
         image points holds a few arrays, not a million dicts."""
-        from .stats.hypotheses import selection, test
-
         gid = self.problem.info.group
         if (gid < 0).all():
             return GroupTests.empty()
@@ -547,7 +482,7 @@ class Adjustment:
             members_ok[pos] = True
         for k in np.flatnonzero(~members_ok).tolist():
             mem = np.sort(order[starts[k]:ends[k]])
-            h = test(self, selection(self.n, mem), label=f"group {keys[k]}")
+            h = hypotheses.test(self, hypotheses.selection(self.n, mem), label=f"group {keys[k]}")
             members[ptr[k]:ptr[k + 1]] = mem
             nabla[ptr[k]:ptr[k + 1]] = np.asarray(h.nabla, dtype=float).ravel() if h.nabla is not None \
                 else np.nan
@@ -690,8 +625,7 @@ class Adjustment:
     # -- hypotheses and deformations -----------------------------------------------------------
     def test(self, H, label: str = ""):
         """Multi-dimensional test of an arbitrary hypothesis matrix H (n × q), F80 eq. 10-15."""
-        from .stats.hypotheses import test
-        return test(self, H, label=label)
+        return hypotheses.test(self, H, label=label)
 
     def deformation(self, error: np.ndarray) -> np.ndarray:
         """Effect ∇x = Σ AᵀP ∇l of an observation error vector ∇l on all free parameters (F80 §6).
@@ -709,100 +643,3 @@ class Adjustment:
         out = np.zeros(idx.shape)
         out[idx >= 0] = full[idx[idx >= 0]]
         return out
-
-    # -- leaving observations out --------------------------------------------------------------
-    def exclude(self, rows, method: str = "auto") -> "Adjustment":
-        """The adjustment without the observations ``rows``, at the same linearisation point.
-
-        One Gauss-Newton step from x̂ with A held: Δx = Σ' A'ᵀP'(l' − f'), x' = x̂ + Δx
-        (S-transformed to the datum), f' = f + A'Δx, so v' are the residuals of the model
-        linearised at x̂ — what a full readjustment started at x̂ gives after its first step.
-
-        ``method``: ``"woodbury"`` updates the cached factor, N' = N + VᵀMV with V the design
-        rows of the covariance clusters touched and M = −P_c (+ the weight of the members that
-        stay), N'⁻¹ = N⁻¹ − Y T Yᵀ (:class:`baarda.solve.linalg.LowRankUpdate`); the blocks a_iΣ'a_jᵀ
-        of every cluster are the cached ones minus (a_iY) T (a_jY)ᵀ, so all statistics follow
-        in O(n·k) after k solves. ``"refactor"`` builds and factors N' anew. ``"auto"`` takes
-        Woodbury when the touched clusters hold at most :data:`WOODBURY_MAX` observations —
-        then k solves cost far less than a new factorisation and selected inverse. When leaving
-        out the rows orphans a nuisance parameter (all observations of an image), the unknowns
-        change and the problem is readjusted from x̂ (:func:`baarda.adjust.adjust`).
-        """
-        import time
-
-        from .adjust import adjust, weight_matrix
-        from .model.problem import subset
-
-        t0 = time.perf_counter()
-        rows = np.unique(np.asarray(rows, dtype=np.int64))
-        cov = self.problem.cov
-        mask = np.ones(self.n, dtype=bool)
-        mask[rows] = False
-        keep_obs = np.flatnonzero(mask)
-        A = self.A[keep_obs].tocsr()
-        free = self.problem.params.free
-        observed = np.zeros(self.problem.params.size, dtype=bool)
-        observed[free] = np.bincount(A.indices[A.data != 0], minlength=free.size) > 0
-        problem = subset(self.problem, keep_obs, observed=observed)
-        if not np.array_equal(problem.params.fixed, self.problem.params.fixed):
-            return adjust(problem, self.options, x0=self.x)
-        touched = np.unique(cov.cluster[rows])
-        Rc = np.sort(np.concatenate([cov.members[c] for c in touched])) if touched.size else rows
-        if method == "auto":
-            method = "woodbury" if Rc.size <= WOODBURY_MAX else "refactor"
-        if method not in ("woodbury", "refactor"):
-            raise OptionError("method", method, ("woodbury", "refactor"), f"unknown method {method!r}")
-        P = weight_matrix(problem.cov)
-        new = Adjustment(problem=problem, options=self.options, x=self.x, f=self.f[keep_obs], A=A, P=P,
-                         plan=self.plan, converged=True, iterations=0, history=(), timings={},
-                         solver=self.solver)
-        if method == "woodbury":
-            new_index = np.full(self.n, -1, dtype=np.int64)
-            new_index[keep_obs] = np.arange(keep_obs.size)
-            stay = new_index[Rc] >= 0
-            M = -self.P[Rc][:, Rc].toarray()
-            ks = np.flatnonzero(stay)
-            M[np.ix_(ks, ks)] += P[new_index[Rc[ks]]][:, new_index[Rc[ks]]].toarray()
-            V = self.Ar[Rc]
-            factor = LowRankUpdate(self.factor, V, M)
-            H, Ht = self._hat_blocks
-            I, J, _ = cluster_pairs(problem.cov)
-            old = _pair_index(cov, keep_obs[I], keep_obs[J])
-            AY = new.Ar @ factor.Y
-            H = H[old] - np.einsum("pa,ab,pb->p", AY[I], factor.T, AY[J])
-            t = self._nuisance_columns
-            if t.size:
-                nf = LowRankUpdate(self._nuisance_factor, V[:, t], M)
-                BY = new.Ar[:, t] @ nf.Y
-                Ht = Ht[old] - np.einsum("pa,ab,pb->p", BY[I], nf.T, BY[J])
-                new.__dict__["_nuisance_factor"] = nf
-            else:
-                Ht = np.zeros(I.size)
-            new.__dict__["factor"] = factor
-            new.__dict__["_hat_blocks"] = (H, Ht)
-        dx = new._full(new.factor.solve(-(new.Ar.T @ new.Pv)))
-        dx = self.plan.transform(dx)
-        x = self.x.copy()
-        x[self.problem.params.free] += dx
-        f = new.f + A @ dx
-        out = Adjustment(problem=problem, options=self.options, x=x, f=f, A=A, P=P, plan=self.plan,
-                         converged=True, iterations=0, history=(),
-                         timings={"solve": time.perf_counter() - t0}, solver=self.solver)
-        for name in ("keep", "Ar", "factor", "schur_structure", "_hat_blocks", "_nuisance_factor"):
-            if name in new.__dict__:
-                out.__dict__[name] = new.__dict__[name]
-        return out
-
-
-def _pair_index(cov, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """Position of the pair (i, j) (same cluster) in the layout of :func:`cluster_pairs`."""
-    sizes = _cluster_sizes(cov)
-    order = np.lexsort((np.arange(sizes.size), sizes))
-    start = np.empty(sizes.size, dtype=np.int64)
-    start[order] = np.concatenate([[0], np.cumsum(sizes[order] ** 2)[:-1]])
-    n = cov.cluster.size
-    rpos = np.empty(n, dtype=np.int64)
-    for m, _, members in _by_size(cov):
-        rpos[members] = np.arange(m)[None, :]
-    c = cov.cluster[i]
-    return start[c] + rpos[i] * sizes[c] + rpos[j]

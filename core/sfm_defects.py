@@ -65,8 +65,11 @@ import math
 
 import numpy as np
 
-from .defects import LocalDefect
-from .errors import DatumDefectError, InputError
+from .adjust import adjust
+from .defects import LocalDefect, adjust_setting_aside
+from .errors import InputError
+from .model.bundle import AP_GROUPS, ImageObservations, build_block_problem
+from .model.sfm import CAMERA_MODELS, SfmBlock, build_sfm_problem
 
 DEPTH_FACTOR = 1e6   # K: a depth σ beyond K × the block extent is "not determined"
 MIN_POINTS = 3       # points an image needs to fix its 6 pose unknowns
@@ -83,8 +86,6 @@ class _View:
     """Arrays the pre-pass needs, from an SfmBlock or a Block (read only)."""
 
     def __init__(self, model):
-        from .model.sfm import CAMERA_MODELS, SfmBlock
-
         self.model = model
         self.sfm = isinstance(model, SfmBlock)
         if self.sfm:
@@ -112,8 +113,6 @@ class _View:
             self.controlled = np.array([p in controlled for p in b.points], dtype=bool)
             self.pose_names = POSE_SFM
         else:
-            from .model.bundle import AP_GROUPS
-
             b = model
             self.image_ids = [im.id for im in b.images]
             self.point_ids = [p.id for p in b.points]
@@ -441,7 +440,6 @@ def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
             obs_line=np.array(np.asarray(b.obs_line)[keep]),
             control=tuple(cp for cp in b.control if cp.id in kept_ids),
             extra=extra)
-    from .model.bundle import ImageObservations
 
     b = model
     o = b.obs
@@ -484,9 +482,6 @@ def build(model, strict: bool = False):
     ``problem.extra["local_model"]`` holds the reduced block :func:`adjust_block` reduces further
     if needed. strict: raise :class:`baarda.errors.InputError` naming all defects instead.
     """
-    from .model.sfm import SfmBlock, build_sfm_problem
-    from .model.bundle import build_block_problem
-
     reduced, defects = find_defects(model)
     if defects and strict:
         raise strict_error(model, defects)
@@ -509,7 +504,6 @@ def _entities(labels, model):
             for nm in POSE_SFM:
                 owner[f"image {iid}.{nm}"] = ("image", iid)
         for cid, cam in zip(v.camera_ids, model.cameras):
-            from .model.sfm import CAMERA_MODELS
             for nm in CAMERA_MODELS[cam.model][0]:
                 owner[f"camera {cid}.{nm}"] = ("camera", cid)
     else:
@@ -545,16 +539,12 @@ def _local(named, model) -> bool:
 
 def _intrinsics_refined(model) -> bool:
     """Whether ``model`` is a structure-from-motion block whose intrinsics are estimated."""
-    from .model.sfm import SfmBlock
-
     return isinstance(model, SfmBlock) and model.refine_intrinsics
 
 
 def _hold_intrinsics(model, problem, cameras):
     """The block with every camera's intrinsics held at the file's values, rebuilt; the cameras
     whose intrinsics the adjustment found undetermined are recorded as local defects."""
-    from .model.sfm import CAMERA_MODELS
-
     held = model.replace(refine_intrinsics=False)
     found = []
     for cid, cam in zip(_View(model).camera_ids, model.cameras):
@@ -580,39 +570,37 @@ def adjust_block(problem, options=None, progress=None, strict: bool = False):
     block (the datum) raises :class:`baarda.errors.DatumDefectError` as :func:`baarda.adjust.adjust`
     does; so does any defect with ``strict``.
     """
-    from .adjust import adjust
+    return adjust_setting_aside(problem, options, progress, MAX_ROUNDS,
+                                lambda problem, err, first: _set_aside(problem, err, first, strict))
 
-    first = None
-    for _ in range(MAX_ROUNDS + 1):
-        try:
-            return adjust(problem, options, progress=progress), problem
-        except DatumDefectError as err:
-            first = first or err
-            model = problem.extra.get("local_model")
-            if model is None or strict:
-                raise
-            named = _entities(err.undetermined, model)
-            if named is not None and named["camera"] and _intrinsics_refined(model):
-                # the cameras' f, k1, k2 are part of the null space: adjust what is determined,
-                # holding the intrinsics at the file's values (as gama-local adjusts a point in
-                # x, y when its height is undetermined), then look again
-                model, problem = _hold_intrinsics(model, problem, named["camera"])
-                continue
-            if not _local(named, model):
-                raise first from None
-            found = []
-            for kind in ("point", "image", "camera"):
-                for ident in named[kind]:
-                    vw = _View(model)
-                    what = {"point": ("x", "y", "z"), "image": vw.pose_names}.get(kind) or \
-                        vw.camera_free[vw.camera_ids.index(ident)] or ("intrinsics",)
-                    found.append(LocalDefect(kind, str(ident), what,
-                                             "the adjustment finds its unknowns undetermined "
-                                             "(singular normal equations)",
-                                             "left out" if kind != "camera" else "left out with its images"))
-            reduced = remove(model, named["point"], named["image"], named["camera"])
-            reduced, more = find_defects(reduced)
-            old = list(problem.extra.get("local_defects", []))
-            problem = build(reduced)
-            problem.extra["local_defects"] = old + found + more
-    raise first
+
+def _set_aside(problem, err, first, strict: bool):
+    """The block's problem without the points, images or cameras ``err`` names, or with the
+    intrinsics held (:func:`adjust_block`)."""
+    model = problem.extra.get("local_model")
+    if model is None or strict:
+        raise err
+    named = _entities(err.undetermined, model)
+    if named is not None and named["camera"] and _intrinsics_refined(model):
+        # the cameras' f, k1, k2 are part of the null space: adjust what is determined,
+        # holding the intrinsics at the file's values (as gama-local adjusts a point in
+        # x, y when its height is undetermined), then look again
+        return _hold_intrinsics(model, problem, named["camera"])[1]
+    if not _local(named, model):
+        raise first from None
+    found = []
+    for kind in ("point", "image", "camera"):
+        for ident in named[kind]:
+            vw = _View(model)
+            what = {"point": ("x", "y", "z"), "image": vw.pose_names}.get(kind) or \
+                vw.camera_free[vw.camera_ids.index(ident)] or ("intrinsics",)
+            found.append(LocalDefect(kind, str(ident), what,
+                                     "the adjustment finds its unknowns undetermined "
+                                     "(singular normal equations)",
+                                     "left out" if kind != "camera" else "left out with its images"))
+    reduced = remove(model, named["point"], named["image"], named["camera"])
+    reduced, more = find_defects(reduced)
+    old = list(problem.extra.get("local_defects", []))
+    problem = build(reduced)
+    problem.extra["local_defects"] = old + found + more
+    return problem

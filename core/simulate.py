@@ -40,7 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import OptionError
+from .io.native import write_native
 from .model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, project
+from .model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
 
 CAMERAS = {
     "aerial": {"id": "RC30", "c": 153.0, "width": 230.0, "height": 230.0, "unit": "mm"},
@@ -366,8 +368,6 @@ def _rows(e, inv, block) -> list[int]:
 
 def simulate_to_files(recipe: dict, out_path, truth_path=None) -> tuple[Block, dict]:
     """Simulate a block from ``recipe`` and write it (native format) and its truth (JSON)."""
-    from .io.native import write_native
-
     block, truth = simulate_block(**recipe)
     write_native(block, out_path)
     if truth_path is not None:
@@ -396,8 +396,6 @@ def simulate_imodel(strips: int = 2, models_per_strip: int = 5, base: float = 92
     (mm). Control: "corners" or "perimeter" (every other point on the block edge). Errors:
     [{"kind": "model-point", "size": σ-multiple}, {"kind": "control", "size": ..., "axis"}].
     """
-    from .model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
-
     rng = np.random.default_rng(seed)
     xs = np.arange(models_per_strip + 1) * base
     ys = np.arange(-1, 2 * strips) * strip_distance / 2

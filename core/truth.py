@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import bundle
+from .stats import hypotheses
 
 
 def _hypothesis(adj, e):
@@ -18,11 +18,11 @@ def _hypothesis(adj, e):
     kind = e.get("kind")
     try:
         if kind == "transfer":
-            return "point transfer", bundle.h_point_transfer(adj.problem, ids["point"], ids["images"])
+            return "point transfer", hypotheses.h_point_transfer(adj.problem, ids["point"], ids["images"])
         if kind == "control":
-            return "control point", bundle.h_control_point(adj.problem, ids.get("point", ids.get("id")))
+            return "control point", hypotheses.h_control_point(adj.problem, ids.get("point", ids.get("id")))
         if "image" in ids and "point" in ids:
-            return "image point", bundle.h_image_point(adj.problem, ids["image"], ids["point"])
+            return "image point", hypotheses.h_image_point(adj.problem, ids["image"], ids["point"])
     except (KeyError, ValueError, IndexError):
         return None, None
     return None, None

@@ -26,6 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .model.bundle import Block
+from .model.problem import by_size
+from .model.sfm import SfmBlock
 
 SIGMA_MIN = 1e-30
 SIGMA_MAX = 1e30
@@ -84,7 +87,7 @@ def check_numeric_range(problem, path, control=None) -> None:
     # σ of every observation: the diagonal of its covariance block; the block must be PD
     sigma = np.full(n, np.nan)
     not_pd = []                    # first observation of each cluster that is not positive definite
-    for m, clusters, members in problem.cov._by_size():
+    for m, clusters, members in by_size(problem.cov):
         C = np.array([problem.cov.blocks[c] for c in clusters], dtype=float).reshape(clusters.size, m, m)
         finite = np.isfinite(C).all(axis=(1, 2))
         with np.errstate(all="ignore"):
@@ -158,8 +161,6 @@ def check_model_range(model, path) -> None:
     """Before a bundle block is built (its builder already squares coordinates to find local
     defects and far points): approximate coordinates, image coordinates and camera parameters
     within ±VALUE_LIMIT. Networks are checked on their problem only (:func:`check_numeric_range`)."""
-    from .model.sfm import SfmBlock
-    from .model.bundle import Block
 
     if isinstance(model, SfmBlock):
         def part(name, lines):      # a COLMAP model directory: the file inside it (binary: no lines)

@@ -18,9 +18,9 @@ Hypothesis specifications are plain dicts, ``{"kind": ..., "active": bool, ...}`
 - ``{"kind": "transfer", "point": p, "images": [j1, j2, ...]}`` — one 2D point-transfer error
   common to the image coordinates of point p in the images listed (F80 §2.2, H = (0 … I₂ … I₂ … 0)ᵀ);
 - ``{"kind": "ap-group", "camera": c, "group": g}`` — a group of additional parameters of a
-  block's camera: tested by :func:`baarda.model.bundle.ap_test` when the group is estimated
+  block's camera: tested by :func:`baarda.stats.ap_tests.ap_test` when the group is estimated
   (``extra["ap_groups"]``), otherwise as the hypothesis H = ∂f/∂s of
-  :func:`baarda.model.bundle.h_ap_group` (F80 §7.2).
+  :func:`baarda.stats.hypotheses.h_ap_group` (F80 §7.2).
 
 Besides the adjustment the state keeps the results of the core's other analyses, each run on the
 current (reduced) problem: the coordinate covariance in a chosen S-base
@@ -38,21 +38,20 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import param
-from scipy.sparse.csgraph import shortest_path
 import scipy.sparse as sp
+from scipy.sparse.csgraph import shortest_path
 
-from types import SimpleNamespace
-
-from baarda.model import bundle
-from baarda.stats import precision, risk, robust, snooping, variance
 from baarda.adjust import Options, adjust
 from baarda.datum import Datum
 from baarda.errors import BaardaError
-from baarda.stats.hypotheses import HypothesisTest, common_error, deformation, selection
+from baarda.stats import precision, risk, robust, snooping, variance
+from baarda.stats.ap_tests import ap_test
+from baarda.stats.hypotheses import HypothesisTest, common_error, deformation, h_ap_group, selection
 
 from .subset import without
 from .text import plain
@@ -372,7 +371,7 @@ class State(param.Parameterized):
         when a name is given. A file read before by this server (same path, modification time,
         size and test options) is taken from the cache without reading or adjusting it again.
         """
-        from baarda.io import read_problem
+        from baarda.build import read_problem
 
         shown = plain(name if name is not None else Path(str(path)).name)
 
@@ -665,7 +664,7 @@ class State(param.Parameterized):
                 continue
             try:
                 if spec["kind"] == "ap-group" and self.ap_estimated(spec):
-                    out.append(bundle.ap_test(self.results, str(spec["camera"]), str(spec["group"])))
+                    out.append(ap_test(self.results, str(spec["camera"]), str(spec["group"])))
                     continue
                 H = self.hypothesis_matrix(spec)
                 out.append(self.results.test(H, label=spec.get("label", "")))
@@ -721,7 +720,7 @@ class State(param.Parameterized):
             # ∂f/∂s of the full problem at the current solution, cut to the observations kept
             # (the core's builder reads the collinearity sets, which exclusion wraps)
             full = SimpleNamespace(problem=self.problem, x=self.results.x, n=self.problem.n)
-            return bundle.h_ap_group(full, str(spec["camera"]), str(spec["group"])).tocsr()[self.kept].tocsc()
+            return h_ap_group(full, str(spec["camera"]), str(spec["group"])).tocsr()[self.kept].tocsc()
         return selection(n, red[0])
 
     def describe(self, spec: dict) -> str:

@@ -13,8 +13,8 @@ import pytest
 
 from baarda import datum
 from baarda.adjust import STATUS, Options, adjust, gain_ratio, update_radius
+from baarda.build import read_problem
 from baarda.cli import NOT_CONVERGED, main
-from baarda.io import read_problem
 
 from extdata import EXTDATA, require_extdata
 

@@ -178,7 +178,7 @@ def test_sigma_at_the_rounding_of_its_value(factor, refused, tmp_path):
     import json
 
     from baarda.errors import InputError
-    from baarda.io import read_problem
+    from baarda.build import read_problem
     from baarda.validate import RELATIVE
 
     doc = json.loads((VALID / "levelling-valid.json").read_text())

@@ -14,11 +14,13 @@ from hypothesis import strategies as st
 from statsmodels.stats.outliers_influence import OLSInfluence
 
 from baarda import InputError, Options, adjust
-from baarda.observations import rotation as rot
-from baarda.model.bundle import (Camera, ap_test, build_block_problem, check_points, h_ap_group, h_control_point,
-                           h_exchanged, h_image_coordinate, h_image_point, h_point_transfer, image_rows)
 from baarda.io.native import read_native, write_native
+from baarda.model.bundle import Camera, build_block_problem, check_points, image_rows
+from baarda.observations import rotation as rot
 from baarda.simulate import simulate_block
+from baarda.stats.ap_tests import ap_test
+from baarda.stats.hypotheses import (h_ap_group, h_control_point, h_exchanged, h_image_coordinate, h_image_point,
+                                     h_point_transfer)
 
 from oracle import reduced_design
 

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from baarda.adjust import adjust
-from baarda.model.sfm import initial_cost
+from baarda.build import read_problem
 from baarda.cli import main
 from baarda.errors import InputError
-from baarda.io import read_problem
 from baarda.io.colmap import read_colmap
+from baarda.model.sfm import initial_cost
 
 from extdata import EXTDATA, require_extdata
 

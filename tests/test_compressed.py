@@ -15,11 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baarda.model.sfm import initial_cost
+from baarda.build import read_problem
 from baarda.cli import main
 from baarda.errors import InputError
-from baarda.io import detect_format, read_problem
+from baarda.io import detect_format
 from baarda.io.source import Numbers, compression, open_binary, read_text
+from baarda.model.sfm import initial_cost
 
 from extdata import EXTDATA, require_extdata
 

@@ -142,16 +142,16 @@ def test_group_hypothesis_matches_core_groups():
 
 
 def test_block_hypotheses_match_bundle_builders(block_problem):
-    from baarda.model import bundle
+    from baarda.stats import hypotheses
 
     st = State(problem=block_problem)
     adj = st.results
     k1 = st.add_hypothesis({"kind": "transfer", "point": "P8", "images": ["101", "102"]})
     k2 = st.add_hypothesis({"kind": "control", "point": "P1"})
     k3 = st.add_hypothesis({"kind": "image-point", "image": "101", "point": "P8"})
-    refs = [adj.test(bundle.h_point_transfer(adj.problem, "P8", ["101", "102"])),
-            adj.test(bundle.h_control_point(adj.problem, "P1")),
-            adj.test(bundle.h_image_point(adj.problem, "101", "P8"))]
+    refs = [adj.test(hypotheses.h_point_transfer(adj.problem, "P8", ["101", "102"])),
+            adj.test(hypotheses.h_control_point(adj.problem, "P1")),
+            adj.test(hypotheses.h_image_point(adj.problem, "101", "P8"))]
     for k, ref in zip((k1, k2, k3), refs):
         assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-10)
         assert st.hyp_results[k].q == ref.q
@@ -548,7 +548,7 @@ def ap_block():
 
 
 def test_ap_group_hypotheses_match_bundle(ap_block):
-    from baarda.model import bundle
+    from baarda.stats import ap_tests, hypotheses
     from baarda.dashboard.views import HypothesisPanel
 
     st = State(problem=ap_block)
@@ -562,13 +562,13 @@ def test_ap_group_hypotheses_match_bundle(ap_block):
     panel.ap_group.value = "brown"
     panel._add()
     est = st.hyp_results[-1]
-    ref = bundle.ap_test(adj, "RC30", "brown")
-    assert isinstance(est, bundle.APTest)
+    ref = ap_tests.ap_test(adj, "RC30", "brown")
+    assert isinstance(est, ap_tests.APTest)
     assert est.T == pytest.approx(ref.T, rel=1e-10) and est.q == ref.q == 7
     row = panel.frame().iloc[-1]
     assert row["T"] == round(ref.T, 3) and "significant" in row["decision"].lower()
     k = st.add_hypothesis({"kind": "ap-group", "camera": "RC30", "group": "ebner"})
-    ref2 = adj.test(bundle.h_ap_group(adj, "RC30", "ebner"))
+    ref2 = adj.test(hypotheses.h_ap_group(adj, "RC30", "ebner"))
     assert st.hyp_results[k].T == pytest.approx(ref2.T, rel=1e-9) and st.hyp_results[k].q == 12
     assert "not in the model" in st.hypotheses[k]["label"]
     st.selected_hypothesis = k          # its deformation field is drawn like any other
@@ -576,7 +576,7 @@ def test_ap_group_hypotheses_match_bundle(ap_block):
 
 
 def test_ap_group_hypothesis_with_exclusions(block_problem):
-    from baarda.model import bundle
+    from baarda.stats import hypotheses
 
     st = State(problem=block_problem)
     st.exclude(5)
@@ -584,7 +584,7 @@ def test_ap_group_hypothesis_with_exclusions(block_problem):
     adj = st.results
     # the core's builder at the full problem's solution, cut to the kept rows: H differs only
     # by the (small) change of the solution the exclusion causes
-    ref = adj.test(bundle.h_ap_group(adjust(block_problem), "cam", "brown").tocsr()[st.kept])
+    ref = adj.test(hypotheses.h_ap_group(adjust(block_problem), "cam", "brown").tocsr()[st.kept])
     assert st.hyp_results[k].q == 7 and st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-4)
 
 
@@ -858,7 +858,7 @@ def test_teaching_mdb_plot_thins_large_blocks_but_keeps_every_cell():
 # COLMAP image points observed by several keypoints of one image
 # --------------------------------------------------------------------------------------------
 def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
-    from baarda.io import read_problem
+    from baarda.build import read_problem
     from test_colmap import duplicate_model
 
     txt, _, _, added = duplicate_model(tmp_path)
@@ -1003,7 +1003,7 @@ def test_a_selection_patches_only_the_selection_sources(block_problem):
 def test_served_file_is_analysed_at_start_and_sessions_take_it_from_the_cache(tmp_path, monkeypatch, capsys):
     """``serve`` warms the cache: a session opened afterwards reads and adjusts nothing and
     shows the same adjustment as a fresh one."""
-    import baarda.io
+    import baarda.build
     from baarda.dashboard.app import warm
 
     path = tmp_path / "net.gkf"
@@ -1013,9 +1013,9 @@ def test_served_file_is_analysed_at_start_and_sessions_take_it_from_the_cache(tm
 
     def no_read(*a, **k):
         raise AssertionError("read again")
-    monkeypatch.setattr(baarda.io, "read_problem", no_read)
+    monkeypatch.setattr(baarda.build, "read_problem", no_read)
     st = State(path)
     assert st.error == "" and st.results is not None
     monkeypatch.undo()
-    ref = State(problem=baarda.io.read_problem(path))
+    ref = State(problem=baarda.build.read_problem(path))
     assert st.results.vPv == pytest.approx(ref.results.vPv, rel=1e-12)

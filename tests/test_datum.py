@@ -7,8 +7,9 @@ import scipy.sparse as sp
 from hypothesis import given, settings, strategies as st
 
 from baarda import datum
-from baarda.adjust import adjust, weight_matrix
+from baarda.adjust import adjust
 from baarda.model.bundle import build_block_problem
+from baarda.model.problem import weight_matrix
 from baarda.model.problem import Covariance
 from baarda.simulate import simulate_block
 
@@ -85,7 +86,7 @@ def test_far_points_are_left_out_of_the_default_s_base():
 @settings(max_examples=30, deadline=None)
 @given(st.integers(1, 12), st.integers(1, 12), st.data())
 def test_keep_columns_equals_scipy_column_indexing(n, u, data):
-    from baarda.adjust import keep_columns
+    from baarda.solve.linalg import keep_columns
 
     rng = np.random.default_rng(n * 13 + u)
     A = sp.random(n, u, density=0.4, format="csr", random_state=rng)

@@ -17,8 +17,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from baarda.build import read_problem
 from baarda.errors import InputError
-from baarda.io import read_model, read_problem
+from baarda.io import read_model
 from baarda.io.control import add_control, read_control
 
 VALID = Path(__file__).resolve().parent / "malformed" / "valid"

@@ -21,11 +21,11 @@ import pytest
 
 from baarda.adjust import adjust
 from baarda.approx import approximate_coordinates
-from baarda.observations.geodetic import build_problem
-from baarda.io import read_problem
-from baarda.io.gama import UndefinedPointsWarning, read_gama
+from baarda.build import read_problem
 from baarda.errors import InputError
+from baarda.io.gama import UndefinedPointsWarning, read_gama
 from baarda.model.problem import subset
+from baarda.observations.geodetic import build_problem
 
 from extdata import GAMA, gama_cases, require_extdata
 

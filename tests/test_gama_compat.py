@@ -28,9 +28,10 @@ import numpy as np
 import pytest
 
 from baarda.adjust import adjust
+from baarda.build import read_problem
 from baarda.cli import main
 from baarda.errors import InputError
-from baarda.io import read_model, read_problem
+from baarda.io import read_model
 from baarda.io.gama import GON, UndefinedPointsWarning, read_gama
 
 from extdata import GAMA, require_extdata
@@ -393,7 +394,7 @@ def test_adjustment_safety_net_for_points_a_single_direction_leaves_open(tmp_pat
     aside with its observation and adjusts the rest (the traverse as without it); --strict and
     the plain adjustment keep the datum-defect error."""
     from baarda.errors import DatumDefectError
-    from baarda.observations.geodetic import adjust_network
+    from baarda.network_defects import adjust_network
 
     f = _knin3d(tmp_path, extra_points='<point id="X8" x="1075200" y="758900" adj="xy"/>\n',
                 extra_obs='<obs from="4262">\n<direction to="X8" val="33.3330"/>\n'

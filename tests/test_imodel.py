@@ -7,9 +7,10 @@ import statsmodels.api as sm
 from statsmodels.stats.outliers_influence import OLSInfluence
 
 from baarda import adjust
-from baarda.model.imodel import build_imodel_problem, h_model_point
 from baarda.io.native import read_native, write_native
+from baarda.model.imodel import build_imodel_problem
 from baarda.simulate import simulate_imodel
+from baarda.stats.hypotheses import h_model_point
 
 
 def test_jacobian_matches_finite_differences():

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from baarda.adjust import adjust
-from baarda.io import read_problem
+from baarda.build import read_problem
 
 from extdata import EXTDATA, GAMA, require_extdata
 

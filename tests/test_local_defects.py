@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 
 from baarda.adjust import adjust
-from baarda.model.sfm import SfmCamera, SfmImage, build_sfm_problem
+from baarda.build import build
 from baarda.errors import DatumDefectError, InputError
-from baarda.io import build, read_model
+from baarda.io import read_model
+from baarda.model.sfm import SfmCamera, SfmImage, build_sfm_problem
 from baarda.sfm_defects import adjust_block, find_defects
+
 from extdata import EXTDATA, require_extdata
 
 BALBIANELLO = EXTDATA / "bal" / "Balbianello.out"

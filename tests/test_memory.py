@@ -12,12 +12,12 @@ import pytest
 import scipy.sparse as sp
 
 from baarda.adjust import Options, adjust
-from baarda.model.sfm import CAMERA_MODELS, ControlPoint, build_sfm_problem
 from baarda.datum import normal_diagonal
-from baarda.stats.hypotheses import selection
-from baarda.stats.hypotheses import test as general_test
 from baarda.io.bal import read_bal
 from baarda.model.problem import Categorical, Covariance, JoinedLabels, RecordIds, subset
+from baarda.model.sfm import CAMERA_MODELS, ControlPoint, build_sfm_problem
+from baarda.stats.hypotheses import selection
+from baarda.stats.hypotheses import test as general_test
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 

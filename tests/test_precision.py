@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from baarda.stats import precision, risk
 from baarda.adjust import adjust
+from baarda.stats import precision, risk
 
 from networks import grid_network, problem
 from oracle import reduced_design

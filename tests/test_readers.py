@@ -17,16 +17,17 @@ import scipy.sparse as sp
 
 from baarda import datum as datum_mod
 from baarda.adjust import adjust
-from baarda.model.sfm import CAMERA_MODELS, ProjectionSet, SfmBlock, build_sfm_problem, initial_cost, to_block
-from baarda.model.bundle import build_block_problem
+from baarda.build import build, read_problem
 from baarda.cli import main
 from baarda.errors import InputError
-from baarda.io import build, detect_format, read_model, read_problem
+from baarda.io import detect_format, read_model
 from baarda.io.bal import read_bal
 from baarda.io.bundler import read_bundler
 from baarda.io.colmap import read_colmap
 from baarda.io.control import add_control
 from baarda.io.native import read_native
+from baarda.model.bundle import build_block_problem
+from baarda.model.sfm import CAMERA_MODELS, ProjectionSet, SfmBlock, build_sfm_problem, initial_cost, to_block
 from baarda.observations.rotation import R_from_rodrigues
 
 from extdata import EXTDATA, require_extdata

@@ -8,8 +8,8 @@ import pytest
 import scipy.linalg as la
 from hypothesis import given, settings, strategies as st
 
-from baarda.stats import distributions
 from baarda.adjust import Options, adjust
+from baarda.stats import distributions
 from baarda.stats.hypotheses import selection
 
 from networks import grid_network, levelling_loop, problem, vector_network, with_values
@@ -75,7 +75,7 @@ def test_correlated_clusters_against_dense_formulas():
 def test_hat_blocks_with_round_off_are_recomputed_by_solves(make):
     """Cluster blocks of A Σ Aᵀ that betray round-off (r_i < 0, asymmetry) are recomputed by
     direct solves; untouched blocks stay as they were."""
-    from baarda.result import size_groups
+    from baarda.model.problem import size_groups
 
     adj = adjust(problem(make()))
     H, Ht = adj._hat_blocks

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from baarda.adjust import Options, adjust
+from baarda.exclusion import exclude
 from baarda.model.problem import subset
 
 from networks import grid_network, problem, vector_network
@@ -83,7 +84,7 @@ def test_exclude_equals_one_step_of_the_reduced_problem():
     pr = problem(grid_network(3, 3, noise_seed=6))
     adj = adjust(pr)
     rows = [3, 11]
-    ex = adj.exclude(rows)
+    ex = exclude(adj, rows)
     keep = np.setdiff1d(np.arange(pr.n), rows)
     one = adjust(subset(pr, keep), Options(max_iter=1), x0=adj.x)
     assert np.abs(ex.x - one.x).max() <= 1e-9

@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from baarda.stats import robust, snooping
 from baarda.adjust import adjust
 from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
+from baarda.stats import robust, snooping
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from baarda.adjust import Options, adjust
+from baarda.build import read_problem
+from baarda.io import read_truth
 from baarda.model.bundle import build_block_problem
-from baarda.io import read_problem, read_truth
 from baarda.simulate import simulate_block
 from baarda.stats.snooping import iterate, leave_one_out
 

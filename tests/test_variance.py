@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from baarda.stats import variance
 from baarda.adjust import adjust
 from baarda.errors import BaardaError
 from baarda.model.network import Cluster
+from baarda.stats import variance
 
 from networks import grid_network, problem
 

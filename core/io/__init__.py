@@ -1,4 +1,5 @@
-"""Readers and writers. :func:`read_problem` opens any supported file as an adjustment problem.
+"""Readers and writers. :func:`read_model` opens any supported file as its file-level model
+(:func:`baarda.build.read_problem` builds the adjustment problem from it).
 
 Formats (``docs/formats.md``): GNU Gama XML (``gama``), baarda's native JSON (``native``),
 Bundle Adjustment in the Large (``bal``), Bundler v0.3 (``bundler``), COLMAP sparse models,
@@ -12,7 +13,14 @@ import json
 import math
 from pathlib import Path
 
+from ..approx import approximate_coordinates
 from ..errors import BaardaError, InputError
+from .bal import looks_like_bal, read_bal
+from .bundler import looks_like_bundler, read_bundler
+from .colmap import find_file, read_colmap
+from .gama import read_gama
+from .native import read_native
+from .source import head as read_head, logical_path
 
 FORMATS = ("auto", "gama", "native", "bal", "bundler", "colmap")
 SFM_FORMATS = ("bal", "bundler", "colmap")
@@ -24,17 +32,11 @@ def detect_format(path) -> str:
     A compressed file (``.gz``, ``.bz2``, ``.xz``, or any name with such content) is judged by
     its name without the compression extension and by its decompressed content
     (:mod:`baarda.io.source`)."""
-    from .bal import looks_like_bal
-    from .bundler import looks_like_bundler
-    from .colmap import _find
-    from .source import head as read_head
-    from .source import logical_path
-
     p = Path(path)
     name = logical_path(p)
     ext = name.suffix.lower()
     if p.is_dir():
-        if any(_find(p, n, e) for n in ("cameras", "images", "points3D") for e in (".txt", ".bin")):
+        if any(find_file(p, n, e) for n in ("cameras", "images", "points3D") for e in (".txt", ".bin")):
             return "colmap"
         raise InputError(path, 0, "is a directory but not a COLMAP model (cameras, images, points3D "
                          ".txt or .bin)")
@@ -83,65 +85,19 @@ def read_model(path, fmt: str = "auto", sigma_px: float | None = None,
         if refine_intrinsics is not None:
             opts["refine_intrinsics"] = bool(refine_intrinsics)
         if fmt == "bal":
-            from .bal import read_bal
             return read_bal(p, **opts)
         if fmt == "bundler":
-            from .bundler import read_bundler
             return read_bundler(p, **opts)
-        from .colmap import read_colmap
         return read_colmap(p, **opts)
     if sigma_px is not None or refine_intrinsics:
         raise BaardaError(f"σ of image coordinates and intrinsics refinement apply to "
                           f"{', '.join(SFM_FORMATS)} input, not to {fmt}")
     if fmt == "gama":
-        from ..approx import approximate_coordinates
-        from .gama import read_gama
         net = read_gama(p, unknown_points="drop" if drop_undefined else "error")
         return approximate_coordinates(net, missing="keep")  # undetermined ones: build() decides
     if fmt == "native":
-        from .native import read_native
         return read_native(p)
     raise InputError(path, 0, f"unknown format '{fmt}' (known: {', '.join(FORMATS)})")
-
-
-def build(model, strict: bool = False):
-    """The adjustment problem of a file-level model.
-
-    Bundle blocks lose their local defects first (:mod:`baarda.sfm_defects`: points, images,
-    cameras the observations do not determine), listed in ``problem.extra["local_defects"]``;
-    strict: refuse them instead (InputError naming them all).
-    """
-    from ..model.sfm import SfmBlock
-    from ..model.bundle import Block
-    from ..model.imodel import IModelBlock, build_imodel_problem
-    from ..model.network import Network
-
-    if isinstance(model, (SfmBlock, Block)):
-        from ..sfm_defects import build as build_block
-        return build_block(model, strict=strict)
-    if isinstance(model, IModelBlock):
-        return build_imodel_problem(model)
-    if isinstance(model, Network):
-        from ..observations.geodetic import build_network
-        return build_network(model, strict=strict)
-    raise TypeError(f"cannot build a problem from {type(model).__name__}")
-
-
-def read_problem(path, fmt: str = "auto", control=None, strict: bool = False, **options):
-    """Read ``path`` and return a :class:`baarda.model.problem.Problem` ready to adjust.
-
-    control: optional control-point CSV (:func:`baarda.io.control.add_control`); strict: local
-    defects are an error (:func:`build`); options go to :func:`read_model`.
-    """
-    model = read_model(path, fmt, **options)
-    if control is not None:
-        from .control import add_control
-        model = add_control(model, control)
-    from ..validate import check_model_range, check_numeric_range
-    check_model_range(model, path)                   # values double precision can adjust
-    problem = build(model, strict=strict)
-    check_numeric_range(problem, path, control)      # σ and values double precision can adjust
-    return problem
 
 
 def read_truth(path) -> dict | None:

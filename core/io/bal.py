@@ -27,8 +27,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ..model.sfm import SfmBlock, SfmCamera, SfmImage
 from ..errors import ConversionError, InputError
+from ..model.sfm import SfmBlock, SfmCamera, SfmImage
 from .source import Numbers, Truncated, open_binary
 from .source import read_text as _read_text
 

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.sfm import SfmBlock
 from ..errors import InputError
+from ..model.sfm import SfmBlock
 from ..observations.rotation import rodrigues_from_R
 from .bal import bal_block, check_block, check_rotation
 from .source import Numbers, open_binary

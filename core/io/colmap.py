@@ -35,11 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.sfm import CAMERA_MODELS, SfmBlock, SfmCamera, SfmImage
 from ..errors import InputError
+from ..model.sfm import CAMERA_MODELS, SfmBlock, SfmCamera, SfmImage
 from ..observations.rotation import R_from_quaternion, rodrigues_from_R
 from .bal import check_block
-from .source import _WS, EXTENSIONS, Numbers, logical_path, open_binary, read_bytes, read_text
+from .source import EXTENSIONS, WHITESPACE, Numbers, logical_path, open_binary, read_bytes, read_text
 
 MODEL_IDS = {0: "SIMPLE_PINHOLE", 1: "PINHOLE", 2: "SIMPLE_RADIAL", 3: "RADIAL", 4: "OPENCV",
              5: "OPENCV_FISHEYE", 6: "FULL_OPENCV", 7: "FOV", 8: "SIMPLE_RADIAL_FISHEYE",
@@ -49,7 +49,7 @@ FILES = ("cameras", "images", "points3D")
 INVALID_ID = 2 ** 64 - 1
 
 
-def _find(d: Path, name: str, ext: str) -> Path | None:
+def find_file(d: Path, name: str, ext: str) -> Path | None:
     """``d/name.ext``, or the same compressed (``.gz``, ``.bz2``, ``.xz``), if it is a file."""
     for comp in ("", *EXTENSIONS):
         f = d / f"{name}{ext}{comp}"
@@ -66,7 +66,7 @@ def model_files(path) -> tuple[Path, str, tuple[Path, Path, Path]] | None:
     if not p.is_dir() and logical_path(p).stem not in FILES:
         return None
     for ext in (".txt", ".bin"):
-        files = [_find(d, name, ext) for name in FILES]
+        files = [find_file(d, name, ext) for name in FILES]
         if all(files):
             return d, ext, tuple(files)
     return None
@@ -86,7 +86,7 @@ def read_colmap(path, sigma_px: float = 1.0, refine_intrinsics: bool = False, ch
         d = p if p.is_dir() else p.parent
         have = sorted(f.name for f in d.glob("*")) if d.is_dir() else []
         ext = ".bin" if any(".bin" in h for h in have) else ".txt"
-        missing = [f"{n}{ext}" for n in FILES if _find(d, n, ext) is None]
+        missing = [f"{n}{ext}" for n in FILES if find_file(d, n, ext) is None]
         raise InputError(path, 0, f"not a complete COLMAP model: missing {', '.join(missing) or 'files'} "
                          f"(found: {', '.join(have[:8]) or 'nothing'})")
     d, ext, (cam_path, img_path, pt_path) = found
@@ -304,7 +304,7 @@ def _text(path, line: int, raw: bytes) -> str:
 
 def _ntok(raw: bytes) -> int:
     """Number of whitespace-separated tokens."""
-    ws = _WS[np.frombuffer(raw, dtype=np.uint8)]
+    ws = WHITESPACE[np.frombuffer(raw, dtype=np.uint8)]
     return int(np.count_nonzero(~ws[1:] & ws[:-1])) + int(ws.size > 0 and not ws[0])
 
 

@@ -20,8 +20,9 @@ import dataclasses
 import io
 import math
 
-from ..model.sfm import ControlPoint, SfmBlock
 from ..errors import InputError
+from ..model.bundle import Block
+from ..model.sfm import ControlPoint, SfmBlock
 from ..validate import SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
 from .bal import read_text
 
@@ -103,8 +104,6 @@ def add_control(model, csv_path):
     """The model with the control points of ``csv_path`` added (a new object; the file and the
     model are not changed). Works for SfM blocks (BAL, Bundler, COLMAP) and native bundle blocks;
     a control point must be a point of the block."""
-    from ..model.bundle import Block
-
     cps = read_control(csv_path)
     if isinstance(model, SfmBlock):
         known = set(model.points)

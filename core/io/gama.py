@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 import xml.parsers.expat
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +41,7 @@ import numpy as np
 from baarda.errors import InputError, OptionError
 from baarda.model.network import Cluster, NetObservation, NetPoint, Network
 from baarda.validate import SIGMA0_MAX, SIGMA0_MIN, VALUE_LIMIT
+from .source import read_bytes
 
 __all__ = ["read_gama", "bearing_convention", "UndefinedPointsWarning", "GON", "CC", "DEG", "ARCSEC", "MM"]
 
@@ -138,8 +140,6 @@ def _local(name: str) -> str:
 
 def _parse_xml(path: Path) -> _Node:
     """Parse the file with expat into :class:`_Node` objects carrying 1-based line numbers."""
-    from .source import read_bytes
-
     data = read_bytes(path)             # plain or compressed (gzip, bzip2, xz)
     parser = xml.parsers.expat.ParserCreate()
     parser.buffer_text = False  # each chunk then reports its own starting line
@@ -707,8 +707,6 @@ class _Reader:
             dropped.append({"line": ob.line, "kind": ob.kind, "points": list(ob.points),
                             "undefined": missing, "reason": msg})
         if dropped:
-            import warnings
-
             self.extra["dropped"] = dropped
             ids = sorted({pid for d in dropped for pid in d["undefined"]})
             warnings.warn(UndefinedPointsWarning(

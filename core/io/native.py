@@ -19,7 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BaardaError, InputError
+from ..model.bundle import AP_GROUPS, Block, Camera, Image, ImageObservations, ObjectPoint
+from ..model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
+from ..model.network import Cluster, NetObservation, NetPoint, Network
 from ..validate import SIGMA0_MAX, SIGMA0_MIN, SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
+from .source import read_text
 
 FORMAT = "baarda-block"
 VERSIONS = (1,)
@@ -172,8 +176,6 @@ class _Reader:
 def read_native(path):
     """Read a native file: a :class:`baarda.model.bundle.Block`, :class:`baarda.model.imodel.IModelBlock`
     or (``kind: "levelling"``) a :class:`baarda.model.network.Network`. Raises InputError."""
-    from .source import read_text
-
     p = Path(path)
     text = read_text(p)                 # plain or compressed (gzip, bzip2, xz), UTF-8
     try:
@@ -252,8 +254,6 @@ def _datum(rd, point_ids):
 
 
 def _read_bundle(rd, sigma0):
-    from ..model.bundle import AP_GROUPS, Block, Camera, Image, ImageObservations, ObjectPoint
-
     cams_in = rd.entries("cameras")
     if not cams_in:
         rd.fail("cameras", None, "empty block: no cameras")
@@ -344,8 +344,6 @@ def _read_bundle(rd, sigma0):
 
 
 def _read_imodel(rd, sigma0):
-    from ..model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
-
     mods_in = rd.entries("models")
     if not mods_in:
         rd.fail("models", None, "empty block: no models")
@@ -398,8 +396,6 @@ def _read_imodel(rd, sigma0):
 
 
 def _read_levelling(rd, sigma0):
-    from ..model.network import Cluster, NetObservation, NetPoint, Network
-
     pts_in = rd.entries("points")
     if not pts_in:
         rd.fail("points", None, "empty network: no points")
@@ -461,9 +457,6 @@ def _f(v) -> float:
 
 def write_native(block, path) -> None:
     """Write a Block, IModelBlock or levelling Network in the native format (version 1)."""
-    from ..model.bundle import Block
-    from ..model.imodel import IModelBlock
-
     if isinstance(block, Block):
         doc = _bundle_doc(block)
         lists = ("cameras", "images", "points", "observations")

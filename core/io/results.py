@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..datum import far_points
 from ..text import number, printable
 
 SCHEMA_VERSION = "1.0"
@@ -81,8 +82,6 @@ def local_defects(problem) -> list[dict]:
 def far_point_ids(adj) -> list[str]:
     """Points near infinity at the solution (:func:`baarda.datum.far_points`): their depth is
     hardly determined; a free block leaves them out of its default S-base."""
-    from ..datum import far_points
-
     ids = adj.problem.points.ids
     return [str(ids[i]) for i in np.flatnonzero(far_points(adj.problem, adj.x))]
 

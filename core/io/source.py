@@ -166,7 +166,7 @@ def _fast_parse(buf: bytes, first: int, comment: bytes | None):
     b = np.frombuffer(buf, dtype=np.uint8)
     kernel = _compiled_scan()
     if kernel is not None:
-        ws = _WS[b]
+        ws = WHITESPACE[b]
         m = int(np.count_nonzero(ws[:-1] & ~ws[1:])) + int(b.size > 0 and not ws[0])
         del ws
         vals, lines, starts = np.empty(m), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
@@ -188,7 +188,7 @@ def _fast_parse(buf: bytes, first: int, comment: bytes | None):
         except ValueError:
             return None
         return (full, lines, starts, buf) if full.size == n else None
-    ws = _WS[b]
+    ws = WHITESPACE[b]
     start = ~ws
     start[1:] &= ws[:-1]
     starts = np.flatnonzero(start)
@@ -324,8 +324,8 @@ class Truncated(Exception):
 
 
 _TOKEN_END = re.compile(rb"[ \t\n\r\x0b\x0c]")
-_WS = np.zeros(256, dtype=bool)
-_WS[[9, 10, 11, 12, 13, 32]] = True
+WHITESPACE = np.zeros(256, dtype=bool)
+WHITESPACE[[9, 10, 11, 12, 13, 32]] = True
 
 
 class Numbers:
@@ -434,7 +434,7 @@ class Numbers:
             c = self.comment.encode()
             buf = b"\n".join(b"" if ln.lstrip().startswith(c) else ln for ln in buf.split(b"\n"))
         b = np.frombuffer(buf, dtype=np.uint8)
-        ws = _WS[b]
+        ws = WHITESPACE[b]
         start = ~ws
         start[1:] &= ws[:-1]
         starts = np.flatnonzero(start)

@@ -60,20 +60,15 @@ References (full in the package docstring): F80; B71 (Brown); E76 (Ebner); F97 (
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
-import scipy.linalg as la
-import scipy.sparse as sp
 
-from ..stats import distributions
 from ..datum import Datum
 from ..errors import NotFoundError, OptionError
 from ..observations.geodetic import LinearSet
-from ..stats.hypotheses import common_error, selection
-from ..solve.linalg import SPDFactor
-from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
 from ..observations.rotation import R_opk, R_opk_derivatives
+from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
 
 EO_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 AP_GROUPS = {
@@ -196,7 +191,6 @@ class Block:
     extra: dict = field(default_factory=dict)
 
     def replace(self, **changes) -> "Block":
-        from dataclasses import replace
         return replace(self, **changes)
 
 
@@ -697,13 +691,14 @@ def _camera_dict(cam: Camera) -> dict:
 # --------------------------------------------------------------------------------------------
 # hypotheses for blocks (F80 §2.2, §7.1)
 # --------------------------------------------------------------------------------------------
-def _problem(obj):
+def problem_of(obj):
+    """The Problem of an Adjustment, or the Problem itself."""
     return getattr(obj, "problem", obj)
 
 
 def image_rows(problem, image: str, point: str) -> np.ndarray:
     """Rows (x, y) of the measurement of ``point`` in ``image``; NotFoundError if there is none."""
-    problem = _problem(problem)
+    problem = problem_of(problem)
     rows = [None, None]
     for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids)):
         if k.startswith("image-") and ids["image"] == image and ids["point"] == point:
@@ -716,214 +711,12 @@ def image_rows(problem, image: str, point: str) -> np.ndarray:
 
 def control_rows(problem, point: str) -> np.ndarray:
     """Rows of the control observations of ``point`` (x, y, z order)."""
-    problem = _problem(problem)
+    problem = problem_of(problem)
     rows = [i for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids))
             if k.startswith("control-") and ids["id"] == point]
     if not rows:
         raise NotFoundError("control point", {"point": point}, f"no control observations of point {point}")
     return np.array(rows, dtype=np.int64)
-
-
-def h_image_coordinate(problem, image: str, point: str, component: str):
-    """H (n × 1) of a gross error in one image coordinate (``component`` "x" or "y")."""
-    problem = _problem(problem)
-    r = image_rows(problem, image, point)["xy".index(component)]
-    return selection(problem.n, [r])
-
-
-def h_image_point(problem, image: str, point: str):
-    """H (n × 2) of a 2D error in one image point (F80 §2.2, q = 2)."""
-    problem = _problem(problem)
-    return selection(problem.n, image_rows(problem, image, point))
-
-
-def h_control_point(problem, point: str):
-    """H (n × q) of an error in a control point's observed coordinates (q = 2 or 3)."""
-    problem = _problem(problem)
-    return selection(problem.n, control_rows(problem, point))
-
-
-def h_point_transfer(problem, point: str, images) -> sp.csc_matrix:
-    """H (n × 2) of a point-transfer error: one 2D error common to the measurements of
-    ``point`` in every image of ``images`` (F80 §2.2; H = (0 … I₂ … I₂ … 0)ᵀ via
-    :func:`baarda.stats.hypotheses.common_error`). ∇s is in image units (x, y)."""
-    problem = _problem(problem)
-    rows = np.array([image_rows(problem, im, point) for im in images])
-    return common_error(problem.n, [rows[:, 0], rows[:, 1]])
-
-
-def h_exchanged(adj, image: str, point_a: str, point_b: str, both: bool = True) -> sp.csc_matrix:
-    """H (n × 1) of a misidentification in one image.
-
-    Model: point a was measured where point b is imaged, e_a = p_b − p_a, with p the predicted
-    (adjusted) image positions ``adj.f``; if ``both`` (an *exchange*), b was measured at a as
-    well, e_b = p_a − p_b. One column, so ∇ŝ ≈ 1 means the full exchange and ∇ŝ ≈ 0 none.
-    The column depends on the solution (linearised about x̂); the test is F80 eq. 12 with q = 1.
-    """
-    ra = image_rows(adj.problem, image, point_a)
-    rb = image_rows(adj.problem, image, point_b)
-    d = adj.f[rb] - adj.f[ra]
-    rows = np.r_[ra, rb] if both else ra
-    vals = np.r_[d, -d] if both else d
-    return sp.csc_matrix((vals, (rows, np.zeros(rows.size, dtype=np.int64))), shape=(adj.n, 1))
-
-
-def h_ap_group(adj, camera: str, group: str) -> sp.csc_matrix:
-    """H (n × q) of an AP group *not* in the model: ∂f/∂a at the solution (F80 eq. 6-7).
-
-    Columns are the basis functions of ``group`` ("brown" or "ebner", module docstring) at the
-    adjusted ideal image coordinates of every measurement of ``camera``.
-    """
-    problem = adj.problem
-    block = problem.extra["block"]
-    cam = next(c for c in block["cameras"] if c["id"] == camera)
-    q = len(AP_GROUPS[group])
-    rows, cols, vals = [], [], []
-    full = adj.x
-    cam_images = {im["id"] for im in block["images"] if im["camera"] == camera}
-    for s in problem.sets:
-        if not isinstance(s, CollinearitySet):
-            continue
-        xr = s.rows[0::2]
-        if problem.info.ids[xr[0]]["image"] not in cam_images:
-            continue
-        xb, yb, *_ = s.ideal(full)
-        Fx, Fy, *_ = BASES[group](xb / cam["ap_scale"], yb / cam["ap_scale"])
-        for k in range(q):
-            rows += [xr, s.rows[1::2]]
-            cols += [np.full(xr.size, k)] * 2
-            vals += [Fx[:, k], Fy[:, k]]
-    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(adj.n, q))
-
-
-# --------------------------------------------------------------------------------------------
-# additional parameters: significance, determinability, reliability (F80 §7.2, §7.3)
-# --------------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class APTest:
-    """Tests of a group of estimated additional parameters (F80 §7.2). Units: image units.
-
-    estimate ŝ, sigma σ_ŝ, cov Σ_ŝŝ (a priori σ0). T = ŝᵀΣ_ŝŝ⁻¹ŝ ~ χ²(q) under H0 (σ0 known),
-    critical the χ² critical value at size ``alpha``. determinability ∇0s_j = δ0 σ_ŝj (F80
-    eq. 15a, one parameter); ellipsoid_axes δ0(q) √eig(Σ_ŝŝ) (eq. 15a for the group).
-    reliability δ̄0,j of each single parameter and reliability_max of the group (F80 eq. 17):
-    the largest effect, in multiples of σ_f, of an undetectable AP error on any function f of
-    the coordinates. weakest: direction s of largest δ'0(s) (eq. 14, F80 §7.3);
-    most_influential: direction of largest δ̄0(s) (eq. 17).
-    """
-
-    labels: tuple[str, ...]
-    estimate: np.ndarray
-    cov: np.ndarray
-    T: float
-    q: int
-    alpha: float
-    critical: float
-    delta0_1: float
-    delta0_q: float
-    determinability: np.ndarray
-    ellipsoid_axes: np.ndarray
-    reliability: np.ndarray
-    reliability_max: float
-    delta0_prime_max: float
-    weakest: np.ndarray
-    most_influential: np.ndarray
-
-    @property
-    def sigma(self) -> np.ndarray:
-        return np.sqrt(np.diag(self.cov))
-
-    @property
-    def significant(self) -> bool:
-        return bool(self.T > self.critical)
-
-    def as_dict(self) -> dict:
-        return {"labels": list(self.labels), "estimate": self.estimate.tolist(),
-                "sigma": self.sigma.tolist(), "T": self.T, "q": self.q, "alpha": self.alpha,
-                "critical": self.critical, "significant": self.significant,
-                "determinability": self.determinability.tolist(),
-                "reliability": self.reliability.tolist(), "reliability_max": self.reliability_max,
-                "delta0_prime_max": self.delta0_prime_max}
-
-
-def _coordinate_norm(adj, D: np.ndarray, exclude: np.ndarray) -> np.ndarray:
-    """Dᵀ (C̄ᵀPC̄) D for displacements D of the coordinates (k_free × q), F80 eq. 16.
-
-    C̄ = (I − B(BᵀPB)⁻¹BᵀP)C with B the nuisance columns except ``exclude`` (free positions).
-    The form is datum invariant (C̄ annihilates the coordinate part of the null space).
-    """
-    kind = adj.problem.params.kind[adj.problem.params.free]
-    k = np.flatnonzero(kind == "k")
-    t = np.setdiff1d(np.flatnonzero(kind == "t"), exclude)
-    E = adj.A[:, k] @ D
-    PE = adj.P @ E
-    M = E.T @ PE
-    if t.size:
-        B = adj.A[:, t].tocsr()
-        F = B.T @ PE
-        M = M - F.T @ SPDFactor((B.T @ adj.P @ B).tocsr()).solve(F).reshape(F.shape)
-    return 0.5 * (M + M.T)
-
-
-def ap_test(adj, camera: str, group: str) -> APTest:
-    """Significance, determinability and reliability of one camera's AP group (F80 §7.2).
-
-    Uses ``adj.solve_normal`` for the q columns Σ e_j (so Σ_ŝŝ and Σ_kŝ), then
-    ∇k = Σ_kŝ Σ_ŝŝ⁻¹ ∇s is the effect on the coordinates of leaving an error ∇s of the APs
-    unmodelled, and δ̄0²(s) = δ0² ∇kᵀ(C̄ᵀPC̄)∇k / ∇sᵀΣ_ŝŝ⁻¹∇s (F80 eq. 17; the denominator
-    is sᵀHᵀPQ_vvPHs of the model without the APs, H = ∂f/∂s).
-    """
-    problem = adj.problem
-    labels = problem.extra["ap_groups"][f"{camera}:{group}"]
-    # the group's parameters found by one pass over the labels (no array of every label)
-    all_labels, want = problem.params.labels, set(labels)
-    where = {all_labels[j]: j for j in range(len(all_labels)) if all_labels[j] in want}
-    free, par = problem.params.free, np.array([where[lab] for lab in labels], dtype=np.int64)
-    idx = np.searchsorted(free, par)
-    if idx.size and (idx.max() >= free.size or not np.array_equal(free[idx], par)):
-        raise NotFoundError("AP group", {"camera": camera, "group": group},
-                            f"AP group {camera}:{group} has parameters that are not estimated")
-    q = idx.size
-    u = adj.A.shape[1]
-    Eq = np.zeros((u, q))
-    Eq[idx, np.arange(q)] = 1.0
-    S = adj.solve_normal(Eq)
-    Sss = 0.5 * (S[idx] + S[idx].T)
-    s_hat = adj.x[problem.params.free][idx]
-    W = la.inv(Sss)
-    W = 0.5 * (W + W.T)
-    T = float(s_hat @ W @ s_hat)
-    o = adj.options
-    alpha = distributions.alpha_b_method(o.alpha, o.beta, q) if o.b_method else o.alpha
-    d1 = distributions.delta0(o.alpha, o.beta, 1)
-    dq = distributions.delta0(o.alpha, o.beta, 1) if o.b_method else distributions.delta0(alpha, o.beta, q)
-    kind = problem.params.kind[problem.params.free]
-    k = np.flatnonzero(kind == "k")
-    # group: effect on k of unit AP errors, ∇k = Σ_kŝ Σ_ŝŝ⁻¹ ∇s
-    Dk = S[k] @ W
-    M = _coordinate_norm(adj, Dk, idx)
-    mu, Ur = la.eigh(M, W)
-    rel_max = float(dq * np.sqrt(max(mu[-1], 0.0)))
-    most = Ur[:, -1] / np.linalg.norm(Ur[:, -1])
-    # determinability in direction s (F80 eq. 14): HᵀPH = A_sᵀ P A_s
-    As = adj.A[:, idx]
-    HPH = np.asarray((As.T @ adj.P @ As).todense())
-    nu, Vd = la.eigh(HPH, W)
-    dprime = float(dq * np.sqrt(max(nu[-1], 0.0)))
-    weakest = Vd[:, -1] / np.linalg.norm(Vd[:, -1])
-    # single parameters: s_j alone excluded, the others of the group kept
-    rel = np.empty(q)
-    for j in range(q):
-        Dj = S[k][:, [j]] / Sss[j, j]
-        Mj = _coordinate_norm(adj, Dj, idx[[j]])[0, 0]
-        rel[j] = d1 * np.sqrt(max(Mj, 0.0) * Sss[j, j])
-    lam = np.maximum(la.eigvalsh(Sss), 0.0)
-    return APTest(labels=tuple(labels), estimate=s_hat, cov=Sss, T=T, q=q, alpha=alpha,
-                  critical=distributions.critical_chi2(alpha, q), delta0_1=d1, delta0_q=dq,
-                  determinability=d1 * np.sqrt(np.diag(Sss)), ellipsoid_axes=dq * np.sqrt(lam),
-                  reliability=rel, reliability_max=rel_max, delta0_prime_max=dprime,
-                  weakest=weakest, most_influential=most)
 
 
 # --------------------------------------------------------------------------------------------

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..datum import Datum
-from ..errors import NotFoundError
 from ..observations.geodetic import LinearSet
 from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
 
@@ -206,17 +205,3 @@ def build_imodel_problem(block: IModelBlock) -> Problem:
     return Problem(params=params, sets=tuple(sets), l=np.concatenate(l), cov=cov, info=info, points=pts,
                    datum=datum, sigma0=block.sigma0, sigma_act="apriori", source=block.source,
                    title=block.title, extra={"imodel": geometry})
-
-
-def h_model_point(problem, model: str, point: str):
-    """H (n × 2) of a 2D error in one point's model coordinates (F80 §2.2)."""
-    from ..stats.hypotheses import selection
-
-    rows = [None, None]
-    for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids)):
-        if k.startswith("model-") and ids["model"] == model and ids["point"] == point:
-            rows["xy".index(ids["component"])] = i
-    if None in rows:
-        raise NotFoundError("model point", {"model": model, "point": point},
-                            f"no model coordinates of point {point} in model {model}")
-    return selection(problem.n, rows)

@@ -20,6 +20,8 @@ angular observations.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -343,26 +345,19 @@ class Covariance:
         return _block_diag(self.members, self.blocks, self.cluster.size)
 
     def weight(self, scale: np.ndarray | None = None) -> sp.csr_matrix:
-        """P = C⁻¹, the inverse of each covariance block.
+        """P = C⁻¹, the inverse of each covariance block (:func:`size_weights`).
 
         ``scale`` (per cluster) divides each block's weight (variance-component factors).
         """
-        if self.groups is not None:
-            parts = []
-            for m, clusters, members in self._by_size():
-                W = np.linalg.inv(self._stack(clusters, m))
-                W = 0.5 * (W + np.swapaxes(W, 1, 2))
-                if scale is not None:
-                    W = W / np.asarray(scale)[clusters][:, None, None]
-                parts.append((members, W))
-            return _stack_diag(parts, self.cluster.size)
-        inv = [None] * len(self.blocks)
-        for m, clusters, _ in self._by_size():
-            C = np.array([self.blocks[c] for c in clusters]).reshape(clusters.size, m, m)
-            W = np.linalg.inv(C)
-            W = 0.5 * (W + np.swapaxes(W, 1, 2))
+        parts = []
+        for (m, clusters, members, _), W in zip(size_groups(self), size_weights(self)):
             if scale is not None:
                 W = W / np.asarray(scale)[clusters][:, None, None]
+            parts.append((m, clusters, members, W))
+        if self.groups is not None:
+            return _stack_diag([(members, W) for _, _, members, W in parts], self.cluster.size)
+        inv = [None] * len(self.blocks)
+        for _, clusters, _, W in parts:
             for k, c in enumerate(clusters):
                 inv[c] = W[k]
         return _block_diag(self.members, inv, self.cluster.size)
@@ -374,20 +369,10 @@ class Covariance:
                     return C
         return np.array([self.blocks[c] for c in clusters]).reshape(clusters.size, m, m)
 
-    def _by_size(self):
-        if self.groups is not None:
-            for m, cl, mem, _ in self.groups:
-                yield int(m), cl, mem
-            return
-        sizes = np.array([idx.size for idx in self.members])
-        for m in np.unique(sizes):
-            cl = np.flatnonzero(sizes == m)
-            yield int(m), cl, np.array([self.members[c] for c in cl]).reshape(cl.size, m)
-
     def sigma(self) -> np.ndarray:
         """Standard deviation of each observation (SI units)."""
         out = np.empty(self.cluster.size)
-        for m, clusters, members in self._by_size():
+        for m, clusters, members in by_size(self):
             C = self._stack(clusters, m)
             out[members] = np.sqrt(np.diagonal(C, axis1=1, axis2=2))
         return out
@@ -437,6 +422,64 @@ class Covariance:
                 members.append(new_index[idx])
                 blocks.append(b)
         return Covariance(renum[self.cluster[keep]], tuple(members), tuple(blocks))
+
+
+# --------------------------------------------------------------------------------------------
+# the clusters of a covariance grouped by size, their weights P_c = C_c⁻¹ and P
+# --------------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=8)
+def size_groups(cov) -> tuple:
+    """Clusters grouped by their size: ((m, cluster ids (k,), members (k, m), C (k, m, m)), ...).
+
+    Cached per (immutable) covariance object: the stacks are built once (a stacked covariance,
+    :meth:`baarda.model.problem.Covariance.from_groups`, has them already).
+    """
+    if getattr(cov, "groups", None) is not None:
+        return tuple((int(m), cl, members, C) for m, cl, members, C in cov.groups)
+    sizes = np.array([idx.size for idx in cov.members])
+    out = []
+    for m in np.unique(sizes):
+        cl = np.flatnonzero(sizes == m)
+        members = np.array([cov.members[c] for c in cl]).reshape(cl.size, m)
+        C = np.array([cov.blocks[c] for c in cl]).reshape(cl.size, m, m)
+        for a in (cl, members, C):
+            a.setflags(write=False)
+        out.append((int(m), cl, members, C))
+    return tuple(out)
+
+
+@functools.lru_cache(maxsize=8)
+def size_weights(cov) -> tuple:
+    """P_c = C_c⁻¹ (symmetrised) of every cluster, stacked as :func:`size_groups` stacks C."""
+    out = []
+    for _, _, _, C in size_groups(cov):
+        W = np.linalg.inv(C)
+        W = 0.5 * (W + np.swapaxes(W, 1, 2))
+        W.setflags(write=False)
+        out.append(W)
+    return tuple(out)
+
+
+@functools.lru_cache(maxsize=8)
+def cluster_sizes(cov) -> np.ndarray:
+    """Size of each cluster (observations), by cluster id."""
+    sizes = np.zeros(sum(g[1].size for g in size_groups(cov)), dtype=np.int64)
+    for m, cl, _, _ in size_groups(cov):
+        sizes[cl] = m
+    return sizes
+
+
+def by_size(cov):
+    """Clusters grouped by their size: yields (m, cluster ids (k,), members (k, m))."""
+    for m, cl, members, _ in size_groups(cov):
+        yield m, cl, members
+
+
+def weight_matrix(cov) -> sp.csr_matrix:
+    """P = C⁻¹ block by block from the stacks of :func:`size_weights` (the same batched inverses
+    as :meth:`Covariance.weight`, so the same numbers), laid out as :func:`_stack_diag` lays them."""
+    return _stack_diag([(members, W) for (_, _, members, _), W in zip(size_groups(cov), size_weights(cov))],
+                       cov.cluster.size)
 
 
 def _stack_diag(parts, n) -> sp.csr_matrix:
@@ -584,7 +627,6 @@ def _subset_set(s, keep_mask: np.ndarray, new_index: np.ndarray):
     if local.size == 0:
         return None
     if local.size == s.rows.size:
-        import dataclasses
         return dataclasses.replace(s, rows=new_index[s.rows]) if not isinstance(s, FilteredSet) else \
             FilteredSet(s.inner, s.local_keep, new_index[s.rows])
     if isinstance(s, FilteredSet):
@@ -600,8 +642,6 @@ def subset(problem: Problem, keep, observed: np.ndarray | None = None) -> Proble
     which parameters the kept observations determine, when the caller knows it (from a
     Jacobian); otherwise the kept observation sets are evaluated to find out.
     """
-    import dataclasses
-
     mask = np.zeros(problem.n, dtype=bool)
     mask[np.asarray(keep)] = True
     idx = np.flatnonzero(mask)

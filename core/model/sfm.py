@@ -66,9 +66,10 @@ import numpy as np
 from ..datum import Datum
 from ..errors import ConversionError
 from ..observations.geodetic import LinearSet
+from ..observations.rotation import R_from_rodrigues, opk_from_R, skew
+from .bundle import Block, Camera, Image, ImageObservations, ObjectPoint
 from .problem import (Categorical, Covariance, JoinedLabels, ObservationInfo, Parameters, PointInfo, Problem,
                       RecordIds)
-from ..observations.rotation import R_from_rodrigues, _skew
 
 INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
 
@@ -177,7 +178,7 @@ def right_jacobian(rho: np.ndarray) -> np.ndarray:
     th = np.where(small, 1.0, theta)
     a = np.where(small, 0.5 - theta ** 2 / 24.0, (1.0 - np.cos(th)) / th ** 2)
     b = np.where(small, 1.0 / 6.0 - theta ** 2 / 120.0, (th - np.sin(th)) / th ** 3)
-    K = _skew(rho)
+    K = skew(rho)
     return np.eye(3) - a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
@@ -284,7 +285,7 @@ class ProjectionSet:
         D = np.stack([np.stack([duu, duv], -1), np.stack([dvu, dvv], -1)], -2)
         dxdP = np.einsum("mab,mbc->mac", D, dUV) * np.stack([fx, fy], -1)[:, :, None]
         # ∂P/∂X = R, ∂P/∂t = I, ∂P/∂ρ = −R [X]× J_r(ρ)
-        dPdrho = -np.einsum("mij,mjk,mkl->mil", R, _skew(X), right_jacobian(x[self.irot]))
+        dPdrho = -np.einsum("mij,mjk,mkl->mil", R, skew(X), right_jacobian(x[self.irot]))
         cols = [self.ipt, self.itr, self.irot]
         vals = [np.einsum("mac,mcj->maj", dxdP, R), dxdP, np.einsum("mac,mcj->maj", dxdP, dPdrho)]
         # intrinsics: columns in INTRINSICS order
@@ -579,9 +580,6 @@ def to_block(block: SfmBlock):
     p2' = −p1/f; always k1' = k1/f², k2' = k2/f⁴ (Brown's coefficients in pixel units).
     ConversionError for a camera with f_x ≠ f_y or control with sx ≠ sy.
     """
-    from .bundle import Block, Camera, Image, ImageObservations, ObjectPoint
-    from ..observations.rotation import opk_from_R
-
     colmap = block.convention == "colmap"
     D = np.diag([1.0, -1.0, -1.0]) if colmap else np.eye(3)
     flip = np.array([1.0, -1.0]) if colmap else np.ones(2)

@@ -22,7 +22,7 @@ azimuths (they are horizontal quantities). ``<obs orientation>`` only starts the
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -163,7 +163,7 @@ class LinearSet:
         return f, *_coo(n, [self.i_to, self.i_from], [np.ones(n), -np.ones(n)])
 
 
-def _point_axes(net: Network) -> list[str]:
+def point_axes(net: Network) -> list[str]:
     """The axes each point needs: its declared axes and those its observations use."""
     pindex = net.point_index()
     need = [set() for _ in net.points]
@@ -185,7 +185,7 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
     A point that an observation needs on an axis without any coordinate is an InputError.
     """
     pindex = net.point_index()
-    axes_needed = _point_axes(net)
+    axes_needed = point_axes(net)
     labels, x0, kind, fixed, point, axis = [], [], [], [], [], []
     index = np.full((len(net.points), 3), -1, dtype=np.int64)
     status = []
@@ -327,185 +327,3 @@ def _groups(net: Network) -> np.ndarray:
     return group
 
 
-def build_network(net: Network, strict: bool = False) -> Problem:
-    """The adjustment problem of a network, its local defects named and set aside.
-
-    Missing approximate coordinates are computed first (:mod:`baarda.approx`). A *local
-    defect* is an adjusted coordinate the observations do not determine on their own:
-
-    - one that no observation involves (a traverse point declared ``adj="xyz"`` without any
-      height difference, zenith angle, slope distance, vector or observed height), or
-    - one for which no approximate value can be computed (not connected to points of known
-      position or height).
-
-    Each is named as a :class:`baarda.defects.LocalDefect` in
-    ``problem.extra["local_defects"]``; the point is adjusted in the components that are
-    determined (as gama-local does for points without height information), or left out when
-    none is, with the observations that need an undetermined coordinate (their lines are
-    named). ``strict`` keeps the former behaviour: an :class:`~baarda.errors.InputError` for a
-    coordinate without an approximate value, and the datum-defect diagnosis of the adjustment
-    for one no observation involves. A defect of the whole network (its datum) is diagnosed by
-    the adjustment as before.
-    """
-    from ..approx import approximate_coordinates
-
-    if any(getattr(p, a) is None for p in net.points for a in "xyz"
-           if a in (p.adjusted + p.constrained).lower()):
-        net = approximate_coordinates(net, missing="error" if strict else "keep")
-    if strict:
-        return build_problem(net)
-    net, defects = _set_aside_local_defects(net)
-    problem = build_problem(net)
-    problem.extra["network_model"] = net     # for adjust_network's safety net
-    if defects:
-        problem.extra["local_defects"] = list(problem.extra.get("local_defects", ())) + defects
-    return problem
-
-
-#: rounds of the safety net in :func:`adjust_network`
-MAX_ROUNDS = 5
-
-
-def adjust_network(problem: Problem, options=None, progress=None, strict: bool = False):
-    """Adjust a network from :func:`build_network`; ``(adjustment, problem adjusted)``.
-
-    Safety net for local defects the structural checks of :func:`build_network` cannot see:
-    when the normal equations turn out singular in the coordinates of a few points (a point
-    with approximate coordinates observed by a single direction, say), those coordinates are
-    named as local defects, set aside with the observations that need them, and the network
-    is adjusted again. A defect of the whole network (its datum), one involving other
-    unknowns (orientations), or any defect with ``strict`` raises
-    :class:`~baarda.errors.DatumDefectError` as :func:`baarda.adjust.adjust` does.
-    """
-    from ..adjust import adjust
-    from ..defects import LocalDefect
-    from ..errors import DatumDefectError
-
-    first = None
-    for _ in range(MAX_ROUNDS + 1):
-        try:
-            return adjust(problem, options, progress=progress), problem
-        except DatumDefectError as err:
-            first = first or err
-            net = problem.extra.get("network_model")
-            if (net is None or strict or "local datum defect" not in err.message
-                    or "kept_rows" in problem.extra or len(net.observations) != problem.n):
-                raise first from None   # (a subset of the network's problem: not rebuilt from it)
-            ids = {p.id for p in net.points}
-            named: dict[str, set] = {}
-            for label in err.undetermined:
-                pid, _, a = label.rpartition(".")
-                if pid not in ids or a not in AXES:
-                    raise first from None
-                named.setdefault(pid, set()).add(a)
-            if not named or len(named) > max(3, len(net.points) // 4):
-                raise first from None
-            keep = [not any(pid in named and set(NEEDS[o.kind]) & named[pid] for pid in o.points)
-                    for o in net.observations]
-            lines = {pid: sorted({o.line for o, k in zip(net.observations, keep) if not k
-                                  and pid in o.points}) for pid in named}
-            points = []
-            for p in net.points:
-                if p.id in named:
-                    gone = named[p.id]
-                    p = replace(p, adjusted="".join(a for a in p.adjusted if a.lower() not in gone),
-                                constrained="".join(a for a in p.constrained if a.lower() not in gone))
-                points.append(p)
-            found = []
-            for p in points:
-                if p.id not in named:
-                    continue
-                left = "".join(a for a in "xyz" if a in (p.adjusted + p.constrained).lower())
-                action = f"adjusted in {', '.join(left)}" if left else "left out"
-                if lines[p.id]:
-                    action += (f", with {len(lines[p.id])} observation(s) left out (line(s) "
-                               f"{', '.join(map(str, lines[p.id][:20]))})")
-                found.append(LocalDefect("point", p.id, tuple(a for a in "xyz" if a in named[p.id]),
-                                         "the adjustment finds it undetermined (singular normal "
-                                         "equations: too few observations to it)", action))
-            old = list(problem.extra.get("local_defects", ()))
-            problem = build_network(_keep_observations(replace(net, points=tuple(points)), keep))
-            problem.extra["local_defects"] = old + found + list(problem.extra.get("local_defects", ()))
-    raise first
-
-
-def _set_aside_local_defects(net: Network):
-    """``(network, defects)``: undetermined adjusted coordinates removed (see :func:`build_network`)."""
-    from dataclasses import replace
-
-    from ..defects import LocalDefect
-
-    reasons = dict(net.extra.get("approx_missing", {}))
-    found: dict[str, dict] = {}   # id -> {"axes": set, "why": [..], "lines": [..]}
-    while True:
-        pindex = net.point_index()
-        touched = _point_axes(net)
-        bad: dict[str, set] = {}
-        for p, used in zip(net.points, touched):
-            for a in sorted(set((p.adjusted + p.constrained).lower())):
-                if a not in used:
-                    why = ("no observation involves its height (no height difference, zenith angle, "
-                           "slope distance, vector or observed height)" if a == "z" else
-                           "no observation involves its position")
-                elif getattr(p, a) is None:
-                    why = reasons.get(p.id, ("", "no approximate coordinates could be computed"))[1]
-                else:
-                    continue
-                bad.setdefault(p.id, set()).add(a)
-                rec = found.setdefault(p.id, {"axes": set(), "why": [], "lines": []})
-                rec["axes"].add(a)
-                if why not in rec["why"]:
-                    rec["why"].append(why)
-        if not bad:
-            break
-        # observations that need a coordinate set aside (only those without a value can be
-        # needed: a coordinate no observation involves is needed by none)
-        keep = []
-        for o in net.observations:
-            drop = [pid for pid in o.points if pid in bad and set(NEEDS[o.kind]) & bad[pid]]
-            keep.append(not drop)
-            for pid in dict.fromkeys(drop):
-                found[pid]["lines"].append(o.line)
-        points = []
-        for p in net.points:
-            if p.id in bad:
-                gone = bad[p.id]
-                p = replace(p, adjusted="".join(a for a in p.adjusted if a.lower() not in gone),
-                            constrained="".join(a for a in p.constrained if a.lower() not in gone))
-            points.append(p)
-        net = _keep_observations(replace(net, points=tuple(points)), keep)
-        del pindex
-    defects = []
-    for p in net.points:
-        if p.id not in found:
-            continue
-        rec = found[p.id]
-        left = "".join(a for a in "xyz" if a in (p.adjusted + p.constrained).lower())
-        lines = sorted(set(rec["lines"]))
-        action = f"adjusted in {', '.join(left)}" if left else "left out"
-        if lines:
-            action += (f", with {len(lines)} observation(s) left out (line(s) "
-                       f"{', '.join(map(str, lines[:20]))}{' ...' if len(lines) > 20 else ''})")
-        defects.append(LocalDefect("point", p.id, tuple(a for a in "xyz" if a in rec["axes"]),
-                                   "; ".join(rec["why"]), action))
-    return net, defects
-
-
-def _keep_observations(net: Network, keep) -> Network:
-    """The network without the observations whose ``keep`` is False (clusters cut to match)."""
-    from dataclasses import replace
-
-    if all(keep):
-        return net
-    new_index = {}
-    for i, k in enumerate(keep):
-        if k:
-            new_index[i] = len(new_index)
-    obs = tuple(o for o, k in zip(net.observations, keep) if k)
-    clusters = []
-    for c in net.clusters:
-        kept = [j for j, i in enumerate(c.indices) if keep[i]]
-        if kept:
-            clusters.append(replace(c, indices=tuple(new_index[c.indices[j]] for j in kept),
-                                    cov=c.cov[np.ix_(kept, kept)]))
-    return replace(net, observations=obs, clusters=tuple(clusters))

@@ -102,7 +102,7 @@ def R_from_rodrigues(rho) -> np.ndarray:
     th = np.where(small, 1.0, theta)
     a = np.where(small, 1.0 - theta ** 2 / 6.0, np.sin(th) / th)
     b = np.where(small, 0.5 - theta ** 2 / 24.0, (1.0 - np.cos(th)) / th ** 2)
-    K = _skew(rho)
+    K = skew(rho)
     eye = np.broadcast_to(np.eye(3), K.shape)
     return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
@@ -165,7 +165,7 @@ def _axis_angle_from_quaternion(q):
     return v * scale[..., None]
 
 
-def _skew(v):
+def skew(v):
     v = np.asarray(v, dtype=float)
     z = np.zeros(v.shape[:-1])
     x, y, w = v[..., 0], v[..., 1], v[..., 2]

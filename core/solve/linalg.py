@@ -280,3 +280,22 @@ class LowRankUpdate:
 
     def dense_inverse(self) -> np.ndarray:
         return self.solve(np.eye(self.m))
+
+
+def keep_columns(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
+    """A[:, keep] for sorted ``keep`` by one pass over the entries (scipy's column indexing
+    costs a gather per entry and a re-sort; here the order is kept and so is canonical form)."""
+    A = sp.csr_matrix(A)
+    if keep.size == A.shape[1]:
+        return A
+    colmap = np.full(A.shape[1], -1, dtype=A.indices.dtype)
+    colmap[keep] = np.arange(keep.size)
+    new = colmap[A.indices]
+    m = new >= 0
+    cm = np.zeros(m.size + 1, dtype=A.indptr.dtype)        # kept entries before each entry
+    np.cumsum(m, out=cm[1:])
+    indptr = cm[A.indptr]
+    del cm
+    out = sp.csr_matrix((A.data[m], new[m], indptr), shape=(A.shape[0], keep.size))
+    out.has_sorted_indices = A.has_sorted_indices
+    return out

@@ -62,9 +62,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import laplacian, reverse_cuthill_mckee
+from scipy.sparse.linalg import eigsh
 
 from ..errors import OptionError, SingularError
-from ..model.problem import LazySequence
+from ..model.problem import LazySequence, by_size, take
 from .linalg import SPDFactor, block_partition
 
 try:                       # optional: compiled pair loops
@@ -89,6 +91,8 @@ POINT_PIVOT_TOL = 1e-14
 #: Entries of the temporary arrays in one chunk of the numpy fallback.
 CHUNK = 1 << 21
 BACKENDS = ("numba", "numpy")
+#: the solvers :func:`schur_structure` chooses between
+SOLVERS = ("auto", "schur", "generic")
 
 
 def default_backend() -> str:
@@ -841,7 +845,7 @@ def _bmm_loops(X, Y, out):
                 out[p, i, k] = acc
 
 
-def _bmm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+def bmm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """X[p] @ Y[p] for stacks of small matrices: compiled loops when numba is installed (numpy's
     stacked matmul pays a call per tiny matrix), numpy's matmul otherwise."""
     if numba is None:
@@ -885,9 +889,6 @@ def _order(Smat, st) -> np.ndarray:
 
 
 def _compute_order(Smat, st) -> np.ndarray:
-    from scipy.sparse.csgraph import laplacian, reverse_cuthill_mckee
-    from scipy.sparse.linalg import eigsh
-
     rcm = np.asarray(reverse_cuthill_mckee(Smat, symmetric_mode=True), dtype=np.int64)
     nsn = st.sn_t.size
     if nsn < 50:
@@ -960,9 +961,9 @@ class SchurFactor:
             raise self._singular(int(st.ent_cols[e, bad[e]]))
         # point unknowns p̃ = R_j p: the point blocks become I, b_c becomes b_c R_j⁻¹
         self.R, self.Ri = R, _upper3_inverse(R)
-        self.b = _bmm(self.b, self.Ri[st.cl_ent])
-        Pb = np.diagonal(Pc, axis1=1, axis2=2)[:, :, None] * self.b if diagonal else _bmm(Pc, self.b)
-        self.E = _bmm(_T(self.a), Pb)           # E_c = a_cᵀ P_c b̃_c
+        self.b = bmm(self.b, self.Ri[st.cl_ent])
+        Pb = np.diagonal(Pc, axis1=1, axis2=2)[:, :, None] * self.b if diagonal else bmm(Pc, self.b)
+        self.E = bmm(_T(self.a), Pb)           # E_c = a_cᵀ P_c b̃_c
         self.Q = self.E                         # E_c C̃⁻¹ with C̃ = I
         nnz = int(st.bstart[-1])
         sn_size = np.diff(st.sn_ptr)
@@ -1034,7 +1035,6 @@ class SchurFactor:
         nc_ = Smat.shape[0]
         if nc_ <= DENSE_LIMIT:
             return
-        from scipy.sparse.csgraph import reverse_cuthill_mckee
         perm = reverse_cuthill_mckee(Smat, symmetric_mode=True)
         iperm = np.empty_like(perm)
         iperm[perm] = np.arange(nc_)
@@ -1055,8 +1055,8 @@ class SchurFactor:
         ne = st.ent_size.size
         bp = np.zeros((ne * 3, q))
         bp[self._pflat] = B[self._pcols]
-        yp = _bmm(_T(self.Ri), bp.reshape(ne, 3, q))             # Ṽ⁻¹ b̃_p = R⁻ᵀ b_p  (ne, 3, q)
-        Wy = _bmm(self.E, yp[st.cl_ent]).reshape(-1, q)            # E_c y_e(c)  (nc·K, q)
+        yp = bmm(_T(self.Ri), bp.reshape(ne, 3, q))             # Ṽ⁻¹ b̃_p = R⁻ᵀ b_p  (ne, 3, q)
+        Wy = bmm(self.E, yp[st.cl_ent]).reshape(-1, q)            # E_c y_e(c)  (nc·K, q)
         cols = st.col_S.ravel()
         ok = cols >= 0
         rhs = B[st.cam].copy()
@@ -1064,8 +1064,8 @@ class SchurFactor:
             rhs[:, j] -= np.bincount(cols[ok], weights=Wy[ok, j], minlength=st.cam.size)
         xc = self.S.solve(rhs).reshape(-1, q)
         xk = np.where(ok[:, None], xc[np.maximum(cols, 0)], 0.0).reshape(-1, st.K, q)
-        t = _segment_sum(_bmm(_T(self.E), xk), st.ent_ptr)       # W_jᵀ x_c  (ne, 3, q)
-        xp = _bmm(self.Ri, yp - t).reshape(ne * 3, q)            # p = R⁻¹ p̃
+        t = _segment_sum(bmm(_T(self.E), xk), st.ent_ptr)       # W_jᵀ x_c  (ne, 3, q)
+        xp = bmm(self.Ri, yp - t).reshape(ne * 3, q)            # p = R⁻¹ p̃
         out = np.empty((self.m, q))
         out[st.cam] = xc
         out[self._pcols] = xp[self._pflat]
@@ -1112,7 +1112,7 @@ class SchurFactor:
             Spp = np.empty((st.ent_size.size, 3, 3))
             _kernels()["hat6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol,
                                st.bstart, self.Q, self.a, self.b, Sig, Sigt, H, Ht, Spp)
-            self._blocks = (H, Ht, _bmm(_bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
+            self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
             self.a = self.b = None         # only these blocks needed them (solve uses E and R)
             return self._blocks
         if self.backend == "numba":
@@ -1122,24 +1122,22 @@ class SchurFactor:
         else:
             Gc, SA, SAt = _gather_np(st, self.Q, self.a, Sig, Sigt)
         a, b = self.a, self.b
-        F = _bmm(a, Gc)                                        # a_c Σ_{k_c p}  (nc, M, 3)
+        F = bmm(a, Gc)                                        # a_c Σ_{k_c p}  (nc, M, 3)
         I3 = np.broadcast_to(np.eye(3), (st.ent_size.size, 3, 3))
-        Spp = I3 - _segment_sum(_bmm(_T(self.Q), Gc), st.ent_ptr)      # Σ of p̃ (C̃ = I)
-        FbT = _bmm(F, _T(b))
-        H = _bmm(a, SA) + FbT + _T(FbT) + _bmm(_bmm(b, Spp[st.cl_ent]), _T(b))
-        Ht = _bmm(a, SAt)
-        self._blocks = (H, Ht, _bmm(_bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
+        Spp = I3 - _segment_sum(bmm(_T(self.Q), Gc), st.ent_ptr)      # Σ of p̃ (C̃ = I)
+        FbT = bmm(F, _T(b))
+        H = bmm(a, SA) + FbT + _T(FbT) + bmm(bmm(b, Spp[st.cl_ent]), _T(b))
+        Ht = bmm(a, SAt)
+        self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
         self.a = self.b = None
         return self._blocks
 
     def hat_blocks(self, cov):
         """a_i Σ a_jᵀ and a_i Σ_t a_jᵀ (nuisance part) for all pairs within each covariance
         cluster, laid out as :func:`baarda.result.cluster_pairs` lays them out."""
-        from ..result import _by_size
-
         H, Ht, _ = self._selected()
         out_h, out_t = [], []
-        for m, clusters, _ in _by_size(cov):
+        for m, clusters, _ in by_size(cov):
             p = self.st.cl_pos[clusters]
             out_h.append(H[p, :m, :m].reshape(-1))
             out_t.append(Ht[p, :m, :m].reshape(-1))
@@ -1438,3 +1436,21 @@ class StepFactor:
         out[st.cam] = xc
         out[self._pcols] = xp.ravel()[self._pflat]
         return out
+
+
+def schur_structure(problem, Ar, keep, solver: str = "auto"):
+    """The point-elimination layout of this module for the reduced design matrix ``Ar``,
+    or None when the generic solver is to be used (``solver``: see :class:`baarda.adjust.Options`)."""
+    if solver not in SOLVERS:
+        raise OptionError("solver", solver, SOLVERS, f"unknown solver {solver!r} (known: {', '.join(SOLVERS)})")
+    if solver == "generic":
+        return None
+    params = problem.params
+    fr = params.free[keep]
+    kind = params.kind[fr]
+    if solver == "auto" and int((kind == "k").sum()) < MIN_ELIMINATED:
+        return None
+    st = analyse(Ar, problem.cov, kind, params.point[fr], take(params.labels, fr))
+    if st is None or (solver == "auto" and not st.worthwhile()):
+        return None
+    return st

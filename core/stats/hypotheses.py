@@ -23,7 +23,8 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
-from ..errors import HypothesisError
+from ..errors import HypothesisError, NotFoundError
+from ..model.bundle import AP_GROUPS, BASES, CollinearitySet, control_rows, image_rows, problem_of
 from . import distributions
 
 
@@ -174,3 +175,94 @@ def deformation(adj, h: HypothesisTest, nabla_s=None) -> np.ndarray:
         raise HypothesisError("the test cannot see this error (infinite lower bound)")
     err = np.asarray(h.H @ nabla_s).ravel()
     return adj.deformation(err)
+
+
+# --------------------------------------------------------------------------------------------
+# hypotheses for blocks (F80 §2.2, THEORY.md §3)
+# --------------------------------------------------------------------------------------------
+def h_image_coordinate(problem, image: str, point: str, component: str):
+    """H (n × 1) of a gross error in one image coordinate (``component`` "x" or "y")."""
+    problem = problem_of(problem)
+    r = image_rows(problem, image, point)["xy".index(component)]
+    return selection(problem.n, [r])
+
+
+def h_image_point(problem, image: str, point: str):
+    """H (n × 2) of a 2D error in one image point (F80 §2.2, q = 2)."""
+    problem = problem_of(problem)
+    return selection(problem.n, image_rows(problem, image, point))
+
+
+def h_control_point(problem, point: str):
+    """H (n × q) of an error in a control point's observed coordinates (q = 2 or 3)."""
+    problem = problem_of(problem)
+    return selection(problem.n, control_rows(problem, point))
+
+
+def h_point_transfer(problem, point: str, images) -> sp.csc_matrix:
+    """H (n × 2) of a point-transfer error: one 2D error common to the measurements of
+    ``point`` in every image of ``images`` (F80 §2.2; H = (0 … I₂ … I₂ … 0)ᵀ via
+    :func:`baarda.stats.hypotheses.common_error`). ∇s is in image units (x, y)."""
+    problem = problem_of(problem)
+    rows = np.array([image_rows(problem, im, point) for im in images])
+    return common_error(problem.n, [rows[:, 0], rows[:, 1]])
+
+
+def h_exchanged(adj, image: str, point_a: str, point_b: str, both: bool = True) -> sp.csc_matrix:
+    """H (n × 1) of a misidentification in one image.
+
+    Model: point a was measured where point b is imaged, e_a = p_b − p_a, with p the predicted
+    (adjusted) image positions ``adj.f``; if ``both`` (an *exchange*), b was measured at a as
+    well, e_b = p_a − p_b. One column, so ∇ŝ ≈ 1 means the full exchange and ∇ŝ ≈ 0 none.
+    The column depends on the solution (linearised about x̂); the test is F80 eq. 12 with q = 1.
+    """
+    ra = image_rows(adj.problem, image, point_a)
+    rb = image_rows(adj.problem, image, point_b)
+    d = adj.f[rb] - adj.f[ra]
+    rows = np.r_[ra, rb] if both else ra
+    vals = np.r_[d, -d] if both else d
+    return sp.csc_matrix((vals, (rows, np.zeros(rows.size, dtype=np.int64))), shape=(adj.n, 1))
+
+
+def h_ap_group(adj, camera: str, group: str) -> sp.csc_matrix:
+    """H (n × q) of an AP group *not* in the model: ∂f/∂a at the solution (F80 eq. 6-7).
+
+    Columns are the basis functions of ``group`` ("brown" or "ebner", module docstring) at the
+    adjusted ideal image coordinates of every measurement of ``camera``.
+    """
+    problem = adj.problem
+    block = problem.extra["block"]
+    cam = next(c for c in block["cameras"] if c["id"] == camera)
+    q = len(AP_GROUPS[group])
+    rows, cols, vals = [], [], []
+    full = adj.x
+    cam_images = {im["id"] for im in block["images"] if im["camera"] == camera}
+    for s in problem.sets:
+        if not isinstance(s, CollinearitySet):
+            continue
+        xr = s.rows[0::2]
+        if problem.info.ids[xr[0]]["image"] not in cam_images:
+            continue
+        xb, yb, *_ = s.ideal(full)
+        Fx, Fy, *_ = BASES[group](xb / cam["ap_scale"], yb / cam["ap_scale"])
+        for k in range(q):
+            rows += [xr, s.rows[1::2]]
+            cols += [np.full(xr.size, k)] * 2
+            vals += [Fx[:, k], Fy[:, k]]
+    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(adj.n, q))
+
+
+# --------------------------------------------------------------------------------------------
+# hypotheses for independent-model blocks
+# --------------------------------------------------------------------------------------------
+def h_model_point(problem, model: str, point: str):
+    """H (n × 2) of a 2D error in one point's model coordinates (F80 §2.2)."""
+    rows = [None, None]
+    for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids)):
+        if k.startswith("model-") and ids["model"] == model and ids["point"] == point:
+            rows["xy".index(ids["component"])] = i
+    if None in rows:
+        raise NotFoundError("model point", {"model": model, "point": point},
+                            f"no model coordinates of point {point} in model {model}")
+    return selection(problem.n, rows)

@@ -9,7 +9,8 @@ import pandas as pd
 import panel as pn
 import param
 
-from baarda.model.bundle import AP_GROUPS, APTest
+from baarda.model.bundle import AP_GROUPS
+from baarda.stats.ap_tests import APTest
 
 from ..state import State, observation_label
 from ..text import labels, md_text, plain

@@ -1,0 +1,152 @@
+"""The import rules of the core's layers (README, "Layout"; issue 13).
+
+An AST walk over every module of ``core/`` (the import package ``baarda`` without the dashboard):
+
+- no function-level import, except the optional ``numba`` import and the CLI's import of the
+  dashboard (which needs Panel);
+- no import of a private name (``_x``) from another module;
+- the models (``core/model/``) and the observation equations (``core/observations/``) import
+  no statistics (``core/stats/``);
+- no import cycle between the core's modules.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+CORE = Path(__file__).resolve().parent.parent / "core"
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(CORE).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(["baarda", *parts])
+
+
+MODULES = {module_name(p): p for p in sorted(CORE.rglob("*.py"))}
+
+
+def is_package(name: str) -> bool:
+    return MODULES[name].name == "__init__.py"
+
+
+def imports(name: str):
+    """(node, target modules, imported names, function-level?) of each import in module ``name``."""
+    tree = ast.parse(MODULES[name].read_text(encoding="utf-8"))
+    package = name if is_package(name) else name.rsplit(".", 1)[0]
+    out = []
+
+    def visit(node, nested):
+        for child in ast.iter_child_nodes(node):
+            inner = nested or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
+            if isinstance(child, ast.Import):
+                out.append((child, [a.name for a in child.names], [], inner))
+            elif isinstance(child, ast.ImportFrom):
+                if child.level:
+                    base = package.split(".")
+                    base = base[: len(base) - child.level + 1]
+                    mod = ".".join(base + ([child.module] if child.module else []))
+                else:
+                    mod = child.module
+                names = [a.name for a in child.names]
+                targets = [mod] + [f"{mod}.{n}" for n in names if f"{mod}.{n}" in MODULES]
+                out.append((child, targets, names, inner))
+            visit(child, inner)
+
+    visit(tree, False)
+    return out
+
+
+def where(name, node):
+    return f"{MODULES[name].relative_to(CORE.parent)}:{node.lineno}"
+
+
+def test_no_function_level_imports():
+    bad = []
+    for name in MODULES:
+        for node, targets, _, nested in imports(name):
+            if not nested:
+                continue
+            if targets[0] == "numba":
+                continue
+            if name == "baarda.cli" and targets[0].startswith("baarda.dashboard"):
+                continue
+            bad.append(f"{where(name, node)} imports {targets[0]}")
+    assert not bad, "function-level imports:\n" + "\n".join(bad)
+
+
+def test_no_private_names_across_modules():
+    bad = []
+    for name in MODULES:
+        for node, targets, names, _ in imports(name):
+            if not targets[0].startswith("baarda"):
+                continue
+            private = [n for n in names if n.startswith("_") and not n.startswith("__")]
+            if private:
+                bad.append(f"{where(name, node)} imports {', '.join(private)} from {targets[0]}")
+    assert not bad, "private names imported across modules:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("layer", ["baarda.model", "baarda.observations"])
+def test_model_and_observations_import_no_statistics(layer):
+    assert any(name.startswith(layer + ".") for name in MODULES), f"no modules in {layer}"
+    bad = []
+    for name in MODULES:
+        if name != layer and not name.startswith(layer + "."):
+            continue
+        for node, targets, _, _ in imports(name):
+            if any(t == "baarda.stats" or t.startswith("baarda.stats.") for t in targets):
+                bad.append(f"{where(name, node)} imports {targets[0]}")
+    assert not bad, "statistics imported by a lower layer:\n" + "\n".join(bad)
+
+
+def graph():
+    """Module -> the core modules it imports. ``from pkg import sub`` depends on the submodule
+    only, and a package being initialised is no dependency of its own modules."""
+    edges = {name: set() for name in MODULES}
+    for name in MODULES:
+        for _, targets, names, _ in imports(name):
+            mod, subs = targets[0], targets[1:]
+            if len(subs) < len(names) and not name.startswith(mod + "."):
+                subs = [mod, *subs]
+            edges[name].update(t for t in subs if t in MODULES and t != name)
+    return edges
+
+
+def find_cycle(edges):
+    """One cycle of the directed graph as a list of nodes, or None (iterative depth-first search)."""
+    state = {}
+    for start in sorted(edges):
+        if start in state:
+            continue
+        stack = [(start, iter(sorted(edges[start])))]
+        path = [start]
+        state[start] = "open"
+        while stack:
+            node, it = stack[-1]
+            nxt = next(it, None)
+            if nxt is None:
+                state[node] = "done"
+                stack.pop()
+                path.pop()
+            elif state.get(nxt) == "open":
+                return path[path.index(nxt):] + [nxt]
+            elif nxt not in state:
+                state[nxt] = "open"
+                stack.append((nxt, iter(sorted(edges[nxt]))))
+                path.append(nxt)
+    return None
+
+
+def test_no_import_cycle():
+    cycle = find_cycle(graph())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_cycle_finder_sees_a_cycle():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) is None
