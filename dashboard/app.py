@@ -62,8 +62,8 @@ class Fast(pn.theme.fast.Fast):
 #: string from the file escaped). With a summary, Bokeh's and Panel's scripts (some megabytes,
 #: which twenty pages opened at once parse for seconds) move from the head to the end of the
 #: body, after the summary: it shows as soon as the browser has the page, before any of them
-#: has run. A script puts it where the live summary will be and removes it once Bokeh renders
-#: the main area.
+#: has run. A script puts it where the live summary will be (marks the time:
+#: ``performance.mark("baarda-first-summary")``) and removes it once Bokeh renders the main area.
 FIRST_PAGE = """{% extends "fast/list/fast_list_template.html" %}
 {% block js_resources %}{% if not first_summary %}{{ super() }}{% endif %}{% endblock %}
 {% block inner_body %}
@@ -76,6 +76,7 @@ FIRST_PAGE = """{% extends "fast/list/fast_list_template.html" %}
   var root = document.querySelector("#main [data-root-id]");
   if (!root) { first.remove(); return; }
   root.parentNode.insertBefore(first, root);
+  performance.mark("baarda-first-summary");
   new MutationObserver(function (_, obs) {
     if (root.childNodes.length) { first.remove(); obs.disconnect(); }
   }).observe(root, {childList: true});
