@@ -9,52 +9,17 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import statsmodels.api as sm
-from hypothesis import given, settings
-from hypothesis import strategies as st
 from statsmodels.stats.outliers_influence import OLSInfluence
 
 from baarda import InputError, Options, adjust
 from baarda.io.native import read_native, write_native
 from baarda.model.bundle import Camera, build_block_problem, check_points, image_rows
-from baarda.observations import rotation as rot
 from baarda.simulate import simulate_block
 from baarda.stats.ap_tests import ap_test
 from baarda.stats.hypotheses import (h_ap_group, h_control_point, h_exchanged, h_image_coordinate, h_image_point,
                                      h_point_transfer)
 
 from oracle import reduced_design
-
-# ------------------------------------------------------------------------------------------
-# rotations
-# ------------------------------------------------------------------------------------------
-angles = st.floats(-1.4, 1.4)
-
-
-@settings(max_examples=30, deadline=None)
-@given(angles, angles, angles)
-def test_rotation_round_trips(w, p, k):
-    R = rot.R_opk(w, p, k)
-    assert np.allclose(R @ R.T, np.eye(3), atol=1e-12)
-    assert np.isclose(np.linalg.det(R), 1.0)
-    assert np.allclose(rot.opk_from_R(R), (w, p, k), atol=1e-9)
-    assert np.allclose(rot.R_from_rodrigues(rot.rodrigues_from_R(R)), R, atol=1e-9)
-    assert np.allclose(rot.R_from_quaternion(rot.quaternion_from_R(R)), R, atol=1e-9)
-
-
-def test_rotation_convention_and_derivatives():
-    # R = R_ω R_φ R_κ: a pure κ turns the image x axis towards object +Y
-    R = rot.R_opk(0.0, 0.0, np.pi / 2)
-    assert np.allclose(R @ [1, 0, 0], [0, 1, 0], atol=1e-15)
-    assert np.allclose(rot.R_from_rodrigues([0, 0, np.pi / 2]), R, atol=1e-12)
-    assert np.allclose(rot.R_from_quaternion([np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)]), R, atol=1e-12)
-    a = np.array([0.1, -0.2, 0.3])
-    _, *D = rot.R_opk_derivatives(*a)
-    for j in range(3):
-        h = np.zeros(3)
-        h[j] = 1e-6
-        fd = (rot.R_opk(*(a + h)) - rot.R_opk(*(a - h))) / 2e-6
-        assert np.abs(fd - D[j]).max() < 1e-9
-
 
 # ------------------------------------------------------------------------------------------
 # collinearity Jacobian
