@@ -6,7 +6,7 @@ the results; the views only read it and write selections back.
 
 Observation indices are always those of the *full* problem as read (``problem``); the
 adjustment ``results`` is computed on the problem without the excluded observations
-(:mod:`baarda.dashboard.subset`), and ``kept[k]`` maps its index k back.
+(:func:`baarda.problem.without`), and ``kept[k]`` maps its index k back.
 
 Hypothesis specifications are plain dicts, ``{"kind": ..., "active": bool, ...}``:
 
@@ -52,8 +52,8 @@ from baarda.errors import BaardaError
 from baarda.stats import precision, risk, robust, snooping, variance
 from baarda.stats.ap_tests import ap_test
 from baarda.stats.hypotheses import HypothesisTest, common_error, deformation, h_ap_group, selection
+from baarda.model.problem import without
 
-from .subset import without
 from .text import plain
 
 #: Results of the adjustment that do not depend on α0, β0 or the B-method; they are carried

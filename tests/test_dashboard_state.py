@@ -32,8 +32,8 @@ from bokeh.models import ColumnDataSource  # noqa: E402
 from baarda.stats import distributions
 from baarda.adjust import Options, adjust  # noqa: E402
 from baarda.dashboard.state import State, observation_points  # noqa: E402
-from baarda.dashboard.subset import without  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
+from baarda.model.problem import subset, without  # noqa: E402
 from extdata import GAMA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
@@ -1019,3 +1019,23 @@ def test_served_file_is_analysed_at_start_and_sessions_take_it_from_the_cache(tm
     monkeypatch.undo()
     ref = State(problem=baarda.build.read_problem(path))
     assert st.results.vPv == pytest.approx(ref.results.vPv, rel=1e-12)
+
+
+def test_excluding_a_whole_direction_set_equals_the_core_exclusion():
+    """Leaving out every direction of a set orphans its orientation unknown: the core's
+    :func:`baarda.problem.subset` holds it, and the dashboard excludes through the core, so the
+    last direction goes as well and the result is a fresh core adjustment without the set."""
+    st = network_state("gama-local.gkf")
+    p = st.problem
+    rows = [i for i in range(p.n) if p.info.kind[i] == "direction" and p.info.ids[i]["from"] == "1"]
+    assert len(rows) >= 2
+    for i in rows:
+        assert st.exclude(i), st.error
+    assert st.error == "" and sorted(st.excluded) == rows
+    kept = np.setdiff1d(np.arange(p.n), rows)
+    ref = adjust(replace(subset(p, kept), sigma_act=st.sigma0_mode), Options())
+    adj = st.results
+    assert adj.n == p.n - len(rows) and adj.dof == ref.dof
+    np.testing.assert_allclose(adj.r, ref.r, atol=1e-12)
+    np.testing.assert_allclose(adj.w, ref.w, atol=1e-9, equal_nan=True)
+    np.testing.assert_allclose(adj.x, ref.x, atol=1e-9)

@@ -671,3 +671,22 @@ def subset(problem: Problem, keep, observed: np.ndarray | None = None) -> Proble
     extra["kept_rows"] = idx if "kept_rows" not in problem.extra else problem.extra["kept_rows"][idx]
     return dataclasses.replace(problem, params=params, sets=sets, l=problem.l[idx], cov=problem.cov.subset(idx),
                                info=info2, extra=extra)
+
+
+def without(problem: Problem, excluded) -> tuple[Problem, np.ndarray]:
+    """``(reduced, kept)``: ``problem`` without the observations ``excluded`` (indices).
+
+    ``kept`` lists the original indices of the reduced problem's observations (sorted): reduced
+    index k is original observation ``kept[k]``. The reduced problem is :func:`subset`'s, so its
+    r, global test and σ̂0 are those of a fresh adjustment without the excluded observations, and
+    a nuisance parameter left without observations (all directions of a set) is held.
+    """
+    n = problem.n
+    excluded = np.unique(np.asarray(list(excluded), dtype=np.int64))
+    if excluded.size and (excluded.min() < 0 or excluded.max() >= n):
+        raise IndexError(f"observation index out of range 0..{n - 1}")
+    if excluded.size == 0:
+        return problem, np.arange(n)
+    kept = np.setdiff1d(np.arange(n), excluded)
+    return subset(problem, kept), kept
+
