@@ -31,10 +31,12 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from .model.problem import LazySequence, by_size, cluster_sizes, size_groups, size_weights
+from .model.problem import by_size, cluster_sizes, size_groups, size_weights
 from .solve.linalg import SPDFactor, keep_columns
 from .solve.schur import SchurFactor, bmm, schur_structure
 from .stats import distributions, hypotheses
+from .stats.policy import TestPolicy
+from .stats.reliability import Reliability
 
 R_EPS = 1e-10
 
@@ -102,41 +104,6 @@ def _cluster_blocks(cov, values):
         block = values[pos:pos + k * m * m].reshape(k, m, m)
         pos += k * m * m
         yield m, members, C, block
-
-
-class GroupTests(LazySequence):
-    """The group tests of :attr:`Adjustment.groups` as arrays; item k is the dict
-    {group, members, T, dimension, redundancy, critical, rejected, alpha, nabla} of group k
-    (members sorted, ∇ŝ in their order), made on demand."""
-
-    def __init__(self, group, ptr, members, T, dimension, redundancy, critical, rejected, alpha, nabla):
-        self.group, self.ptr, self.members = group, ptr, members
-        self.T, self.dimension, self.redundancy = T, dimension, redundancy
-        self.critical, self.rejected, self.alpha, self.nabla = critical, rejected, alpha, nabla
-
-    @classmethod
-    def empty(cls) -> "GroupTests":
-        z, i = np.zeros(0), np.zeros(0, dtype=np.int64)
-        return cls(i, np.zeros(1, dtype=np.int64), i, z, i, z, z, np.zeros(0, dtype=bool), z, z)
-
-    def __len__(self):
-        return self.group.size
-
-    def _item(self, k):
-        a, b = int(self.ptr[k]), int(self.ptr[k + 1])
-        return {"group": int(self.group[k]), "members": self.members[a:b], "T": float(self.T[k]),
-                "dimension": int(self.dimension[k]), "redundancy": float(self.redundancy[k]),
-                "critical": float(self.critical[k]), "rejected": bool(self.rejected[k]),
-                "alpha": float(self.alpha[k]), "nabla": self.nabla[a:b]}
-
-    def take(self, idx):
-        idx = np.asarray(idx, dtype=np.int64)
-        sizes = self.ptr[idx + 1] - self.ptr[idx]
-        flat = np.repeat(self.ptr[idx], sizes) + (np.arange(int(sizes.sum())) -
-                                                   np.repeat(np.cumsum(sizes) - sizes, sizes))
-        return GroupTests(self.group[idx], np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
-                          self.members[flat], self.T[idx], self.dimension[idx], self.redundancy[idx],
-                          self.critical[idx], self.rejected[idx], self.alpha[idx], self.nabla[flat])
 
 
 @dataclass(frozen=True, eq=False)
@@ -233,9 +200,21 @@ class Adjustment:
         """σ̂0 = √(Ω / r); NaN when r = 0."""
         return float(np.sqrt(self.omega / self.dof)) if self.dof > 0 else float("nan")
 
+    # -- the test policy of ``options`` (σ0 a priori) and the reliability under it ----------------
     @cached_property
+    def policy(self) -> TestPolicy:
+        """The test policy of ``options`` (α0, β0, B-method; decisions on w, σ0 a priori)."""
+        return TestPolicy.from_options(self.options)
+
+    @cached_property
+    def reliability(self) -> Reliability:
+        """Tests and reliability measures under :attr:`policy` (:class:`baarda.stats.reliability.Reliability`);
+        another policy is ``Reliability(adj, policy)`` over this same result."""
+        return Reliability(self, self.policy)
+
+    @property
     def delta0(self) -> float:
-        return distributions.delta0(self.options.alpha, self.options.beta, 1)
+        return self.reliability.delta0
 
     @cached_property
     def global_test(self) -> dict:
@@ -395,26 +374,23 @@ class Adjustment:
             return np.full(self.n, np.nan)
         return self.w * self.sigma0 / self.sigma0_post
 
-    @cached_property
+    @property
     def critical_w(self) -> float:
-        return distributions.critical_normal(self.options.alpha)
+        return self.reliability.critical_w
 
-    @cached_property
+    @property
     def critical_tau(self) -> float:
-        return distributions.critical_tau(self.options.alpha, self.dof)
+        return self.reliability.critical_tau
 
-    @cached_property
+    @property
     def rejected(self) -> np.ndarray:
-        """|w_i| above the critical value of the normal distribution at α0."""
-        return np.nan_to_num(np.abs(self.w)) > self.critical_w
+        """|w_i| above the critical value of the normal distribution at α0 (:attr:`reliability`)."""
+        return self.reliability.rejected
 
-    @cached_property
+    @property
     def mdb(self) -> np.ndarray:
-        """Minimal detectable bias ∇0l_i = δ0 / √(P C_vv P)_ii (SI units); inf where r_i = 0."""
-        with np.errstate(divide="ignore"):
-            m = self.delta0 / np.sqrt(self.qvv_pp)
-        m[self.uncontrolled] = np.inf
-        return m
+        """Minimal detectable bias ∇0l_i (:attr:`reliability`)."""
+        return self.reliability.mdb
 
     @cached_property
     def u_t(self) -> np.ndarray:
@@ -427,34 +403,41 @@ class Adjustment:
         return self._cluster_stats[4]
 
     @cached_property
-    def external(self) -> np.ndarray:
-        """δ̄0,i: the effect of an undetectable error on the coordinates (F80 eq. 18)."""
-        phkp = np.maximum(self._cluster_stats[3], 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            e = self.delta0 * np.sqrt(phkp / self.qvv_pp)
-        e[self.uncontrolled] = np.inf
-        return e
+    def php_k(self) -> np.ndarray:
+        """(P H_k P)_ii ≥ 0, H_k the coordinate part of H = A Σ Aᵀ (F80 eq. 18's numerator)."""
+        return np.maximum(self._cluster_stats[3], 0.0)
 
     @cached_property
+    def php(self) -> np.ndarray:
+        """(P H P)_ii ≥ 0 (the numerator of the external reliability over all unknowns)."""
+        return np.maximum(self._cluster_stats[2], 0.0)
+
+    @property
+    def external(self) -> np.ndarray:
+        """δ̄0,i (:attr:`reliability`, F80 eq. 18)."""
+        return self.reliability.external
+
+    @property
     def external_all(self) -> np.ndarray:
-        """δ0 √((1 − r_i)/r_i) generalised: the effect on all unknowns (F80 after eq. 18)."""
-        php = np.maximum(self._cluster_stats[2], 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            e = self.delta0 * np.sqrt(php / self.qvv_pp)
-        e[self.uncontrolled] = np.inf
-        return e
+        """δ0 √((1 − r_i)/r_i) generalised (:attr:`reliability`)."""
+        return self.reliability.external_all
 
     # -- groups -------------------------------------------------------------------------------
-    @cached_property
-    def groups(self) -> "GroupTests":
-        """Multi-dimensional tests of the problem's observation groups (vectors, image points).
+    @property
+    def groups(self):
+        """Multi-dimensional tests of the problem's observation groups (:attr:`reliability`)."""
+        return self.reliability.groups
 
-        A sequence of dicts (group, members, T, dimension, redundancy, critical, rejected, alpha,
-        nabla) ordered by group id, kept as arrays (:class:`GroupTests`): a block of a million
-        image points holds a few arrays, not a million dicts."""
+    @cached_property
+    def group_statistics(self) -> tuple | None:
+        """T, q and ∇ŝ of the problem's observation groups (vectors, image points), which do not
+        depend on the test policy: (group ids, ptr, members, T, q, redundancy, ∇ŝ) ordered by group
+        id, members of group k at ``members[ptr[k]:ptr[k + 1]]`` (sorted, ∇ŝ in their order);
+        None without groups. A block of a million image points holds a few arrays, not a million
+        dicts; :attr:`baarda.stats.reliability.Reliability.groups` adds α_q and the decisions."""
         gid = self.problem.info.group
         if (gid < 0).all():
-            return GroupTests.empty()
+            return None
         order = np.argsort(gid, kind="stable")
         g_sorted = gid[order]
         starts = np.flatnonzero(np.r_[True, g_sorted[1:] != g_sorted[:-1]])
@@ -466,18 +449,18 @@ class Adjustment:
         ptr = np.concatenate([[0], np.cumsum(ends - starts)]).astype(np.int64)
         members = np.empty(int(ptr[-1]), dtype=np.int64)
         members_ok = np.zeros(ng, dtype=bool)
-        T, red, crit, alpha = (np.full(ng, np.nan) for _ in range(4))
+        T, red = np.full(ng, np.nan), np.full(ng, np.nan)
         q = np.zeros(ng, dtype=np.int64)
         nabla = np.full(members.size, np.nan)
         r = self.r
         # groups that are exactly one covariance cluster: all at once from the cluster blocks
-        for mem, Tf, qf, af, cf, nf in self._cluster_group_stacks():
+        for mem, Tf, qf, nf in self._cluster_group_stacks():
             pos = np.searchsorted(keys, gid[mem[:, 0]])
             msz = mem.shape[1]
             dest = ptr[pos][:, None] + np.arange(msz)[None, :]
             members[dest] = mem                               # sorted members
             nabla[dest] = nf
-            T[pos], q[pos], alpha[pos], crit[pos] = Tf, qf, af, cf
+            T[pos], q[pos] = Tf, qf
             red[pos] = r[mem].sum(axis=1)
             members_ok[pos] = True
         for k in np.flatnonzero(~members_ok).tolist():
@@ -486,19 +469,18 @@ class Adjustment:
             members[ptr[k]:ptr[k + 1]] = mem
             nabla[ptr[k]:ptr[k + 1]] = np.asarray(h.nabla, dtype=float).ravel() if h.nabla is not None \
                 else np.nan
-            T[k], q[k], crit[k], alpha[k] = h.T, h.q, h.critical_T, h.alpha
+            T[k], q[k] = h.T, h.q
             red[k] = float(r[mem].sum())
-        rejected = (q > 0) & (T > crit)
-        return GroupTests(keys, ptr, members, T, q, red, crit, rejected, alpha, nabla)
+        return keys, ptr, members, T, q, red, nabla
 
     def _cluster_group_tests(self) -> dict:
-        """{group: (T, q, α, T_crit, ∇ŝ)} of the groups that are one covariance cluster
+        """{group: (T, q, ∇ŝ)} of the groups that are one covariance cluster
         (:meth:`_cluster_group_stacks` as a dict, for inspection)."""
         gid = self.problem.info.group
         out = {}
-        for mem, T, q, alpha, crit, nabla in self._cluster_group_stacks():
+        for mem, T, q, nabla in self._cluster_group_stacks():
             for k in range(T.size):
-                out[int(gid[mem[k, 0]])] = (float(T[k]), int(q[k]), float(alpha[k]), float(crit[k]), nabla[k])
+                out[int(gid[mem[k, 0]])] = (float(T[k]), int(q[k]), nabla[k])
         return out
 
     def _cluster_group_stacks(self) -> list:
@@ -506,11 +488,10 @@ class Adjustment:
         vector), all at once from the cluster blocks of C_vv: W = P_c C_vv P_c, T = gᵀW⁺g with
         g = (Pv)_c, ∇ŝ = −W⁺g — the formulas of :func:`baarda.stats.hypotheses.test` with H the
         selection of the cluster, without a solve per group. Returns, per cluster size, stacks
-        (members (k, m) sorted per row, T (k,), q (k,), α (k,), T_crit (k,), ∇ŝ (k, m) in the
-        order of the sorted members).
+        (members (k, m) sorted per row, T (k,), q (k,), ∇ŝ (k, m) in the order of the sorted
+        members).
         """
         gid = self.problem.info.group
-        o = self.options
         Pv = self.Pv
         out = []
         counts = np.bincount(gid[gid >= 0])
@@ -536,14 +517,8 @@ class Adjustment:
             del Winv
             T = np.einsum("ki,ki->k", g, -nabla)
             q = pos.sum(axis=1)
-            alpha = np.empty(q.size)
-            crit = np.empty(q.size)
-            for qq in np.unique(q).tolist():
-                a = distributions.alpha_b_method(o.alpha, o.beta, int(qq)) if (o.b_method and qq) else o.alpha
-                alpha[q == qq] = a
-                crit[q == qq] = distributions.critical_chi2(a, int(qq)) if qq else float("inf")
             srt = np.argsort(mem, axis=1)
-            out.append((np.take_along_axis(mem, srt, 1), T, q, alpha, crit, np.take_along_axis(nabla, srt, 1)))
+            out.append((np.take_along_axis(mem, srt, 1), T, q, np.take_along_axis(nabla, srt, 1)))
         return out
 
     # -- covariance of the unknowns -----------------------------------------------------------
@@ -624,8 +599,9 @@ class Adjustment:
 
     # -- hypotheses and deformations -----------------------------------------------------------
     def test(self, H, label: str = ""):
-        """Multi-dimensional test of an arbitrary hypothesis matrix H (n × q), F80 eq. 10-15."""
-        return hypotheses.test(self, H, label=label)
+        """Multi-dimensional test of an arbitrary hypothesis matrix H (n × q), F80 eq. 10-15,
+        under :attr:`policy`."""
+        return self.reliability.test(H, label=label)
 
     def deformation(self, error: np.ndarray) -> np.ndarray:
         """Effect ∇x = Σ AᵀP ∇l of an observation error vector ∇l on all free parameters (F80 §6).

@@ -88,10 +88,11 @@ def report_html(adj, state=None) -> str:
     title = html_text(s["title"] or Path(s["source"]).name or "baarda report")
     plots = "".join(f"<h3>{html_text(t)}</h3>{d}" for (t, _), d in zip(figs, divs))
     groups = ""
-    if adj.groups:
+    rel = state.reliability
+    if rel.groups:
         rows = "".join(
             f"<tr><td>{html_text(g['group'])}</td><td>{g['dimension']}</td><td>{g['T']:.4g}</td><td>{g['critical']:.4g}</td>"
-            f"<td>{'REJECTED' if g['rejected'] else 'accepted'}</td></tr>" for g in adj.groups[:MAX_ROWS])
+            f"<td>{'REJECTED' if g['rejected'] else 'accepted'}</td></tr>" for g in rel.groups[:MAX_ROWS])
         groups = ("<h2>Group tests</h2><table class='obs'><tr><th>group</th><th>q</th><th>T</th>"
                   f"<th>critical</th><th>decision</th></tr>{rows}</table>")
     banner = ("" if adj.converged else
@@ -115,7 +116,7 @@ def report_html(adj, state=None) -> str:
 <p>Source: <code>{html_text(Path(str(s['source'])).name)}</code>; written {_dt.datetime.now().isoformat(timespec='seconds')}.</p>
 {summary_html(s)}
 {excluded}
-<h2>Summary</h2><pre>{html.escape(printable_lines(text_summary(adj)))}</pre>
+<h2>Summary</h2><pre>{html.escape(printable_lines(text_summary(adj, reliability=rel)))}</pre>
 <h2>Maps</h2>{plots}
 {_hypotheses_html(state)}
 {groups}

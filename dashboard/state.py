@@ -6,7 +6,7 @@ the results; the views only read it and write selections back.
 
 Observation indices are always those of the *full* problem as read (``problem``); the
 adjustment ``results`` is computed on the problem without the excluded observations
-(:func:`baarda.problem.without`), and ``kept[k]`` maps its index k back.
+(:func:`baarda.model.problem.without`), and ``kept[k]`` maps its index k back.
 
 Hypothesis specifications are plain dicts, ``{"kind": ..., "active": bool, ...}``:
 
@@ -52,13 +52,11 @@ from baarda.errors import BaardaError
 from baarda.stats import precision, risk, robust, snooping, variance
 from baarda.stats.ap_tests import ap_test
 from baarda.stats.hypotheses import HypothesisTest, common_error, deformation, h_ap_group, selection
+from baarda.stats.policy import TestPolicy
 from baarda.model.problem import without
+from baarda.stats.reliability import Reliability
 
 from .text import plain
-
-#: Results of the adjustment that do not depend on α0, β0 or the B-method; they are carried
-#: over when only those options change, so that δ0 and the MDBs update without a new solve.
-OPTION_FREE = ("v", "keep", "Ar", "factor", "Pv", "vPv", "_cluster_stats", "_sbase_Z")
 
 #: Keys of ``ObservationInfo.ids`` that name something other than a point.
 #: (A COLMAP keypoint index is a number too: without "keypoint" here keypoint 7 would be
@@ -116,19 +114,6 @@ def clear_cache() -> None:
     with _LOADED_GUARD:
         _LOADED.clear()
         _LOADED_LOCKS.clear()
-
-
-def with_options(adj, options: Options):
-    """The adjustment ``adj`` with other test options, without solving again.
-
-    Creates a new :class:`~baarda.result.Adjustment` (so every option-dependent property is
-    recomputed by the core) and hands over the cached option-free quantities (:data:`OPTION_FREE`).
-    """
-    new = replace(adj, options=options)
-    for name in OPTION_FREE:
-        if name in adj.__dict__:
-            new.__dict__[name] = adj.__dict__[name]
-    return new
 
 
 def display_matrix(problem) -> np.ndarray:
@@ -248,9 +233,13 @@ class State(param.Parameterized):
     exaggeration = param.Number(default=1.0, bounds=(0.0, None),
                                 doc="Exaggeration of image residual vectors.")
     results = param.Parameter(default=None, doc="The core's Adjustment of the reduced problem.")
+    reliability = param.Parameter(default=None, doc="The core's Reliability of ``results`` under the "
+                                  "state's test policy (α0, β0, B-method, σ0): rebuilt over the same "
+                                  "``results`` when only the policy changes.")
     solution = param.Integer(default=0, doc="Counts the adjustments: changes when the problem is solved "
                              "again (exclusion, σ0, a new problem), not when only α0, β0 or the B-method "
-                             "change (then only ``results`` does).")
+                             "change (then only ``reliability`` does, and ``results`` is triggered so "
+                             "that the views redraw).")
     kept = param.Array(default=np.zeros(0, dtype=np.int64), doc="Full index of each reduced observation.")
     error = param.String(default="", doc="A message for the user (bad file, failed exclusion).")
     busy = param.Boolean(default=False, doc="True while a computation runs.")
@@ -300,6 +289,7 @@ class State(param.Parameterized):
             st.param.update(problem=adj.problem, source=str(adj.problem.source), sigma0_mode=mode,
                             alpha0=adj.options.alpha, beta0=adj.options.beta,
                             b_method=adj.options.b_method, kept=np.arange(adj.n), results=adj)
+            st.reliability = Reliability(adj, st.policy())
             images = st.images
             st.selected_image = images[0]["id"] if images else None
         return st
@@ -458,6 +448,7 @@ class State(param.Parameterized):
         self._frames = frames if self.robust_method == "none" else None
         self._cov = None
         with param.parameterized.batch_call_watchers(self):
+            self.reliability = Reliability(adj, self.policy())
             self.results = adj
             self.solution += 1
             self._run_robust()
@@ -520,6 +511,11 @@ class State(param.Parameterized):
     def options(self) -> Options:
         return Options(alpha=float(self.alpha0), beta=float(self.beta0), b_method=bool(self.b_method))
 
+    def policy(self) -> TestPolicy:
+        """The test policy of the controls: α0, β0, the B-method and the σ0 of the decisions."""
+        return TestPolicy(alpha0=float(self.alpha0), beta0=float(self.beta0), b_method=bool(self.b_method),
+                          sigma0=self.sigma0_mode)
+
     def _readjust(self) -> bool:
         """Adjust the problem without the excluded observations; False (and ``error``) on failure.
 
@@ -554,6 +550,7 @@ class State(param.Parameterized):
             self._cov = None
             with param.parameterized.batch_call_watchers(self):
                 self.kept = kept
+                self.reliability = Reliability(adj, self.policy())
                 self.results = adj
                 self.solution += 1
                 self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
@@ -571,7 +568,8 @@ class State(param.Parameterized):
             return
         self._frames = None
         with param.parameterized.batch_call_watchers(self):
-            self.results = with_options(self.results, self.options())
+            self.reliability = Reliability(self.results, self.policy())   # same result: nothing solved
+            self.param.trigger("results")
             self._run_hypotheses()
             self._run_robust()
 
@@ -664,10 +662,11 @@ class State(param.Parameterized):
                 continue
             try:
                 if spec["kind"] == "ap-group" and self.ap_estimated(spec):
-                    out.append(ap_test(self.results, str(spec["camera"]), str(spec["group"])))
+                    out.append(ap_test(self.results, str(spec["camera"]), str(spec["group"]),
+                                       policy=self.reliability.policy))
                     continue
                 H = self.hypothesis_matrix(spec)
-                out.append(self.results.test(H, label=spec.get("label", "")))
+                out.append(self.reliability.test(H, label=spec.get("label", "")))
             except (ValueError, KeyError, BaardaError, np.linalg.LinAlgError) as err:
                 out.append(f"{spec.get('label', '')}: {err}")
         self.hyp_results = out
@@ -847,20 +846,16 @@ class State(param.Parameterized):
         position, status, σ and the extreme values over its observations (min r, max |w|,
         max δ̄0, max MDB/σ).
         """
-        if self._frames is not None and self._frames[0] is self.results:
+        if self._frames is not None and self._frames[0] is self.reliability:
             return self._frames[1], self._frames[2]
-        p, adj = self.problem, self.results
+        p, adj, rel = self.problem, self.results, self.reliability
         index = self.problem_index()
         factor, units = self.display_factor()
         sig_si = p.cov.sigma()
-        aposteriori = self.sigma0_mode == "aposteriori"
         w = self.expand(adj.w)
         tau = self.expand(adj.tau)
-        if aposteriori:
-            rejected = np.nan_to_num(np.abs(tau)) > adj.critical_tau
-        else:
-            rejected = np.nan_to_num(np.abs(w)) > adj.critical_w
-        mdb = self.expand(adj.mdb)
+        rejected = self.expand(rel.rejected, fill=False).astype(bool)
+        mdb = self.expand(rel.mdb)
         excluded = np.zeros(p.n, dtype=bool)
         excluded[sorted(self.excluded)] = True
         obs = pd.DataFrame({
@@ -872,7 +867,7 @@ class State(param.Parameterized):
             "r": self.expand(adj.r),
             "mdb": mdb * factor,
             "mdb_sigma": mdb / np.where(sig_si > 0, sig_si, np.nan),
-            "ext": self.expand(adj.external),
+            "ext": self.expand(rel.external),
             "unit": list(units),
             "rejected": rejected,
             "excluded": excluded,
@@ -901,7 +896,7 @@ class State(param.Parameterized):
             "max_ext": extreme(np.fmax, obs["ext"].to_numpy()),
             "max_mdb_sigma": extreme(np.fmax, obs["mdb_sigma"].to_numpy()),
         })
-        self._frames = (self.results, obs, pts)
+        self._frames = (rel, obs, pts)
         return obs, pts
 
     def map_labels(self) -> tuple[str, str]:
@@ -919,15 +914,15 @@ class State(param.Parameterized):
         """∇0x of an error of MDB size in observation ``index`` (full; default the selected one)
         as point shifts (m × 3, metres), from the core's :meth:`Adjustment.deformation`."""
         index = self.selected_obs if index is None else index
-        adj = self.results
+        adj, mdb = self.results, self.reliability.mdb
         m = len(self.problem.points.ids)
         if index is None:
             return np.zeros((m, 3))
         k = int(self.reduced_index([index])[0])
-        if k < 0 or not np.isfinite(adj.mdb[k]):
+        if k < 0 or not np.isfinite(mdb[k]):
             return np.zeros((m, 3))
         err = np.zeros(adj.n)
-        err[k] = adj.mdb[k]
+        err[k] = mdb[k]
         return adj.point_shifts(adj.deformation(err))
 
     def hypothesis_deformation(self, k: int | None = None) -> np.ndarray:
@@ -1258,7 +1253,7 @@ class State(param.Parameterized):
         adjustment. Raises ValueError for p ∉ (0, 1) or non-positive L1, L2, λtol."""
         from scipy import stats as sps
 
-        lam = float(self.results.delta0 ** 2 if lam_tol is None else lam_tol)
+        lam = float(self.reliability.delta0 ** 2 if lam_tol is None else lam_tol)
         C = risk.critical_value(p, L1, L2, lam)
         s = math.sqrt(lam)
         grid = np.linspace(min(C, 0.0) - 2.0, max(C, s) + 3.0, n)
@@ -1273,7 +1268,7 @@ class State(param.Parameterized):
         k = int(self.reduced_index([index])[0])
         if k < 0:
             raise ValueError(f"observation {index} is excluded")
-        scale = adj.problem.cov.sigma()[k] if unit == "sigma" else adj.mdb[k]
+        scale = adj.problem.cov.sigma()[k] if unit == "sigma" else self.reliability.mdb[k]
         if not np.isfinite(scale):
             raise ValueError(f"observation {index} has no finite MDB (r = {adj.r[k]:.3g})")
         e = np.zeros(adj.n)
@@ -1283,26 +1278,26 @@ class State(param.Parameterized):
     def inject(self, index: int, size: float, unit: str = "sigma") -> dict | None:
         """Adjust a copy of the problem with an error added to observation ``index`` and keep
         what the tests see in ``injection``; the loaded data stay as they are."""
-        adj = self.results
+        adj, rel = self.results, self.reliability
         try:
             e = self.injected_error(index, size, unit)
             with self._busy():
-                new = adjust(replace(adj.problem, l=adj.problem.l + e), adj.options)
+                new = adjust(replace(adj.problem, l=adj.problem.l + e), self.options())
         except (ValueError, BaardaError, np.linalg.LinAlgError) as err:
             self.param.update(injection=None, analysis_error=f"Cannot inject: {err}")
             return None
         k = int(self.reduced_index([index])[0])
-        aposteriori = self.sigma0_mode == "aposteriori"
-        stat = np.abs(np.nan_to_num(new.tau if aposteriori else new.w))
-        crit = new.critical_tau if aposteriori else new.critical_w
+        new_rel = Reliability(new, rel.policy)
+        stat = np.abs(np.nan_to_num(new_rel.statistic))
+        crit = new_rel.critical
         top = int(np.argmax(stat))
-        group = next((g for g in new.groups if k in g["members"]), None)
+        group = next((g for g in new_rel.groups if k in g["members"]), None)
         factor, units = self.display_factor()
         out = {"index": int(index), "size": float(size), "unit": unit,
                "error": float(e[k] * factor[index]), "error_unit": units[index],
-               "statistic": "τ" if aposteriori else "w",
-               "w_before": float((adj.tau if aposteriori else adj.w)[k]),
-               "w_after": float((new.tau if aposteriori else new.w)[k]),
+               "statistic": rel.policy.statistic_name,
+               "w_before": float(rel.statistic[k]),
+               "w_after": float(new_rel.statistic[k]),
                "critical": float(crit), "rejected": bool(stat[k] > crit),
                "largest": float(stat[top]), "largest_index": int(self.kept[top]),
                "largest_label": observation_label(self.problem, int(self.kept[top])),
@@ -1348,8 +1343,7 @@ class State(param.Parameterized):
         """The numbers of the summary header, taken from the core's results."""
         from baarda.io.results import summary as core_summary
 
-        adj = self.results
-        s = core_summary(adj)
+        s = core_summary(self.results, self.reliability)
         obs, pts = self.frames()
         live = ~obs["excluded"]
         s.update({

@@ -26,6 +26,7 @@ pytest.importorskip("holoviews")
 
 import holoviews as hv  # noqa: E402
 import panel as pn  # noqa: E402
+import param  # noqa: E402
 from bokeh.document import Document  # noqa: E402
 from bokeh.models import ColumnDataSource  # noqa: E402
 
@@ -247,19 +248,19 @@ def test_alpha_changes_delta0_and_mdb_plot_data():
     st = network_state("gama-local.gkf")
     view = MDBMap(state=st)
     root = pn.panel(view).get_root(Document())
-    d_old = st.results.delta0
+    d_old = st.reliability.delta0
     before = [np.asarray(s.data["mdb_sigma"], dtype=float).copy() for s in sources_with(root, "mdb_sigma")]
     assert before and d_old == pytest.approx(distributions.delta0(0.001, 0.8, 1))
     st.alpha0 = 0.01
-    assert st.results.delta0 == pytest.approx(distributions.delta0(0.01, 0.8, 1))
+    assert st.reliability.delta0 == pytest.approx(distributions.delta0(0.01, 0.8, 1))
     ref = adjust(replace(st.results.problem), Options(alpha=0.01))
-    np.testing.assert_allclose(st.results.mdb, ref.mdb, rtol=1e-9)
+    np.testing.assert_allclose(st.reliability.mdb, ref.mdb, rtol=1e-9)
     after = [np.asarray(s.data["mdb_sigma"], dtype=float) for s in sources_with(root, "mdb_sigma")]
-    ratio = st.results.delta0 / d_old
+    ratio = st.reliability.delta0 / d_old
     for b, a in zip(before, after):
         np.testing.assert_allclose(a, b * ratio, rtol=1e-9)
     st.beta0 = 0.9
-    assert st.results.delta0 == pytest.approx(distributions.delta0(0.01, 0.9, 1))
+    assert st.reliability.delta0 == pytest.approx(distributions.delta0(0.01, 0.9, 1))
 
 
 def test_sigma0_mode_switches_decision_and_covariance():
@@ -271,7 +272,7 @@ def test_sigma0_mode_switches_decision_and_covariance():
     np.testing.assert_allclose(st.results.point_cov, cov_a * f, rtol=1e-8, atol=1e-18)
     obs, _ = st.frames()
     np.testing.assert_array_equal(obs["rejected"].to_numpy(),
-                                  np.nan_to_num(np.abs(st.results.tau)) > st.results.critical_tau)
+                                  np.nan_to_num(np.abs(st.results.tau)) > st.reliability.critical_tau)
 
 
 # --------------------------------------------------------------------------------------------
@@ -367,7 +368,7 @@ def test_controls_drive_state():
     st = network_state("gama-local.gkf")
     c = Controls(state=st)
     c.alpha.value = 0.05
-    assert st.alpha0 == 0.05 and st.results.delta0 == pytest.approx(distributions.delta0(0.05, 0.8, 1))
+    assert st.alpha0 == 0.05 and st.reliability.delta0 == pytest.approx(distributions.delta0(0.05, 0.8, 1))
     assert "δ0 = " in c._delta_text(st.results)
     st.beta0 = 0.9
     assert c.beta.value == 0.9
@@ -757,7 +758,7 @@ def test_risk_panel_matches_closed_form():
     st = network_state(FREE_2D)
     view = RiskView(state=st)
     pn.panel(view).get_root(Document())
-    assert view.lam.value == pytest.approx(st.results.delta0 ** 2, abs=1e-4)
+    assert view.lam.value == pytest.approx(st.reliability.delta0 ** 2, abs=1e-4)
     view.p.value, view.L1.value, view.L2.value, view.lam.value = 0.05, 1.0, 20.0, 9.0
     rc = view.rc
     C = risk.critical_value(0.05, 1.0, 20.0, 9.0)
@@ -819,7 +820,7 @@ def test_mdb_and_external_maps_use_log_colour_scales(block_problem):
 
     st = State(problem=block_problem)
     obs, pts = st.frames()
-    for view, values, low in ((MDBMap, obs["mdb_sigma"], st.results.delta0), (ExternalMap, pts["max_ext"], None)):
+    for view, values, low in ((MDBMap, obs["mdb_sigma"], st.reliability.delta0), (ExternalMap, pts["max_ext"], None)):
         root = pn.panel(view(state=st)).get_root(Document())
         mappers = list(root.select({"type": LogColorMapper}))
         assert mappers, view.__name__
@@ -1023,7 +1024,7 @@ def test_served_file_is_analysed_at_start_and_sessions_take_it_from_the_cache(tm
 
 def test_excluding_a_whole_direction_set_equals_the_core_exclusion():
     """Leaving out every direction of a set orphans its orientation unknown: the core's
-    :func:`baarda.problem.subset` holds it, and the dashboard excludes through the core, so the
+    :func:`baarda.model.problem.subset` holds it, and the dashboard excludes through the core, so the
     last direction goes as well and the result is a fresh core adjustment without the set."""
     st = network_state("gama-local.gkf")
     p = st.problem
@@ -1039,3 +1040,45 @@ def test_excluding_a_whole_direction_set_equals_the_core_exclusion():
     np.testing.assert_allclose(adj.r, ref.r, atol=1e-12)
     np.testing.assert_allclose(adj.w, ref.w, atol=1e-9, equal_nan=True)
     np.testing.assert_allclose(adj.x, ref.x, atol=1e-9)
+
+
+@pytest.mark.parametrize("sigma0_mode", ["apriori", "aposteriori"])
+def test_policy_change_rebuilds_only_the_reliability_over_the_same_result(monkeypatch, sigma0_mode):
+    """α0, β0 and the B-method change only the Reliability over the same result: no new
+    adjustment (``adjust`` must not be called), the same result object, and every decision, MDB,
+    δ̄0 and group test equal to a fresh analysis at the new policy."""
+    import baarda.dashboard.state as state_module
+    from baarda.stats.policy import TestPolicy
+    from baarda.stats.reliability import Reliability
+
+    st = State(problem=tiny_block_problem())
+    st.sigma0_mode = sigma0_mode
+    adj, sol, rel = st.results, st.solution, st.reliability
+    assert isinstance(rel, Reliability) and rel.result is adj
+
+    def no_refit(*args, **kwargs):
+        raise AssertionError("a policy change must not adjust again")
+
+    monkeypatch.setattr(state_module, "adjust", no_refit)
+    with param.parameterized.batch_call_watchers(st):
+        st.alpha0, st.beta0, st.b_method = 0.02, 0.9, True
+    monkeypatch.undo()
+    assert st.results is adj and st.solution == sol
+    assert st.reliability is not rel and st.reliability.result is adj
+    assert st.reliability.policy == TestPolicy(0.02, 0.9, True, sigma0_mode)
+    ref = adjust(replace(adj.problem), Options(alpha=0.02, beta=0.9, b_method=True))
+    np.testing.assert_allclose(st.reliability.mdb, ref.mdb, rtol=1e-12)
+    np.testing.assert_allclose(st.reliability.external, ref.external, rtol=1e-12)
+    assert st.reliability.delta0 == ref.delta0 == distributions.delta0(0.02, 0.9, 1)
+    stat, crit = (ref.tau, distributions.critical_tau(0.02, ref.dof)) if sigma0_mode == "aposteriori" \
+        else (ref.w, distributions.critical_normal(0.02))
+    np.testing.assert_array_equal(st.reliability.rejected, np.nan_to_num(np.abs(stat)) > crit)
+    obs, _ = st.frames()
+    np.testing.assert_array_equal(obs["rejected"].to_numpy(), st.expand(st.reliability.rejected, fill=False))
+    np.testing.assert_allclose(obs["mdb_sigma"].to_numpy(), ref.mdb / adj.problem.cov.sigma(), rtol=1e-12)
+    g, gr = st.reliability.groups, ref.groups
+    assert len(g) == len(gr) > 0
+    np.testing.assert_array_equal(g.critical, gr.critical)
+    np.testing.assert_array_equal(g.rejected, gr.rejected)
+    np.testing.assert_allclose(g.T, gr.T, rtol=1e-9)
+    assert (g.alpha[g.dimension == 2] == distributions.alpha_b_method(0.02, 0.9, 2)).all()

@@ -27,7 +27,10 @@ def _num(x):
     return x if math.isfinite(x) else None
 
 
-def summary(adj) -> dict:
+def summary(adj, reliability=None) -> dict:
+    """The summary numbers of ``adj``; the tests under ``reliability`` (default ``adj.reliability``,
+    the policy of the adjustment's options)."""
+    rel = adj.reliability if reliability is None else reliability
     p = adj.problem
     g = adj.global_test
     return {
@@ -42,16 +45,16 @@ def summary(adj) -> dict:
         "sigma0_aposteriori": _num(adj.sigma0_post),
         "sigma0_used": getattr(p, "sigma_act", "apriori"),
         "omega": _num(adj.omega),
-        "alpha0": adj.options.alpha,
-        "beta0": adj.options.beta,
-        "b_method": bool(adj.options.b_method),
-        "delta0": _num(adj.delta0),
-        "critical_w": _num(adj.critical_w),
-        "critical_tau": _num(adj.critical_tau),
+        "alpha0": rel.policy.alpha0,
+        "beta0": rel.policy.beta0,
+        "b_method": bool(rel.policy.b_method),
+        "delta0": _num(rel.delta0),
+        "critical_w": _num(rel.critical_w),
+        "critical_tau": _num(rel.critical_tau),
         "converged": bool(adj.converged),
         "iterations": int(adj.iterations),
         "termination": str(getattr(adj, "termination", "")),
-        "n_rejected": int(adj.rejected.sum()),
+        "n_rejected": int(rel.rejected.sum()),
         "global_test": {
             "statistic": _num(g["statistic"]), "dof": g["dof"], "lower": _num(g["lower"]),
             "upper": _num(g["upper"]), "conf_pr": g["conf_pr"], "passed": g["passed"],
@@ -169,9 +172,11 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
     return written
 
 
-def text_summary(adj, top: int = 8) -> str:
-    """A readable summary: global test, worst w-tests, weakest r_i, largest δ̄0."""
-    s = summary(adj)
+def text_summary(adj, top: int = 8, reliability=None) -> str:
+    """A readable summary: global test, worst w-tests, weakest r_i, largest δ̄0 (the tests under
+    ``reliability``, default ``adj.reliability``)."""
+    rel = adj.reliability if reliability is None else reliability
+    s = summary(adj, rel)
     g = s["global_test"]
     info = adj.problem.info
     lines = []
@@ -217,20 +222,20 @@ def text_summary(adj, top: int = 8) -> str:
     w = np.nan_to_num(np.abs(adj.w), nan=-1.0)
     lines.append("  largest |w| (data snooping):")
     for i in np.argsort(-w)[:top]:
-        flag = "  REJECTED" if adj.rejected[i] else ""
+        flag = "  REJECTED" if rel.rejected[i] else ""
         wi = (f"{number(adj.w[i], '+8.3f'):>8s}" if np.isfinite(adj.w[i])
               else f"{'—':>8s}  ({'r = 0, ' if not adj.r[i] > 1e-12 else ''}not testable)")
         lines.append(f"    {label(i):<48s} w = {wi}  r = {number(adj.r[i], '.3f')}{flag}")
     lines.append("  weakest redundancy numbers:")
     for i in np.argsort(adj.r)[:top]:
-        lines.append(f"    {label(i):<48s} r = {number(adj.r[i], '.3f')}  MDB = {_unbounded(adj.mdb[i], '.4g')}")
-    ext = np.where(np.isfinite(adj.external), adj.external, np.inf)
+        lines.append(f"    {label(i):<48s} r = {number(adj.r[i], '.3f')}  MDB = {_unbounded(rel.mdb[i], '.4g')}")
+    ext = np.where(np.isfinite(rel.external), rel.external, np.inf)
     lines.append("  largest external reliability δ̄0:")
     for i in np.argsort(-ext)[:top]:
-        lines.append(f"    {label(i):<48s} δ̄0 = {_unbounded(adj.external[i], '.3f')}  r = {number(adj.r[i], '.3f')}")
-    if adj.groups:
-        rej = [g for g in adj.groups if g["rejected"]]
-        lines.append(f"  group tests: {len(adj.groups)} groups, {len(rej)} rejected")
+        lines.append(f"    {label(i):<48s} δ̄0 = {_unbounded(rel.external[i], '.3f')}  r = {number(adj.r[i], '.3f')}")
+    if rel.groups:
+        rej = [g for g in rel.groups if g["rejected"]]
+        lines.append(f"  group tests: {len(rel.groups)} groups, {len(rej)} rejected")
     return "\n".join(printable(line) for line in lines)     # ids and titles come from the file
 
 

@@ -10,7 +10,6 @@ import scipy.linalg as la
 
 from ..errors import NotFoundError
 from ..solve.linalg import SPDFactor
-from . import distributions
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,14 +78,17 @@ def _coordinate_norm(adj, D: np.ndarray, exclude: np.ndarray) -> np.ndarray:
     return 0.5 * (M + M.T)
 
 
-def ap_test(adj, camera: str, group: str) -> APTest:
+def ap_test(adj, camera: str, group: str, policy=None) -> APTest:
     """Significance, determinability and reliability of one camera's AP group (F80 §7.2).
 
     Uses ``adj.solve_normal`` for the q columns Σ e_j (so Σ_ŝŝ and Σ_kŝ), then
     ∇k = Σ_kŝ Σ_ŝŝ⁻¹ ∇s is the effect on the coordinates of leaving an error ∇s of the APs
     unmodelled, and δ̄0²(s) = δ0² ∇kᵀ(C̄ᵀPC̄)∇k / ∇sᵀΣ_ŝŝ⁻¹∇s (F80 eq. 17; the denominator
-    is sᵀHᵀPQ_vvPHs of the model without the APs, H = ∂f/∂s).
+    is sᵀHᵀPQ_vvPHs of the model without the APs, H = ∂f/∂s). ``policy``
+    (:class:`baarda.stats.policy.TestPolicy`, default ``adj.policy``) gives α_q, δ0 and the
+    critical value.
     """
+    policy = adj.policy if policy is None else policy
     problem = adj.problem
     labels = problem.extra["ap_groups"][f"{camera}:{group}"]
     # the group's parameters found by one pass over the labels (no array of every label)
@@ -107,10 +109,7 @@ def ap_test(adj, camera: str, group: str) -> APTest:
     W = la.inv(Sss)
     W = 0.5 * (W + W.T)
     T = float(s_hat @ W @ s_hat)
-    o = adj.options
-    alpha = distributions.alpha_b_method(o.alpha, o.beta, q) if o.b_method else o.alpha
-    d1 = distributions.delta0(o.alpha, o.beta, 1)
-    dq = distributions.delta0(o.alpha, o.beta, 1) if o.b_method else distributions.delta0(alpha, o.beta, q)
+    alpha, d1, dq = policy.alpha(q), policy.delta0(1), policy.delta0(q)
     kind = problem.params.kind[problem.params.free]
     k = np.flatnonzero(kind == "k")
     # group: effect on k of unit AP errors, ∇k = Σ_kŝ Σ_ŝŝ⁻¹ ∇s
@@ -133,7 +132,7 @@ def ap_test(adj, camera: str, group: str) -> APTest:
         rel[j] = d1 * np.sqrt(max(Mj, 0.0) * Sss[j, j])
     lam = np.maximum(la.eigvalsh(Sss), 0.0)
     return APTest(labels=tuple(labels), estimate=s_hat, cov=Sss, T=T, q=q, alpha=alpha,
-                  critical=distributions.critical_chi2(alpha, q), delta0_1=d1, delta0_q=dq,
+                  critical=policy.critical_T(q), delta0_1=d1, delta0_q=dq,
                   determinability=d1 * np.sqrt(np.diag(Sss)), ellipsoid_axes=dq * np.sqrt(lam),
                   reliability=rel, reliability_max=rel_max, delta0_prime_max=dprime,
                   weakest=weakest, most_influential=most)

@@ -25,7 +25,6 @@ import scipy.sparse as sp
 
 from ..errors import HypothesisError, NotFoundError
 from ..model.bundle import AP_GROUPS, BASES, CollinearitySet, control_rows, image_rows, problem_of
-from . import distributions
 
 
 def selection(n: int, members, weights=None) -> sp.csc_matrix:
@@ -116,8 +115,11 @@ class HypothesisTest:
                 "delta0_prime_max": self.delta0_prime_max}
 
 
-def test(adj, H, label: str = "") -> HypothesisTest:
-    """Test hypothesis H against the adjustment ``adj`` (F80 eq. 10-15; see module docstring)."""
+def test(adj, H, label: str = "", policy=None) -> HypothesisTest:
+    """Test hypothesis H against the adjustment ``adj`` (F80 eq. 10-15; see module docstring).
+
+    ``policy`` (:class:`baarda.stats.policy.TestPolicy`; default ``adj.policy``) gives the size α_q,
+    the critical values and δ0 (the B-method rule)."""
     H = sp.csc_matrix(H) if not sp.issparse(H) else H.tocsc()
     n, q_cols = H.shape
     if n != adj.n:
@@ -139,11 +141,11 @@ def test(adj, H, label: str = "") -> HypothesisTest:
     dof = adj.dof
     vPv = adj.vPv
     R = float((T / q) / ((vPv - T) / (dof - q))) if (q and dof > q and vPv > T) else float("nan")
-    o = adj.options
-    alpha = distributions.alpha_b_method(o.alpha, o.beta, q) if (o.b_method and q) else o.alpha
-    d0 = distributions.delta0(alpha, o.beta, max(q, 1)) if not o.b_method else distributions.delta0(o.alpha, o.beta, 1)
-    crit_T = distributions.critical_chi2(alpha, q) if q else float("inf")
-    crit_R = distributions.critical_f(alpha, q, dof - q) if q and dof > q else float("inf")
+    policy = adj.policy if policy is None else policy
+    alpha = policy.alpha(q)
+    d0 = policy.delta0(q)
+    crit_T = policy.critical_T(q)
+    crit_R = policy.critical_R(q, dof)
     axes = np.where(pos, d0 / np.sqrt(np.where(pos, lam, 1.0)), np.inf)
     # weakest direction: largest generalized eigenvalue of (HᵀPH, W) (F80 §7.3)
     if q == q_cols:

@@ -49,15 +49,15 @@ class Controls(pn.viewable.Viewer):
         for w, name in ((self.alpha, "alpha0"), (self.beta, "beta0"), (self.b_method, "b_method"),
                         (self.sigma, "sigma0_mode"), (self.robust, "robust_method")):
             _two_way(w, s, name)
-        self.delta = pn.pane.Markdown(pn.bind(self._delta_text, s.param.results),
+        self.delta = pn.pane.Markdown(pn.bind(self._delta_text, s.param.reliability),
                                       css_classes=["delta0"], sizing_mode="stretch_width")
 
     @staticmethod
-    def _delta_text(adj):
-        if adj is None:
+    def _delta_text(rel):
+        if rel is None:
             return ""
-        return (f"**δ0 = {adj.delta0:.3f}** (λ0 = {adj.delta0 ** 2:.2f}); critical |w| = "
-                f"{adj.critical_w:.3f}, |τ| = {adj.critical_tau:.3f}")
+        return (f"**δ0 = {rel.delta0:.3f}** (λ0 = {rel.delta0 ** 2:.2f}); critical |w| = "
+                f"{rel.critical_w:.3f}, |τ| = {rel.critical_tau:.3f}")
 
     def __panel__(self):
         return pn.Column("### Tests", self.alpha, self.beta, self.delta, self.b_method, self.sigma,

@@ -133,7 +133,7 @@ class RiskView(pn.viewable.Viewer):
                                        css_classes=["risk-p"], **kw)
         self.L1 = pn.widgets.FloatInput(label="L1 (reject good)", value=1.0, step=0.5, css_classes=["risk-l1"], **kw)
         self.L2 = pn.widgets.FloatInput(label="L2 (miss bad)", value=10.0, step=1.0, css_classes=["risk-l2"], **kw)
-        self.lam = pn.widgets.FloatInput(label="λtol", value=round(float(s.results.delta0 ** 2), 4), step=1.0,
+        self.lam = pn.widgets.FloatInput(label="λtol", value=round(float(s.reliability.delta0 ** 2), 4), step=1.0,
                                          css_classes=["risk-lam"], **kw)
         self.info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["risk-info"])
         self.plot = pn.pane.HoloViews(hv.Curve([]), sizing_mode="stretch_width", css_classes=["risk-plot"],

@@ -53,7 +53,7 @@ def suspect_opts() -> tuple:
 #: The state parameters behind each kind of layer (one ``Params`` stream per kind and view).
 STREAMS = {
     "solution": ["solution"],
-    "results": ["results"],
+    "results": ["results", "reliability"],     # a new test policy: same results, new reliability
     "selection": ["selected_point", "selected_obs"],
     "robust": ["robust"],
     "hypothesis": ["hyp_results", "selected_hypothesis"],
@@ -318,17 +318,16 @@ class ResidualMap(MapView):
     key = "residuals"
 
     def title(self):
-        adj = self.state.results
-        crit = adj.critical_tau if self.state.sigma0_mode == "aposteriori" else adj.critical_w
-        stat = "τ" if self.state.sigma0_mode == "aposteriori" else "w"
-        return f"|w| of observations and points (critical |{stat}| = {crit:.2f})"
+        rel = self.state.reliability
+        return (f"|w| of observations and points (critical |{rel.policy.statistic_name}| = "
+                f"{rel.critical:.2f})")
 
     def layers(self):
         return [self.layer(self._rejected, "results"), self.layer(self._lines, "results"),
                 self.layer(self._points, "results"), self.layer(self.labels, "solution")]
 
     def _segments(self):
-        return self.cached("segments", (self.state.results,), lambda: self._segments_now())
+        return self.cached("segments", (self.state.reliability,), lambda: self._segments_now())
 
     def _segments_now(self):
         seg = self.segments(["w", "v", "unit", "rejected"])
@@ -337,7 +336,7 @@ class ResidualMap(MapView):
     def _clim(self):
         seg = self._segments()
         top = float(np.nanmax(seg["abs_w"], initial=0.0)) if len(seg) else 0.0
-        return (0, max(self.state.results.critical_w, top))
+        return (0, max(self.state.reliability.critical, top))
 
     def _lines(self):
         return hv.Segments(self._segments(), ["x0", "y0", "x1", "y1"], [*HOVER_OBS, "w", "v", "unit", "abs_w"]).opts(
@@ -368,7 +367,7 @@ class ExternalMap(MapView):
 
     def _field(self):
         s = self.state
-        key = (s.results, s.hyp_results, s.selected_hypothesis, s.selected_obs, s.field_source)
+        key = (s.reliability, s.hyp_results, s.selected_hypothesis, s.selected_obs, s.field_source)
         return self.cached("field", key, self._field_now)
 
     def _field_now(self):
@@ -427,7 +426,7 @@ class MDBMap(MapView):
     key = "mdb"
 
     def title(self):
-        return f"Minimal detectable bias ∇0l / σ (δ0 = {self.state.results.delta0:.2f})"
+        return f"Minimal detectable bias ∇0l / σ (δ0 = {self.state.reliability.delta0:.2f})"
 
     def layers(self):
         return [self.layer(self._lines, "results"), self.layer(self._points, "results"),
@@ -451,7 +450,7 @@ class MDBMap(MapView):
         """From δ0 (r = 1) to the largest MDB / σ: a log scale does not saturate on the
         near-uncontrolled observations (r ≈ 1e-4 gives MDB / σ ≈ 100 δ0)."""
         obs, _ = self.state.frames()
-        d0 = self.state.results.delta0
+        d0 = self.state.reliability.delta0
         return log_clim(obs["mdb_sigma"].to_numpy(dtype=float), low=d0)
 
 
@@ -536,7 +535,7 @@ class ImageResidualView(pn.viewable.Viewer):
     def __init__(self, **params):
         super().__init__(**params)
         self.dmap = hv.DynamicMap(self._render, streams=[hv.streams.Params(
-            self.state, ["results", "selected_image", "exaggeration"])])
+            self.state, ["results", "reliability", "selected_image", "exaggeration"])])
         self._pane = pn.pane.HoloViews(self.dmap, css_classes=["map-image"], linked_axes=False)
         self._by_image = None
 
@@ -574,7 +573,7 @@ class ImageResidualView(pn.viewable.Viewer):
     def _render(self, **_):
         s = self.state
         df = self.data()
-        crit = s.results.critical_w
+        crit = s.reliability.critical
         top = max(crit, float(df["abs_w"].max()) if len(df) else 0.0)
         size = (s.block or {}).get("image_size")
         frame = []

@@ -15,7 +15,6 @@ import panel as pn
 import param
 from scipy import stats as sps
 
-from baarda.stats import distributions
 
 from ..state import State
 
@@ -46,16 +45,14 @@ class TeachingView(pn.viewable.Viewer):
         super().__init__(**params)
         self.q_widget = pn.widgets.IntSlider(label="test dimension q", start=1, end=6, value=self.q, width=220)
         self.q_widget.link(self, value="q")
-        self.power = hv.DynamicMap(self._power, streams=[hv.streams.Params(self.state, ["results"]),
+        self.power = hv.DynamicMap(self._power, streams=[hv.streams.Params(self.state, ["results", "reliability"]),
                                                          hv.streams.Params(self, ["q"])])
-        self.mdb = hv.DynamicMap(self._mdb_curve, streams=[hv.streams.Params(self.state, ["results"])])
+        self.mdb = hv.DynamicMap(self._mdb_curve, streams=[hv.streams.Params(self.state, ["results", "reliability"])])
 
     def _power(self, **_):
-        o = self.state.results.options
+        policy = self.state.reliability.policy
         q = self.q
-        alpha = distributions.alpha_b_method(o.alpha, o.beta, q) if o.b_method else o.alpha
-        d0 = distributions.delta0(alpha, o.beta, q)
-        k = distributions.critical_chi2(alpha, q)
+        alpha, d0, k = policy.alpha(q), policy.delta0(q), policy.critical_T(q)
         lam = d0 ** 2
         top = max(lam + q + 5 * np.sqrt(2 * (q + 2 * lam)), k * 1.3)
         x = np.linspace(1e-3, top, 600)
@@ -65,7 +62,7 @@ class TeachingView(pn.viewable.Viewer):
         f0 = np.minimum(f0, ymax)
         right = x >= k
         kd, vd = "T", "density"
-        return (hv.Area((x[right], fa[right]), kd, vd, label=f"power β0 = {o.beta:.2f}").opts(
+        return (hv.Area((x[right], fa[right]), kd, vd, label=f"power β0 = {policy.beta0:.2f}").opts(
                     color="#e6007e", alpha=0.3)
                 * hv.Area((x[right], f0[right]), kd, vd, label=f"size α = {alpha:.2g}").opts(color="#1f4e9c", alpha=0.6)
                 * hv.Curve((x, f0), kd, vd, label=f"H0: χ²({q})").opts(color="#1f4e9c", line_width=2)
@@ -74,15 +71,14 @@ class TeachingView(pn.viewable.Viewer):
                 * hv.Text(k, ymax * 0.9, f" k = {k:.2f}", halign="left", kdims=[kd, vd]).opts(text_font_size="10pt")
                 * hv.VLine(lam).opts(color="#e6007e", line_dash="dotted")
                 * hv.Text(lam, ymax * 0.75, f" δ0² (δ0 = {d0:.2f})", halign="left", kdims=[kd, vd]).opts(text_font_size="10pt")
-                ).opts(title=f"Power of the {q}-dimensional test (α = {alpha:.2g}, β0 = {o.beta:.2f})",
+                ).opts(title=f"Power of the {q}-dimensional test (α = {alpha:.2g}, β0 = {policy.beta0:.2f})",
                        xlabel="T", ylabel="density", ylim=(0, ymax), responsive=True, height=290,
                        legend_position="top_right", fontscale=0.9)
 
     def _mdb_curve(self, **_):
-        adj = self.state.results
         obs, _ = self.state.frames()
         r = np.linspace(0.02, 1.0, 200)
-        d0 = adj.delta0
+        d0 = self.state.reliability.delta0
         live = thinned(obs[~obs["excluded"] & np.isfinite(obs["mdb_sigma"])])
         return (hv.Curve((r, d0 / np.sqrt(r)), "r", "mdb_sigma", label="δ0 / √r").opts(color="black")
                 * hv.Points(live, ["r", "mdb_sigma"], ["kind", "ids"]).opts(

@@ -226,13 +226,13 @@ def test_alpha_changes_delta0_and_mdb_data(page, network_app, screenshots):
     wait_for_title(page, "Minimal detectable")
     before = wait_for_column(page, "mdb_sigma")      # the MDB map's data, not read before it is there
     assert before
-    d_old = state.results.delta0
+    d_old = state.reliability.delta0
     expect(page.locator(".delta0")).to_contain_text(f"δ0 = {d_old:.3f}", timeout=30_000)
     handle = page.locator(".alpha-slider .noUi-handle").first
     handle.focus()
     handle.press("ArrowRight")
-    assert wait_until(lambda: state.results.delta0 != d_old)
-    d_new = state.results.delta0
+    assert wait_until(lambda: state.reliability.delta0 != d_old)
+    d_new = state.reliability.delta0
     expect(page.locator(".delta0")).to_contain_text(f"δ0 = {d_new:.3f}", timeout=30_000)
     ratio = d_new / d_old
     b = np.array([v for col in before for v in col], dtype=float)
