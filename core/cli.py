@@ -35,7 +35,7 @@ from .model.sfm import SfmBlock, to_block
 from .network_defects import adjust_network
 from .sfm_defects import adjust_block
 from .simulate import simulate_to_files
-from .stats import precision, risk, robust, snooping, variance
+from .stats import analyses, precision, robust, snooping, variance
 from .text import number, printable, printable_lines, shorten
 
 #: exit status of a run whose adjustment did not converge (module docstring)
@@ -312,13 +312,9 @@ def _analyze(args) -> int:
         doc["summary"]["sbase"] = base
         prec_lines.append(f"  S-base {', '.join(base)}: point standard deviations and ellipses transformed")
         if args.criterion:
-            cols, G, _ = precision.release_null_space(adj)
-            Gk = G[: cc.params.size]
-            in_base = np.isin(np.array(ids)[cc.point], base)
-            xy = adj.coordinates[:, :2]
-            if np.isnan(xy).any() or (cc.axis == 2).any():
+            if analyses.planimetric_reason(adj):
                 raise BaardaError("--criterion needs a planimetric network (x, y for every point)")
-            fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind=args.criterion)
+            fit = analyses.criterion_fit(analyses.criterion_setup(adj, base, cov=cc), kind=args.criterion)
             doc["criterion"] = fit
             prec_lines.append(f"  criterion matrix ({fit['kind']}, M84 §2): fitted C1 = {fit['C1']:.4g} m²/m, "
                               f"C2 = {fit['C2']:.4g} m, λmax/λmin = {fit['ratio']:.3g}")
@@ -330,9 +326,7 @@ def _analyze(args) -> int:
     if args.variance_components:
         try:
             if args.variance_components == "radial":
-                comps = variance.radial_components(problem)
-                sig2 = float(np.median(problem.cov.sigma()[[k.startswith("image-") for k in problem.info.kind]]) ** 2)
-                est = variance.estimate_components(problem, comps, theta0=[sig2 / 2, sig2 / 2, 1.0], options=options)
+                est = analyses.radial_variance(problem, options)
                 doc["variance_components"] = est.as_dict()
                 prec_lines.append(f"  radial variance model (F80 §2.1, {est.iterations} iterations"
                                   f"{'' if est.converged else ', NOT converged'}):")
@@ -537,11 +531,10 @@ def main(argv=None) -> int:
             return cmd_report(args)
         if args.command == "risk":
             try:
-                C = risk.critical_value(args.p, args.L1, args.L2, args.lambda_tol)
+                rc = analyses.risk_analysis(args.p, args.L1, args.L2, args.lambda_tol)
             except ValueError as err:
                 raise BaardaError(f"risk: {err}") from None
-            r = risk.risk(C, args.p, args.L1, args.L2, args.lambda_tol)
-            print(f"critical value C = {C:.4f} (α = {1 - __import__('scipy').stats.norm.cdf(C):.3g}), risk r_C = {r:.4g}")
+            print(f"critical value C = {rc['C']:.4f} (α = {rc['alpha']:.3g}), risk r_C = {rc['r_C']:.4g}")
             return 0
     except BaardaError as err:
         if getattr(args, "debug", False):

@@ -49,7 +49,7 @@ from scipy.sparse.csgraph import shortest_path
 from baarda.adjust import Options, adjust
 from baarda.datum import Datum
 from baarda.errors import BaardaError
-from baarda.stats import precision, risk, robust, snooping, variance
+from baarda.stats import analyses, precision, risk, robust, snooping, variance
 from baarda.stats.ap_tests import ap_test
 from baarda.stats.hypotheses import HypothesisTest, common_error, deformation, h_ap_group, selection
 from baarda.stats.policy import TestPolicy
@@ -1150,11 +1150,7 @@ class State(param.Parameterized):
             with self._busy():
                 problem = self.results.problem
                 if self.variance_model == "radial":
-                    comps = variance.radial_components(problem)
-                    image = np.char.startswith(np.asarray(problem.info.kind).astype(str), "image")
-                    sig2 = float(np.median(problem.cov.sigma()[image]) ** 2) if image.any() else 1.0
-                    est = variance.estimate_components(problem, comps, theta0=[sig2 / 2, sig2 / 2, 1.0],
-                                                       options=self.options())
+                    est = analyses.radial_variance(problem, self.options())
                     self._check_cancel()
                     if self.results.problem is not problem:
                         return False
@@ -1192,24 +1188,12 @@ class State(param.Parameterized):
         if self.block:
             return ("Criterion matrices compare planimetric networks (M84 §2); a block's "
                     "3D coordinates are not supported.")
-        xy = self.results.coordinates[:, :2]
-        if np.isnan(xy).any() or (self.problem.params.axis[self.problem.params.kind == "k"] == 2).any():
-            return ("Criterion matrices compare planimetric networks (M84 §2): this problem has "
-                    "heights (levelling or 3D), not x, y for every point.")
-        return ""
+        reason = analyses.planimetric_reason(self.results)
+        return f"{reason[0].upper()}{reason[1:]}." if reason else ""
 
     def criterion_base(self) -> list[str]:
         """The S-base of the comparison: the precision view's (``sbase``), else the first two points."""
         return list(self.sbase) or list(self.problem.points.ids[:2])
-
-    def _criterion_setup(self, sbase):
-        """Covariance G in the S-base, point positions, S-base flags and the null space (the
-        arguments of :func:`baarda.stats.precision.fit_criterion`, as ``baarda analyze --criterion``)."""
-        adj = self.results
-        cc = precision.covariance(adj, list(sbase))
-        _, Gfull, _ = precision.release_null_space(adj)
-        in_base = np.isin(np.array(self.problem.points.ids)[cc.point], list(sbase))
-        return cc, adj.coordinates[:, :2], in_base, Gfull[: cc.params.size]
 
     def criterion_compare(self, kind: str = "logarithmic", C1: float | None = None, C2: float = 1.0,
                           sbase=None) -> dict | None:
@@ -1227,14 +1211,13 @@ class State(param.Parameterized):
         try:
             if reason:
                 raise BaardaError(reason)
-            cc, xy, in_base, Gk = self._criterion_setup(base)
+            setup = analyses.criterion_setup(self.results, base)      # as ``baarda analyze --criterion``
             fitted = C1 is None
             if fitted:
-                fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind=kind)
+                fit = analyses.criterion_fit(setup, kind)
                 C1, C2 = fit["C1"], fit["C2"]
-            H = precision.sbase_transform(precision.criterion_matrix(xy, kind, 0.0, float(C1), float(C2)),
-                                          Gk, in_base)
-            cmp_ = precision.compare(cc.cov, H, in_base)
+            cmp_ = analyses.criterion_compare(setup, kind, C1, C2)
+            cc = setup.cov
         except (BaardaError, ValueError, np.linalg.LinAlgError) as err:
             self.param.update(criterion=None, criterion_error=f"Criterion: {err}")
             return None
@@ -1249,17 +1232,14 @@ class State(param.Parameterized):
     def risk_curve(self, p: float, L1: float, L2: float, lam_tol: float | None = None, n: int = 300) -> dict:
         """The risk-minimising critical value C (:func:`baarda.stats.risk.critical_value`, M84 §3.3),
         its α_C = 1 − Φ(C) and β_C = 1 − Φ(C − √λtol) (the definitions of :mod:`baarda.stats.risk`),
-        and r_C (:func:`baarda.risk.risk`) over C for the plot. λtol defaults to δ0² of the
+        and r_C (:func:`baarda.stats.risk.risk`) over C for the plot. λtol defaults to δ0² of the
         adjustment. Raises ValueError for p ∉ (0, 1) or non-positive L1, L2, λtol."""
-        from scipy import stats as sps
-
         lam = float(self.reliability.delta0 ** 2 if lam_tol is None else lam_tol)
-        C = risk.critical_value(p, L1, L2, lam)
-        s = math.sqrt(lam)
+        out = analyses.risk_analysis(p, L1, L2, lam)
+        C, s = out["C"], math.sqrt(lam)
         grid = np.linspace(min(C, 0.0) - 2.0, max(C, s) + 3.0, n)
         r = np.array([risk.risk(c, p, L1, L2, lam) for c in grid])
-        return {"C": C, "r_C": risk.risk(C, p, L1, L2, lam), "alpha": float(sps.norm.sf(C)),
-                "beta": float(sps.norm.sf(C - s)), "lam_tol": lam, "grid": grid, "r": r}
+        return {**out, "grid": grid, "r": r}
 
     # -- teaching: inject an error --------------------------------------------------------------
     def injected_error(self, index: int, size: float, unit: str = "sigma") -> np.ndarray:

@@ -105,3 +105,24 @@ def test_risk_critical_value_closed_form_minimises_risk(p, L1, L2, lam):
     assert abs(C - Cn) < 1e-6
     for d in (-0.1, 0.1):
         assert risk.risk(C, p, L1, L2, lam) < risk.risk(C + d, p, L1, L2, lam)
+
+
+def test_standard_ellipses_and_their_points_follow_the_closed_form():
+    """a², b² = (sxx + syy)/2 ± √(((sxx − syy)/2)² + sxy²), bearing ½ atan2(2 sxy, sxx − syy)
+    (the textbook closed form), and every drawn point lies on xᵀC⁻¹x = 1."""
+    from baarda.stats.precision import ellipse_points, standard_ellipses
+
+    rng = np.random.default_rng(5)
+    L = rng.normal(size=(20, 2, 2))
+    C = L @ np.swapaxes(L, 1, 2) + 0.01 * np.eye(2)
+    e = standard_ellipses(C, scale=2.0)
+    sxx, syy, sxy = C[:, 0, 0], C[:, 1, 1], C[:, 0, 1]
+    root = np.sqrt(((sxx - syy) / 2) ** 2 + sxy ** 2)
+    np.testing.assert_allclose(e[:, 0], 2.0 * np.sqrt((sxx + syy) / 2 + root), rtol=1e-12)
+    np.testing.assert_allclose(e[:, 1], 2.0 * np.sqrt((sxx + syy) / 2 - root), rtol=1e-10)
+    theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    d = np.mod(e[:, 2] - theta, np.pi)                      # a direction: modulo π
+    np.testing.assert_allclose(np.minimum(d, np.pi - d), 0.0, atol=1e-9)
+    pts = ellipse_points(standard_ellipses(C), n=17)
+    q = np.einsum("mni,mij,mnj->mn", pts, np.linalg.inv(C), pts)
+    np.testing.assert_allclose(q, 1.0, rtol=1e-9)

@@ -53,18 +53,35 @@ class CoordinateCovariance:
 
     def ellipses(self, scale: float = 1.0) -> np.ndarray:
         """Standard ellipses of the points (m × 3: semi-major a, semi-minor b, bearing of a from
-        the x axis in radians), from the planimetric 2 × 2 blocks."""
+        the x axis in radians), from the planimetric 2 × 2 blocks (:func:`standard_ellipses`)."""
         pts = np.unique(self.point)
         out = np.full((pts.max() + 1 if pts.size else 0, 3), np.nan)
         for p in pts:
             sel = np.flatnonzero((self.point == p) & (self.axis < 2))
             if sel.size != 2:
                 continue
-            C = self.cov[np.ix_(sel, sel)]
-            lam, V = np.linalg.eigh(C)
-            lam = np.maximum(lam, 0.0)
-            out[p] = [scale * np.sqrt(lam[1]), scale * np.sqrt(lam[0]), np.arctan2(V[1, 1], V[0, 1])]
+            out[p] = standard_ellipses(self.cov[np.ix_(sel, sel)][None], scale)[0]
         return out
+
+
+def standard_ellipses(cov2: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """Standard ellipses of m planimetric 2 × 2 covariances (m × 3: semi-major a, semi-minor b
+    in the unit of √cov, bearing of a from the x axis in radians): a² and b² the eigenvalues."""
+    lam, V = np.linalg.eigh(np.asarray(cov2, dtype=float))
+    lam = np.maximum(lam, 0.0)
+    return np.stack([scale * np.sqrt(lam[:, 1]), scale * np.sqrt(lam[:, 0]),
+                     np.arctan2(V[:, 1, 1], V[:, 0, 1])], axis=1)
+
+
+def ellipse_points(ellipses: np.ndarray, n: int = 49) -> np.ndarray:
+    """Points of ellipses (m × 3: a, b, bearing; :func:`standard_ellipses`) centred at 0,
+    m × n × 2."""
+    e = np.asarray(ellipses, dtype=float)
+    t = np.linspace(0, 2 * np.pi, n)
+    u = e[:, 0:1] * np.cos(t)[None, :]
+    v = e[:, 1:2] * np.sin(t)[None, :]
+    c, s = np.cos(e[:, 2:3]), np.sin(e[:, 2:3])
+    return np.stack([c * u - s * v, s * u + c * v], axis=2)
 
 
 def release_null_space(adj):

@@ -25,6 +25,7 @@ import param
 from bokeh.events import Tap
 from bokeh.models import ColumnDataSource
 
+from baarda.stats import precision
 from baarda.stats.hypotheses import HypothesisTest
 
 from ..state import State, display_matrix
@@ -65,13 +66,6 @@ STREAMS = {
 def tips(columns) -> list:
     """Hover tooltips showing only the given columns (not the segment end coordinates)."""
     return [(c, f"@{{{c}}}") for c in columns]
-
-
-def ellipses_xy(cov2: np.ndarray, n: int = 49) -> np.ndarray:
-    """Points of the standard ellipses of m 2 × 2 covariances (m × n × 2, centred at 0)."""
-    lam, V = np.linalg.eigh(0.5 * (cov2 + np.swapaxes(cov2, 1, 2)))
-    t = np.linspace(0, 2 * np.pi, n)
-    return np.einsum("mij,mj,jn->mni", V, np.sqrt(np.maximum(lam, 0.0)), np.vstack([np.cos(t), np.sin(t)]))
 
 
 def joined(paths: np.ndarray) -> list[np.ndarray]:
@@ -494,11 +488,12 @@ class PrecisionMap(MapView):
         pts = self.points()
         M = display_matrix(s.problem)
         C = np.einsum("ij,mjk,lk->mil", M, s.point_cov2(), M)
-        axis = np.sqrt(np.maximum(np.linalg.eigvalsh(C)[:, -1], 0.0))
+        ell = precision.standard_ellipses(0.5 * (C + np.swapaxes(C, 1, 2)))     # the core's (a, b, bearing)
+        axis = ell[:, 0]
         big = axis.max(initial=0.0)
         scale = round_scale(0.05 * extent(pts) / big) if big > 0 else 1.0
         centre = pts[["x", "y"]].to_numpy(dtype=float)[:, None, :]
-        paths = (ellipses_xy(C) * scale + centre)[axis > 0]
+        paths = (precision.ellipse_points(ell) * scale + centre)[axis > 0]
         return joined(paths), scale, big
 
     def title(self):
