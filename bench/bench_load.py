@@ -1,8 +1,8 @@
 """Many users on one dashboard server (issue 12): sessions opened at once, and a click in one
 session while another runs data snooping.
 
-The 1,000-image aerial block of ``bench/bench_blocks.py`` (20 strips × 50 images, design
-mode, seed 1) is written with ``baarda simulate`` into a temporary directory and served with
+A 1,000-image aerial block (20 strips × 50 images, seed 1, noisy, four planted image errors
+and a point-transfer error, so that iterative snooping runs for some 20 iterations) is written with ``baarda simulate`` into a temporary directory and served with
 ``baarda serve`` on 127.0.0.1 (a free port, loopback only). Debian's Chromium (Playwright with
 ``executable_path=/usr/bin/chromium``) then
 
@@ -54,8 +54,11 @@ def write_block(folder: Path) -> Path:
     from baarda.cli import main
 
     out = folder / "aerial-1000.json"
-    assert main(["simulate", str(out), "--strips", "20", "--images", "50", "--design", "--seed", "1",
-                 "--quiet"]) == 0
+    # noisy, with planted errors: iterative snooping then runs for ~20 iterations (a design-mode block
+    # has w = 0 everywhere and its snooping ends before the clicks are timed)
+    assert main(["simulate", str(out), "--strips", "20", "--images", "50", "--seed", "1",
+                 "--error", "image:20", "--error", "image:25", "--error", "image:30", "--error", "image:40",
+                 "--error", "transfer:12:images=3", "--quiet"]) == 0
     return out
 
 
