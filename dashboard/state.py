@@ -342,8 +342,8 @@ class State(param.Parameterized):
         return out.get("value")
 
     def cancel(self) -> None:
-        """Ask the running background computation to stop: snooping stops after its current
-        step; the other computations finish on their thread but their result is dropped."""
+        """Ask the running background computation to stop: snooping stops within its current
+        step (at the readjustment's next iteration); the other computations finish on their thread but their result is dropped."""
         if self.task:
             self._cancel.set()
             self.progress = "cancelling…"
@@ -1091,16 +1091,15 @@ class State(param.Parameterized):
         adj = self.results
 
         def step(k, st):
-            self._check_cancel()       # a cancelled run stops after the step it is in
             self.progress = f"step {k}: removed obs {int(self.kept[st.removed])} (|w| = {st.statistic:.2f})"
 
         try:
             with self._busy():
                 res = snooping.iterate(adj.problem, self.options(), use_tau=self.sigma0_mode == "aposteriori",
-                                       progress=step)
+                                       progress=step, check=self._check_cancel)
                 self._check_cancel()
                 top = np.argsort(-np.abs(np.nan_to_num(adj.w)), kind="stable")[:LOO_SUSPECTS]
-                loo = snooping.leave_one_out(adj, [int(i) for i in top])
+                loo = snooping.leave_one_out(adj, [int(i) for i in top], check=self._check_cancel)
         except (BaardaError, np.linalg.LinAlgError) as err:
             self.analysis_error = plain(f"Data snooping failed: {err}")
             return False

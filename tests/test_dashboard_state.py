@@ -939,6 +939,35 @@ def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
         assert not st.hypothesis_deformation(k).any()
 
 
+def test_cancelled_snooping_stops_within_its_step(monkeypatch):
+    """Served, a cancel during a readjustment of iterative snooping stops the run at that
+    readjustment's next iteration (it used to finish the step first: seconds on a block)."""
+    from baarda.stats import snooping
+
+    st = network_state(FREE_2D)
+    st.sigma0_mode = "apriori"
+    st.background = True
+    started, finished = [], []
+    real = snooping.adjust
+
+    def adjust(problem, options=None, x0=None, progress=None):
+        started.append(problem.n)
+
+        def iteration(it, step):
+            if len(started) == 2:             # the first readjustment (a step) is running
+                st.cancel()
+            if progress is not None:
+                progress(it, step)
+        out = real(problem, options, x0=x0, progress=iteration)
+        finished.append(problem.n)
+        return out
+    monkeypatch.setattr(snooping, "adjust", adjust)
+    fut = st.submit("iterative data snooping", st.run_snooping)
+    assert fut.result(timeout=120) is False
+    assert st.progress == "cancelled" and st.snoop is None and st.task == ""
+    assert len(started) == 2 and len(finished) == 1     # the step's readjustment did not finish
+
+
 def test_served_exclusion_adjusts_on_a_worker_and_applies_on_the_loop():
     """Served, "Exclude" adjusts on a task thread (with the task indicator) and only makes the
     result current on the session's loop; the result equals a fresh adjustment without it."""

@@ -46,9 +46,16 @@ class SnoopResult:
 
 
 def iterate(problem, options: Options | None = None, use_tau: bool = False, max_steps: int | None = None,
-            min_dof: int = 1, progress=None) -> SnoopResult:
-    """Remove the worst rejected observation and readjust until no test rejects."""
+            min_dof: int = 1, progress=None, check=None) -> SnoopResult:
+    """Remove the worst rejected observation and readjust until no test rejects.
+
+    progress: optional callable(step, SnoopStep) after each step. check: optional callable()
+    called before each readjustment and after each of its iterations (``adjust``'s
+    ``progress``); it stops the run by raising (a cancelled dashboard task stops within the
+    step it is in).
+    """
     options = options or Options()
+    inner = None if check is None else (lambda _it, _step: check())
     kept = np.arange(problem.n)
     adj = adjust(problem, options)
     steps = []
@@ -63,8 +70,10 @@ def iterate(problem, options: Options | None = None, use_tau: bool = False, max_
         nabla = float(-adj.v[i] / adj.r[i]) if adj.r[i] > 0 else float("nan")
         keep_local = np.setdiff1d(np.arange(adj.n), [i])
         reduced = subset(adj.problem, keep_local)
+        if check is not None:
+            check()
         try:
-            new = adjust(reduced, options, x0=x)
+            new = adjust(reduced, options, x0=x, progress=inner)
         except BaardaError:
             break          # removing it would leave part of the model undetermined: stop here
         steps.append(SnoopStep(int(kept[i]), float(stat[i]), float(crit), nabla,
@@ -76,13 +85,17 @@ def iterate(problem, options: Options | None = None, use_tau: bool = False, max_
     return SnoopResult(tuple(steps), adj, kept, use_tau)
 
 
-def leave_one_out(adj, suspects) -> list[dict]:
-    """σ̂0 with each suspect left out in turn (the "find the error" view)."""
+def leave_one_out(adj, suspects, check=None) -> list[dict]:
+    """σ̂0 with each suspect left out in turn (the "find the error" view). check: as for
+    :func:`iterate`."""
+    inner = None if check is None else (lambda _it, _step: check())
     out = []
     for i in suspects:
+        if check is not None:
+            check()
         keep = np.setdiff1d(np.arange(adj.n), [i])
         try:
-            a = adjust(subset(adj.problem, keep), adj.options, x0=adj.x)
+            a = adjust(subset(adj.problem, keep), adj.options, x0=adj.x, progress=inner)
             s = float(a.sigma0_post)
         except BaardaError:
             s = float("nan")
