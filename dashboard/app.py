@@ -21,7 +21,7 @@ import panel as pn
 from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 
-from .state import State
+from .state import Cancelled, State
 from .text import html_text
 from .views.controls import MAX_UPLOAD_MB
 from .views import (MAP_VIEWS, AnalysisPanel, Controls, CriterionView, FilePanel, HypothesisPanel, ImageResidualView,
@@ -64,19 +64,28 @@ class Fast(pn.theme.fast.Fast):
 #: body, after the summary: it shows as soon as the browser has the page, before any of them
 #: has run. A script puts it where the live summary will be (marks the time:
 #: ``performance.mark("baarda-first-summary")``) and removes it once Bokeh renders the main area.
+#: The page is held invisible until the summary is in place (a style the script removes; an
+#: animation shows the page after 5 s should the script not run): the browser's first paint is
+#: never a page without it (a header painted while the rest of the page was being parsed was).
 FIRST_PAGE = """{% extends "fast/list/fast_list_template.html" %}
 {% block js_resources %}{% if not first_summary %}{{ super() }}{% endif %}{% endblock %}
 {% block inner_body %}
+{% if first_summary %}
+<style id="baarda-hold">body{visibility:hidden;animation:baarda-show 0s 5s forwards}
+@keyframes baarda-show{to{visibility:visible}}</style>
+{% endif %}
 {{ super() }}
 {% if first_summary %}
 <div id="baarda-first-summary" class="summary first-summary" style="margin:5px 10px">{{ first_summary }}</div>
 <script type="text/javascript">
 (function () {
   var first = document.getElementById("baarda-first-summary");
+  var hold = document.getElementById("baarda-hold");
   var root = document.querySelector("#main [data-root-id]");
-  if (!root) { first.remove(); return; }
+  if (!root) { first.remove(); hold.remove(); return; }
   root.parentNode.insertBefore(first, root);
   performance.mark("baarda-first-summary");
+  hold.remove();
   new MutationObserver(function (_, obs) {
     if (root.childNodes.length) { first.remove(); obs.disconnect(); }
   }).observe(root, {childList: true});
@@ -161,6 +170,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
     _extensions()
     background = _served() if background is None else bool(background)
     sid = pn.state.curdoc.session_context.id if background and _served() else "-"
+    doc = pn.state.curdoc if background and _served() else None
     _timing(sid, "request")
     if problem is not None:
         state = State(problem=problem, path=path)
@@ -201,24 +211,62 @@ def create_app(path=None, problem=None, background: bool | None = None):
             _pending(-1)
 
     def build():
+        # not served in the background (scripts, tests): the whole view at once, here
         try:
-            with _BUILD_LOCK:
-                _timing(sid, "build-start")
-                main = _main(state)
+            main = _attach(state, *_main(state))
         except Exception as err:  # noqa: BLE001 - a message in the page, never a silent blank
-            main = pn.pane.HTML(f"<b>The views could not be built:</b> {html_text(type(err).__name__)}: "
-                                f"{html_text(err)}", css_classes=["main-error"])
+            main = _build_error(err)
         content.objects = [main]
-        _timing(sid, "maps")
+
+    def live() -> bool:
+        return not state._closed and _connected(doc)
+
+    def piece(fn):
+        # one piece of the build on the event loop (HoloViews is not thread-safe); False once
+        # the session's page is gone (it is not built further)
+        def run():
+            if not live():
+                return False
+            with _BUILD_LOCK:
+                fn()
+            return True
+        return state.on_loop(run)
 
     def build_later():
-        # on the builder thread: wait for the summaries of waiting sessions, then build on
-        # the event loop (HoloViews is not thread-safe) and wait for it: one build at a time
+        # on the builder thread, one session after another, after the summaries of waiting
+        # sessions: the views are built on the event loop in pieces (made; the maps' tab
+        # attached; the tables' tabs attached), each its own callback, so that the events of
+        # other sessions (clicks, new pages) run in between; a session whose page is gone
+        # (closed, or the session destroyed) is not built, nor built further
         _summaries_first()
+        parts = {}
+
+        def make():
+            _timing(sid, "build-start")
+            parts["maps"], parts["right"] = _main(state)
+
+        def attach_maps():
+            parts["row"] = pn.Row(parts["maps"], sizing_mode="stretch_width")
+            content.objects = [parts["row"]]
+            _timing(sid, "maps-tab")
+
+        def attach_right():
+            _attach(state, parts["maps"], parts["right"], row=parts["row"])
+            _timing(sid, "maps")
+
         try:
-            state.on_loop(build)
-        except Exception:  # noqa: BLE001 - the session ended meanwhile
+            for fn in (make, attach_maps, attach_right):
+                if not piece(fn):
+                    _timing(sid, "build-skipped")
+                    return
+        except Cancelled:        # the session ended while a piece waited for the loop
             pass
+        except Exception as err:  # noqa: BLE001 - a message in the page, never a silent blank
+            message = _build_error(err)
+            try:
+                state.on_loop(lambda: setattr(content, "objects", [message]))
+            except Exception:  # noqa: BLE001 - the session ended meanwhile
+                pass
 
     def rebuild(*_):
         # a new problem gets new views (map extents, frame sizes and widgets depend on it)
@@ -253,8 +301,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
                 state.submit(f"reading {shown}", state.load, path)
             pn.state.onload(onload)
 
-        doc = pn.state.curdoc
-        if doc is not None and doc.session_context is not None:
+        if doc is not None:
             def loop_call(fn, doc=doc):
                 def run():
                     with set_curdoc(doc):
@@ -279,8 +326,8 @@ def create_app(path=None, problem=None, background: bool | None = None):
 
 
 def _main(state):
-    """The maps in tabs on the left, table / hypotheses / teaching on the right (the summary
-    is above them, built once per session)."""
+    """The maps in tabs (left) and the tests table / hypotheses / teaching in tabs (right), made
+    but not yet rendered (the summary is above them, built once per session)."""
     maps = []
     for V in MAP_VIEWS:
         view = V(state=state)
@@ -296,10 +343,40 @@ def _main(state):
                                            RiskView(state=state), scroll=True, height=640,
                                            sizing_mode="stretch_width")),
                     dynamic=True, sizing_mode="fixed", width=590, height=660, css_classes=["right-tabs"])
-    main = pn.Row(map_tabs, right, sizing_mode="stretch_width")
-    main.loading = state.busy
-    state.param.watch(lambda e: setattr(main, "loading", e.new), "busy")
-    return main
+    return map_tabs, right
+
+
+def _attach(state, map_tabs, right, row=None):
+    """The maps and the tables side by side (``right`` appended to ``row`` when the maps are
+    already in it), shown as loading while the state is busy."""
+    if row is None:
+        row = pn.Row(map_tabs, right, sizing_mode="stretch_width")
+    else:
+        row.append(right)
+    row.loading = state.busy
+    state.param.watch(lambda e: setattr(row, "loading", e.new), "busy")
+    return row
+
+
+def _build_error(err) -> pn.pane.HTML:
+    return pn.pane.HTML(f"<b>The views could not be built:</b> {html_text(type(err).__name__)}: "
+                        f"{html_text(err)}", css_classes=["main-error"])
+
+
+def _connected(doc) -> bool:
+    """Whether the page of a served session is still open: its session is not destroyed and
+    has a connection. (Bokeh destroys the session of a closed page only some 15-30 s later,
+    ``unused_session_lifetime``; until then its document lives on without a viewer.) True
+    outside a server."""
+    ctx = None if doc is None else doc.session_context
+    if ctx is None:
+        return True
+    if ctx.destroyed:
+        return False
+    for session in ctx.server_context.sessions:
+        if session.id == ctx.id:
+            return session.connection_count > 0
+    return False
 
 
 def warm(path):
