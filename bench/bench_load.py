@@ -13,7 +13,8 @@ and a point-transfer error, so that iterative snooping runs for some 20 iteratio
    shows at the page's first contentful paint if it was in the page by then, which the page
    marks, otherwise when Playwright sees it), until Bokeh has rendered the live summary pane, and until its maps are there;
 2. starts iterative data snooping in one session and, while it runs, clicks rows of the tests
-   table in another one and times each click until the selection panel shows the observation;
+   table in another one and times each click until the selection panel shows the observation
+   (and counts the server's event-loop stalls over 0.1 s meanwhile, ``BAARDA_TIMING``);
 3. cancels the snooping and times until the session says it stopped;
 4. requests the page ``--sessions`` times at once without a browser (the server's share).
 
@@ -142,6 +143,17 @@ def server_rows(log: Path, t0_wall: float) -> list[tuple]:
     return out
 
 
+def stall_times(log: Path) -> list[tuple[float, float]]:
+    """The server's event-loop stalls (``baarda-timing WALL - stall:SECONDS``, logged when the
+    loop woke a timer late): (wall time logged, seconds)."""
+    out = []
+    for line in log.read_text(errors="replace").splitlines():
+        parts = line.split()
+        if len(parts) == 4 and parts[0] == "baarda-timing" and parts[3].startswith("stall:"):
+            out.append((float(parts[1]), float(parts[3][6:])))
+    return out
+
+
 def wait_ready(proc, timeout: float) -> float:
     """Seconds from the server's start until it has read and adjusted its file (the line
     ``baarda dashboard: FILE read and adjusted in S s``; the server warms its cache at start)."""
@@ -209,6 +221,7 @@ async def run(args) -> int:
             task = snooper.locator(".task-panel")
             await task.get_by_text("iterative data snooping").first.wait_for(timeout=ms)
             times = []
+            clicks_from = time.time()
             table_rows = clicker.locator(".tests-table .tabulator-row")
             info = clicker.locator(".selection-info")
             for k in range(args.clicks):
@@ -217,6 +230,7 @@ async def run(args) -> int:
                 await table_rows.nth(i).click()
                 await info.get_by_text(f"Observation {i} ").first.wait_for(timeout=ms)
                 times.append(time.perf_counter() - start)
+            clicks_to = time.time()
             running = await task.is_visible()
             rows.append((f"click in another session while snooping runs (s){'' if running else ' [snooping ended]'}",
                          f"{min(times):.2f}", f"{statistics.median(times):.2f}", f"{max(times):.2f}",
@@ -231,6 +245,9 @@ async def run(args) -> int:
                 await task.wait_for(state="hidden", timeout=ms)
             stop = time.perf_counter() - start
             rows.append(("snooping cancelled: stopped after (s)", "", f"{stop:.1f}", "", ""))
+            stalls = [d for w, d in stall_times(path.with_suffix(".log")) if clicks_from <= w <= clicks_to]
+            rows.append(("  server: event-loop stalls > 0.1 s while clicking (count, longest s)", "",
+                         str(len(stalls)), f"{max(stalls, default=0):.2f}", ""))
             await browser.close()
         # the server's share: the same number of page requests at once, without a browser
         gets = sorted(await asyncio.gather(*(asyncio.to_thread(get_page, url) for _ in range(args.sessions))))

@@ -9,6 +9,7 @@ first Gama network under ``data/`` (``demo-levelling.gkf`` preferred).
 
 from __future__ import annotations
 
+import asyncio
 import os
 import sys
 import threading
@@ -20,6 +21,7 @@ import holoviews as hv
 import panel as pn
 from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
+from tornado.ioloop import IOLoop
 
 from .state import Cancelled, State
 from .text import html_text
@@ -154,6 +156,29 @@ def _timing(session: str, event: str) -> None:
         print(f"baarda-timing {time.time():.3f} {session} {event}", file=sys.stderr, flush=True)
 
 
+#: The event-loop watch has been started (once per process, :func:`_watch_loop`).
+_WATCHING = []
+STALL = 0.1       # seconds: a longer delay of the event loop is logged (BAARDA_TIMING)
+
+
+def _watch_loop() -> None:
+    """With ``BAARDA_TIMING=1``, a task on the server's event loop that sleeps 50 ms at a time
+    and logs ``baarda-timing WALL - stall:SECONDS`` whenever it woke more than :data:`STALL`
+    late: how long the loop could not answer anyone (``bench/bench_load.py`` reports them)."""
+    if not os.environ.get("BAARDA_TIMING") or _WATCHING:
+        return
+    _WATCHING.append(True)
+
+    async def watch():
+        while True:
+            t = time.perf_counter()
+            await asyncio.sleep(0.05)
+            late = time.perf_counter() - t - 0.05
+            if late > STALL:
+                _timing("-", f"stall:{late:.2f}")
+    IOLoop.current().add_callback(watch)
+
+
 def _served() -> bool:
     doc = pn.state.curdoc
     return doc is not None and doc.session_context is not None
@@ -170,6 +195,8 @@ def create_app(path=None, problem=None, background: bool | None = None):
     _extensions()
     background = _served() if background is None else bool(background)
     sid = pn.state.curdoc.session_context.id if background and _served() else "-"
+    if sid != "-":
+        _watch_loop()
     doc = pn.state.curdoc if background and _served() else None
     _timing(sid, "request")
     if problem is not None:
