@@ -147,6 +147,9 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--criterion", choices=["linear", "logarithmic", "exponential"],
                     help="compare the coordinate covariance with a fitted chaotic criterion matrix (M84 §2): "
                          "prints λmax/λmin and C1, C2 (in the --sbase, default the first two points)")
+    an.add_argument("--criterion-c0", type=float, default=0.0, metavar="C0",
+                    help="the constant part of the criterion, chosen first from the precision of the "
+                         "measurements (M84 §2.3): m² (linear, logarithmic) or m (exponential); default 0")
     an.add_argument("--variance-components", nargs="?", const="families", choices=["families", "radial"],
                     help="estimate variance components (F80 eq. 9, iterated): a factor per observation "
                          "family (default), or the radial model σ² = a² + b²c²/cos⁴α of image "
@@ -314,10 +317,15 @@ def _analyze(args) -> int:
         if args.criterion:
             if analyses.planimetric_reason(adj):
                 raise BaardaError("--criterion needs a planimetric network (x, y for every point)")
-            fit = analyses.criterion_fit(analyses.criterion_setup(adj, base, cov=cc), kind=args.criterion)
+            fit = analyses.criterion_fit(analyses.criterion_setup(adj, base, cov=cc), kind=args.criterion,
+                                         C0=args.criterion_c0)
             doc["criterion"] = fit
-            prec_lines.append(f"  criterion matrix ({fit['kind']}, M84 §2): fitted C1 = {fit['C1']:.4g} m²/m, "
-                              f"C2 = {fit['C2']:.4g} m, λmax/λmin = {fit['ratio']:.3g}")
+            u = analyses.criterion_units(fit["kind"])
+            c2 = f", C2 = {fit['C2']:.4g} {u['C2']}" if fit["kind"] != "linear" else ""
+            bound = (" (C2 at the end of its range: d² hardly varies with distance over this network)"
+                     if fit["C2_at_bound"] else "")
+            prec_lines.append(f"  criterion matrix ({fit['kind']}, M84 §2.3): fitted C1 = {fit['C1']:.4g} {u['C1']}"
+                              f"{c2}, λmax/λmin = {fit['ratio']:.3g}{bound}")
     rob = None
     if args.robust:
         rob = robust.estimate(problem, args.robust, options)

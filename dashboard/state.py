@@ -1221,8 +1221,9 @@ class State(param.Parameterized):
             self.param.update(criterion=None, criterion_error=f"Criterion: {err}")
             return None
         pattern = np.zeros((len(self.problem.points.ids), 2))
-        pattern[cc.point, cc.axis] = cmp_.worst_pattern(cc.params.size)
+        pattern[cc.point, cc.axis] = cmp_.worst_pattern()
         out = {"kind": kind, "sbase": base, "fitted": fitted, "C1": float(C1), "C2": float(C2),
+               "units": analyses.criterion_units(kind), "C2_at_bound": bool(fitted and fit["C2_at_bound"]),
                "lam_max": cmp_.lam_max, "lam_min": cmp_.lam_min, "ratio": cmp_.lam_max / cmp_.lam_min,
                "satisfied": cmp_.satisfied, "pattern": pattern}
         self.param.update(criterion=out, criterion_error="")

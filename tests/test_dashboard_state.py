@@ -721,13 +721,15 @@ def test_criterion_fit_and_given_c1_c2_match_the_core():
     view.check.clicks += 1
     H = precision.sbase_transform(precision.criterion_matrix(xy, "logarithmic", 0.0, 3 * fit["C1"], fit["C2"]),
                                   Gk, in_base)
-    ref = precision.compare(cc.cov, H, in_base)
+    ref = precision.compare(cc.cov, H, Gk, in_base)
     c = st.criterion
     assert not c["fitted"] and c["satisfied"] and c["lam_max"] == pytest.approx(ref.lam_max, rel=1e-9)
     assert c["lam_min"] == pytest.approx(ref.lam_min, rel=1e-9) and "satisfied" in view.info.object
-    pattern = ref.worst_pattern(cc.params.size)
+    pattern = ref.worst_pattern()
     np.testing.assert_allclose(c["pattern"][cc.point, cc.axis], pattern)
-    assert np.abs(c["pattern"][[ids.index(b) for b in ids[:2]]]).max() == 0     # the S-base does not move
+    base_rows = in_base                                      # the S-base as a whole does not move (Eᵀ S = 0)
+    np.testing.assert_allclose(Gk[base_rows].T @ c["pattern"][cc.point, cc.axis][base_rows], 0.0,
+                               atol=1e-9 * np.abs(Gk).max())
     seg = [s for s in sources_with(root, "x1")]
     assert seg, "the eigenvector of λmax is drawn as segments"
     view.C1.value = fit["C1"] / 3

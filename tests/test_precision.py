@@ -63,10 +63,11 @@ def test_generalised_eigenvalues_hand_checkable(pair):
     ids = fixed.problem.points.ids
     cc = precision.covariance(fixed, sbase=ids[:2])
     in_base = np.isin(np.array(ids)[cc.point], ids[:2])
+    Gk = precision.release_null_space(fixed)[1][: cc.params.size]
     G = cc.cov
-    c = precision.compare(G, G, in_base)
+    c = precision.compare(G, G, Gk, in_base)
     np.testing.assert_allclose(c.lam, 1.0, atol=1e-8)
-    c2 = precision.compare(G, 2 * G, in_base)
+    c2 = precision.compare(G, 2 * G, Gk, in_base)
     np.testing.assert_allclose(c2.lam, 0.5, atol=1e-8)
     assert c2.satisfied and not c.satisfied
 
@@ -83,11 +84,13 @@ def test_fitted_criterion_has_lambda_max_one(pair):
     for kind in ("linear", "logarithmic", "exponential"):
         fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind=kind)
         H = precision.sbase_transform(precision.criterion_matrix(xy, kind, 0.0, fit["C1"], fit["C2"]), Gk, in_base)
-        c = precision.compare(cc.cov, H, in_base)
+        c = precision.compare(cc.cov, H, Gk, in_base)
         assert abs(c.lam_max - 1.0) < 1e-8
         assert c.lam_min > 0 and abs(c.lam_max / c.lam_min - fit["ratio"]) < 1e-6 * fit["ratio"]
-        pattern = c.worst_pattern(cc.params.size)
-        assert np.abs(pattern).max() == pytest.approx(1.0) and (pattern[in_base] == 0).all()
+        pattern = c.worst_pattern()
+        # in the S-base: no similarity transformation of the base points (Eᵀ S = 0, M84 §2)
+        assert np.abs(pattern).max() == pytest.approx(1.0)
+        np.testing.assert_allclose(Gk[in_base].T @ pattern[in_base], 0.0, atol=1e-9 * np.abs(Gk).max())
 
 
 def test_chaotic_structure_gives_difference_variance_d2():
@@ -126,3 +129,94 @@ def test_standard_ellipses_and_their_points_follow_the_closed_form():
     pts = ellipse_points(standard_ellipses(C), n=17)
     q = np.einsum("mni,mij,mnj->mn", pts, np.linalg.inv(C), pts)
     np.testing.assert_allclose(q, 1.0, rtol=1e-9)
+
+
+# -- M84 §2.2-2.3: the judgement in any S-base, and the fit at its true minimum (issue 14, items 2-3)
+
+def free_network(directions_only=False):
+    """A free 4 × 3 grid: distances and directions (d = 3), or directions only (d = 4)."""
+    net = grid_network(4, 3, datum="free", jitter=0.5)
+    if directions_only:
+        keep = [i for i, o in enumerate(net.observations) if o.kind == "direction"]
+        clusters = tuple(type(c)((k,), c.cov) for k, c in enumerate(net.clusters[i] for i in keep))
+        net = type(net)(net.points, tuple(net.observations[i] for i in keep), clusters,
+                        sigma0=net.sigma0, sigma_act=net.sigma_act)
+    return adjust(problem(net))
+
+
+def dense_ratio(G, H, Gnull):
+    """λmax/λmin of |G − λH| = 0 on the complement of the null space, written out with numpy
+    alone: P projects orthogonally onto that complement, and the pencil is solved there as
+    eig(pinv(P H P) P G P) on its non-zero part (M84 eq. 3)."""
+    Q, _ = np.linalg.qr(Gnull)
+    P = np.eye(G.shape[0]) - Q @ Q.T
+    lam = np.linalg.eigvals(np.linalg.pinv(P @ H @ P, rcond=1e-12, hermitian=True) @ (P @ G @ P)).real
+    lam = np.sort(lam)[Gnull.shape[1]:]              # the d zeros of the null space dropped
+    return lam[-1] / lam[0]
+
+
+@pytest.mark.parametrize("directions_only", [False, True], ids=["d=3", "d=4"])
+def test_criterion_judgement_same_in_every_sbase(directions_only):
+    adj = free_network(directions_only)
+    ids = list(adj.problem.points.ids)
+    _, Gnull, _ = precision.release_null_space(adj)
+    d = Gnull.shape[1]
+    assert d == (4 if directions_only else 3)
+    xy = adj.coordinates[:, :2]
+    ratios, fits = [], []
+    for base in (ids[:2], [ids[1], ids[5], ids[10]], ids[3:8]):      # minimal, 3 points, 5 points
+        cc = precision.covariance(adj, sbase=base)
+        Gk = Gnull[: cc.params.size]
+        in_base = np.isin(np.array(ids)[cc.point], base)
+        H = precision.sbase_transform(precision.criterion_matrix(xy, "logarithmic", 0.0, 1e-6, 50.0), Gk, in_base)
+        c = precision.compare(cc.cov, H, Gk, in_base)
+        ratios.append(c.lam_max / c.lam_min)
+        # independent: the same pencil through a projector and a pseudo-inverse
+        assert ratios[-1] == pytest.approx(dense_ratio(cc.cov, H, Gk), rel=1e-7)
+        fits.append(precision.fit_criterion(cc.cov, xy, in_base, Gk, kind="exponential"))
+        pattern = c.worst_pattern()
+        assert np.abs(pattern).max() == pytest.approx(1.0)
+    np.testing.assert_allclose(ratios, ratios[0], rtol=1e-8)
+    np.testing.assert_allclose([f["ratio"] for f in fits], fits[0]["ratio"], rtol=1e-6)
+    np.testing.assert_allclose([f["C1"] for f in fits], fits[0]["C1"], rtol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["logarithmic", "exponential"])
+def test_fitted_c2_is_the_minimum_over_a_fine_scan(kind):
+    """M84 §2.3: C2 makes λmax/λmin smallest. A brute-force scan of 400 values over six decades
+    either side of the network's distances finds nothing smaller than the fit."""
+    adj = free_network()
+    ids = list(adj.problem.points.ids)
+    _, Gnull, _ = precision.release_null_space(adj)
+    cc = precision.covariance(adj, sbase=ids[:2])
+    Gk = Gnull[: cc.params.size]
+    in_base = np.isin(np.array(ids)[cc.point], ids[:2])
+    xy = adj.coordinates[:, :2]
+    fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind=kind)
+    lo, hi = fit["C2_range"]
+    scan = []
+    for C2 in np.geomspace(lo, hi, 400):
+        H = precision.sbase_transform(precision.criterion_matrix(xy, kind, 0.0, 1.0, C2), Gk, in_base)
+        scan.append(dense_ratio(cc.cov, H, Gk))
+    assert fit["ratio"] <= min(scan) * (1 + 1e-6)
+    if kind == "exponential":
+        # the network's distances are 100-180 m: a C2 in m^-½ well below 1, not at a bound in metres
+        assert fit["C2"] < 1.0
+
+
+def test_c0_chosen_first_keeps_lambda_max_one():
+    """M84 §2.3: C0 first, then C1 so that λmax = 1 (a root, since H no longer scales with C1)."""
+    adj = free_network()
+    ids = list(adj.problem.points.ids)
+    _, Gnull, _ = precision.release_null_space(adj)
+    cc = precision.covariance(adj, sbase=ids[:2])
+    Gk = Gnull[: cc.params.size]
+    in_base = np.isin(np.array(ids)[cc.point], ids[:2])
+    xy = adj.coordinates[:, :2]
+    free = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind="linear")
+    C0 = 0.3 * free["C1"] * 100.0          # a constant part worth 30 m of the C0 = 0 fit
+    fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind="linear", C0=C0)
+    H = precision.sbase_transform(precision.criterion_matrix(xy, "linear", C0, fit["C1"]), Gk, in_base)
+    c = precision.compare(cc.cov, H, Gk, in_base)
+    assert fit["C0"] == C0 and 0 < fit["C1"] < free["C1"]
+    assert c.lam_max == pytest.approx(1.0, rel=1e-9)

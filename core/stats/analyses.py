@@ -59,18 +59,29 @@ def criterion_setup(adj, sbase, cov=None) -> CriterionSetup:
     return CriterionSetup(cc, adj.coordinates[:, :2], in_base, G[: cc.params.size])
 
 
-def criterion_fit(setup: CriterionSetup, kind: str = "logarithmic") -> dict:
+def criterion_fit(setup: CriterionSetup, kind: str = "logarithmic", C0: float = 0.0) -> dict:
     """The chaotic criterion fitted to the covariance (:func:`baarda.stats.precision.fit_criterion`,
-    Molenaar 1984, §2.3: C1 so that λmax = 1, C2 so that λmax/λmin is smallest)."""
-    return precision.fit_criterion(setup.cov.cov, setup.xy, setup.in_base, setup.G, kind=kind)
+    Molenaar 1984, §2.3: C0 given first, C1 so that λmax = 1, C2 so that λmax/λmin is smallest)."""
+    return precision.fit_criterion(setup.cov.cov, setup.xy, setup.in_base, setup.G, kind=kind, C0=C0)
 
 
-def criterion_compare(setup: CriterionSetup, kind: str, C1: float, C2: float = 1.0) -> precision.Comparison:
-    """The covariance against the chaotic criterion (C0 = 0, C1 in m²/m, C2 in m) transformed to
-    the S-base: the generalised eigenvalues λ (Molenaar 1984, §2.2; :func:`baarda.stats.precision.compare`)."""
-    H = precision.sbase_transform(precision.criterion_matrix(setup.xy, kind, 0.0, float(C1), float(C2)),
+def criterion_compare(setup: CriterionSetup, kind: str, C1: float, C2: float = 1.0,
+                      C0: float = 0.0) -> precision.Comparison:
+    """The covariance against the chaotic criterion (units in :func:`criterion_units`) transformed
+    to the S-base: the generalised eigenvalues λ on the complement of the null space, the same in
+    every S-base (Molenaar 1984, §2.2; :func:`baarda.stats.precision.compare`)."""
+    H = precision.sbase_transform(precision.criterion_matrix(setup.xy, kind, float(C0), float(C1), float(C2)),
                                   setup.G, setup.in_base)
-    return precision.compare(setup.cov.cov, H, setup.in_base)
+    return precision.compare(setup.cov.cov, H, setup.G, setup.in_base)
+
+
+def criterion_units(kind: str) -> dict:
+    """The units of C0, C1, C2 for each structure of d² (M84 eq. 2; l in metres, d² in m²)."""
+    if kind == "exponential":      # d² = C0² + C1 (1 − exp(−C2² l))
+        return {"C0": "m", "C1": "m²", "C2": "m^-½"}
+    if kind == "logarithmic":      # d² = C0 + C1 C2 ln(1 + l / C2)
+        return {"C0": "m²", "C1": "m²/m", "C2": "m"}
+    return {"C0": "m²", "C1": "m²/m", "C2": ""}     # linear: d² = C0 + C1 l
 
 
 def radial_theta0(problem) -> list[float]:

@@ -182,20 +182,35 @@ def criterion_matrix(xy: np.ndarray, kind: str = "linear", C0: float = 0.0, C1: 
     return np.kron(Cp, np.eye(axes))
 
 
+def sbase_matrix(G: np.ndarray, in_base: np.ndarray) -> np.ndarray:
+    """Baarda's S-transformation S = I − G (EᵀG)⁻¹ Eᵀ, E the rows of G on the S-base (M84 §2)."""
+    E = np.where(np.asarray(in_base)[:, None], G, 0.0)
+    return np.eye(G.shape[0]) - G @ la.solve(E.T @ G, E.T)
+
+
 def sbase_transform(H: np.ndarray, G: np.ndarray, in_base: np.ndarray) -> np.ndarray:
-    """S H Sᵀ with S = I − G (EᵀG)⁻¹ Eᵀ, E the rows of G on the S-base (M84 §2)."""
-    E = np.where(in_base[:, None], G, 0.0)
-    S = np.eye(H.shape[0]) - G @ la.solve(E.T @ G, E.T)
+    """S H Sᵀ, H transformed to the S-base (:func:`sbase_matrix`, M84 §2)."""
+    S = sbase_matrix(G, in_base)
     return S @ H @ S.T
+
+
+def null_complement(G: np.ndarray) -> np.ndarray:
+    """An orthonormal basis B (u × (u − d)) of the complement of the null space spanned by G's d
+    columns: BᵀG = 0, so that Bᵀ S = Bᵀ for every S-transformation S of :func:`sbase_matrix`."""
+    return np.eye(G.shape[0]) if G.shape[1] == 0 else la.null_space(G.T)
 
 
 @dataclass(frozen=True, eq=False)
 class Comparison:
-    """Generalised eigenvalues of |G − λH| = 0 on the non-base coordinates (M84 eq. 3)."""
+    """Generalised eigenvalues of |G − λH| = 0 (M84 eq. 3) on the complement of the null space:
+    the same in every S-base (M84 §2.2). ``vectors`` are the eigenvectors as coordinate
+    displacements (u × k, defined up to the null space); ``null`` the null space, ``in_base`` the
+    S-base flags in which :meth:`worst_pattern` shows them."""
 
     lam: np.ndarray
-    vectors: np.ndarray          # eigenvectors (non-base coordinates × k)
-    nonbase: np.ndarray          # positions of the non-base coordinates
+    vectors: np.ndarray
+    null: np.ndarray
+    in_base: np.ndarray
 
     @property
     def lam_max(self) -> float:
@@ -210,39 +225,114 @@ class Comparison:
         """λmax < 1: every function of the coordinates is more precise than the criterion."""
         return self.lam_max < 1.0
 
-    def worst_pattern(self, size: int) -> np.ndarray:
-        """The eigenvector of λmax as a displacement pattern over all coordinates (size)."""
-        out = np.zeros(size)
+    def worst_pattern(self) -> np.ndarray:
+        """The eigenvector of λmax as a displacement pattern in the S-base (S v, largest component 1;
+        the S-base points of a minimal S-base do not move)."""
         v = self.vectors[:, -1]
-        out[self.nonbase] = v / np.abs(v).max()
-        return out
+        if self.null.shape[1]:
+            v = sbase_matrix(self.null, self.in_base) @ v
+            v[np.abs(v) < 1e-12 * np.abs(v).max()] = 0.0
+        return v / np.abs(v).max()
 
 
-def compare(G: np.ndarray, H: np.ndarray, in_base: np.ndarray) -> Comparison:
-    """λ of |G − λH| = 0 over the coordinates outside the S-base (both in that S-base)."""
-    nb = np.flatnonzero(~np.asarray(in_base))
-    Gn, Hn = G[np.ix_(nb, nb)], H[np.ix_(nb, nb)]
-    lam, V = la.eigh(0.5 * (Gn + Gn.T), 0.5 * (Hn + Hn.T))
-    return Comparison(lam, V, nb)
+def compare(G: np.ndarray, H: np.ndarray, null: np.ndarray, in_base: np.ndarray) -> Comparison:
+    """λ of |G − λH| = 0 for a covariance G and a criterion H over the coordinates, ``null`` (u × d)
+    the datum's null space and ``in_base`` the S-base flags per coordinate.
+
+    Both matrices are taken on the complement of the null space, B (:func:`null_complement`):
+    BᵀGB and BᵀHB are the same whatever S-base G and H are in (BᵀS = Bᵀ), so the judgement does
+    not depend on the S-base (M84 §2.2). Dropping the S-base coordinates instead gives the same
+    eigenvalues only for a minimal S-base (as many coordinates as the datum defect); with more it
+    works on a subspace and the result changes with the base. Where G is singular on that
+    complement (control points fix the datum), the S-base coordinates are dropped.
+    """
+    null = np.asarray(null, dtype=float).reshape(G.shape[0], -1)
+    in_base = np.asarray(in_base, dtype=bool)
+    B = null_complement(null)
+    Gb = B.T @ G @ B
+    g = np.linalg.eigvalsh(0.5 * (Gb + Gb.T))
+    if g.size and g[0] <= 1e-12 * g[-1]:
+        # G is not the S-transform of a free network's covariance: control points outside the
+        # S-base fix the datum (their coordinates have no variance of their own), and G is
+        # singular on the complement. The datum is given; compare on the coordinates outside
+        # the S-base, as the S-base coordinates carry no variance.
+        B = np.eye(G.shape[0])[:, ~in_base]
+        Gb = B.T @ G @ B
+    Hb = B.T @ H @ B
+    lam, V = la.eigh(0.5 * (Gb + Gb.T), 0.5 * (Hb + Hb.T))
+    return Comparison(lam, B @ V, null, in_base)
+
+
+def c2_bounds(kind: str, xy: np.ndarray) -> tuple[float, float]:
+    """The range searched for C2 (M84 §2.3), from the network's own distances l (metres):
+    logarithmic, C2 a length, in [l_min/1000, 1000 l_max]; exponential, C2² an inverse length
+    (C2 in m^-½), 1/C2² in [l_min/1000, 1000 l_max]. Any C2 outside makes d² proportional to l or
+    constant over the network."""
+    L = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    l = L[L > 0]
+    if not l.size:
+        raise BaardaError("a criterion matrix needs at least two distinct points")
+    lo, hi = l.min() / 1e3, l.max() * 1e3
+    if kind == "exponential":
+        return 1.0 / np.sqrt(hi), 1.0 / np.sqrt(lo)
+    return lo, hi
 
 
 def fit_criterion(G: np.ndarray, xy: np.ndarray, in_base: np.ndarray, Gnull: np.ndarray,
-                  kind: str = "logarithmic", axes: int = 2, C2_bounds=(1.0, 1e5)) -> dict:
-    """Fit C1 (λmax = 1) and C2 (λmax/λmin minimal) of a chaotic criterion to a covariance
-    (M84 §2.3): a substitute covariance matrix for the block. C0 = 0."""
+                  kind: str = "logarithmic", axes: int = 2, C0: float = 0.0) -> dict:
+    """Fit a chaotic criterion to a covariance G (M84 §2.3): C0 is chosen first (given; it belongs to
+    the precision of the measurements), then C1 makes λmax = 1 and C2 makes λmax/λmin smallest.
 
-    def lam_for(C2):
-        H = sbase_transform(criterion_matrix(xy, kind, 0.0, 1.0, C2, axes=axes), Gnull, in_base)
-        return compare(G, H, in_base)
+    C2 is searched on a grid of 61 values over :func:`c2_bounds` and refined by Brent's method
+    around the best grid value; ``C2_at_bound`` says the smallest ratio lies at the end of that
+    range (for the plateau where d² is the same for every pair, the end of the plateau is given). With C0 = 0, H scales with C1 and C1 = λmax(C1 = 1); otherwise
+    λmax falls as C1 grows and C1 is its root (0 when C0 alone already bounds G). C1 is in m²/m
+    (linear, logarithmic) or m² (exponential), C2 in m (logarithmic) or m^-½ (exponential), C0 in
+    m² (linear, logarithmic) or m (exponential: d² = C0² + …).
+    """
+    null = np.asarray(Gnull, dtype=float)
 
+    def lam(C1, C2):
+        H = criterion_matrix(xy, kind, C0, C1, C2, axes=axes)
+        return compare(G, sbase_transform(H, null, in_base), null, in_base)
+
+    def fitted(C2):
+        c1 = lam(1.0, C2)
+        if C0 == 0.0:
+            return c1.lam_max, c1
+        c0 = lam(0.0, C2)
+        if c0.lam_max <= 1.0:               # C0 alone bounds G
+            return 0.0, c0
+        hi = max(c1.lam_max, 1e-300)        # at C1 = λmax(1) the C1 part alone reaches λmax = 1
+        C1 = optimize.brentq(lambda c: lam(c, C2).lam_max - 1.0, 0.0, hi, xtol=1e-14 * hi, rtol=1e-12)
+        return C1, lam(C1, C2)
+
+    def ratio(lc2):
+        _, c = fitted(np.exp(lc2))
+        return c.lam_max / max(c.lam_min, 1e-300)
+
+    bounds, at_bound = (1.0, 1.0), False
     if kind == "linear":
         C2 = 1.0
     else:
-        res = optimize.minimize_scalar(lambda lc2: (lambda c: c.lam_max / max(c.lam_min, 1e-300))(lam_for(np.exp(lc2))),
-                                       bounds=np.log(C2_bounds), method="bounded",
-                                       options={"xatol": 1e-3})
-        C2 = float(np.exp(res.x))
-    c = lam_for(C2)
-    C1 = c.lam_max            # H scales with C1 when C0 = 0: λ(C1) = λ(1) / C1
-    return {"kind": kind, "C0": 0.0, "C1": float(C1), "C2": float(C2),
-            "ratio": float(c.lam_max / c.lam_min)}
+        bounds = c2_bounds(kind, np.asarray(xy, dtype=float))
+        grid = np.linspace(*np.log(bounds), 61)
+        vals = np.array([ratio(g) for g in grid])
+        k = int(np.argmin(vals))
+        # the end where d² no longer varies over the network (exp(−C2² l) ≈ 0; C2 ≪ l): the
+        # ratio is flat there, and a minimum on that plateau is the bound, not a C2 of its own
+        flat = grid.size - 1 if kind == "exponential" else 0
+        if vals[flat] <= vals[k] * (1.0 + 1e-9):
+            C2, at_bound = float(np.exp(grid[flat])), True
+        else:
+            a, b = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
+            res = optimize.minimize_scalar(ratio, bounds=(a, b), method="bounded", options={"xatol": 1e-6})
+            C2 = float(np.exp(res.x)) if res.fun <= vals[k] else float(np.exp(grid[k]))
+            at_bound = k in (0, grid.size - 1)
+    C1, c = fitted(C2)
+    if C0 == 0.0:
+        C1 = c.lam_max          # H scales with C1 when C0 = 0: λ(C1) = λ(1) / C1
+        c = lam(C1, C2)
+    return {"kind": kind, "C0": float(C0), "C1": float(C1), "C2": float(C2),
+            "ratio": float(c.lam_max / c.lam_min), "C2_range": [float(bounds[0]), float(bounds[1])],
+            "C2_at_bound": bool(at_bound)}

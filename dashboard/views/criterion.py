@@ -17,6 +17,8 @@ import numpy as np
 import panel as pn
 import param
 
+from baarda.stats import analyses
+
 from ..state import State, display_matrix, display_xy
 from ..text import labels, md_text, plain
 from .common import formatters
@@ -53,11 +55,20 @@ class CriterionView(pn.viewable.Viewer):
                                      css_classes=["criterion-alert"])
         self.plot = pn.pane.HoloViews(self._map(), sizing_mode="stretch_width", css_classes=["criterion-map"],
                                       linked_axes=False)
+        self.kind.param.watch(self._units, "value")
+        self._units()
         self.fit.on_click(lambda e: self.run_fit())
         self.check.on_click(lambda e: self.run_check())
         s.param.watch(self._show, ["criterion", "criterion_error"])
         if not self.reason and len(s.problem.points.ids) <= AUTO_FIT_POINTS:
             self.run_fit()
+
+    def _units(self, *_):
+        """C1 and C2 labelled in the units of the chosen structure (C2 in m^-½ for the exponential)."""
+        u = analyses.criterion_units(self.kind.value)
+        self.C1.label = f"C1 [{u['C1']}]"
+        self.C2.label = f"C2 [{u['C2']}]" if u["C2"] else "C2 (not used)"
+        self.C2.disabled = not u["C2"]
 
     def run_fit(self):
         c = self.state.criterion_compare(self.kind.value, sbase=self.sbase.value)
@@ -80,7 +91,10 @@ class CriterionView(pn.viewable.Viewer):
                        "**satisfied** (λmax < 1)" if c["satisfied"] else "**NOT satisfied** (λmax ≥ 1)")
             self.info.object = (
                 f"{'Fitted' if c['fitted'] else 'Given'} {c['kind']} criterion in S-base "
-                f"{md_text(', '.join(c['sbase']))}: C1 = {c['C1']:.4g} m²/m, C2 = {c['C2']:.4g} m  \n"
+                f"{md_text(', '.join(c['sbase']))}: C1 = {c['C1']:.4g} {c['units']['C1']}"
+                + (f", C2 = {c['C2']:.4g} {c['units']['C2']}" if c["units"]["C2"] else "")
+                + (" (C2 at the end of its range: d² hardly varies with distance here)" if c["C2_at_bound"] else "")
+                + "  \n"
                 f"λmax = {c['lam_max']:.4g}, λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}: {verdict}  \n"
                 "The map: the S-base points as squares, the eigenvector of λmax as arrows (the direction "
                 "in which the network is weakest relative to the criterion).")
