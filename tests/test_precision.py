@@ -155,6 +155,15 @@ def dense_ratio(G, H, Gnull):
     return lam[-1] / lam[0]
 
 
+def first_two_points_base(adj):
+    """The coordinate covariance in the S-base of the first two points, the null space over the
+    coordinates, the S-base flags and the point positions."""
+    ids = list(adj.problem.points.ids)
+    cc = precision.covariance(adj, sbase=ids[:2])
+    Gk = precision.release_null_space(adj)[1][: cc.params.size]
+    return cc, Gk, np.isin(np.array(ids)[cc.point], ids[:2]), adj.coordinates[:, :2]
+
+
 @pytest.mark.parametrize("directions_only", [False, True], ids=["d=3", "d=4"])
 def test_criterion_judgement_same_in_every_sbase(directions_only):
     adj = free_network(directions_only)
@@ -185,13 +194,7 @@ def test_criterion_judgement_same_in_every_sbase(directions_only):
 def test_fitted_c2_is_the_minimum_over_a_fine_scan(kind):
     """M84 §2.3: C2 makes λmax/λmin smallest. A brute-force scan of 400 values over six decades
     either side of the network's distances finds nothing smaller than the fit."""
-    adj = free_network()
-    ids = list(adj.problem.points.ids)
-    _, Gnull, _ = precision.release_null_space(adj)
-    cc = precision.covariance(adj, sbase=ids[:2])
-    Gk = Gnull[: cc.params.size]
-    in_base = np.isin(np.array(ids)[cc.point], ids[:2])
-    xy = adj.coordinates[:, :2]
+    cc, Gk, in_base, xy = first_two_points_base(free_network())
     fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind=kind)
     lo, hi = fit["C2_range"]
     scan = []
@@ -206,13 +209,7 @@ def test_fitted_c2_is_the_minimum_over_a_fine_scan(kind):
 
 def test_c0_chosen_first_keeps_lambda_max_one():
     """M84 §2.3: C0 first, then C1 so that λmax = 1 (a root, since H no longer scales with C1)."""
-    adj = free_network()
-    ids = list(adj.problem.points.ids)
-    _, Gnull, _ = precision.release_null_space(adj)
-    cc = precision.covariance(adj, sbase=ids[:2])
-    Gk = Gnull[: cc.params.size]
-    in_base = np.isin(np.array(ids)[cc.point], ids[:2])
-    xy = adj.coordinates[:, :2]
+    cc, Gk, in_base, xy = first_two_points_base(free_network())
     free = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind="linear")
     C0 = 0.3 * free["C1"] * 100.0          # a constant part worth 30 m of the C0 = 0 fit
     fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind="linear", C0=C0)
