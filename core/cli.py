@@ -336,6 +336,8 @@ def _analyze(args) -> int:
             if args.variance_components == "radial":
                 est = analyses.radial_variance(problem, options)
                 doc["variance_components"] = est.as_dict()
+                doc["variance_estimate"] = {"kind": "radial", "converged": bool(est.converged),
+                                            "iterations": int(est.iterations), "std_error": "rigorous"}
                 prec_lines.append(f"  radial variance model (F80 §2.1, {est.iterations} iterations"
                                   f"{'' if est.converged else ', NOT converged'}):")
                 for d in est.as_dict():
@@ -345,6 +347,7 @@ def _analyze(args) -> int:
             else:
                 vc = variance.estimate(problem, options=options)
                 doc["variance_components"] = vc.as_dict()
+                doc["variance_estimate"] = vc.summary()
         except BaardaError as err:
             doc["variance_components"] = {"error": str(err)}
             prec_lines.append(f"  {err}")

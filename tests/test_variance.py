@@ -116,3 +116,26 @@ def test_radial_model_recovers_a_and_b():
         assert abs(th["a²"] - a2_true) < 3 * se["a²"]
         assert abs(th["b²c²"] - b2c2_true) < 3 * se["b²c²"]
         assert abs(est.redundancy.sum() - est.adjustment.dof) < 1e-6 * est.adjustment.dof
+
+
+def test_std_errors_rigorous_at_convergence():
+    """At convergence D(σ̂_j²) = 2 (S⁻¹)_jj with S_jk = tr(W C_j W C_k), W = P C_vv P and C_j the
+    groups' covariances as they stand (Förstner 1979; F80 eq. 9): checked against the dense
+    oracle's C_vv. f √(2 / r_j) is only its diagonal approximation, and differs here."""
+    from oracle import dense
+
+    p = problem(_network_with_true_factors(5))
+    vc = variance.estimate(p)
+    assert vc.converged and vc.std_error_method == "rigorous"
+    d = dense(vc.adjustment)
+    W = d.P @ d.Cvv @ d.P
+    C = np.linalg.inv(d.P)
+    masks = [np.isin(np.arange(p.n), ix) for ix in variance.groups_by_kind(p).values()]
+    WC = [W @ (C * (m[:, None] & m[None, :])) for m in masks]
+    S = np.array([[np.trace(X @ Y) for Y in WC] for X in WC])
+    expected = vc.factors * np.sqrt(2.0 * np.diag(np.linalg.inv(S)))
+    np.testing.assert_allclose(vc.std_error, expected, rtol=1e-8)
+    approx = vc.factors * np.sqrt(2.0 / vc.redundancy)
+    assert np.abs(vc.std_error / approx - 1.0).max() > 1e-3
+    assert vc.summary() == {"kind": "families", "converged": True, "iterations": vc.iterations,
+                            "std_error": "rigorous"}

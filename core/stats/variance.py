@@ -7,8 +7,10 @@ adjustment's P and C_vv, the estimate of each factor is
 
 (the second form for groups made of whole covariance clusters). The covariance of group j is
 rescaled by σ̂0j², the problem readjusted, and this repeated until every new estimate is 1 within
-``tol`` (Förstner's iterated estimator). The standard error of a factor is approximately
-σ̂0j² √(2 / r_j) with r_j = Σ_{i∈j} r_i the group's redundancy.
+``tol`` (Förstner's iterated estimator). At convergence the standard error of a factor is
+σ̂0j² √(2 (S⁻¹)_jj) with S_jk = tr(W C_j W C_k), W = P Q_vv P and C_j the group's covariance as it
+stands (Förstner 1979); σ̂0j² √(2 / r_j), r_j = Σ_{i∈j} r_i, is its diagonal approximation, used
+above :data:`RIGOROUS_MAX_N` observations.
 """
 
 from __future__ import annotations
@@ -23,6 +25,9 @@ from ..errors import BaardaError
 
 #: a group with less redundancy than this cannot be estimated (its factor would be noise)
 MIN_GROUP_REDUNDANCY = 0.5
+#: up to this many observations the standard errors are the rigorous f_j √(2 (S⁻¹)_jj) (dense
+#: n × n matrices); above it the approximation f_j √(2 / r_j)
+RIGOROUS_MAX_N = 3000
 
 KIND_FAMILIES = {
     "distance": "distances", "slope-distance": "distances",
@@ -46,6 +51,13 @@ class VarianceComponents:
     iterations: int
     converged: bool
     adjustment: object
+    #: "rigorous": f_j √(2 (S⁻¹)_jj); "approximate": f_j √(2 / r_j) (problems above RIGOROUS_MAX_N)
+    std_error_method: str = "rigorous"
+
+    def summary(self) -> dict:
+        """How the estimate ended: ``converged``, ``iterations`` and the standard errors' method."""
+        return {"kind": "families", "converged": bool(self.converged), "iterations": int(self.iterations),
+                "std_error": self.std_error_method}
 
     def as_dict(self) -> list[dict]:
         return [{"group": n, "factor": float(f), "sigma_factor": float(np.sqrt(f)),
@@ -110,8 +122,14 @@ def estimate(problem, groups: dict[str, np.ndarray] | None = None, options: Opti
             converged = True
             break
     red_final = np.array([adj.r[ix].sum() for ix in groups.values()])
-    return VarianceComponents(tuple(groups), factors, red_final, factors * np.sqrt(2.0 / red_final),
-                              it, converged, adj)
+    if problem.n <= RIGOROUS_MAX_N:
+        masks = [np.isin(np.arange(problem.n), ix) for ix in groups.values()]
+        C = np.linalg.inv(adj.P.toarray())
+        S, _ = _trace_matrix(adj, [C * (m[:, None] & m[None, :]) for m in masks])
+        se, method = factors * np.sqrt(2.0 * np.diag(np.linalg.inv(S))), "rigorous"
+    else:
+        se, method = factors * np.sqrt(2.0 / red_final), "approximate"
+    return VarianceComponents(tuple(groups), factors, red_final, se, it, converged, adj, method)
 
 
 # -- additive components: the radial model of F80 §2.1 ---------------------------------------------
@@ -123,7 +141,7 @@ class ComponentEstimate:
     names: tuple[str, ...]
     theta: np.ndarray
     redundancy: np.ndarray       # tr(C_vv P Q_j P), the share of the redundancy of component j
-    std_error: np.ndarray        # θ_j √(2 / r_j)
+    std_error: np.ndarray        # √(2 (S⁻¹)_jj) at convergence; θ_j √(2 / r_j) otherwise
     iterations: int
     converged: bool
     adjustment: object
@@ -137,26 +155,32 @@ def _cluster_stack(blocks, members):
     return np.array([blocks[c] for c in members])
 
 
-def _helmert_step(adj, components, names, problem):
-    """One step of the full estimator: S θ = q with S_jk = tr(R C_j P R C_k P), R = C_vv P,
-    q_j = vᵀ P C_j P v (Förstner 1979; F80 eq. 9 is its diagonal form). Dense in n."""
+def _trace_matrix(adj, Cj: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """S_jk = tr(W C_j W C_k) and r_j = tr(Q_vv P C_j P), W = P Q_vv P = P − P A N⁻¹ Aᵀ P, for dense n × n component
+    matrices C_j (Förstner 1979; F80 eq. 9 is its diagonal form). At convergence of the iterated
+    estimate, D(σ̂_j²) = 2 (S⁻¹)_jj with C_j the components as they stand (Förstner 1979)."""
     A = adj.Ar.toarray()
     P = adj.P.toarray()
     C = np.linalg.inv(P)
-    H = A @ adj.factor.solve(A.T)
-    R = (C - H) @ P
+    R = (C - A @ adj.factor.solve(A.T)) @ P          # Q_vv P
+    RC = [R @ (Cm @ P) for Cm in Cj]
+    return np.array([[np.sum(X * Y.T) for Y in RC] for X in RC]), np.array([np.trace(X) for X in RC])
+
+
+def _helmert_step(adj, components, names, problem):
+    """One step of the full estimator: S θ = q with S_jk = tr(R C_j P R C_k P), R = C_vv P,
+    q_j = vᵀ P C_j P v (Förstner 1979; F80 eq. 9 is its diagonal form). Dense in n."""
     Pv = adj.Pv
     Cj = []
     for n in names:
-        M = np.zeros_like(C)
+        M = np.zeros((problem.n, problem.n))
         for idx, b in zip(problem.cov.members, components[n]):
             M[np.ix_(idx, idx)] = b
         Cj.append(M)
-    RC = [R @ (Cm @ P) for Cm in Cj]
-    S = np.array([[np.sum(X * Y.T) for Y in RC] for X in RC])
+    S, red = _trace_matrix(adj, Cj)
     q = np.array([Pv @ Cm @ Pv for Cm in Cj])
     theta = np.linalg.solve(S, q)
-    return theta, np.sqrt(2.0 * np.diag(np.linalg.inv(S))), np.array([np.trace(X) for X in RC])
+    return theta, np.sqrt(2.0 * np.diag(np.linalg.inv(S))), red
 
 
 
