@@ -69,3 +69,24 @@ def test_snooping_detection_rate_and_false_alarms():
     assert rate >= 0.80 - 3 * np.sqrt(0.8 * 0.2 / n_sim), rate
     alpha = 0.001
     assert abs(false / tests - alpha) < 3 * np.sqrt(alpha * (1 - alpha) / tests) + 0.0005, false / tests
+
+
+def test_estimated_error_for_correlated_observations_is_f80_nabla_s():
+    """∇ŝ = −(Hᵀ P v)/(Hᵀ P C_vv P H) for H = e_i (F80 eq. 10): for GNSS vectors with full 3 × 3
+    covariances it is not −v_i/r_i. Checked against the dense oracle of the first adjustment."""
+    from networks import problem, vector_network
+    from oracle import dense
+
+    net = vector_network(seed=3)
+    k = 7                                                   # a dy of the third vector
+    noise = np.random.default_rng(5).normal(scale=0.002, size=len(net.observations))
+    obs = [dataclasses.replace(o, value=o.value + e) for o, e in zip(net.observations, noise)]
+    obs[k] = dataclasses.replace(obs[k], value=obs[k].value + 0.05)
+    p = problem(dataclasses.replace(net, observations=tuple(obs)))
+    d = dense(adjust(p))
+    steps = iterate(p).steps
+    assert steps and steps[0].removed == k
+    Pv = d.P @ d.v
+    expected = -Pv[k] / (d.P @ d.Cvv @ d.P)[k, k]
+    assert steps[0].nabla == pytest.approx(expected, rel=1e-9)
+    assert abs(steps[0].nabla - (-d.v[k] / np.diag(d.Cvv @ d.P)[k])) > 1e-6    # not −v/r here

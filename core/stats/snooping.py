@@ -3,8 +3,8 @@
 Test every observation with w (σ0 a priori) or τ (σ0 a posteriori); if the largest statistic
 exceeds its critical value, remove that observation, readjust and test again, until nothing is
 rejected (or the redundancy would fall below ``min_dof``). Each step is logged: which
-observation, its statistic, the estimated error ∇̂ = −v_i/r_i (uncorrelated: the w-test's ∇ŝ of
-F80 eq. 10), and σ̂0 before and after. With ``b_method`` the critical value is Baarda's
+observation, its statistic, the estimated error ∇̂ = −(Pv)_i/(P C_vv P)_ii (the w-test's ∇ŝ of
+F80 eq. 10 for H = e_i; −v_i/r_i for an uncorrelated observation), and σ̂0 before and after. With ``b_method`` the critical value is Baarda's
 consistent one (the 1D test's α0), as for the single pass.
 
 The "find the error" view (``leave_one_out``) shows how σ̂0 changes when each suspect is left out
@@ -27,7 +27,7 @@ class SnoopStep:
     removed: int              # index in the original problem
     statistic: float          # w (or τ) of the removed observation
     critical: float
-    nabla: float              # estimated error −v_i / r_i (SI units)
+    nabla: float              # estimated error −(Pv)_i / (P C_vv P)_ii (SI units; F80 eq. 10)
     sigma0_before: float
     sigma0_after: float
 
@@ -67,7 +67,8 @@ def iterate(problem, options: Options | None = None, use_tau: bool = False, max_
         i = int(np.argmax(stat))
         if stat[i] <= crit or adj.dof - 1 < min_dof:
             break
-        nabla = float(-adj.v[i] / adj.r[i]) if adj.r[i] > 0 else float("nan")
+        qpp = adj.qvv_pp[i]
+        nabla = float(-adj.Pv[i] / qpp) if qpp > 0 else float("nan")
         keep_local = np.setdiff1d(np.arange(adj.n), [i])
         reduced = subset(adj.problem, keep_local)
         if check is not None:
