@@ -261,10 +261,10 @@ def create_app(path=None, problem=None, background: bool | None = None):
 
     def build_later():
         # on the builder thread, one session after another, after the summaries of waiting
-        # sessions: the views are built on the event loop in pieces (made; the maps' tab
-        # attached; the tables' tabs attached), each its own callback, so that the events of
-        # other sessions (clicks, new pages) run in between; a session whose page is gone
-        # (closed, or the session destroyed) is not built, nor built further
+        # sessions: the views are made in one event-loop callback and attached in the next
+        # (both at once: the browser lays the page out once), so that the events of other
+        # sessions run in between; a session whose page is gone (closed, or the session
+        # destroyed) is not built, nor built further
         _summaries_first()
         parts = {}
 
@@ -272,17 +272,12 @@ def create_app(path=None, problem=None, background: bool | None = None):
             _timing(sid, "build-start")
             parts["maps"], parts["right"] = _main(state)
 
-        def attach_maps():
-            parts["row"] = pn.Row(parts["maps"], sizing_mode="stretch_width")
-            content.objects = [parts["row"]]
-            _timing(sid, "maps-tab")
-
-        def attach_right():
-            _attach(state, parts["maps"], parts["right"], row=parts["row"])
+        def attach():
+            content.objects = [_attach(state, parts["maps"], parts["right"])]
             _timing(sid, "maps")
 
         try:
-            for fn in (make, attach_maps, attach_right):
+            for fn in (make, attach):
                 if not piece(fn):
                     _timing(sid, "build-skipped")
                     return
@@ -373,13 +368,9 @@ def _main(state):
     return map_tabs, right
 
 
-def _attach(state, map_tabs, right, row=None):
-    """The maps and the tables side by side (``right`` appended to ``row`` when the maps are
-    already in it), shown as loading while the state is busy."""
-    if row is None:
-        row = pn.Row(map_tabs, right, sizing_mode="stretch_width")
-    else:
-        row.append(right)
+def _attach(state, map_tabs, right):
+    """The maps and the tables side by side, shown as loading while the state is busy."""
+    row = pn.Row(map_tabs, right, sizing_mode="stretch_width")
     row.loading = state.busy
     state.param.watch(lambda e: setattr(row, "loading", e.new), "busy")
     return row
