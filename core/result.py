@@ -344,20 +344,25 @@ class Adjustment:
         return raw
 
     @cached_property
+    def weight_diagonal(self) -> np.ndarray:
+        """P_ii per observation (the diagonal of the cluster inverses, :func:`size_weights`)."""
+        out = np.empty(self.n)
+        for (_, _, members, _), Pc in zip(size_groups(self.problem.cov), size_weights(self.problem.cov)):
+            out[members] = np.diagonal(Pc, axis1=1, axis2=2)
+        return out
+
+    @cached_property
     def uncontrolled(self) -> np.ndarray:
-        """Observations with r_i ≈ 0: an error in them cannot be detected at all."""
-        return self._cluster_stats[0] <= R_EPS
+        """Observations whose (P C_vv P)_ii vanishes, relative to P_ii: w_i is undefined and an error
+        in them cannot be detected at all (F80 §4). For an uncorrelated observation this is
+        r_i ≤ R_EPS; a component of a correlated cluster can have r_i ≤ 0 while (P C_vv P)_ii > 0,
+        and its w_i is defined."""
+        return self._cluster_stats[1] <= R_EPS * self.weight_diagonal
 
     @cached_property
     def qvv_pp(self) -> np.ndarray:
         """(P C_vv P)_ii, the variance of (Pv)_i."""
         return np.maximum(self._cluster_stats[1], 0.0)
-
-    @cached_property
-    def sigma_v(self) -> np.ndarray:
-        """Standard deviation of each residual √(C_vv)_ii for uncorrelated ones (a priori σ0)."""
-        sig = self.problem.cov.sigma()
-        return sig * np.sqrt(self.r)
 
     @cached_property
     def w(self) -> np.ndarray:

@@ -100,3 +100,22 @@ def test_a_posteriori_sigma_scales_the_point_covariance():
     assert b.variance_factor == pytest.approx(factor, rel=1e-12)
     np.testing.assert_allclose(b.point_cov, a.point_cov * factor, rtol=1e-10, atol=1e-20)
     np.testing.assert_allclose(b.r, a.r, atol=1e-12)                 # r does not depend on σ0
+
+
+def test_correlated_component_with_negative_r_is_tested():
+    """F80 §4: w_i = (Pv)_i / √(P C_vv P)_ii is defined wherever (P C_vv P)_ii > 0. A component of a
+    correlated GNSS vector can have r_i = (C_vv P)_ii < 0 (only the cluster's trace is bounded):
+    it is not uncontrolled, and its w and MDB equal the dense oracle's."""
+    net = vector_network(seed=5)
+    noise = np.random.default_rng(1).normal(scale=0.002, size=len(net.observations))
+    net = dataclasses.replace(net, observations=tuple(dataclasses.replace(o, value=o.value + e)
+                                                      for o, e in zip(net.observations, noise)))
+    adj = adjust(problem(net))
+    i = int(np.argmin(adj.r))
+    assert adj.r[i] < 0 and not adj.uncontrolled[i]
+    d = dense(adj)
+    pcp = np.diag(d.P @ d.Cvv @ d.P)
+    assert adj.w[i] == pytest.approx((d.P @ d.v)[i] / np.sqrt(pcp[i]), rel=1e-8)
+    assert np.isfinite(adj.mdb[i])
+    # the rule's scale: P_ii, so that for an uncorrelated observation it reads r_i ≤ R_EPS
+    np.testing.assert_allclose(adj.weight_diagonal, np.diag(d.P), rtol=1e-12)
