@@ -15,7 +15,7 @@ from baarda.adjust import Options, adjust
 from baarda.datum import normal_diagonal
 from baarda.io.bal import read_bal
 from baarda.model.problem import Categorical, Covariance, JoinedLabels, RecordIds, subset
-from baarda.model.sfm import CAMERA_MODELS, ControlPoint, build_sfm_problem
+from baarda.model.sfm import CAMERA_MODELS, ControlPoint, SfmBlock, SfmCamera, SfmImage, build_sfm_problem
 from baarda.stats.hypotheses import selection
 from baarda.stats.hypotheses import test as general_test
 
@@ -129,26 +129,29 @@ def test_normal_diagonal_in_chunks_equals_the_product():
     np.testing.assert_allclose(ref, np.asarray((A.T @ P @ A).diagonal()), rtol=1e-12)
 
 
+def _big_sfm_block() -> SfmBlock:
+    """A BAL-shaped block of 60,000 image points (20,000 points) from bench/make_big_bal.py."""
+    cams, X, oc, op, xy = _make_big_bal().make(60_000, 20_000, seed=5)
+    cameras = tuple(SfmCamera(str(c), "BAL", tuple(float(v) for v in cams[c, 6:9])) for c in range(cams.shape[0]))
+    images = tuple(SfmImage(str(c), str(c), tuple(float(v) for v in cams[c, :3]), tuple(float(v) for v in cams[c, 3:6]))
+                   for c in range(cams.shape[0]))
+    return SfmBlock(cameras=cameras, images=images, points=tuple(str(i) for i in range(X.shape[0])), X=X,
+                    point_line=np.zeros(X.shape[0], dtype=np.int64), obs_image=oc, obs_point=op, xy=xy,
+                    obs_line=np.zeros(oc.size, dtype=np.int64), convention="bal", refine_intrinsics=True)
+
+
 def test_build_memory_per_image_point():
     """The Problem of a block holds no Python object per observation: at most 600 bytes per
     image point (two rows: l, σ, line, group, kinds, ids, covariance, the projection set's
     index arrays) where one dict and one array per image point took over 700."""
-    mk = _make_big_bal()
-    cams, X, oc, op, xy = mk.make(60_000, 20_000, seed=5)
-    from baarda.model.sfm import SfmBlock, SfmCamera, SfmImage
-    cameras = tuple(SfmCamera(str(c), "BAL", tuple(float(v) for v in cams[c, 6:9])) for c in range(cams.shape[0]))
-    images = tuple(SfmImage(str(c), str(c), tuple(float(v) for v in cams[c, :3]), tuple(float(v) for v in cams[c, 3:6]))
-                   for c in range(cams.shape[0]))
-    blk = SfmBlock(cameras=cameras, images=images, points=tuple(str(i) for i in range(X.shape[0])), X=X,
-                   point_line=np.zeros(X.shape[0], dtype=np.int64), obs_image=oc, obs_point=op, xy=xy,
-                   obs_line=np.zeros(oc.size, dtype=np.int64), convention="bal", refine_intrinsics=True)
+    blk = _big_sfm_block()
     tracemalloc.start()
     try:
         p = build_sfm_problem(blk)
         current, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    m = oc.size
+    m = blk.obs_image.size
     assert p.n == 2 * m
     assert current / m < 600, f"{current / m:.0f} bytes per image point kept"
     assert peak / m < 900, f"{peak / m:.0f} bytes per image point at the peak"
@@ -186,15 +189,7 @@ def test_adjust_memory_per_image_point(block):
     (4.3 KB and 1.6 KB before the int32 patterns and the freeing, 2.8 KB for the adjustment
     before one structure at a time, issue 11 item 5)."""
     adjust(build_sfm_problem(block), Options())               # compiled kernels made outside the trace
-    mk = _make_big_bal()
-    cams, X, oc, op, xy = mk.make(60_000, 20_000, seed=5)
-    from baarda.model.sfm import SfmBlock, SfmCamera, SfmImage
-    cameras = tuple(SfmCamera(str(c), "BAL", tuple(float(v) for v in cams[c, 6:9])) for c in range(cams.shape[0]))
-    images = tuple(SfmImage(str(c), str(c), tuple(float(v) for v in cams[c, :3]), tuple(float(v) for v in cams[c, 3:6]))
-                   for c in range(cams.shape[0]))
-    blk = SfmBlock(cameras=cameras, images=images, points=tuple(str(i) for i in range(X.shape[0])), X=X,
-                   point_line=np.zeros(X.shape[0], dtype=np.int64), obs_image=oc, obs_point=op, xy=xy,
-                   obs_line=np.zeros(oc.size, dtype=np.int64), convention="bal", refine_intrinsics=True)
+    blk = _big_sfm_block()
     p = build_sfm_problem(blk)
     tracemalloc.start()
     try:
@@ -205,7 +200,7 @@ def test_adjust_memory_per_image_point(block):
         peak_rel = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    m = oc.size
+    m = blk.obs_image.size
     assert adj.converged
     assert current / m < 1200, f"{current / m:.0f} bytes per image point kept"
     assert peak / m < 2500, f"{peak / m:.0f} bytes per image point at the peak"
