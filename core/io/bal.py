@@ -33,6 +33,11 @@ from .source import Numbers, Truncated, open_binary
 from .source import read_text as _read_text
 
 
+#: the largest angle-axis length accepted (rad): a turn is 2π; far beyond it the rotation's
+#: derivatives (sin θ / θ) vanish and the normal matrix is singular in double precision
+MAX_ANGLE = 1.0e6
+
+
 def read_text(path) -> str:
     """The text of ``path`` (UTF-8, decompressed when it is compressed), or InputError."""
     return _read_text(path)
@@ -253,6 +258,14 @@ def _read_bal(path, num: Numbers, src, sigma_px, refine_intrinsics) -> SfmBlock:
     num.check_finite(X, pl, lambda j: base + j, lambda j: f"3 coordinates for each of the {npt} points")
     X = X.reshape(npt, 3)
     num.end("the last point")
+    angle = np.linalg.norm(cams[:, :3], axis=1)
+    bad = np.flatnonzero(angle > MAX_ANGLE)
+    if bad.size:
+        c = int(bad[0])
+        j = int(np.argmax(np.abs(cams[c, :3])))
+        raise InputError(path, int(cl[9 * c + j]), f"camera {c}: rotation ρ{j + 1} = {cams[c, j]:g}: an angle-axis "
+                         f"vector of length {angle[c]:.3g} rad (its angle) is beyond {MAX_ANGLE:g} rad, not a "
+                         f"rotation double precision can adjust")
     bad = np.flatnonzero(cams[:, 6] <= 0)
     if bad.size:
         c = int(bad[0])

@@ -293,7 +293,7 @@ def issue12(bl: list[str], ul: list[str], col: dict[str, str]):
     write("bal-unicode-digit.txt", edited(bl, {3: token_changed(bl[3], 0, "\u00b2")}))
     write("bal-int-400.txt", edited(bl, {3: token_changed(bl[3], 1, "9" * 400)}))
     write("bal-value-huge.txt", edited(bl, {len(bl) - 2: "1e308"}))
-    # a rotation angle of 2⁶⁴ rad: finite, but the normal matrix is singular (reported with FILE)
+    # a rotation angle of 2⁶⁴ rad: finite, but its derivatives vanish (refused by the reader at its line)
     write("bal-singular.txt", edited(bl, {60: "18446744073709551616"}))
     write("bundler-unicode-digit.out", edited(ul, {len(ul) - 1: "\u2460 " + " ".join(ul[-1].split()[1:])}))
     cl = {k: v.splitlines() for k, v in col.items()}
