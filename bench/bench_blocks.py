@@ -299,7 +299,7 @@ def ladybug_peers(block, x_solution_cost: float, peers=("pycolmap", "scipy")) ->
 
 
 def row(name, solver, problem, adj, t_build, t_solve, t_rel, extra=""):
-    n_img = len(problem.extra.get("block", {}).get("images", [])) or "-"
+    n_img = len(problem.geometry.images) if problem.geometry is not None else "-"
     n_pts = len(problem.points.ids)
     print(f"{name:<18} {solver:<8} {n_img!s:>6} {n_pts:>7} {problem.n // 2:>8} {t_build:>8.2f} {t_solve:>8.2f} "
           f"{t_rel:>8.2f} {peak_mb():>8.0f}  {extra}", flush=True)

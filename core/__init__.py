@@ -2,19 +2,25 @@
 
 Glossary of symbols (F80, M84; the references are listed below):
 
-=========  ==================================================================================
-l          observations (SI units: metres, radians; pixels or mm in image space)
-C, P       a priori covariance σ0²Q of the observations, weight matrix P = C⁻¹
-A          design matrix ∂f/∂x at the solution (over the estimated parameters)
-N, Σ       normal matrix AᵀPA and its (generalised) inverse, the covariance of x̂
-v          residuals v = f(x̂) − l, adjusted minus observed
-r          redundancy numbers r_i = (C_vv P)_ii, Σ r_i = redundancy (dof)
-w, tau     Baarda's w-test (σ0 a priori), Pope's τ (σ0 a posteriori)
-delta0     δ0(α0, β0, q), the non-centrality a test detects with power β0
-mdb        minimal detectable bias ∇0l_i
-external   δ̄0,i, external reliability on the coordinates
-T, R       multi-dimensional test statistics of a hypothesis H (F80 eq. 12)
-=========  ==================================================================================
+==========  ==================================================================================
+l           observations (SI units: metres, radians; pixels or mm in image space)
+C, P        a priori covariance σ0²Q of the observations, weight matrix P = C⁻¹
+A           design matrix ∂f/∂x at the solution (over the estimated parameters)
+N, Σ        normal matrix AᵀPA and its (generalised) inverse, the covariance of x̂
+v           residuals v = f(x̂) − l, adjusted minus observed
+r           redundancy numbers r_i = (C_vv P)_ii, Σ r_i = redundancy (dof)
+w, tau      Baarda's w-test (σ0 a priori), Pope's τ (σ0 a posteriori)
+delta0      δ0(α0, β0, q), the non-centrality a test detects with power β0
+mdb         minimal detectable bias ∇0l_i
+external    δ̄0,i, external reliability on the coordinates
+T, R        multi-dimensional test statistics of a hypothesis H (F80 eq. 12)
+u_k, u_t    contributions of an observation to the coordinates and to the nuisance parameters
+            (F80 eq. 16)
+nabla       ∇ŝ = −W_s⁻¹HᵀPv, the estimated error of a hypothesis (F80 eq. 10)
+delta0'     δ0′(s), standardised sensitivity of a test in direction s (F80 eq. 14)
+delta_bar0  δ̄0(s), effect of an undetected error on any function of the coordinates (F80 eq. 17)
+lambda_bar  Baarda's λ̄ = ∇0kᵀ Q_kk⁻ ∇0k, datum invariant; δ̄0² (M84 §3.2)
+==========  ==================================================================================
 
 References (docstrings cite them by key and equation, e.g. ``F80 eq. 8``; also docs/references.md):
 

@@ -126,6 +126,9 @@ class Options:
     ``"generic"`` (one sparse Cholesky of N). backend: the pair loops of the Schur path,
     ``"numba"`` or ``"numpy"`` (None: numba when installed). Every choice gives the same
     numbers to round-off.
+    sigma0, global_test: the test policy's σ0 of the decisions (``"apriori"``: w,
+    ``"aposteriori"``: τ) and its global test (``"one-sided"``, ``"two-sided"``;
+    :class:`baarda.stats.policy.TestPolicy`).
     """
 
     alpha: float = 0.001
@@ -136,6 +139,8 @@ class Options:
     solver: str = "auto"
     backend: str | None = None
     method: str = "auto"
+    sigma0: str = "apriori"
+    global_test: str = "one-sided"
 
 
 class _Labels:
@@ -172,7 +177,34 @@ class _Linearisation:
         self.u = free.size
         self.col = np.full(problem.params.size, -1, dtype=np.int64)
         self.col[free] = np.arange(free.size)
-        self._key = None
+        self._key = self._take = self._first = self._dest = None
+
+    def values(self, x: np.ndarray) -> np.ndarray:
+        """f(x) alone (a trial point's: its Jacobian is made once the step is accepted)."""
+        f = np.empty(self.problem.n)
+        for s in self.problem.sets:
+            f[s.rows] = s.values(x) if hasattr(s, "values") else s.evaluate(x)[0]
+        return f
+
+    def linearise(self, x: np.ndarray):
+        """f(x) and A at x (:meth:`evaluate`, :meth:`design`). Once the layout is known, a set
+        that writes its values in place (``evaluate_into``) writes them straight into A's data:
+        no array of the raw entries besides it."""
+        sets = self.problem.sets
+        s = sets[0] if len(sets) == 1 else None
+        if (s is not None and hasattr(s, "evaluate_into") and self._key is not None and self._first is None
+                and (self._take is not None or self._dest is not None) and self._same([(*s.pattern(), None)])):
+            if self._dest is None:         # the inverse of _take (which it replaces)
+                nnz = self._indices.size
+                dest = np.full(self._key[0][0].size, nnz, dtype=self._take.dtype)   # left out: a spare slot
+                dest[self._take] = np.arange(nnz, dtype=self._take.dtype)
+                self._dest, self._take = dest, None
+            data = np.empty(self._indices.size + 1)
+            f = np.empty(self.problem.n)
+            f[s.rows] = s.evaluate_into(x, self._dest, data)
+            return f, self._matrix(data[:-1])
+        f, parts = self.evaluate(x)
+        return f, self.design(parts)
 
     def evaluate(self, x: np.ndarray):
         """f(x) (n,) and the raw entries of the Jacobian (pass them to :meth:`design`)."""
@@ -187,7 +219,8 @@ class _Linearisation:
 
     def _layout(self, parts):
         problem = self.problem
-        rows = np.concatenate([np.asarray(s.rows)[jr] for s, (jr, _, _) in zip(problem.sets, parts)])
+        rows = np.concatenate([np.asarray(s.rows, dtype=np.int64)[jr]      # (int64: the keys below)
+                               for s, (jr, _, _) in zip(problem.sets, parts)])
         cols = self.col[np.concatenate([jc for _, jc, _ in parts])]
         m = cols >= 0
         key = rows[m] * max(self.u, 1) + cols[m]
@@ -210,11 +243,11 @@ class _Linearisation:
         small = uniq.size < 2 ** 31 - 1 and self.u < 2 ** 31 - 1       # int32 indices where they fit
         self._indptr = indptr.astype(np.int32 if small else np.int64)
         self._indices = (uniq % max(self.u, 1)).astype(np.int32 if small else np.int64)
-        self._reduced = None
+        self._reduced = self._dest = None
 
     def release(self) -> None:
         """Forget the layout of A (kept for the next :meth:`design`); :meth:`reduced` still works."""
-        self._key = self._take = self._first = None
+        self._key = self._take = self._first = self._dest = None
 
     def _same(self, parts) -> bool:
         if self._key is None or len(self._key) != len(parts):
@@ -224,12 +257,16 @@ class _Linearisation:
 
     def design(self, parts) -> sp.csr_matrix:
         """A (n × u_free, canonical CSR) from the entries of :meth:`evaluate`."""
-        if not self._same(parts):
+        if self._take is None or not self._same(parts):
             self._layout(parts)
         jv = parts[0][2] if len(parts) == 1 else np.concatenate([jv for _, _, jv in parts])
         data = jv[self._take]
         if self._first is not None:
             data = np.add.reduceat(data, self._first)
+        return self._matrix(data)
+
+    def _matrix(self, data: np.ndarray) -> sp.csr_matrix:
+        """A on the layout's pattern with the values ``data`` (no copy)."""
         A = sp.csr_matrix((data, self._indices, self._indptr), shape=(self.problem.n, self.u), copy=False)
         A.has_canonical_format = True
         self._A_indices = A.indices
@@ -417,7 +454,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         step = float((np.abs(step_keep) * np.sqrt(diagN)).max(initial=0.0))
         trial = x.copy()
         trial[free[keep]] += step_keep
-        f_new, parts_new = lin.evaluate(trial)
+        f_new = lin.values(trial)
         v_new = problem.misclosure(f_new)
         cost_new = float(v_new @ (P @ v_new))
         rho = gain_ratio(cost, cost_new, step_keep, g, lam, diagN)
@@ -463,21 +500,20 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             total = x[free] + dx - x_ref[free]
             x_s = x.copy()
             x_s[free] += plan.transform(total) - (x[free] - x_ref[free])
-            f_s, parts_s = lin.evaluate(x_s)
+            f_s = lin.values(x_s)
             v_s = problem.misclosure(f_s)
             cost_s = float(v_s @ (P @ v_s))
             # the linearised S-transformation of a long gauge drift can blow vᵀPv up: then the
             # step stays in the minimal constraint's gauge (the statistics do not depend on
             # it; the S-base is applied to the covariances through the plan)
             if cost_s <= max(cost_new, cost) * (1.0 + GAUGE_COST):
-                x_new, f_new, parts_new, v_new, cost_new = x_s, f_s, parts_s, v_s, cost_s
+                x_new, f_new, v_new, cost_new = x_s, f_s, v_s, cost_s
         if not np.isfinite(x_new).all():
             raise SingularError("the adjustment diverged (non-finite parameters)")
         rel_drop = (cost - cost_new) / cost if cost > 0 else 0.0
         x, f, v, cost = x_new, f_new, v_new, cost_new
         A = Ar = None              # the old matrices are freed before the new ones are made
-        A = lin.design(parts_new)
-        parts_new = parts_s = None
+        A = lin.linearise(x)[1]    # (f as the trial point's: the same kernel)
         Ar = lin.reduced(A, keep)
         if progress is not None:
             progress(it, step)
@@ -522,16 +558,13 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     t_solve = time.perf_counter() - t0
     adj = Adjustment(problem=problem, options=options, x=x, f=f, A=A, P=P, plan=plan,
                      converged=status > 0, iterations=it, history=tuple(history),
-                     timings={"solve": t_solve}, solver="schur" if st is not None else "generic")
+                     timings={"solve": t_solve}, solver="schur" if st is not None else "generic",
+                     status=status, termination=STATUS[status].format(n_far=n_far), damped=ever_damped,
+                     trace=tuple(trace), far_held=n_far)
     if st is not None:
-        adj.__dict__["schur_structure"] = st
+        adj.seed(schur_structure=st)
     if np.array_equal(adj.keep, keep):
-        adj.__dict__["Ar"] = Ar    # (its pattern is the structure's: not made a second time)
-    adj.__dict__["damped"] = ever_damped          # Levenberg-Marquardt took part
-    adj.__dict__["status"] = status
-    adj.__dict__["trace"] = tuple(trace)
-    adj.__dict__["termination"] = STATUS[status].format(n_far=n_far)
-    adj.__dict__["far_held"] = n_far
+        adj.seed(Ar=Ar)            # (its pattern is the structure's: not made a second time)
     return adj
 
 
@@ -589,12 +622,8 @@ def _factor(st, Ar, P, labels, backend, lam, problem, plan):
 def _schur_or_diagnose(st, Ar, P, labels, backend, damping=0.0):
     """The step's factor: :class:`baarda.solve.schur.StepFactor` where it applies (one compiled pass),
     else :class:`baarda.solve.schur.SchurFactor` (always for ``backend="numpy"``, the reference)."""
-    fast = st.__dict__.get("_step_applicable")
-    if fast is None or fast[0] is not P:
-        fast = (P, backend != "numpy" and schur.StepFactor.applicable(st, P))
-        st.__dict__["_step_applicable"] = fast
     try:
-        if fast[1]:
+        if backend != "numpy" and schur.StepFactor.applicable(st, P):
             return schur.StepFactor(st, Ar, P, damping=damping)
         return schur.SchurFactor(st, Ar, P, backend=backend, damping=damping)
     except SingularError as err:

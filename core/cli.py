@@ -25,17 +25,21 @@ import numpy as np
 from . import __version__, truth
 from .adjust import Options
 from .build import read_problem
-from .errors import BaardaError, DatumDefectError, InputError
+from .datum import split_normal
+from .errors import BaardaError, DatumDefectError, HypothesisError, InputError, NotFoundError, SingularError
 from .io import read_model, read_truth, results
 from .io.control import add_control
 from .io.gama import UndefinedPointsWarning
 from .io.geojson import write_geojson
+from .io.hypothesis import read_hypothesis
 from .io.native import write_native
 from .model.sfm import SfmBlock, to_block
 from .network_defects import adjust_network
 from .sfm_defects import adjust_block
 from .simulate import simulate_to_files
-from .stats import analyses, precision, robust, snooping, variance
+from .stats import (analyses, hypotheses, misidentification, precision, risk, robust, separability, snooping,
+                    variance)
+from .stats.ap_tests import ap_test
 from .text import number, printable, printable_lines, shorten
 
 #: exit status of a run whose adjustment did not converge (module docstring)
@@ -49,6 +53,25 @@ def _add_test_options(p):
                    help="power β0 at which minimal detectable biases are computed, default 0.80")
     p.add_argument("--b-method", action="store_true",
                    help="Baarda's B-method: multi-dimensional tests get the δ0 and β0 of the 1D test")
+    p.add_argument("--global-test", choices=["one-sided", "two-sided"], default="one-sided",
+                   help="the global test of vᵀPv = Ω/σ0²: one-sided at the B-method's α_r, the λ0 and β0 of "
+                        "the 1D test (F80 §4.1, §7.2; default), or gama-local's two-sided interval at the "
+                        "file's conf-pr (default 0.95)")
+    p.add_argument("--statistic", choices=["w", "tau"], default=None,
+                   help="the statistic that flags observations and that --snoop removes by: Baarda's w "
+                        "(σ0 a priori) or Pope's τ (σ0 a posteriori); default: τ where the file asks for "
+                        "σ0 a posteriori (GNU Gama's sigma-act), w otherwise")
+
+
+def _options(args, problem) -> Options:
+    """The adjustment's options and test policy from the command line; the statistic of the
+    decisions defaults to the σ0 the file asks for (``problem.sigma_act``)."""
+    if args.statistic is None:
+        sigma0 = "aposteriori" if getattr(problem, "sigma_act", "apriori") == "aposteriori" else "apriori"
+    else:
+        sigma0 = "aposteriori" if args.statistic == "tau" else "apriori"
+    return Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method, max_iter=args.max_iter,
+                   sigma0=sigma0, global_test=args.global_test)
 
 
 def _add_iteration_option(p):
@@ -138,28 +161,63 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--snoop", action="store_true",
                     help="iterative data snooping: remove the worst rejected observation, readjust, repeat; "
                          "prints the log of decisions")
+    an.add_argument("--exchange", action="append", metavar="IMAGE:A:B",
+                    help="test whether points A and B were exchanged in IMAGE (F80 §7.1; linear within 50σ, "
+                         "iterated by a refit beyond; says when the exchange is not testable); repeatable")
+    an.add_argument("--misidentified", action="append", metavar="IMAGE:A:B",
+                    help="test whether point A was measured at B's place in IMAGE (F80 §7.1, as --exchange); "
+                         "repeatable")
+    an.add_argument("--risk", metavar="P,L1,L2",
+                    help="risk minimisation (M84 §3.3): a critical value C_i and risk r_C per observation from "
+                         "the error rate P and the costs L1 (rejecting a good one), L2 (missing a bad one), "
+                         "with a tolerance --risk-lambda-bar or --risk-coordinate")
+    an.add_argument("--risk-lambda-bar", type=float, metavar="TOL",
+                    help="tolerance λ̄tol of Baarda's datum-invariant λ̄ (general purpose, M84 §3.2-3.3)")
+    an.add_argument("--risk-coordinate", type=float, metavar="METRES",
+                    help="tolerance for every point coordinate in the datum, metres (special purpose, M84 §3.3)")
     an.add_argument("--robust", choices=["huber", "danish", "r84"],
                     help="robust estimation (IRLS) with this weight function; its suspects are listed with "
                          "their R84 class beside data snooping")
     an.add_argument("--sbase", metavar="ID,ID,...",
                     help="give point standard deviations and ellipses in this S-base (Baarda's S-transformation); "
-                         "redundancy numbers and tests do not change")
+                         "redundancy numbers and tests do not change. In 3D two points suffice: the normal of the "
+                         "plane through them and a third point is held too (M84 §2.2; name it with normal=ID, "
+                         "else the point farthest from their line)")
     an.add_argument("--criterion", choices=["linear", "logarithmic", "exponential"],
                     help="compare the coordinate covariance with a fitted chaotic criterion matrix (M84 §2): "
-                         "prints λmax/λmin and C1, C2 (in the --sbase, default the first two points)")
+                         "prints λmax/λmin and C1, C2 (in the --sbase, default the first two points); planimetric "
+                         "networks, heights (with point positions) and 3D blocks and networks")
     an.add_argument("--criterion-c0", type=float, default=0.0, metavar="C0",
                     help="the constant part of the criterion, chosen first from the precision of the "
                          "measurements (M84 §2.3): m² (linear, logarithmic) or m (exponential); default 0")
-    an.add_argument("--variance-components", nargs="?", const="families", choices=["families", "radial"],
+    an.add_argument("--variance-components", nargs="?", const="families",
+                    choices=["families", "radial", "radial-isotropic"],
                     help="estimate variance components (F80 eq. 9, iterated): a factor per observation "
-                         "family (default), or the radial model σ² = a² + b²c²/cos⁴α of image "
-                         "observations (F80 §2.1, blocks)")
+                         "family (default), or the radial model σ_r² = a² + b²c²/cos⁴α of image "
+                         "observations (F80 §2.1, blocks; b acts on the radial component, "
+                         "radial-isotropic: on x and y alike)")
     an.add_argument("--strict", action="store_true",
                     help="local defects (points, images, cameras or coordinates the observations do not "
                          "determine) are an error instead of being named and left out")
     an.add_argument("--top", type=int, default=8, help="how many entries each summary list shows")
     an.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
     an.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+
+    ts = sub.add_parser("test", help="test hypotheses of your own (F80 eq. 10-18)",
+                        description="Adjust INPUT and test each --hypothesis: T, R, the decision, ∇ŝ ± σ∇ŝ, "
+                                    "the lower-bound ellipse, δ0′max, δ̄0(s) at its maximum and the "
+                                    "deformation field of that undetectable error (F80 eq. 10-18).")
+    ts.add_argument("input", help="the network or block file (see analyze)")
+    ts.add_argument("--hypothesis", "-H", action="append", required=True, metavar="SPEC",
+                    help="repeatable: " + "; ".join(HYPOTHESIS_SPECS) + " (ids as in the file; "
+                         "FILE: docs/formats.md, 'Hypothesis files')")
+    _add_input_options(ts)
+    _add_test_options(ts)
+    _add_iteration_option(ts)
+    ts.add_argument("--json", metavar="OUT", help="write the tests as JSON (docs/json-schema.md, 'baarda test')")
+    ts.add_argument("--top", type=int, default=10, help="how many points of each deformation field to print")
+    ts.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
+    ts.add_argument("--debug", action="store_true", help="show tracebacks of errors")
 
     sim = sub.add_parser("simulate", help="simulate an aerial block with planted errors",
                          description="Simulate an aerial bundle block (s strips × m images) and write "
@@ -256,6 +314,41 @@ def cmd_analyze(args) -> int:
         raise InputError(args.input, 0, str(err)) from None
 
 
+def _finite(x):
+    """A float for JSON: None for ∞ / NaN."""
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _risk(adj, args):
+    """The risk-minimising tests of --risk with its tolerance (baarda.stats.risk.per_observation)."""
+    if not args.risk:
+        raise BaardaError("--risk-lambda-bar / --risk-coordinate need --risk P,L1,L2")
+    try:
+        p, L1, L2 = (float(x) for x in args.risk.split(","))
+    except ValueError:
+        raise BaardaError(f"--risk: expected P,L1,L2 (three numbers), got {args.risk!r}") from None
+    if (args.risk_lambda_bar is None) == (args.risk_coordinate is None):
+        raise BaardaError("--risk: give one tolerance, --risk-lambda-bar TOL or --risk-coordinate METRES")
+    try:
+        return risk.per_observation(adj, p, L1, L2, lambda_bar_tol=args.risk_lambda_bar,
+                                    coordinate_tol=args.risk_coordinate)
+    except BaardaError as err:
+        raise BaardaError(f"--risk: {err}") from None
+
+
+def _exchange_test(adj, spec: str, both: bool):
+    """The test of one --exchange / --misidentified IMAGE:A:B (baarda.stats.misidentification)."""
+    option = "--exchange" if both else "--misidentified"
+    parts = [x.strip() for x in spec.split(":")]
+    if len(parts) != 3 or not all(parts):
+        raise BaardaError(f"{option}: expected IMAGE:A:B, got {spec!r}")
+    try:
+        return misidentification.exchange_test(adj, *parts, both=both)
+    except BaardaError as err:
+        raise BaardaError(f"{option} {spec}: {err}") from None
+
+
 def _analyze(args) -> int:
     t0 = time.perf_counter()
     problem = _read_quietly(read_problem, args.input, args.format, control=args.control,
@@ -263,7 +356,7 @@ def _analyze(args) -> int:
                             strict=args.strict, drop_undefined=args.drop_undefined)
     _warn_dropped(args.input, problem, args.quiet)
     t_read = time.perf_counter() - t0
-    options = Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method, max_iter=args.max_iter)
+    options = _options(args, problem)
     try:
         # blocks: unknowns found undetermined by a few points/images are left out (sfm_defects)
         adj, problem = _adjust_with_defects(problem, options, progress=_progress(args.quiet),
@@ -273,7 +366,12 @@ def _analyze(args) -> int:
     if not args.quiet and sys.stderr.isatty():
         print("", file=sys.stderr)
     t1 = time.perf_counter()
-    doc = results.to_dict(adj)
+    try:
+        doc = results.to_dict(adj)
+    except SingularError as err:
+        if adj.converged:
+            raise
+        return _diverged(args, problem, options, adj, err)
     adj.timings["read"] = t_read
     adj.timings["reliability"] = time.perf_counter() - t1
     doc["summary"]["timings"] = {k: round(v, 6) for k, v in adj.timings.items()}
@@ -293,17 +391,31 @@ def _analyze(args) -> int:
         doc["planted"] = findings
     snoop = None
     if args.snoop:
-        snoop = snooping.iterate(problem, options)
+        snoop = snooping.iterate(problem, options, use_tau=options.sigma0 == "aposteriori")
         doc["snooping"] = [s.__dict__ for s in snoop.steps]
+    obs_risk = _risk(adj, args) if args.risk or args.risk_lambda_bar or args.risk_coordinate else None
+    if obs_risk is not None:
+        doc["risk"] = {"p": obs_risk.p, "L1": obs_risk.L1, "L2": obs_risk.L2, "tolerance": obs_risk.tolerance,
+                       "rejected": int(obs_risk.rejected.sum())}
+        for d in doc["observations"]:
+            i = d["index"]
+            d["risk"] = {k: _finite(getattr(obs_risk, k)[i]) for k in ("lam_tol", "C", "alpha", "beta", "r_C")}
+            d["risk"]["rejected"] = bool(obs_risk.rejected[i])
+    exchanges = [_exchange_test(adj, spec, both) for both, specs in ((True, args.exchange), (False, args.misidentified))
+                 for spec in specs or ()]
+    if exchanges:
+        doc["exchange_tests"] = [e.as_dict() for e in exchanges]
 
     prec_lines = []
     if args.sbase or args.criterion:
         ids = problem.points.ids
         base = [b.strip() for b in args.sbase.split(",")] if args.sbase else list(ids[:2])
-        unknown = [b for b in base if b not in ids]
+        named, normal = split_normal(base)
+        unknown = [b for b in named + ([normal] if normal is not None else []) if b not in ids]
         if unknown:
             raise BaardaError(f"--sbase: unknown point id(s) {', '.join(unknown)}")
         cc = precision.covariance(adj, sbase=base)
+        base = named + [b for b in cc.sbase if b.startswith("normal=")]     # a 3D base: the normal's point
         ell = cc.ellipses()
         sd = np.sqrt(np.maximum(np.diag(cc.cov), 0.0))
         for d in doc["points"]:
@@ -315,8 +427,9 @@ def _analyze(args) -> int:
         doc["summary"]["sbase"] = base
         prec_lines.append(f"  S-base {', '.join(base)}: point standard deviations and ellipses transformed")
         if args.criterion:
-            if analyses.planimetric_reason(adj):
-                raise BaardaError("--criterion needs a planimetric network (x, y for every point)")
+            reason = analyses.criterion_reason(adj)
+            if reason:
+                raise BaardaError(f"--criterion: {reason}")
             fit = analyses.criterion_fit(analyses.criterion_setup(adj, base, cov=cc), kind=args.criterion,
                                          C0=args.criterion_c0)
             doc["criterion"] = fit
@@ -333,16 +446,20 @@ def _analyze(args) -> int:
     vc = None
     if args.variance_components:
         try:
-            if args.variance_components == "radial":
-                est = analyses.radial_variance(problem, options)
+            if args.variance_components.startswith("radial"):
+                structure = "isotropic" if args.variance_components == "radial-isotropic" else "radial"
+                est = analyses.radial_variance(problem, options, structure)
                 doc["variance_components"] = est.as_dict()
-                doc["variance_estimate"] = {"kind": "radial", "converged": bool(est.converged),
-                                            "iterations": int(est.iterations), "std_error": "rigorous"}
-                prec_lines.append(f"  radial variance model (F80 §2.1, {est.iterations} iterations"
+                doc["variance_estimate"] = {"kind": args.variance_components, "converged": bool(est.converged),
+                                            "iterations": int(est.iterations), "std_error": "rigorous",
+                                            "notes": list(est.notes)}
+                prec_lines.append(f"  radial variance model, {structure} (F80 §2.1, {est.iterations} iterations"
                                   f"{'' if est.converged else ', NOT converged'}):")
                 for d in est.as_dict():
-                    prec_lines.append(f"    {d['component']:<8s} θ = {number(d['theta'])} ± {number(d['std_error'], '.2g')}   "
+                    se = "held at 0" if d["std_error"] is None else f"± {number(d['std_error'], '.2g')}"
+                    prec_lines.append(f"    {d['component']:<8s} θ = {number(d['theta'])} {se}   "
                                       f"redundancy {d['redundancy']:.2f}")
+                prec_lines += [f"    {note}" for note in est.notes]
                 vc = None
             else:
                 vc = variance.estimate(problem, options=options)
@@ -357,25 +474,40 @@ def _analyze(args) -> int:
         print(results.text_summary(adj, top=args.top))
         if snoop is not None:
             info = problem.info
-            print(f"  iterative data snooping: {len(snoop.steps)} observation(s) removed, σ̂0 "
+            stat = "τ" if snoop.use_tau else "w"
+            print(f"  iterative data snooping on {stat}: {len(snoop.steps)} observation(s) removed, σ̂0 "
                   f"{number(adj.sigma0_post)} → {number(snoop.adjustment.sigma0_post)}")
             for k, st in enumerate(snoop.steps, 1):
                 ids = printable(" ".join(f"{a}={b}" for a, b in info.ids[st.removed].items()))
                 print(f"    {k:>2d}. #{st.removed:<5d} {info.kind[st.removed]:<15s} {ids:<40s} "
-                      f"|w| = {number(st.statistic, '7.2f')} > {number(st.critical, '.2f')}  ∇̂ = {number(st.nabla, '+.4g')}")
+                      f"|{stat}| = {number(st.statistic, '7.2f')} > {number(st.critical, '.2f')}  ∇̂ = {number(st.nabla, '+.4g')}")
+                if st.twins:
+                    print("        the data cannot tell it from (w-tests correlated |ρ| ≥ 0.99, F80 §7.4): " + "; ".join(
+                        f"#{j} " + printable(" ".join(f"{a}={b}" for a, b in info.ids[j].items()))
+                        + f" (ρ = {number(rho, '+.4f')})" for j, rho in zip(st.twins, st.twin_rho)))
+        if obs_risk is not None:
+            fin = np.isfinite(obs_risk.C)
+            print(printable(f"  risk minimisation (M84 §3.3; p = {obs_risk.p:g}, L1 = {obs_risk.L1:g}, L2 = "
+                            f"{obs_risk.L2:g}, tolerance {obs_risk.tolerance}): C_i from "
+                            f"{number(obs_risk.C[fin].min() if fin.any() else np.nan, '.3g')} to "
+                            f"{number(obs_risk.C[fin].max() if fin.any() else np.nan, '.3g')}; "
+                            f"{int(obs_risk.rejected.sum())} rejected (|w| > C_i), {int(adj.rejected.sum())} at α0"))
+            info = problem.info
+            for i in np.argsort(-np.nan_to_num(obs_risk.r_C), kind="stable")[:args.top]:
+                ids = printable(" ".join(f"{a}={b}" for a, b in info.ids[i].items()))
+                print(f"    #{i:<5d} {info.kind[i]:<15s} {ids:<40s} λtol = {number(obs_risk.lam_tol[i], '9.3g')}  "
+                      f"C = {number(obs_risk.C[i], '6.3g')}  r_C = {number(obs_risk.r_C[i], '.3g')}"
+                      f"{'  REJECTED' if obs_risk.rejected[i] else ''}")
+        for e in exchanges:
+            what = "exchange" if e.both else "misidentification"
+            verdict = (f"T = {number(e.T, '.4g')} (crit {number(e.critical, '.2f')}) "
+                       f"{'REJECTED' if e.rejected else 'accepted'}, ŝ = {number(e.s_hat, '.3g')}") if e.testable else "not testable"
+            print(printable(f"  {what} of {e.point_a}/{e.point_b} in image {e.image} (F80 §7.1): {verdict}"))
+            print(printable(f"    {e.message}"))
         for line in prec_lines:
             print(printable(line))
         if rob is not None:
-            info = problem.info
-            print(f"  robust estimation ({rob.method}, {rob.iterations} iterations"
-                  f"{'' if rob.converged else ', NOT converged'}): {len(rob.suspects)} suspect(s)")
-            for sp in rob.suspects:
-                ids = printable(" ".join(f"{a}={b}" for a, b in sp["ids"].items()))
-                print(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {number(sp['size_sigma'], '6.1f')}σ "
-                      f"({sp['class']}), weight {sp['weight']:.3f}")
-            if rob.final is not None:
-                print(f"    least squares without them: {int(rob.final.rejected.sum())} rejected by data snooping, "
-                      f"σ̂0 = {number(rob.final.sigma0_post)}")
+            _print_robust(rob)
         if vc is not None:
             print(f"  variance components (F80 eq. 9, {vc.iterations} iterations"
                   f"{'' if vc.converged else ', NOT converged'}):")
@@ -389,6 +521,42 @@ def _analyze(args) -> int:
         if findings is not None:
             print(printable_lines(truth.text(findings)))
     return _convergence_status(args.input, adj)
+
+
+def _print_robust(rob) -> None:
+    """The robust estimation's lines of the text summary (R84 §6-8)."""
+    print(f"  robust estimation ({rob.method}, {rob.iterations} iterations"
+          f"{'' if rob.converged else ', NOT converged'}): {len(rob.suspects)} suspect(s) confirmed by "
+          f"least squares (R84 §7; {rob.candidates} candidate(s), {len(rob.readmitted)} readmitted)")
+    for sp in rob.suspects:
+        ids = printable(" ".join(f"{a}={b}" for a, b in sp["ids"].items()))
+        base = "" if sp["size_base"] is None else f" = {number(sp['size_base'], '.3g')} base lengths"
+        print(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {number(sp['size_sigma'], '6.1f')}σ"
+              f"{base} ({sp['class']}), T = {number(sp['T'], '.1f')}, robust weight {sp['weight']:.3g}")
+    for fl in rob.floored:
+        print(f"    weight floor raised to {fl['floor']:.0e} for {', '.join(fl['unknowns']) or 'all'} "
+              f"(down-weighted, they would leave unknowns undetermined)")
+    if rob.final is not None:
+        print(f"    least squares without them: {int(rob.final.rejected.sum())} rejected by data snooping, "
+              f"σ̂0 = {number(rob.final.sigma0_post)}")
+
+
+def _diverged(args, problem, options, adj, err) -> int:
+    """An adjustment that did not converge and whose normal equations are singular at its last
+    iterate: no reliability can be computed there. Say so in one line (exit status
+    :data:`NOT_CONVERGED`), and run the robust estimation if asked — it is what finds the gross
+    error that makes least squares diverge (R84 §6: a large error)."""
+    why = (adj.termination or "not converged").removeprefix("not converged: ")
+    hint = ("" if args.robust else
+            f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
+    print(printable(f"baarda: {args.input}: NOT converged after {adj.iterations} iterations ({why}) and the normal "
+                    f"equations at the last iterate are singular ({err}): no reliability computed, no JSON/CSV "
+                    f"written{hint}"), file=sys.stderr)
+    if args.robust:
+        rob = robust.estimate(problem, args.robust, options)
+        if not args.quiet:
+            _print_robust(rob)
+    return NOT_CONVERGED
 
 
 def _convergence_status(path, adj) -> int:
@@ -419,6 +587,99 @@ def _defect_message(err, problem) -> str:
     gauge = " (7 of them fixed by the free-block datum)" if "convention" in problem.extra else ""
     lines = f"{n} observations for {u} unknowns{gauge}"
     return f"{lines}; {err.message}" + (f" [by entity: {summary}]" if summary and len(entities) > 1 else "")
+
+
+#: The --hypothesis specifications of ``baarda test`` (fields separated by ':').
+HYPOTHESIS_SPECS = ("observation:INDEX", "group:G", "image-point:IMAGE:POINT[:KEYPOINT]", "control:POINT",
+                    "transfer:POINT:IMAGE,IMAGE,...", "ap-group:CAMERA:brown|ebner", "exchanged:IMAGE:A:B",
+                    "model-point:MODEL:POINT", "file:PATH")
+
+
+def parse_hypothesis(text: str) -> dict:
+    """A --hypothesis SPEC as the specification dict of
+    :func:`baarda.stats.hypotheses.hypothesis_matrix` (``file:PATH`` gives {"kind": "file", "path"});
+    BaardaError naming the argument for a malformed one."""
+    kind, _, rest = text.partition(":")
+    forms = {spec.split(":", 1)[0]: spec for spec in HYPOTHESIS_SPECS}
+    if kind not in forms:
+        raise BaardaError(f"--hypothesis {text!r}: unknown kind {kind!r} (one of {', '.join(forms)})")
+    if kind == "file":
+        if not rest:
+            raise BaardaError(f"--hypothesis {text!r}: expected file:PATH")
+        return {"kind": "file", "path": rest}
+    names = {"observation": ["index"], "group": ["group"], "image-point": ["image", "point"],
+             "control": ["point"], "transfer": ["point", "images"], "ap-group": ["camera", "group"],
+             "exchanged": ["image", "a", "b"], "model-point": ["model", "point"]}[kind]
+    parts = rest.split(":") if rest else []
+    if kind == "image-point" and len(parts) == 3:          # a COLMAP image's keypoint on the point
+        names = names + ["keypoint"]
+    if len(parts) != len(names) or not all(parts):
+        raise BaardaError(f"--hypothesis {text!r}: expected {forms[kind]}")
+    spec = {"kind": kind, **dict(zip(names, parts))}
+    if kind in ("observation", "group"):
+        key = names[0]
+        try:
+            spec[key] = int(spec[key])
+        except ValueError:
+            raise BaardaError(f"--hypothesis {text!r}: {key.upper()} must be an integer, not {spec[key]!r}") from None
+    if kind == "transfer":
+        spec["images"] = [im for im in spec["images"].split(",") if im]
+    return spec
+
+
+def cmd_test(args) -> int:
+    """``baarda test``: each hypothesis in full (:func:`baarda.stats.analyses.hypothesis_analysis`)."""
+    specs = [(text, parse_hypothesis(text)) for text in args.hypothesis]     # usage errors first
+    problem = _read_quietly(read_problem, args.input, args.format, control=args.control,
+                            sigma_px=args.sigma_px, refine_intrinsics=args.refine_intrinsics,
+                            drop_undefined=args.drop_undefined)
+    _warn_dropped(args.input, problem, args.quiet)
+    options = _options(args, problem)
+    try:
+        adj, problem = _adjust_with_defects(problem, options)
+    except DatumDefectError as err:
+        raise InputError(args.input, 0, _defect_message(err, problem)) from None
+    rel = adj.reliability
+    tests, matrices = [], []
+    for text, spec in specs:
+        try:
+            if spec["kind"] == "file":
+                H = read_hypothesis(spec["path"], adj.n)
+            elif spec["kind"] == "ap-group" and f"{spec['camera']}:{spec['group']}" in problem.extra.get("ap_groups", {}):
+                t = ap_test(adj, str(spec["camera"]), str(spec["group"]), policy=rel.policy)
+                tests.append({"hypothesis": text, "spec": spec, "ap_test": t.as_dict()})
+                continue
+            else:
+                H = hypotheses.hypothesis_matrix(adj, spec)
+        except InputError:
+            raise
+        except (NotFoundError, HypothesisError) as err:
+            raise BaardaError(f"--hypothesis {text!r}: {err}") from None
+        matrices.append((text, H))
+        tests.append({"hypothesis": text, "spec": spec,
+                      **analyses.hypothesis_analysis(adj, H, label=text, reliability=rel)})
+        if spec["kind"] == "exchanged":      # the linear range, q = 0 and the iterated test (F80 §7.1)
+            tests[-1]["exchange_test"] = misidentification.exchange_test(
+                adj, str(spec["image"]), str(spec["a"]), str(spec["b"]), policy=rel.policy).as_dict()
+    # hypotheses the data cannot tell apart (F80 §7.4, M84 §3.3): their statistics correlate |ρ| ≥ 0.99
+    apart = separability.inseparable_pairs(adj, matrices) if len(matrices) > 1 else []
+    doc = {"schema": f"baarda-test/{results.SCHEMA_VERSION}", "summary": results.summary(adj, rel),
+           "tests": tests, "inseparable": [{"hypotheses": list(g.members), "rho": g.rho} for g in apart]}
+    if args.json:
+        Path(args.json).write_text(json.dumps(results.finite(doc), indent=1, allow_nan=False))
+    if not args.quiet:
+        print(printable_lines(results.tests_text(adj, rel, tests, top=args.top)))
+        for g in apart:
+            print(printable(f"the data cannot tell these hypotheses apart (test statistics correlated, "
+                            f"ρ ≥ {g.rho:.4f}; F80 §7.4): {', '.join(g.members)}"))
+        for t in tests:
+            if "exchange_test" in t:
+                e = t["exchange_test"]
+                verdict = (f"T = {number(e['T'], '.4g')} (crit {number(e['critical_T'], '.2f')}) "
+                           f"{'REJECTED' if e['rejected'] else 'accepted'}, ŝ = {number(e['s_hat'], '.3g')}"
+                           if e["testable"] else "not testable")
+                print(printable(f"{t['hypothesis']} (exchange, F80 §7.1): {verdict}; {e['message']}"))
+    return _convergence_status(args.input, adj)
 
 
 def cmd_convert(args) -> int:
@@ -493,8 +754,7 @@ def cmd_report(args) -> int:
     problem = _read_quietly(read_problem, args.input, args.format, drop_undefined=args.drop_undefined)
     _warn_dropped(args.input, problem, args.quiet)
     try:
-        adj, problem = _adjust_with_defects(problem, Options(alpha=args.alpha, beta=args.beta,
-                                                             b_method=args.b_method, max_iter=args.max_iter))
+        adj, problem = _adjust_with_defects(problem, _options(args, problem))
     except InputError:
         raise
     except BaardaError as err:         # a singular normal matrix ...: the file's fault, name it
@@ -505,8 +765,9 @@ def cmd_report(args) -> int:
 
     logging.getLogger("bokeh").setLevel(logging.ERROR)   # static export warns about server callbacks
     from .dashboard.report import write_report
+    from .dashboard.state import State
 
-    write_report(adj, out)
+    write_report(adj, out, state=State.from_adjustment(adj, policy=adj.policy))
     if not args.quiet:
         print(printable(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)"))
     return _convergence_status(args.input, adj)
@@ -534,6 +795,8 @@ def main(argv=None) -> int:
             return cmd_analyze(args)
         if args.command == "simulate":
             return cmd_simulate(args)
+        if args.command == "test":
+            return cmd_test(args)
         if args.command == "convert":
             return cmd_convert(args)
         if args.command == "serve":

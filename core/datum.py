@@ -21,6 +21,15 @@ S-transformation S = I − G (EᵀG)⁻¹ Eᵀ (M84 §2, E the S-base rows of G)
 its covariance to that base: x_S = S x, Σ_S = S Σ Sᵀ. Redundancy numbers, w-tests and λ̄ do not
 depend on the base; coordinate covariances and deformation fields do.
 
+Baarda's S-base in three dimensions (M84 §2.2): two points with non-stochastic coordinates and,
+"in addition, the direction ... fixed for the normal vector of the plane containing these two
+points and a third one". Two points leave the rotation about the line through them free; the
+third condition holds the third point's displacement along the normal n = (B − A) × (C − A) of
+that plane, which is exactly what that rotation moves. The S-base conditions are then the rows
+of Fᵀ (the base coordinates and the function nᵀ Δx_C), and S = I − G (FᵀG)⁺ Fᵀ. C is given as
+``normal=C`` among the S-base ids, or else the point farthest from the line AB
+(:func:`normal_condition`).
+
 A defect the user did not resolve raises :class:`baarda.errors.DatumDefectError` naming the
 free transformations and the points they move; a parameter that no observation determines
 (a local defect) is named by the factorisation.
@@ -28,7 +37,7 @@ free transformations and the points they move; a parameter that no observation d
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as la
@@ -54,7 +63,9 @@ class Datum:
     kind: ``"fixed"`` — fixed and weighted points define it; a remaining defect is an error.
     ``"free"`` — a free network: the S-base (point ids, or parameter labels such as ``"A.x"``;
     empty = every estimated coordinate) takes the minimum sum of squared shifts from its
-    approximate coordinates (inner constraints over the S-base).
+    approximate coordinates (inner constraints over the S-base). In 3D two points and the
+    normal of the plane through them and a third point (M84 §2.2; ``"normal=C"`` names C,
+    module docstring).
     """
 
     kind: str = "fixed"
@@ -65,6 +76,44 @@ class Datum:
             return "fixed and weighted points"
         base = ", ".join(self.sbase) if self.sbase else "all points"
         return f"free network, minimum-norm S-base: {base}"
+
+
+def split_normal(sbase) -> tuple[list[str], str | None]:
+    """The S-base ids and the point named by a ``normal=C`` entry (None without one)."""
+    ids, normal = [], None
+    for b in sbase:
+        b = str(b)
+        if b.startswith("normal="):
+            normal = b[len("normal="):]
+        else:
+            ids.append(b)
+    return ids, normal
+
+
+def normal_condition(xyz: np.ndarray, base: list[int], candidates, normal: int | None = None):
+    """Baarda's third condition of a 3D S-base (M84 §2.2; module docstring): the point C and the
+    unit normal n of the plane through the base points A, B (the two farthest apart of ``base``)
+    and C. ``xyz``: m × 3 point positions (metres); ``candidates``: the point indices C may be
+    (with three coordinates); ``normal``: C if the user named it. Returns (C, n), or None when no
+    candidate spans a plane with AB (all collinear)."""
+    base = list(base)
+    P = xyz[base]
+    d = np.linalg.norm(P[:, None] - P[None], axis=2)
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    a, b = xyz[base[i]], xyz[base[j]]
+    u = (b - a) / max(np.linalg.norm(b - a), 1e-300)
+    cands = np.array([normal] if normal is not None else
+                     [c for c in np.asarray(candidates).tolist() if c not in base], dtype=np.int64)
+    if cands.size == 0:
+        return None
+    r = xyz[cands] - a
+    off = r - np.outer(r @ u, u)
+    dist = np.linalg.norm(off, axis=1)
+    k = int(np.argmax(dist))
+    if not dist[k] > 1e-9 * max(np.linalg.norm(b - a), 1e-300):
+        return None
+    n = np.cross(b - a, xyz[cands[k]] - a)
+    return int(cands[k]), n / np.linalg.norm(n)
 
 
 def similarity_candidates(problem, x: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
@@ -156,6 +205,8 @@ class DatumPlan:
     names: tuple[str, ...]
     eliminate: np.ndarray
     base: np.ndarray           # bool per free parameter: in the S-base (E = G there, 0 elsewhere)
+    normal_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # C's x, y, z (3D S-base)
+    normal: np.ndarray = field(default_factory=lambda: np.zeros(0))   # the unit normal n (M84 §2.2), or empty
 
     @property
     def E(self) -> np.ndarray:
@@ -174,15 +225,33 @@ class DatumPlan:
 
     @property
     def K(self) -> np.ndarray:
-        """(EᵀG)⁻¹Eᵀ (d × u), computed as the pseudo-inverse of G on the S-base rows (the least
-        squares shift over the base; EᵀG itself has the square of the base's condition)."""
+        """(FᵀG)⁺Fᵀ (d × u): the pseudo-inverse of G on the S-base rows (the least squares shift over
+        the base; EᵀG itself has the square of the base's condition), with the row nᵀG_C of the
+        normal condition of a 3D S-base (module docstring)."""
         K = self.__dict__.get("_K")
         if K is None:
-            rows = np.flatnonzero(self.base & (np.abs(self.G).max(axis=1, initial=0.0) > 0))
-            K = np.zeros((self.defect, self.G.shape[0]))
-            K[:, rows] = la.pinv(self.G[rows])
+            K = sbase_K(self.G, self.base, self.normal_rows, self.normal)
             object.__setattr__(self, "_K", K)
         return K
+
+
+def sbase_K(G: np.ndarray, base: np.ndarray, normal_rows=(), normal=()) -> np.ndarray:
+    """K = (FᵀG)⁺Fᵀ (d × u) of the S-base (module docstring): Fᵀ the rows ``base`` (bool per row of G)
+    and, for a 3D S-base of two points, the normal condition nᵀΔx_C (``normal_rows`` the rows of C's
+    x, y, z, ``normal`` n). S = I − G K (M84 §2); the pseudo-inverse is the least squares shift
+    over a base with more conditions than d."""
+    normal_rows = np.asarray(normal_rows, dtype=np.int64)
+    normal = np.asarray(normal, dtype=float)
+    rows = np.flatnonzero(np.asarray(base, dtype=bool) & (np.abs(G).max(axis=1, initial=0.0) > 0))
+    FG = G[rows]
+    if normal.size:
+        FG = np.vstack([FG, normal @ G[normal_rows]])
+    Kf = la.pinv(FG)
+    K = np.zeros((G.shape[1], G.shape[0]))
+    K[:, rows] = Kf[:, :rows.size]
+    if normal.size:
+        K[:, normal_rows] += np.outer(Kf[:, -1], normal)
+    return K
 
 
 def normal_diagonal(A: sp.csr_matrix, P: sp.csr_matrix) -> np.ndarray:
@@ -202,6 +271,44 @@ def normal_diagonal(A: sp.csr_matrix, P: sp.csr_matrix) -> np.ndarray:
     return np.asarray((A.multiply(P @ A)).sum(axis=0)).ravel()
 
 
+#: rows per block of :func:`null_space`'s sums (a block's temporaries are ~ 300 B per row)
+BLOCK_ROWS = 1 << 18
+
+
+def row_blocks(P: sp.csr_matrix, step: int | None = None) -> list[tuple[int, int]]:
+    """Row ranges [s, e) of about ``step`` rows (default :data:`BLOCK_ROWS`) that no covariance
+    cluster of the block-diagonal weight matrix ``P`` straddles (P[s:e, s:e] holds the whole
+    weight of rows s:e), so that AᵀPB = Σ A[s:e]ᵀ P[s:e, s:e] B[s:e]."""
+    step = step or BLOCK_ROWS
+    n = P.shape[0]
+    if n <= step:
+        return [(0, n)]
+    rows = np.arange(n)
+    lo, hi = rows.copy(), rows.copy()
+    has = np.flatnonzero(np.diff(P.indptr) > 0)
+    if has.size:          # (segments between non-empty rows' starts are exactly their entries)
+        lo[has] = np.minimum.reduceat(P.indices, P.indptr[has])
+        hi[has] = np.maximum.reduceat(P.indices, P.indptr[has])
+    # a cut before row b is clean when no row above reaches b or beyond and no row from b on
+    # reaches before b
+    reach = np.maximum.accumulate(np.maximum(hi, rows))
+    back = np.minimum.accumulate(np.minimum(lo, rows)[::-1])[::-1]
+    clean = np.flatnonzero((reach[:-1] < rows[1:]) & (back[1:] >= rows[1:])) + 1
+    out, s = [], 0
+    while n - s > step:
+        k = np.searchsorted(clean, s + step, side="right") - 1
+        e = int(clean[k]) if k >= 0 and clean[k] > s else None
+        if e is None:
+            k = np.searchsorted(clean, s + step)
+            if k >= clean.size:
+                break
+            e = int(clean[k])
+        out.append((s, e))
+        s = e
+    out.append((s, n))
+    return out
+
+
 def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray):
     """Null directions of the design matrix among similarity transformations.
 
@@ -213,19 +320,31 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
     t = np.flatnonzero(kind == "t")
     k = np.flatnonzero(kind != "t")
     G[t] = 0.0
-    R = A @ G                                   # = A_k G_k (G_t = 0)
+    A, P = sp.csr_matrix(A), sp.csr_matrix(P)
+    blocks = row_blocks(P)
     if t.size:
-        At = A[:, t]
-        Ntt = (At.T @ P @ At).tocsr()
+        # N_tt = A_tᵀPA_t and A_tᵀP(A_k G_k) (G_t = 0), summed over row blocks: no copy of A_t
+        # or of R = A G over all observations is held
+        Ntt, AtPR = None, np.zeros((t.size, G.shape[1]))
+        for s, e in blocks:
+            Ab, Pb = A[s:e], P[s:e, s:e]
+            At = Ab[:, t]
+            Ntt = At.T @ Pb @ At if Ntt is None else Ntt + At.T @ Pb @ At
+            AtPR += At.T @ (Pb @ (Ab @ G))
+            del Ab, At
+        Ntt = sp.csr_matrix(Ntt)
         try:
-            Gt = -SPDFactor(Ntt).solve(At.T @ (P @ R))
+            Gt = -SPDFactor(Ntt).solve(AtPR)
         except Exception:
-            Gt = -np.linalg.lstsq(Ntt.toarray(), At.T @ (P @ R), rcond=None)[0]
+            Gt = -np.linalg.lstsq(Ntt.toarray(), AtPR, rcond=None)[0]
         G = G.copy()
         G[t] = Gt.reshape(t.size, -1)
-        R = A @ G
     diagN = normal_diagonal(A, P)
-    num = R.T @ (P @ R)
+    num = np.zeros((G.shape[1], G.shape[1]))
+    for s, e in blocks:
+        R = A[s:e] @ G
+        num += R.T @ (P[s:e, s:e] @ R)
+    del R
     Gk = G[k]
     den = Gk.T @ (Gk * diagN[k, None])      # size of each combination by the point motion alone
     # equilibrate: each candidate's own size must not decide whether it counts (far points)
@@ -294,17 +413,20 @@ def plan(problem, x, A, P, free) -> DatumPlan:
             f"datum defect {d}: the observations leave {'; '.join(names)} undetermined "
             f"(points {', '.join(moved[:12])}{' ...' if len(moved) > 12 else ''}); "
             "fix or weight enough points, or declare a free network with an S-base")
+    normal_rows, normal = np.zeros(0, dtype=np.int64), np.zeros(0)
     if datum.sbase:
-        wanted = set(datum.sbase)
+        names_b, normal_id = split_normal(datum.sbase)
+        wanted = set(names_b)
         labels = problem.params.labels
         in_base = np.array([(p >= 0 and (ids[p] in wanted or labels[j] in wanted))
                             for p, j in zip(point_of.tolist(), free.tolist())], dtype=bool)
+        normal_rows, normal = _normal_rows(problem, x, free, G, in_base, wanted, normal_id)
     else:
         in_base = (point_of >= 0) & (problem.params.kind[free] == "k")
         far = far_points(problem, x)
         if far.any() and not far[point_of[in_base]].all():
             in_base &= ~far[np.maximum(point_of, 0)]
-    Gb = G[in_base]
+    Gb = G[in_base] if not normal.size else np.vstack([G[in_base], normal @ G[normal_rows]])
     sv = la.svdvals(Gb / np.maximum(np.abs(Gb).max(axis=0), 1e-300)) if Gb.size else np.zeros(1)
     if Gb.shape[0] < d or sv.min() <= 1e-9 * sv.max():
         base = sorted(ids[p] for p in set(point_of[in_base]))
@@ -312,7 +434,7 @@ def plan(problem, x, A, P, free) -> DatumPlan:
             d, list(names),
             f"datum defect {d} ({'; '.join(names)}): the S-base points "
             f"{', '.join(base[:12])}{' ...' if len(base) > 12 else ''} do not fix it")
-    cand = np.flatnonzero(in_base)
+    cand = np.union1d(np.flatnonzero(in_base), normal_rows)
     # the held coordinates only regularise the solve (the result is S-transformed to the S-base),
     # but they decide its conditioning: hold points that many observations determine (a 2-ray
     # point next to a camera, or a point near infinity, makes the regularised system needlessly
@@ -330,4 +452,34 @@ def plan(problem, x, A, P, free) -> DatumPlan:
     _, _, piv = la.qr(equilibrated(sub).T, pivoting=True, mode="economic")
     cand = sub
     eliminate = np.sort(cand[piv[:d]])
-    return DatumPlan(G, names, eliminate, np.asarray(in_base, dtype=bool))
+    return DatumPlan(G, names, eliminate, np.asarray(in_base, dtype=bool), normal_rows, normal)
+
+
+def _normal_rows(problem, x, free, G, in_base, wanted, normal_id):
+    """The normal condition of a 3D S-base (M84 §2.2) where the base points alone leave a rotation
+    free: (free positions of C's x, y, z, n), else empty arrays. Needs every base point and C with
+    three estimated coordinates."""
+    none = np.zeros(0, dtype=np.int64), np.zeros(0)
+    Gb = G[in_base]
+    if Gb.shape[0] and np.linalg.matrix_rank(Gb, tol=NULL_TOL * max(np.abs(Gb).max(), 1e-300)) == G.shape[1]:
+        return none
+    params = problem.params
+    point_of = params.point[free]
+    kind_k = params.kind[free] == "k"
+    pos = np.full((len(problem.points.ids), 3), -1, dtype=np.int64)
+    pos[point_of[kind_k], params.axis[free][kind_k]] = np.flatnonzero(kind_k)
+    full = (pos >= 0).all(axis=1)
+    ids = problem.points.ids
+    base = [k for k, i in enumerate(ids) if i in wanted]
+    if len(base) < 2 or not full[base].all():
+        return none
+    xyz = np.zeros(pos.shape)
+    xyz[full] = x[free[pos[full]]]
+    if normal_id is not None and normal_id not in ids:
+        raise DatumDefectError(G.shape[1], [], f"S-base: unknown point {normal_id} for the normal direction")
+    normal = None if normal_id is None else ids.index(normal_id)
+    found = normal_condition(xyz, base, np.flatnonzero(full), normal)
+    if found is None:
+        return none
+    c, n = found
+    return pos[c], n

@@ -73,22 +73,21 @@ def exclude(adj: Adjustment, rows, method: str = "auto") -> Adjustment:
         M[np.ix_(ks, ks)] += P[new_index[Rc[ks]]][:, new_index[Rc[ks]]].toarray()
         V = adj.Ar[Rc]
         factor = LowRankUpdate(adj.factor, V, M)
-        H, Ht = adj._hat_blocks
+        H, Ht = adj.hat_blocks
         I, J, _ = cluster_pairs(problem.cov)
         old = _pair_index(cov, keep_obs[I], keep_obs[J])
         AY = new.Ar @ factor.Y
         H = H[old] - np.einsum("pa,ab,pb->p", AY[I], factor.T, AY[J])
-        t = adj._nuisance_columns
+        t = adj.nuisance_columns
         if t.size:
-            nf = LowRankUpdate(adj._nuisance_factor, V[:, t], M)
+            nf = LowRankUpdate(adj.nuisance_factor, V[:, t], M)
             BY = new.Ar[:, t] @ nf.Y
             Ht = Ht[old] - np.einsum("pa,ab,pb->p", BY[I], nf.T, BY[J])
-            new.__dict__["_nuisance_factor"] = nf
+            new.seed(nuisance_factor=nf)
         else:
             Ht = np.zeros(I.size)
-        new.__dict__["factor"] = factor
-        new.__dict__["_hat_blocks"] = (H, Ht)
-    dx = new._full(new.factor.solve(-(new.Ar.T @ new.Pv)))
+        new.seed(factor=factor, hat_blocks=(H, Ht))
+    dx = new.expand(new.factor.solve(-(new.Ar.T @ new.Pv)))
     dx = adj.plan.transform(dx)
     x = adj.x.copy()
     x[adj.problem.params.free] += dx
@@ -96,9 +95,8 @@ def exclude(adj: Adjustment, rows, method: str = "auto") -> Adjustment:
     out = Adjustment(problem=problem, options=adj.options, x=x, f=f, A=A, P=P, plan=adj.plan,
                      converged=True, iterations=0, history=(),
                      timings={"solve": time.perf_counter() - t0}, solver=adj.solver)
-    for name in ("keep", "Ar", "factor", "schur_structure", "_hat_blocks", "_nuisance_factor"):
-        if name in new.__dict__:
-            out.__dict__[name] = new.__dict__[name]
+    out.seed(**{name: new.__dict__[name] for name in ("keep", "Ar", "factor", "schur_structure", "hat_blocks",
+                                                     "nuisance_factor") if name in new.__dict__})
     return out
 
 

@@ -34,11 +34,13 @@ import scipy.sparse as sp
 from .model.problem import by_size, cluster_sizes, size_groups, size_weights
 from .solve.linalg import SPDFactor, keep_columns
 from .solve.schur import SchurFactor, bmm, schur_structure
-from .stats import distributions, hypotheses
+from .stats import hypotheses
 from .stats.policy import TestPolicy
 from .stats.reliability import Reliability
 
 R_EPS = 1e-10
+#: clusters per chunk of the cluster group tests (:meth:`Adjustment._cluster_group_stacks`)
+GROUP_CHUNK = 1 << 17
 
 
 def _padded_rows(A: sp.csr_matrix):
@@ -122,6 +124,25 @@ class Adjustment:
     history: tuple = ()
     timings: dict = field(default_factory=dict)
     solver: str = "generic"   # "generic" (sparse Cholesky of N) or "schur" (baarda.solve.schur)
+    # how the iterations ended (baarda.adjust: STATUS, its message, Levenberg-Marquardt used,
+    # (λ, step, vᵀPv, gain ratio) per solved step, far points held in the end game)
+    status: int = 0
+    termination: str = ""
+    damped: bool = False
+    trace: tuple = ()
+    far_held: int = 0
+
+    def seed(self, **values) -> "Adjustment":
+        """Hand over values of cached properties computed elsewhere — the solver's own ``Ar``
+        and ``schur_structure``, an exclusion's updated ``factor`` and ``hat_blocks`` — so
+        they are not computed again. Only cached properties, each at most once; returns self."""
+        for name, value in values.items():
+            if not isinstance(getattr(type(self), name, None), cached_property):
+                raise TypeError(f"Adjustment.seed: {name!r} is not a cached property")
+            if name in self.__dict__:
+                raise TypeError(f"Adjustment.seed: {name!r} is already computed")
+            self.__dict__[name] = value
+        return self
 
     # -- basic quantities -------------------------------------------------------------------
     @cached_property
@@ -216,13 +237,14 @@ class Adjustment:
     def delta0(self) -> float:
         return self.reliability.delta0
 
-    @cached_property
+    @property
     def global_test(self) -> dict:
-        return distributions.global_test(self.vPv, self.dof, getattr(self.problem, "conf_pr", 0.95))
+        """The global test under :attr:`policy` (:attr:`baarda.stats.reliability.Reliability.global_test`)."""
+        return self.reliability.global_test
 
     # -- per-observation reliability ----------------------------------------------------------
     @cached_property
-    def _hat_blocks(self):
+    def hat_blocks(self):
         """a_i Σ a_jᵀ and a_i Σ_t a_jᵀ (nuisance part) for the pairs of :func:`cluster_pairs`."""
         factor = self.factor
         t0 = time.perf_counter()
@@ -231,11 +253,11 @@ class Adjustment:
         else:
             I, J, _ = cluster_pairs(self.problem.cov)
             out = pair_products(self.Ar, factor, I, J), self._nuisance_products(I, J)
-        out = self._repair_hat_blocks(*out, inplace=True)     # fresh arrays: no copies
+        out = self.repair_hat_blocks(*out, inplace=True)     # fresh arrays: no copies
         self.timings.setdefault("selected_inverse", time.perf_counter() - t0)
         return out
 
-    def _repair_hat_blocks(self, H, Ht, inplace: bool = False):
+    def repair_hat_blocks(self, H, Ht, inplace: bool = False):
         """Recompute by direct solves the cluster blocks whose selected-inverse values betray
         round-off: a redundancy number outside [0, 1] or an asymmetric block.
 
@@ -269,10 +291,10 @@ class Adjustment:
             X = self.factor.solve(Ac.T)
             Hm[bad] = np.einsum("kij,kjl->kil", Ac.reshape(bad.size, m, -1),
                                 X.T.reshape(bad.size, m, -1).transpose(0, 2, 1))
-            t = self._nuisance_columns
+            t = self.nuisance_columns
             if t.size:
                 Bc = Ac[:, t]
-                Xt = self._nuisance_factor.solve(Bc.T)
+                Xt = self.nuisance_factor.solve(Bc.T)
                 Htm[bad] = np.einsum("kij,kjl->kil", Bc.reshape(bad.size, m, -1),
                                      Xt.T.reshape(bad.size, m, -1).transpose(0, 2, 1))
             H[sl], Ht[sl] = Hm.ravel(), Htm.ravel()
@@ -281,18 +303,18 @@ class Adjustment:
         return H, Ht
 
     @cached_property
-    def _nuisance_factor(self):
+    def nuisance_factor(self):
         """Factor of BᵀPB over the nuisance unknowns (ascending), None when there are none."""
         if hasattr(self.factor, "nuisance_factor"):
             return self.factor.nuisance_factor()
-        t = self._nuisance_columns
+        t = self.nuisance_columns
         if t.size == 0:
             return None
         B = self.Ar[:, t].tocsr()
         return SPDFactor((B.T @ self.P @ B).tocsr())
 
     @cached_property
-    def _nuisance_columns(self) -> np.ndarray:
+    def nuisance_columns(self) -> np.ndarray:
         kind = self.problem.params.kind[self.problem.params.free][self.keep]
         return np.flatnonzero(kind == "t")
 
@@ -301,7 +323,7 @@ class Adjustment:
         """Per observation: (C_vv P)_ii, (P C_vv P)_ii, (P H P)_ii, (P H_k P)_ii (see module doc)."""
         t0 = time.perf_counter()
         cov = self.problem.cov
-        H, Ht = self._hat_blocks
+        H, Ht = self.hat_blocks
         n = self.n
         r, pcp, php, phkp, uk = (np.empty(n) for _ in range(5))
         for (m, members, C, Hc), (_, _, _, Htc), Pc in zip(_cluster_blocks(cov, H), _cluster_blocks(cov, Ht),
@@ -321,14 +343,14 @@ class Adjustment:
     def cluster_cvv(self):
         """Cluster blocks of C_vv = C − A Σ Aᵀ (F80 eq. 8), as stacks per cluster size:
         a list of (members (k, m), C (k, m, m), C_vv (k, m, m))."""
-        H, _ = self._hat_blocks
+        H, _ = self.hat_blocks
         return [(members, C, C - Hc) for m, members, C, Hc in _cluster_blocks(self.problem.cov, H)]
 
     def _nuisance_products(self, I, J):
-        t = self._nuisance_columns
+        t = self.nuisance_columns
         if t.size == 0:
             return np.zeros(len(I))
-        return pair_products(self.Ar[:, t].tocsr(), self._nuisance_factor, I, J)
+        return pair_products(self.Ar[:, t].tocsr(), self.nuisance_factor, I, J)
 
     @cached_property
     def r(self) -> np.ndarray:
@@ -436,10 +458,15 @@ class Adjustment:
     @cached_property
     def group_statistics(self) -> tuple | None:
         """T, q and ∇ŝ of the problem's observation groups (vectors, image points), which do not
-        depend on the test policy: (group ids, ptr, members, T, q, redundancy, ∇ŝ) ordered by group
-        id, members of group k at ``members[ptr[k]:ptr[k + 1]]`` (sorted, ∇ŝ in their order);
-        None without groups. A block of a million image points holds a few arrays, not a million
-        dicts; :attr:`baarda.stats.reliability.Reliability.groups` adds α_q and the decisions."""
+        depend on the test policy: (group ids, ptr, members, T, q, redundancy, ∇ŝ, σ∇ŝ, λ(W_s),
+        μmax) ordered by group id, members of group k at ``members[ptr[k]:ptr[k + 1]]`` (sorted,
+        ∇ŝ and σ∇ŝ = √diag(W_s⁻¹) in their order, F80 eq. 10); at the same positions the
+        eigenvalues of W_s ascending (NaN for those the test does not count), whose δ0/√λ are the
+        semi-axes of the lower-bound ellipse (F80 eq. 13); per group μmax, the largest eigenvalue
+        of the pencil (HᵀPH, W_s), δ0′max = δ0 √μmax (F80 eq. 14, §7.3; inf when q is below the
+        group's size). None without groups. A block of a million image points holds a few
+        arrays, not a million dicts; :attr:`baarda.stats.reliability.Reliability.groups` adds α_q,
+        δ0 and the decisions."""
         gid = self.problem.info.group
         if (gid < 0).all():
             return None
@@ -457,48 +484,55 @@ class Adjustment:
         T, red = np.full(ng, np.nan), np.full(ng, np.nan)
         q = np.zeros(ng, dtype=np.int64)
         nabla = np.full(members.size, np.nan)
+        nabla_sigma = np.full(members.size, np.nan)
+        wlam = np.full(members.size, np.nan)
+        mu_max = np.full(ng, np.inf)
         r = self.r
         # groups that are exactly one covariance cluster: all at once from the cluster blocks
-        for mem, Tf, qf, nf in self._cluster_group_stacks():
+        for mem, Tf, qf, nf, sf, lf, mf in self._cluster_group_stacks():
             pos = np.searchsorted(keys, gid[mem[:, 0]])
             msz = mem.shape[1]
             dest = ptr[pos][:, None] + np.arange(msz)[None, :]
             members[dest] = mem                               # sorted members
-            nabla[dest] = nf
-            T[pos], q[pos] = Tf, qf
+            nabla[dest], nabla_sigma[dest], wlam[dest] = nf, sf, lf
+            T[pos], q[pos], mu_max[pos] = Tf, qf, mf
             red[pos] = r[mem].sum(axis=1)
             members_ok[pos] = True
         for k in np.flatnonzero(~members_ok).tolist():
             mem = np.sort(order[starts[k]:ends[k]])
             h = hypotheses.test(self, hypotheses.selection(self.n, mem), label=f"group {keys[k]}")
-            members[ptr[k]:ptr[k + 1]] = mem
-            nabla[ptr[k]:ptr[k + 1]] = np.asarray(h.nabla, dtype=float).ravel() if h.nabla is not None \
-                else np.nan
+            sl = slice(ptr[k], ptr[k + 1])
+            members[sl] = mem
+            nabla[sl] = np.asarray(h.nabla, dtype=float).ravel()
+            nabla_sigma[sl] = h.nabla_sigma
+            seen = np.isfinite(h.ellipse_axes)
+            wlam[sl] = np.where(seen, (h.delta0 / np.where(seen, h.ellipse_axes, 1.0)) ** 2, np.nan)
+            mu_max[k] = (h.delta0_prime_max / h.delta0) ** 2
             T[k], q[k] = h.T, h.q
             red[k] = float(r[mem].sum())
-        return keys, ptr, members, T, q, red, nabla
+        return keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max
 
     def _cluster_group_tests(self) -> dict:
         """{group: (T, q, ∇ŝ)} of the groups that are one covariance cluster
         (:meth:`_cluster_group_stacks` as a dict, for inspection)."""
         gid = self.problem.info.group
         out = {}
-        for mem, T, q, nabla in self._cluster_group_stacks():
+        for mem, T, q, nabla, *_ in self._cluster_group_stacks():
             for k in range(T.size):
                 out[int(gid[mem[k, 0]])] = (float(T[k]), int(q[k]), nabla[k])
         return out
 
-    def _cluster_group_stacks(self) -> list:
+    def _cluster_group_stacks(self):
         """Tests of the groups that are exactly one covariance cluster (an image point, a GNSS
         vector), all at once from the cluster blocks of C_vv: W = P_c C_vv P_c, T = gᵀW⁺g with
         g = (Pv)_c, ∇ŝ = −W⁺g — the formulas of :func:`baarda.stats.hypotheses.test` with H the
-        selection of the cluster, without a solve per group. Returns, per cluster size, stacks
-        (members (k, m) sorted per row, T (k,), q (k,), ∇ŝ (k, m) in the order of the sorted
-        members).
+        selection of the cluster, without a solve per group. Yields, per cluster size and chunk of
+        at most :data:`GROUP_CHUNK` clusters (their temporaries are a chunk's), stacks (members (k, m) sorted per row, T (k,), q (k,), ∇ŝ (k, m) and σ∇ŝ (k, m) in the order of
+        the sorted members, the eigenvalues of W (k, m) ascending with NaN for those not counted,
+        μmax (k,) of the pencil (P_c, W), inf where q < m) — HᵀPH = P_c for the cluster's selection.
         """
         gid = self.problem.info.group
         Pv = self.Pv
-        out = []
         counts = np.bincount(gid[gid >= 0])
         for (members, C, Cvv), Pall in zip(self.cluster_cvv(), size_weights(self.problem.cov)):
             g0 = gid[members]
@@ -506,28 +540,37 @@ class Adjustment:
             same &= counts[np.maximum(g0[:, 0], 0)] == members.shape[1]
             if not same.any():
                 continue
-            mem, Cv, Pc = members[same], Cvv[same], Pall[same]     # P_c: the cached cluster weights
-            W = Pc @ Cv @ Pc
-            del Cv
-            W = 0.5 * (W + np.swapaxes(W, 1, 2))
-            lam, V = np.linalg.eigh(W)
-            del W
-            tol = 1e-10 * np.maximum(np.maximum(lam.max(axis=1), np.abs(np.diagonal(Pc, axis1=1, axis2=2)).max(axis=1)), 1e-300)
-            pos = lam > tol[:, None]
-            inv = np.where(pos, 1.0 / np.where(pos, lam, 1.0), 0.0)
-            Winv = np.einsum("kij,kj,klj->kil", V, inv, V)
-            del V, inv, lam
-            g = Pv[mem]
-            nabla = -np.einsum("kij,kj->ki", Winv, g)
-            del Winv
-            T = np.einsum("ki,ki->k", g, -nabla)
-            q = pos.sum(axis=1)
-            srt = np.argsort(mem, axis=1)
-            out.append((np.take_along_axis(mem, srt, 1), T, q, np.take_along_axis(nabla, srt, 1)))
-        return out
+            sel = np.flatnonzero(same)
+            for s in range(0, sel.size, GROUP_CHUNK):     # (the temporaries of a chunk only)
+                part = sel[s:s + GROUP_CHUNK]
+                mem, Cv, Pc = members[part], Cvv[part], Pall[part]    # P_c: the cached cluster weights
+                W = Pc @ Cv @ Pc
+                del Cv
+                W = 0.5 * (W + np.swapaxes(W, 1, 2))
+                lam, V = np.linalg.eigh(W)
+                del W
+                tol = 1e-10 * np.maximum(np.maximum(lam.max(axis=1), np.abs(np.diagonal(Pc, axis1=1, axis2=2)).max(axis=1)), 1e-300)
+                pos = lam > tol[:, None]
+                inv = np.where(pos, 1.0 / np.where(pos, lam, 1.0), 0.0)
+                Winv = np.einsum("kij,kj,klj->kil", V, inv, V)
+                U = V * np.sqrt(inv)[:, None, :]              # Uᵀ W U = I on the counted directions
+                mu = np.linalg.eigvalsh(np.einsum("kji,kjl,klm->kim", U, Pc, U))[:, -1]
+                q = pos.sum(axis=1)
+                mu = np.where(q == mem.shape[1], mu, np.inf)
+                lam = np.where(pos, lam, np.nan)
+                del V, inv, U
+                g = Pv[mem]
+                nabla = -np.einsum("kij,kj->ki", Winv, g)
+                sig = np.sqrt(np.maximum(np.diagonal(Winv, axis1=1, axis2=2), 0.0))
+                del Winv
+                T = np.einsum("ki,ki->k", g, -nabla)
+                srt = np.argsort(mem, axis=1)
+                yield (np.take_along_axis(mem, srt, 1), T, q, np.take_along_axis(nabla, srt, 1),
+                       np.take_along_axis(sig, srt, 1), lam, mu)
 
     # -- covariance of the unknowns -----------------------------------------------------------
-    def _full(self, vec_keep: np.ndarray) -> np.ndarray:
+    def expand(self, vec_keep: np.ndarray) -> np.ndarray:
+        """A vector (or columns) over the kept unknowns spread over all free ones (0 elsewhere)."""
         out = np.zeros((self.A.shape[1],) + vec_keep.shape[1:])
         out[self.keep] = vec_keep
         return out
@@ -535,7 +578,7 @@ class Adjustment:
     def solve_normal(self, b: np.ndarray) -> np.ndarray:
         """Σ b over the free parameters (with the datum's S-transformation applied)."""
         b = np.asarray(b, dtype=float)
-        y = self._full(self.factor.solve(b[self.keep]))
+        y = self.expand(self.factor.solve(b[self.keep]))
         return self.plan.transform(y)
 
     @cached_property
@@ -543,7 +586,7 @@ class Adjustment:
         if self.plan.defect == 0:
             return None
         K = self.plan.K                                  # (EᵀG)⁻¹Eᵀ, d × u
-        Z = self._full(self.factor.solve(K.T[self.keep]))  # Σ Kᵀ, u × d
+        Z = self.expand(self.factor.solve(K.T[self.keep]))  # Σ Kᵀ, u × d
         return K, Z, K @ Z
 
     def cov_entries(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:

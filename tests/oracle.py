@@ -1,6 +1,6 @@
 """The tests' oracle: the paper's formulas written out with dense numpy matrices.
 
-The package never forms N⁻¹ or C_vv densely (STYLE.md principle 6); these functions do, for small
+The package never forms N⁻¹ or C_vv densely (../shared/STYLE.md principle 6); these functions do, for small
 problems, so that every sparse path can be checked against the equation it implements. One copy
 for the tests and the benchmarks (``bench/`` imports it too).
 
@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg as la
 
 
 def _dense(M) -> np.ndarray:
@@ -88,3 +89,17 @@ class Dense:
 def dense(adj) -> Dense:
     """The dense oracle of an adjustment: its design A, the problem's C and its residuals v."""
     return Dense.of(adj.A, adj.problem.cov.matrix(), adj.v)
+
+
+def pcp(adj) -> np.ndarray:
+    """P C_vv P (F80 eq. 8) without the normal equations: L⁻ᵀ (I − U Uᵀ) L⁻¹ with C = L Lᵀ and U an
+    orthonormal basis of L⁻¹A (SVD). Squaring the condition in N = AᵀPA loses observations that are
+    nearly uncontrolled (the x coordinates of a 2-ray point, r ≈ 1e-6) and hypotheses the unknowns
+    nearly absorb to round-off; this keeps them."""
+    A, C = _dense(adj.A), _dense(adj.problem.cov.matrix())
+    Lc = np.linalg.cholesky(C)
+    At = la.solve_triangular(Lc, A, lower=True)
+    U, sv, _ = np.linalg.svd(At, full_matrices=False)
+    U = U[:, sv > 1e-12 * sv[0]]
+    Linv = la.solve_triangular(Lc, np.eye(C.shape[0]), lower=True)
+    return Linv.T @ (np.eye(C.shape[0]) - U @ U.T) @ Linv

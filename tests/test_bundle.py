@@ -217,7 +217,7 @@ def test_problem_layout_and_geometry(block_adj):
     assert pr.info.kind[0] == "image-x" and pr.info.kind[1] == "image-y"
     assert all(len(pr.cov.members[k]) == 2 for k in range(m))
     assert set(pr.info.group[:2 * m]) == set(range(m))
-    geo = pr.extra["block"]
+    geo = pr.geometry.as_dict()
     assert len(geo["images"]) == len(block.images) and len(geo["images"][0]["footprint"]) == 4
     assert 1400 < geo["flying_height"] < 1600
     fp = np.array(geo["images"][0]["footprint"])
@@ -358,3 +358,21 @@ def test_compiled_collinearity_equals_the_numpy_formulas(cal):
     Jb = sp.csr_matrix((b[3], (b[1], b[2])), shape=shape)
     assert np.abs(a[0] - b[0]).max() <= 1e-12 * np.abs(b[0]).max()
     assert abs(Ja - Jb).max() <= 1e-12 * abs(Jb).max()
+
+
+def test_block_geometry_is_typed_and_its_dictionary_is_the_drawn_one():
+    """Problem.geometry (baarda.model.geometry): the statistics read typed fields; as_dict() is
+    the JSON-able form the dashboard draws — the same values, per image and camera."""
+    block, _ = simulate_block(strips=2, images_per_strip=4, seed=3)
+    geo = build_block_problem(block).geometry
+    d = geo.as_dict()
+    assert [im.id for im in geo.images] == [im["id"] for im in d["images"]] == [im.id for im in block.images]
+    for im, di, src in zip(geo.images, d["images"], block.images):
+        assert (im.X0, im.Y0, im.Z0, im.strip, im.camera) == (di["X0"], di["Y0"], di["Z0"], di["strip"], di["camera"])
+        assert (im.X0, im.Y0, im.Z0) == (src.X0, src.Y0, src.Z0)
+    cam = block.cameras[0]
+    assert (geo.camera.c, geo.camera.x0, geo.camera.y0, geo.camera.ap_scale) == (cam.c, cam.x0, cam.y0, cam.scale)
+    assert d["camera"]["c"] == cam.c and geo.camera_of(block.images[0].id) is geo.camera
+    assert geo.images_of(cam.id) == {im.id for im in block.images if im.camera == cam.id}
+    Zm = np.mean([p.Z for p in block.points])
+    assert geo.terrain_height == pytest.approx(Zm) and d["flying_height"] == geo.flying_height

@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 from importlib import resources
+from pathlib import Path
 
 import jsonschema
 import pytest
@@ -161,3 +162,51 @@ def test_convert_of_a_network_the_native_format_cannot_hold_is_refused(tmp_path,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "levelling networks only" in err and "direction" in err
     assert not (tmp_path / "plan.json").exists()
+
+
+def _demo_with_gross_control_error(tmp_path, shift=2760.0):
+    """The demo block with control point P00002 moved by ``shift`` metres in X (3 base lengths
+    of the 1:10,000 RC30 block): least squares diverges (R84 §6: a large error)."""
+    doc = json.loads((Path(__file__).resolve().parents[1] / "data" / "demo-block.json").read_text())
+    point = next(p for p in doc["points"] if p["id"] == "P00002")
+    point["ref"] = [point["ref"][0] + shift, *point["ref"][1:]]
+    path = tmp_path / "gross.json"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_a_diverged_adjustment_is_a_status_not_a_crash(tmp_path, capsys, monkeypatch):
+    """An unconverged adjustment whose normal equations are singular at the last iterate: exit
+    status 4 (not converged), one line saying no reliability could be computed and pointing to
+    --robust; no JSON written. With --robust the robust estimation still runs and names the
+    error. (The singular last iterate is forced here; the real case follows.)"""
+    from baarda import cli
+    from baarda.errors import SingularError
+
+    def singular(adj):
+        raise SingularError("normal matrix is singular: P00006.x is not determined by the observations")
+
+    monkeypatch.setattr(cli.results, "to_dict", singular)
+    path = _demo_with_gross_control_error(tmp_path)
+    out = tmp_path / "out.json"
+    assert main(["analyze", str(path), "--max-iter", "3", "--json", str(out)]) == cli.NOT_CONVERGED
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "NOT converged after 3 iterations" in err[0]
+    assert "no reliability computed" in err[0] and "--robust r84" in err[0]
+    assert not out.exists()
+    assert main(["analyze", str(path), "--max-iter", "3", "--robust", "r84"]) == cli.NOT_CONVERGED
+    text = capsys.readouterr().out
+    assert "robust estimation (r84" in text and "id=P00002" in text and "large" in text
+
+
+def test_gross_control_error_ends_with_a_status_and_one_line(tmp_path):
+    """The real thing, end to end in a fresh process: whatever least squares makes of a
+    3-base-length control error, the run ends with status 0 or 4 and, at 4, one line on stderr —
+    never a traceback."""
+    path = _demo_with_gross_control_error(tmp_path)
+    res = subprocess.run([sys.executable, "-m", "baarda.cli", "analyze", str(path), "--quiet"],
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode in (0, 4), res.stderr
+    assert "Traceback" not in res.stderr
+    if res.returncode == 4:
+        assert len(res.stderr.strip().splitlines()) == 1 and "NOT converged" in res.stderr

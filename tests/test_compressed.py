@@ -152,7 +152,7 @@ def test_real_bal_files_as_distributed(name, ncam, npt, nobs, cost):
     path = require_extdata(EXTDATA / "bal" / name)
     assert detect_format(path) == "bal"
     p = read_problem(path)
-    blk = p.extra["block"]
+    blk = p.geometry.as_dict()
     assert len(blk["images"]) == ncam and len(p.points.ids) == npt and p.n == 2 * nobs
     assert initial_cost(p) == pytest.approx(cost, rel=1e-9)
     # the same numbers as Python's own parser of the decompressed text

@@ -11,10 +11,10 @@ import scipy.linalg as la
 from baarda.adjust import Options, adjust
 from baarda.errors import HypothesisError
 from baarda.stats import distributions
-from baarda.stats.hypotheses import common_error, deformation, selection
+from baarda.stats.hypotheses import common_error, deformation, external_reliability, selection
 
 from networks import grid_network, problem, vector_network
-from oracle import dense
+from oracle import dense, reduced_design
 
 
 @pytest.fixture(scope="module")
@@ -91,3 +91,63 @@ def test_deformation_is_the_dense_normal_solution():
 def test_wrong_number_of_rows_is_a_hypothesis_error(adj):
     with pytest.raises(HypothesisError):
         adj.test(selection(adj.n + 2, [0]))
+
+
+def _dense_eq17(adj, H):
+    """M = HᵀP C̄ Q_kk C̄ᵀ P H and W_s = HᵀP C_vv P H from dense matrices (F80 eq. 16-17), with
+    C̄ = (I − B(BᵀPB)⁻¹BᵀP)C and Q_kk = (C̄ᵀPC̄)⁺ (pseudo-inverse: any datum)."""
+    ref = dense(adj)
+    kind = adj.problem.params.kind[adj.problem.params.free]
+    t, k = np.flatnonzero(kind == "t"), np.flatnonzero(kind == "k")
+    Cbar = reduced_design(ref.A, ref.P, t, k)
+    Qkk = np.linalg.pinv(Cbar.T @ ref.P @ Cbar, rcond=1e-12, hermitian=True)
+    Hd = H.toarray()
+    G = Cbar.T @ ref.P @ Hd
+    return G.T @ Qkk @ G, Hd.T @ ref.P @ ref.Cvv @ ref.P @ Hd, Cbar, Qkk
+
+
+@pytest.mark.parametrize("datum", ["fixed", "free"])
+@pytest.mark.parametrize("name", ["one", "pair", "weighted", "common"])
+def test_external_reliability_of_any_hypothesis_equals_the_dense_eq17(datum, name):
+    """δ̄0(s) = δ0 √(sᵀMs / sᵀW_s s) (F80 eq. 17): M, W_s, the maximum δ0 √λmax(M, W_s) and its
+    direction against dense matrices, on a network with orientation unknowns (B ≠ 0), fixed and
+    free (the form is datum invariant)."""
+    adj = adjust(problem(grid_network(3, 3, noise_seed=5, datum=datum)))
+    H = _hypotheses(adj.n)[name]
+    h = adj.test(H)
+    ext = external_reliability(adj, h)
+    M, W, _, _ = _dense_eq17(adj, H)
+    np.testing.assert_allclose(ext.M, M, rtol=1e-7, atol=1e-9 * np.abs(M).max())
+    mu = la.eigh(M, W, eigvals_only=True)
+    assert ext.max == pytest.approx(h.delta0 * np.sqrt(mu.max()), rel=1e-7)
+    s = ext.direction
+    assert h.delta0 * np.sqrt((s @ M @ s) / (s @ W @ s)) == pytest.approx(ext.max, rel=1e-7)
+    for s in np.random.default_rng(1).normal(size=(20, H.shape[1])):
+        assert ext.delta_bar0(s) <= ext.max * (1 + 1e-9)
+        assert ext.delta_bar0(s) == pytest.approx(h.delta0 * np.sqrt((s @ M @ s) / (s @ W @ s)), rel=1e-7)
+
+
+def test_external_reliability_of_one_observation_is_eq18s():
+    """For H = e_i, δ̄0 is the per-observation external reliability δ0 √((PH_kP)_ii/(PC_vvP)_ii)."""
+    adj = adjust(problem(grid_network(3, 3, noise_seed=5)))
+    for i in (0, 7, 15):
+        ext = external_reliability(adj, adj.test(selection(adj.n, [i])))
+        assert ext.max == pytest.approx(adj.external[i], rel=1e-8)
+        assert ext.lambda_bar_max == pytest.approx(adj.external[i] ** 2, rel=1e-8)
+
+
+def test_eq18_is_reached_with_equality_in_the_maximising_direction():
+    """∇0f(s) ≤ σ_f δ̄0(s) for any f = gᵀk (F80 eq. 18, Cauchy-Schwarz), with equality for
+    g = (C̄ᵀPC̄) ∇0k when ∇0s lies in the maximising direction; random g stay below."""
+    adj = adjust(problem(grid_network(3, 3, noise_seed=5, datum="free")))
+    H = _hypotheses(adj.n)["common"]
+    h = adj.test(H)
+    ext = external_reliability(adj, h)
+    _, _, Cbar, Qkk = _dense_eq17(adj, H)
+    nabla0 = h.lower_bound(ext.direction)                       # on the ellipse, F80 eq. 13
+    dk = Qkk @ Cbar.T @ dense(adj).P @ (H.toarray() @ nabla0)   # F80 eq. 16
+    g = np.linalg.pinv(Qkk, rcond=1e-12, hermitian=True) @ dk
+    sigma_f = np.sqrt(g @ Qkk @ g)
+    assert (g @ dk) / sigma_f == pytest.approx(ext.max, rel=1e-7)
+    for g in np.random.default_rng(2).normal(size=(50, dk.size)):
+        assert abs(g @ dk) <= np.sqrt(g @ Qkk @ g) * ext.max * (1 + 1e-9)

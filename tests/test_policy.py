@@ -8,6 +8,7 @@ import pytest
 from scipy import stats as sps
 
 from baarda.adjust import Options, adjust
+from baarda.errors import OptionError
 from baarda.model.bundle import build_block_problem
 from baarda.stats.policy import TestPolicy
 from baarda.stats.reliability import Reliability
@@ -53,10 +54,14 @@ def test_critical_values_and_the_decision_follow_sigma0():
     assert (pri.statistic_name, post.statistic_name) == ("w", "τ")
 
 
-@pytest.mark.parametrize("bad", [dict(alpha0=0.0), dict(beta0=1.0), dict(sigma0="both")])
+@pytest.mark.parametrize("bad", [dict(alpha0=0.0), dict(beta0=1.0), dict(sigma0="both"), dict(global_test="left")])
 def test_bad_policy_is_refused(bad):
-    with pytest.raises(ValueError):
+    """A bad policy is an OptionError naming the option and the value given (and a ValueError)."""
+    with pytest.raises(OptionError) as err:
         TestPolicy(**bad)
+    (name, value), = bad.items()
+    assert (err.value.option, err.value.value) == (name, value)
+    assert isinstance(err.value, ValueError)
 
 
 def test_reliability_under_another_policy_equals_a_fresh_adjustment():

@@ -78,10 +78,10 @@ def test_bal_counts_and_ids():
     assert p.info.line[0] == 2 and p.info.kind[:2] == ("image-x", "image-y")
     assert p.datum.kind == "free" and p.datum.sbase == ()
     # minimal geometry for the dashboard: projection centres −Rᵀt
-    im = p.extra["block"]["images"][3]
+    im = p.geometry.images[3]
     rho, t = block.images[3].rodrigues, block.images[3].t
-    assert np.allclose([im["X0"], im["Y0"], im["Z0"]], -R_from_rodrigues(np.array(rho)).T @ np.array(t))
-    assert "footprint" not in im
+    assert np.allclose([im.X0, im.Y0, im.Z0], -R_from_rodrigues(np.array(rho)).T @ np.array(t))
+    assert "footprint" not in im.details and "footprint" not in p.geometry.as_dict()["images"][3]
 
 
 def test_bal_dubrovnik_1_1_is_refused_with_reason(capsys):

@@ -78,7 +78,7 @@ def test_hat_blocks_with_round_off_are_recomputed_by_solves(make):
     from baarda.model.problem import size_groups
 
     adj = adjust(problem(make()))
-    H, Ht = adj._hat_blocks
+    H, Ht = adj.hat_blocks
     assert adj.repaired_clusters == 0
     spoiled = H.copy()
     pos, touched = 0, 0
@@ -91,7 +91,7 @@ def test_hat_blocks_with_round_off_are_recomputed_by_solves(make):
             touched += 1
         touched += 1
         pos += k * m * m
-    H2, Ht2 = adj._repair_hat_blocks(spoiled, Ht)
+    H2, Ht2 = adj.repair_hat_blocks(spoiled, Ht)
     assert adj.repaired_clusters == touched
     np.testing.assert_allclose(H2, H, atol=1e-10 * np.abs(H).max())
     np.testing.assert_allclose(Ht2, Ht, atol=1e-10 * max(np.abs(Ht).max(), 1e-300))
@@ -120,6 +120,12 @@ def test_group_tests_from_cluster_blocks_equal_the_general_test(b_method):
         assert g["dimension"] == h.q and g["alpha"] == h.alpha and g["critical"] == h.critical_T
         assert abs(g["T"] - h.T) <= 1e-9 * max(1.0, h.T)
         np.testing.assert_allclose(g["nabla"], h.nabla, rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(g["nabla_sigma"], h.nabla_sigma, rtol=1e-7, atol=1e-12)
+        np.testing.assert_allclose(g["ellipse_axes"], np.sort(h.ellipse_axes[np.isfinite(h.ellipse_axes)])[::-1],
+                                   rtol=1e-7)
+        assert g["delta0_prime_max"] == pytest.approx(h.delta0_prime_max, rel=1e-7)
+        assert (np.isnan(g["R"]) and np.isnan(h.R)) or g["R"] == pytest.approx(h.R, rel=1e-8)
+        assert g["critical_R"] == h.critical_R and g["delta0"] == h.delta0
 
 
 # -- identities ---------------------------------------------------------------------------------

@@ -119,3 +119,19 @@ def test_correlated_component_with_negative_r_is_tested():
     assert np.isfinite(adj.mdb[i])
     # the rule's scale: P_ii, so that for an uncorrelated observation it reads r_i ≤ R_EPS
     np.testing.assert_allclose(adj.weight_diagonal, np.diag(d.P), rtol=1e-12)
+
+
+def test_seed_hands_over_cached_properties_only_once():
+    """Adjustment.seed: the one way to hand a result values computed elsewhere (the solver's Ar,
+    an exclusion's factor); a name that is not a cached property, or one already computed, is
+    refused, so a result cannot be given an inconsistent cache."""
+    fresh = adjust(problem(grid_network(3, 3, noise_seed=6)))
+    with pytest.raises(TypeError, match="not a cached property"):
+        fresh.seed(vPv_total=1.0)
+    fresh.r                                        # computes factor, hat blocks, ...
+    with pytest.raises(TypeError, match="already computed"):
+        fresh.seed(factor=None)
+    twin = dataclasses.replace(fresh)
+    twin.seed(factor=fresh.factor, hat_blocks=fresh.hat_blocks)
+    assert twin.factor is fresh.factor
+    np.testing.assert_array_equal(twin.r, fresh.r)

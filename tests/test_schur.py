@@ -123,8 +123,8 @@ def test_backends_agree():
     _, pr = _block(datum="free", rho=0.2)
     a = adjust(pr, Options(solver="schur", backend="numpy"))
     b = _as(a, "schur", "numba")
-    Ha, Hta = a._hat_blocks
-    Hb, Htb = b._hat_blocks
+    Ha, Hta = a.hat_blocks
+    Hb, Htb = b.hat_blocks
     assert np.abs(Ha - Hb).max() <= 1e-10 * np.abs(Ha).max()        # summation order only
     assert np.abs(Hta - Htb).max() <= 1e-10 * np.abs(Hta).max()      # cancellation in a Σ_t aᵀ
     _agree(a, b, 1e-9)

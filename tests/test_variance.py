@@ -71,51 +71,101 @@ def test_additive_components_agree_with_group_factors():
 
 
 def test_radial_components_shape():
-    """The radial model's C_j (F80 §2.1): a² on image coordinates, b²c²/cos⁴α growing with the
-    radius, control kept apart."""
+    """The radial model's C_j (F80 §2.1): a² on image coordinates, b²c²/cos⁴α on the radial
+    component (rank 1, along the radial unit vector u), control kept apart."""
     from baarda.model.bundle import build_block_problem
     from baarda.simulate import simulate_block
 
     block, _ = simulate_block(strips=2, images_per_strip=4, design=True, seed=3, approx_sigma=0.0)
     p = build_block_problem(block)
     comps = variance.radial_components(p)
+    iso = variance.radial_components(p, "isotropic")
     kinds = np.array(p.info.kind)
     for c, idx in enumerate(p.cov.members):
         a, b, o = comps["a²"][c], comps["b²c²"][c], comps["other"][c]
         if kinds[idx[0]].startswith("image-"):
-            assert np.allclose(a, np.eye(idx.size)) and (np.diag(b) >= 1.0).all() and not o.any()
-            cam = p.extra["block"]["camera"]
+            assert np.allclose(a, np.eye(idx.size)) and not o.any()
+            cam = p.geometry.as_dict()["camera"]
             x, y = p.l[idx[0]] - cam["x0"], p.l[idx[1]] - cam["y0"]
-            assert b[0, 0] == pytest.approx(((cam["c"] ** 2 + x * x + y * y) / cam["c"] ** 2) ** 2, rel=1e-12)
+            inv_cos4 = ((cam["c"] ** 2 + x * x + y * y) / cam["c"] ** 2) ** 2
+            u = np.array([x, y]) / np.hypot(x, y)
+            t = np.array([-y, x]) / np.hypot(x, y)
+            assert u @ b @ u == pytest.approx(inv_cos4, rel=1e-12)      # radial: 1/cos⁴α
+            assert abs(t @ b @ t) < 1e-12 * inv_cos4                     # tangential: nothing
+            np.testing.assert_allclose(iso["b²c²"][c], inv_cos4 * np.eye(2), rtol=1e-12)
         else:
             assert not a.any() and not b.any() and np.allclose(o, p.cov.blocks[c])
 
 
-def test_radial_model_recovers_a_and_b():
-    """F80 §2.1: image noise with σ² = a² + b²c²/cos⁴α is recovered within its standard errors."""
+def test_radial_cofactor_is_the_propagated_ray_angle():
+    """F80 §2.1: b is the σ of the ray's angle α to the axis; the image point lies at
+    ρ = c tan α along the radial unit vector, so its cofactor from b is J Jᵀ with J = ∂(x, y)/∂α
+    — here by central differences of the projection, independent of the closed form
+    (1/cos⁴α) c² u uᵀ. At the principal point the mean over directions, I/2."""
+    c = 153.0
+    for dx, dy in [(40.0, -25.0), (-100.0, 80.0), (0.0, 110.0)]:
+        phi, alpha = np.arctan2(dy, dx), np.arctan(np.hypot(dx, dy) / c)
+        h = 1e-6
+
+        def xy(a):
+            return c * np.tan(a) * np.array([np.cos(phi), np.sin(phi)])
+
+        J = (xy(alpha + h) - xy(alpha - h)) / (2 * h)
+        np.testing.assert_allclose(c * c * variance.radial_cofactor(dx, dy, c), np.outer(J, J), rtol=1e-7,
+                                   atol=1e-9 * (J @ J))
+    np.testing.assert_allclose(variance.radial_cofactor(0.0, 0.0, c), 0.5 * np.eye(2))
+    with pytest.raises(BaardaError, match="unknown radial structure"):
+        variance.radial_cofactor(1.0, 1.0, c, "tangential")
+
+
+def _radial_noise_block(seed, a2, b2c2):
+    """A 3 × 8 block (15 points per image, dense control) with image noise of the radial model."""
     from baarda.model.bundle import build_block_problem
     from baarda.simulate import simulate_block
 
-    # the two components are nearly collinear (1/cos⁴α from 1 to 3.1 in a 153 mm camera): a block
-    # of 4 × 10 images with 15 points each and a dominant radial term separates them
-    block, _ = simulate_block(strips=4, images_per_strip=10, design=True, seed=3, control="dense",
+    block, _ = simulate_block(strips=3, images_per_strip=8, design=True, seed=3, control="dense",
                               approx_sigma=0.0, pattern=[5, 3])
     p = build_block_problem(block)
     comps = variance.radial_components(p)
-    a2_true, b2c2_true = 0.002 ** 2, 0.005 ** 2
+    rng = np.random.default_rng(seed)
+    e = np.zeros(p.n)
+    for c, idx in enumerate(p.cov.members):
+        C = a2 * comps["a²"][c] + b2c2 * comps["b²c²"][c] + comps["other"][c]
+        e[idx] = np.linalg.cholesky(C) @ rng.normal(size=idx.size)
+    return dataclasses.replace(p, l=p.l + e)
+
+
+def test_radial_model_recovers_a_and_b():
+    """F80 §2.1: image noise a² I + b²c²/cos⁴α u uᵀ (a² = 9e-6, b²c² = 1.6e-5 mm², the numbers
+    of issue 14) is recovered within 3 rigorous standard errors; the estimate's redundancies add
+    up to the total redundancy."""
+    from baarda.stats import analyses
+
+    a2_true, b2c2_true = 9e-6, 1.6e-5
     for seed in (12, 13):
-        rng = np.random.default_rng(seed)
-        e = np.zeros(p.n)
-        for c, idx in enumerate(p.cov.members):
-            C = a2_true * comps["a²"][c] + b2c2_true * comps["b²c²"][c] + comps["other"][c]
-            e[idx] = np.linalg.cholesky(C) @ rng.normal(size=idx.size)
-        est = variance.estimate_components(dataclasses.replace(p, l=p.l + e), comps, theta0=[2.5e-5, 2.5e-5, 1.0])
-        assert est.converged and est.iterations < 20
+        est = analyses.radial_variance(_radial_noise_block(seed, a2_true, b2c2_true))
+        assert est.converged and est.iterations < 20 and not est.at_zero
         th = dict(zip(est.names, est.theta))
         se = dict(zip(est.names, est.std_error))
         assert abs(th["a²"] - a2_true) < 3 * se["a²"]
         assert abs(th["b²c²"] - b2c2_true) < 3 * se["b²c²"]
+        assert se["b²c²"] < 0.3 * b2c2_true            # determined, not just a wide interval
         assert abs(est.redundancy.sum() - est.adjustment.dof) < 1e-6 * est.adjustment.dof
+
+
+def test_isotropic_reading_on_radial_noise_holds_a_component_at_zero():
+    """On the same radial data the isotropic reading (b²c²/cos⁴α on x and y alike) drives b²c²
+    below 0 (issue 14: it stopped with "b²c² = −4.45e-06 is not positive"): now the estimate is
+    constrained, b²c² held at 0 and said so, a² re-estimated, no error."""
+    from baarda.stats import analyses
+
+    est = analyses.radial_variance(_radial_noise_block(12, 9e-6, 1.6e-5), structure="isotropic")
+    assert est.converged and est.at_zero == ("b²c²",)
+    th = dict(zip(est.names, est.theta))
+    assert th["b²c²"] == 0.0 and th["a²"] > 9e-6
+    assert "held at 0" in est.notes[0] and "b²c²" in est.notes[0]
+    row = {d["component"]: d for d in est.as_dict()}["b²c²"]
+    assert row["at_zero"] and row["std_error"] is None
 
 
 def test_std_errors_rigorous_at_convergence():
@@ -139,3 +189,23 @@ def test_std_errors_rigorous_at_convergence():
     assert np.abs(vc.std_error / approx - 1.0).max() > 1e-3
     assert vc.summary() == {"kind": "families", "converged": True, "iterations": vc.iterations,
                             "std_error": "rigorous"}
+
+
+def test_radial_models_reachable_from_the_cli(tmp_path, capsys):
+    """`--variance-components radial` and `radial-isotropic` (F80 §2.1) from the CLI: printed and
+    in the JSON with the structure used."""
+    import json
+
+    from baarda.cli import main
+
+    block = tmp_path / "b.json"
+    assert main(["simulate", str(block), "--strips", "2", "--images", "4", "--seed", "5", "--quiet"]) == 0
+    for model in ("radial", "radial-isotropic"):
+        out = tmp_path / f"{model}.json"
+        assert main(["analyze", str(block), "--variance-components", model, "--json", str(out)]) == 0
+        text = capsys.readouterr().out
+        structure = "isotropic" if model == "radial-isotropic" else "radial"
+        assert f"radial variance model, {structure} (F80 §2.1" in text
+        doc = json.loads(out.read_text())
+        assert doc["variance_estimate"]["kind"] == model
+        assert [d["component"] for d in doc["variance_components"]] == ["a²", "b²c²", "other"]

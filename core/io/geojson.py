@@ -34,7 +34,7 @@ def _num(x):
 
 def _east_north(problem, xyz: np.ndarray) -> np.ndarray:
     axes = problem.extra.get("axes_xy")
-    if not axes or "block" in problem.extra:
+    if not axes or problem.geometry is not None:
         return xyz
     unit = {"n": (0.0, 1.0), "e": (1.0, 0.0), "s": (0.0, -1.0), "w": (-1.0, 0.0)}
     ex, ey = unit[axes[0]], unit[axes[1]]       # (east, north) of +x and +y

@@ -144,6 +144,22 @@ class _Reader:
             self.fail(key, i, f"{key}[{i}]: missing or empty '{name}'", field=name)
         return str(v)
 
+    def listed(self, key, empty: str) -> tuple[list, dict]:
+        """The entries of the required, non-empty list ``key`` and their ids (id → index);
+        ``empty`` is the message for an empty list."""
+        items = self.entries(key)
+        if not items:
+            self.fail(key, None, empty)
+        return items, self.unique(key, items)
+
+    def choice(self, e, name, key, i, allowed: tuple[str, ...], default: str) -> str:
+        """A field whose value is one of ``allowed``."""
+        v = e.get(name, default)
+        if v not in allowed:
+            self.fail(key, i, f"{key}[{i}]: {name} must be {', '.join(allowed[:-1])} or {allowed[-1]} (got {v!r})",
+                      field=name)
+        return v
+
     def unique(self, key, items) -> dict:
         seen = {}
         for i, e in enumerate(items):
@@ -253,16 +269,40 @@ def _datum(rd, point_ids):
     return d.get("kind", "control"), tuple(str(s) for s in sbase)
 
 
+def _plane_observations(rd, owner: str, owner_ids: dict, pt_ids: dict, empty: str, twice: str):
+    """The ``observations`` list of a block: one (x, y) with its 2 × 2 covariance of one point in
+    one ``owner`` (image or model) each, at most once per owner and point. Returns the owner and
+    point indices, xy (m × 2), the covariances (m × 2 × 2) and the file lines.
+    ``twice`` is the message for a repeated pair, formatted with ``point`` and ``owner``."""
+    obs_in = rd.entries("observations")
+    if not obs_in:
+        rd.fail("observations", None, empty)
+    m = len(obs_in)
+    oi, op = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    xy, cov, line = np.empty((m, 2)), np.empty((m, 2, 2)), np.empty(m, dtype=np.int64)
+    seen = set()
+    for k, e in enumerate(obs_in):
+        ow = rd.ident(e, owner, "observations", k)
+        pt = rd.ident(e, "point", "observations", k)
+        if ow not in owner_ids:
+            rd.fail("observations", k, f"observations[{k}]: unknown {owner} '{ow}'", field=owner)
+        if pt not in pt_ids:
+            rd.fail("observations", k, f"observations[{k}]: unknown point '{pt}'", field="point")
+        if (ow, pt) in seen:
+            rd.fail("observations", k, f"observations[{k}]: " + twice.format(point=pt, owner=ow), field="point")
+        seen.add((ow, pt))
+        oi[k], op[k] = owner_ids[ow], pt_ids[pt]
+        xy[k] = (rd.number(e, "x", "observations", k), rd.number(e, "y", "observations", k))
+        cov[k] = rd.covariance(e, "observations", k)
+        line[k] = rd.loc.of("observations", k)
+    return oi, op, xy, cov, line
+
+
 def _read_bundle(rd, sigma0):
-    cams_in = rd.entries("cameras")
-    if not cams_in:
-        rd.fail("cameras", None, "empty block: no cameras")
-    cam_ids = rd.unique("cameras", cams_in)
+    cams_in, cam_ids = rd.listed("cameras", "empty block: no cameras")
     cameras = []
     for i, e in enumerate(cams_in):
-        unit = e.get("unit", "mm")
-        if unit not in ("mm", "px"):
-            rd.fail("cameras", i, f"cameras[{i}]: unit must be 'mm' or 'px' (got {unit!r})", field="unit")
+        unit = rd.choice(e, "unit", "cameras", i, ("mm", "px"), "mm")
         ap = e.get("ap", [])
         if not isinstance(ap, list) or any(g not in AP_GROUPS for g in ap):
             rd.fail("cameras", i, f"cameras[{i}]: 'ap' must list groups of {', '.join(AP_GROUPS)}", field="ap")
@@ -276,10 +316,7 @@ def _read_bundle(rd, sigma0):
             **{k: rd.number(e, k, "cameras", i, 0.0) for k in ("k1", "k2", "k3", "p1", "p2")},
             ap=tuple(ap), ap_scale=rd.number(e, "ap_scale", "cameras", i, 0.0, nonneg=True),
             line=rd.loc.of("cameras", i)))
-    imgs_in = rd.entries("images")
-    if not imgs_in:
-        rd.fail("images", None, "empty block: no images")
-    img_ids = rd.unique("images", imgs_in)
+    imgs_in, img_ids = rd.listed("images", "empty block: no images")
     images = []
     for i, e in enumerate(imgs_in):
         cam = rd.ident(e, "camera", "images", i)
@@ -288,15 +325,10 @@ def _read_bundle(rd, sigma0):
         vals = {k: rd.number(e, k, "images", i) for k in ("X0", "Y0", "Z0", "omega", "phi", "kappa")}
         images.append(Image(id=str(e["id"]), camera=cam, strip=str(e.get("strip", "")),
                             line=rd.loc.of("images", i), **vals))
-    pts_in = rd.entries("points")
-    if not pts_in:
-        rd.fail("points", None, "empty block: no points")
-    pt_ids = rd.unique("points", pts_in)
+    pts_in, pt_ids = rd.listed("points", "empty block: no points")
     points = []
     for i, e in enumerate(pts_in):
-        st = e.get("status", "tie")
-        if st not in ("tie", "control", "check"):
-            rd.fail("points", i, f"points[{i}]: status must be tie, control or check (got {st!r})", field="status")
+        st = rd.choice(e, "status", "points", i, ("tie", "control", "check"), "tie")
         X, Y, Z = (rd.number(e, k, "points", i) for k in ("X", "Y", "Z"))
         ref, sh, sv, axes = None, 0.0, 0.0, "xyz"
         if st != "tie":
@@ -312,28 +344,8 @@ def _read_bundle(rd, sigma0):
                 sv = rd.number(e, "sigma_v", "points", i, positive=True)
         points.append(ObjectPoint(id=str(e["id"]), X=X, Y=Y, Z=Z, status=st, ref=ref, sigma_h=sh, sigma_v=sv,
                                   axes=axes, line=rd.loc.of("points", i)))
-    obs_in = rd.entries("observations")
-    if not obs_in:
-        rd.fail("observations", None, "empty block: no image observations")
-    m = len(obs_in)
-    oi, op = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
-    xy, cov, line = np.empty((m, 2)), np.empty((m, 2, 2)), np.empty(m, dtype=np.int64)
-    seen = {}
-    for k, e in enumerate(obs_in):
-        im = rd.ident(e, "image", "observations", k)
-        pt = rd.ident(e, "point", "observations", k)
-        if im not in img_ids:
-            rd.fail("observations", k, f"observations[{k}]: unknown image '{im}'", field="image")
-        if pt not in pt_ids:
-            rd.fail("observations", k, f"observations[{k}]: unknown point '{pt}'", field="point")
-        if (im, pt) in seen:
-            rd.fail("observations", k, f"observations[{k}]: point '{pt}' measured twice in image '{im}'",
-                    field="point")
-        seen[(im, pt)] = k
-        oi[k], op[k] = img_ids[im], pt_ids[pt]
-        xy[k] = (rd.number(e, "x", "observations", k), rd.number(e, "y", "observations", k))
-        cov[k] = rd.covariance(e, "observations", k)
-        line[k] = rd.loc.of("observations", k)
+    oi, op, xy, cov, line = _plane_observations(rd, "image", img_ids, pt_ids, "empty block: no image observations",
+                                                "point '{point}' measured twice in image '{owner}'")
     # a point on fewer than two rays is a local defect (baarda.sfm_defects names it and leaves it
     # out, --strict refuses it), not bad input; a weighted control point on one ray is determined
     datum, sbase = _datum(rd, pt_ids)
@@ -344,47 +356,20 @@ def _read_bundle(rd, sigma0):
 
 
 def _read_imodel(rd, sigma0):
-    mods_in = rd.entries("models")
-    if not mods_in:
-        rd.fail("models", None, "empty block: no models")
-    mod_ids = rd.unique("models", mods_in)
+    mods_in, mod_ids = rd.listed("models", "empty block: no models")
     models = [Model(id=str(e["id"]), strip=str(e.get("strip", "")), line=rd.loc.of("models", i),
                     **{k: rd.number(e, k, "models", i, d) for k, d in (("a", 1.0), ("b", 0.0), ("c", 0.0), ("d", 0.0))})
               for i, e in enumerate(mods_in)]
-    pts_in = rd.entries("points")
-    if not pts_in:
-        rd.fail("points", None, "empty block: no points")
-    pt_ids = rd.unique("points", pts_in)
+    pts_in, pt_ids = rd.listed("points", "empty block: no points")
     points = []
     for i, e in enumerate(pts_in):
-        st = e.get("status", "tie")
-        if st not in ("tie", "control", "check"):
-            rd.fail("points", i, f"points[{i}]: status must be tie, control or check (got {st!r})", field="status")
+        st = rd.choice(e, "status", "points", i, ("tie", "control", "check"), "tie")
         X, Y = rd.number(e, "X", "points", i), rd.number(e, "Y", "points", i)
         ref = tuple(rd.vector(e, "ref", "points", i, 2)) if (st != "tie" and "ref" in e) else ((X, Y) if st != "tie" else None)
         sig = rd.number(e, "sigma", "points", i, positive=True) if st == "control" else 0.0
         points.append(PlanPoint(str(e["id"]), X, Y, st, ref, sig, line=rd.loc.of("points", i)))
-    obs_in = rd.entries("observations")
-    if not obs_in:
-        rd.fail("observations", None, "empty block: no model observations")
-    m = len(obs_in)
-    mi, mp = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
-    xy, cov, line = np.empty((m, 2)), np.empty((m, 2, 2)), np.empty(m, dtype=np.int64)
-    seen = set()
-    for k, e in enumerate(obs_in):
-        mo = rd.ident(e, "model", "observations", k)
-        pt = rd.ident(e, "point", "observations", k)
-        if mo not in mod_ids:
-            rd.fail("observations", k, f"observations[{k}]: unknown model '{mo}'", field="model")
-        if pt not in pt_ids:
-            rd.fail("observations", k, f"observations[{k}]: unknown point '{pt}'", field="point")
-        if (mo, pt) in seen:
-            rd.fail("observations", k, f"observations[{k}]: point '{pt}' twice in model '{mo}'", field="point")
-        seen.add((mo, pt))
-        mi[k], mp[k] = mod_ids[mo], pt_ids[pt]
-        xy[k] = (rd.number(e, "x", "observations", k), rd.number(e, "y", "observations", k))
-        cov[k] = rd.covariance(e, "observations", k)
-        line[k] = rd.loc.of("observations", k)
+    mi, mp, xy, cov, line = _plane_observations(rd, "model", mod_ids, pt_ids, "empty block: no model observations",
+                                                "point '{point}' twice in model '{owner}'")
     counts = np.bincount(mp, minlength=len(points))
     for i, p in enumerate(points):
         if counts[i] < 1 and p.status != "control":
@@ -396,15 +381,10 @@ def _read_imodel(rd, sigma0):
 
 
 def _read_levelling(rd, sigma0):
-    pts_in = rd.entries("points")
-    if not pts_in:
-        rd.fail("points", None, "empty network: no points")
-    pt_ids = rd.unique("points", pts_in)
+    pts_in, pt_ids = rd.listed("points", "empty network: no points")
     points = []
     for i, e in enumerate(pts_in):
-        st = e.get("status", "adjusted")
-        if st not in ("fixed", "adjusted"):
-            rd.fail("points", i, f"points[{i}]: status must be fixed or adjusted (got {st!r})", field="status")
+        st = rd.choice(e, "status", "points", i, ("fixed", "adjusted"), "adjusted")
         H = rd.number(e, "H", "points", i)
         points.append(NetPoint(id=str(e["id"]), z=H, fixed="z" if st == "fixed" else "",
                                adjusted="z" if st == "adjusted" else "", line=rd.loc.of("points", i)))
@@ -476,6 +456,20 @@ def write_native(block, path) -> None:
     Path(path).write_text(_dump(doc, lists), encoding="utf-8")
 
 
+def _plane_observation_docs(b, owner: str, owners, index) -> list[dict]:
+    """The ``observations`` list of a block (the inverse of :func:`_plane_observations`)."""
+    o = b.obs
+    return [{owner: owners[index[k]].id, "point": b.points[o.point[k]].id,
+             "x": _f(o.xy[k, 0]), "y": _f(o.xy[k, 1]), **_cov_entry(o.cov[k])} for k in range(o.size)]
+
+
+def _datum_doc(b) -> dict:
+    datum = {"kind": b.datum}
+    if b.datum == "free":
+        datum["sbase"] = list(b.sbase)
+    return datum
+
+
 def _bundle_doc(b) -> dict:
     cams = []
     for c in b.cameras:
@@ -500,12 +494,8 @@ def _bundle_doc(b) -> dict:
             if p.sigma_v > 0:
                 d["sigma_v"] = p.sigma_v
         pts.append(d)
-    o = b.obs
-    obs = [{"image": b.images[o.image[k]].id, "point": b.points[o.point[k]].id,
-            "x": _f(o.xy[k, 0]), "y": _f(o.xy[k, 1]), **_cov_entry(o.cov[k])} for k in range(o.size)]
-    datum = {"kind": b.datum}
-    if b.datum == "free":
-        datum["sbase"] = list(b.sbase)
+    obs = _plane_observation_docs(b, "image", b.images, b.obs.image)
+    datum = _datum_doc(b)
     doc = {"format": FORMAT, "version": 1, "kind": "bundle", "title": b.title, "sigma0": b.sigma0,
            "units": {"object": "m", "angles": "rad", "image": "camera unit"}, "datum": datum,
            "cameras": cams, "images": imgs, "points": pts, "observations": obs}
@@ -524,12 +514,8 @@ def _imodel_doc(b) -> dict:
         if p.status == "control":
             d["sigma"] = p.sigma
         pts.append(d)
-    o = b.obs
-    obs = [{"model": b.models[o.model[k]].id, "point": b.points[o.point[k]].id,
-            "x": _f(o.xy[k, 0]), "y": _f(o.xy[k, 1]), **_cov_entry(o.cov[k])} for k in range(o.size)]
-    datum = {"kind": b.datum}
-    if b.datum == "free":
-        datum["sbase"] = list(b.sbase)
+    obs = _plane_observation_docs(b, "model", b.models, b.obs.model)
+    datum = _datum_doc(b)
     return {"format": FORMAT, "version": 1, "kind": "imodel", "title": b.title, "sigma0": b.sigma0,
             "unit": b.unit, "datum": datum, "models": mods, "points": pts, "observations": obs}
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..datum import far_points
+from ..stats.ap_tests import ap_tests
 from ..text import number, printable
 
 SCHEMA_VERSION = "1.0"
@@ -32,7 +33,7 @@ def summary(adj, reliability=None) -> dict:
     the policy of the adjustment's options)."""
     rel = adj.reliability if reliability is None else reliability
     p = adj.problem
-    g = adj.global_test
+    g = rel.global_test
     return {
         "source": p.source,
         "title": p.title,
@@ -54,10 +55,12 @@ def summary(adj, reliability=None) -> dict:
         "converged": bool(adj.converged),
         "iterations": int(adj.iterations),
         "termination": str(getattr(adj, "termination", "")),
+        "statistic": "tau" if rel.policy.sigma0 == "aposteriori" else "w",
         "n_rejected": int(rel.rejected.sum()),
         "global_test": {
-            "statistic": _num(g["statistic"]), "dof": g["dof"], "lower": _num(g["lower"]),
-            "upper": _num(g["upper"]), "conf_pr": g["conf_pr"], "passed": g["passed"],
+            "statistic": _num(g["statistic"]), "dof": g["dof"], "test": g["test"], "alpha": g["alpha"],
+            "lower": _num(g["lower"]), "upper": _num(g["upper"]), "conf_pr": g["conf_pr"],
+            "passed": g["passed"], "side": g["side"], "verdict": g["verdict"],
         },
         "timings": {k: round(float(v), 6) for k, v in adj.timings.items()},
         "far_points": far_point_ids(adj),
@@ -89,12 +92,18 @@ def far_point_ids(adj) -> list[str]:
     return [str(ids[i]) for i in np.flatnonzero(far_points(adj.problem, adj.x))]
 
 
-def observations(adj) -> list[dict]:
+def observations(adj, reliability=None) -> list[dict]:
+    """One dict per observation; ``rejected`` by the statistic of ``reliability``'s policy (w or
+    τ), ``rejected_w`` and ``rejected_tau`` by each."""
+    rel = adj.reliability if reliability is None else reliability
     info = adj.problem.info
     sig = adj.problem.cov.sigma()
     out = []
-    r, w, tau, mdb, ext = adj.r, adj.w, adj.tau, adj.mdb, adj.external
-    v, rej, unc = adj.v, adj.rejected, adj.uncontrolled
+    r, w, tau, mdb, ext = adj.r, adj.w, adj.tau, rel.mdb, rel.external
+    v, rej, unc = adj.v, rel.rejected, adj.uncontrolled
+    rej_w = np.nan_to_num(np.abs(w)) > rel.critical_w
+    rej_tau = np.nan_to_num(np.abs(tau)) > rel.critical_tau
+    u_k, u_t = adj.u_k, adj.u_t
     for i in range(adj.n):
         d = {"index": i, "kind": info.kind[i]}
         d.update(info.ids[i])
@@ -103,8 +112,10 @@ def observations(adj) -> list[dict]:
             "sigma": _num(info.sigma_file[i]), "sigma_unit": info.sigma_unit[i],
             "sigma_si": _num(sig[i]),
             "line": int(info.line[i]),
-            "residual": _num(v[i]), "redundancy": _num(r[i]), "w": _num(w[i]), "tau": _num(tau[i]),
-            "mdb": _num(mdb[i]), "external": _num(ext[i]), "rejected": bool(rej[i]),
+            "residual": _num(v[i]), "redundancy": _num(r[i]), "u_k": _num(u_k[i]), "u_t": _num(u_t[i]),
+            "w": _num(w[i]), "tau": _num(tau[i]),
+            "mdb": _num(mdb[i]), "external": _num(ext[i]), "lambda_bar": _num(ext[i] ** 2),
+            "rejected": bool(rej[i]), "rejected_w": bool(rej_w[i]), "rejected_tau": bool(rej_tau[i]),
             "uncontrolled": bool(unc[i]),
         })
         if info.group[i] >= 0:
@@ -129,17 +140,38 @@ def points(adj) -> list[dict]:
     return out
 
 
-def groups(adj) -> list[dict]:
+def groups(adj, reliability=None) -> list[dict]:
+    rel = adj.reliability if reliability is None else reliability
     return [{"group": g["group"], "members": [int(m) for m in g["members"]], "T": _num(g["T"]),
              "dimension": int(g["dimension"]), "redundancy": _num(g["redundancy"]),
-             "critical": _num(g["critical"]), "alpha": g["alpha"], "rejected": bool(g["rejected"])}
-            for g in adj.groups]
+             "critical": _num(g["critical"]), "alpha": g["alpha"], "rejected": bool(g["rejected"]),
+             "R": _num(g["R"]), "critical_R": _num(g["critical_R"]),
+             "nabla": [_num(x) for x in g["nabla"]], "nabla_sigma": [_num(x) for x in g["nabla_sigma"]],
+             "ellipse_axes": [_num(x) for x in g["ellipse_axes"]],
+             "delta0_prime_max": _num(g["delta0_prime_max"])}
+            for g in rel.groups]
 
 
-def to_dict(adj) -> dict:
-    """The whole result document (schema version ``SCHEMA_VERSION``)."""
-    return {"schema": f"baarda-analysis/{SCHEMA_VERSION}", "summary": summary(adj),
-            "observations": observations(adj), "points": points(adj), "groups": groups(adj)}
+def to_dict(adj, reliability=None) -> dict:
+    """The whole result document (schema version ``SCHEMA_VERSION``), the tests under
+    ``reliability`` (default ``adj.reliability``)."""
+    rel = adj.reliability if reliability is None else reliability
+    doc = {"schema": f"baarda-analysis/{SCHEMA_VERSION}", "summary": summary(adj, rel),
+           "observations": observations(adj, rel), "points": points(adj), "groups": groups(adj, rel)}
+    if adj.problem.extra.get("ap_groups"):
+        doc["ap_tests"] = finite(ap_tests(adj, rel.policy))
+    return doc
+
+
+def finite(x):
+    """Lists and dicts of numbers with non-finite ones as None (strict JSON)."""
+    if isinstance(x, dict):
+        return {k: finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [finite(v) for v in x]
+    if isinstance(x, (float, np.floating)):
+        return _num(x)
+    return x
 
 
 def write_json(adj, path, doc=None) -> None:
@@ -205,15 +237,11 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
         if len(defects) > 50:
             rest = ", ".join(f"{d.entity} {d.id}" for d in defects[50:])
             lines.append(f"    and {len(defects) - 50} more: {rest}")
-    if g["passed"] is None:
-        lines.append("  global test: not applicable (no redundancy)")
-    else:
-        verdict = "passed" if g["passed"] else "FAILED"
-        lines.append(f"  global test: vᵀPv = {number(g['statistic'])} in [{number(g['lower'])}, "
-                     f"{number(g['upper'])}] at {number(g['conf_pr'], '.3g')} → {verdict};  σ0 a priori "
-                     f"{number(s['sigma0_apriori'])}, a posteriori {number(s['sigma0_aposteriori'])}")
+    lines.append(global_test_text(g, s))
+    stat = "τ" if s["statistic"] == "tau" else "w"
     lines.append(f"  α0 = {s['alpha0']}, β0 = {s['beta0']}: δ0 = {number(s['delta0'], '.3f')}, critical |w| = "
-                 f"{number(s['critical_w'], '.3f')}; {s['n_rejected']} observation(s) rejected")
+                 f"{number(s['critical_w'], '.3f')}, |τ| = {number(s['critical_tau'], '.3f')}; "
+                 f"{s['n_rejected']} observation(s) rejected by {stat}")
 
     def label(i):
         ids = " ".join(f"{k}={v}" for k, v in info.ids[i].items())
@@ -228,17 +256,119 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
         lines.append(f"    {label(i):<48s} w = {wi}  r = {number(adj.r[i], '.3f')}{flag}")
     lines.append("  weakest redundancy numbers:")
     for i in np.argsort(adj.r)[:top]:
-        lines.append(f"    {label(i):<48s} r = {number(adj.r[i], '.3f')}  MDB = {_unbounded(rel.mdb[i], '.4g')}")
+        lines.append(f"    {label(i):<48s} r = {number(adj.r[i], '.3f')}  u_k = {number(adj.u_k[i], '.3f')}  "
+                     f"u_t = {number(adj.u_t[i], '.3f')}  MDB = {_unbounded(rel.mdb[i], '.4g')}")
     ext = np.where(np.isfinite(rel.external), rel.external, np.inf)
     lines.append("  largest external reliability δ̄0:")
     for i in np.argsort(-ext)[:top]:
-        lines.append(f"    {label(i):<48s} δ̄0 = {_unbounded(rel.external[i], '.3f')}  r = {number(adj.r[i], '.3f')}")
-    if rel.groups:
-        rej = [g for g in rel.groups if g["rejected"]]
-        lines.append(f"  group tests: {len(rel.groups)} groups, {len(rej)} rejected")
+        lines.append(f"    {label(i):<48s} δ̄0 = {_unbounded(rel.external[i], '.3f')}  λ̄ = "
+                     f"{_unbounded(rel.external[i] ** 2, '.3g')}  r = {number(adj.r[i], '.3f')}")
+    for a in (ap_tests(adj, rel.policy) if adj.problem.extra.get("ap_groups") else []):
+        lines.append(f"  additional parameters {a['group']} of camera {a['camera']} (F80 §7.2-7.3): T = "
+                     f"{number(a['T'], '.3f')} (crit {number(a['critical'], '.2f')}, q = {a['q']}) → "
+                     f"{'SIGNIFICANT' if a['significant'] else 'not significant'};  δ0′max = "
+                     f"{_unbounded(a['delta0_prime_max'], '.3g')} (determinability), δ̄0max = "
+                     f"{_unbounded(a['reliability_max'], '.3g')} (reliability, F80 eq. 17)")
+    groups = rel.groups
+    if groups:
+        lines.append(f"  group tests (F80 eq. 10-14): {len(groups)} groups, {int(groups.rejected.sum())} rejected; "
+                     f"largest T/critical:")
+        ratio = np.where(groups.dimension > 0, groups.T / groups.critical, -1.0)
+        for k in np.argsort(-np.nan_to_num(ratio, nan=-1.0))[:top].tolist():
+            g = groups[k]
+            ids = " ".join(f"{a}={b}" for a, b in info.ids[int(g["members"][0])].items() if a != "component")
+            nab = ", ".join(f"{number(a, '+.3g')} ± {number(b, '.2g')}" for a, b in zip(g["nabla"], g["nabla_sigma"]))
+            axes = ", ".join(number(a, ".3g") for a in g["ellipse_axes"])
+            lines.append(f"    group {g['group']:<6d} {ids:<34s} q = {g['dimension']}  T = "
+                         f"{number(g['T'], '.3f')} (crit {number(g['critical'], '.2f')})  R = {number(g['R'], '.3f')} "
+                         f"(crit {number(g['critical_R'], '.2f')}){'  REJECTED' if g['rejected'] else ''}")
+            lines.append(f"    {'':13s}∇ŝ = {nab};  lower-bound semi-axes {axes};  δ0′max = "
+                         f"{_unbounded(g['delta0_prime_max'], '.3g')}")
     return "\n".join(printable(line) for line in lines)     # ids and titles come from the file
+
+
+def global_test_text(g: dict, s: dict) -> str:
+    """The global test in one line: which test, its α, the critical value(s), the verdict."""
+    if g["passed"] is None:
+        return "  global test: not applicable (no redundancy)"
+    sig = f"σ0 a priori {number(s['sigma0_apriori'])}, a posteriori {number(s['sigma0_aposteriori'])}"
+    if g["test"] == "one-sided":
+        how = (f"one-sided (F80 §4.1), B-method α_{g['dof']} = {number(100 * g['alpha'], '.3g')} %: "
+               f"vᵀPv = {number(g['statistic'])} vs χ²(r = {g['dof']}) ≤ {number(g['upper'])}")
+    else:
+        how = (f"two-sided at conf-pr {number(g['conf_pr'], '.3g')} (gama-local): vᵀPv = {number(g['statistic'])} "
+               f"in [{number(g['lower'])}, {number(g['upper'])}] (χ², r = {g['dof']})")
+    verdict = "passed" if g["passed"] else "FAILED"
+    if g["side"] is not None:
+        verdict += f": {g['verdict']}" + (", not an error in the data" if g["side"] == "low" else "")
+    return f"  global test {how} → {verdict};  {sig}"
 
 
 def _unbounded(x, spec: str) -> str:
     """An MDB or δ̄0 for printing: ∞ for an uncontrolled observation (r = 0), never inf/nan."""
     return "∞ (uncontrolled)" if x is not None and np.isposinf(x) else number(x, spec)
+
+
+def _vector(values, spec: str = "+.4g") -> str:
+    return "(" + ", ".join(number(v, spec) for v in values) + ")"
+
+
+def tests_text(adj, reliability, tests: list[dict], top: int = 10) -> str:
+    """The text of ``baarda test``: per hypothesis (dicts of
+    :func:`baarda.stats.analyses.hypothesis_analysis`, or ``ap_test`` ones) T, R, the decision,
+    ∇ŝ ± σ∇ŝ, the lower-bound ellipse, δ0′max, δ̄0max with λ̄ and the ``top`` largest point
+    shifts of the deformation field (F80 eq. 10-18)."""
+    s = summary(adj, reliability)
+    lines = [f"baarda test of {s['title'] or Path(s['source']).name}: redundancy {s['dof']}, α0 = {s['alpha0']}, "
+             f"β0 = {s['beta0']}{', B-method' if s['b_method'] else ''}, σ0 "
+             f"{'a posteriori (decisions on R)' if s['statistic'] == 'tau' else 'a priori (decisions on T)'}"]
+    for t in tests:
+        lines.append(f"hypothesis {t['hypothesis']}")
+        if "ap_test" in t:
+            a = t["ap_test"]
+            lines.append(f"  estimated AP group (F80 §7.2-7.3): T = {number(a['T'], '.3f')} (critical "
+                         f"{number(a['critical'], '.3f')}, q = {a['q']}, α = {number(a['alpha'], '.3g')}) → "
+                         f"{'SIGNIFICANT' if a['significant'] else 'not significant'}")
+            lines.append(f"  ŝ = {_vector(a['estimate'])} ± {_vector(a['sigma'], '.2g')}")
+            lines.append(f"  δ0′max = {_unbounded(a['delta0_prime_max'], '.4g')} (determinability, F80 eq. 14), "
+                         f"δ̄0max = {_unbounded(a['reliability_max'], '.4g')} (reliability, F80 eq. 17)")
+            continue
+        rows = t["rows"]
+        lines.append(f"  q = {t['dimension']}, observations {', '.join(f'#{i}' for i in rows[:12])}"
+                     f"{' ...' if len(rows) > 12 else ''}")
+        decision = "REJECTED" if t["rejected"] else "accepted"
+        lines.append(f"  T = {number(t['T'], '.4f')} (critical {number(t['critical_T'], '.4f')}, α = "
+                     f"{number(t['alpha'], '.3g')}), R = {number(t['R'], '.4f')} (critical "
+                     f"{number(t['critical_R'], '.4f')}) → {decision} on {t['decided_on']} (F80 eq. 10-12)")
+        nab = ", ".join(f"{number(a, '+.4g')} ± {number(b, '.2g')}" for a, b in zip(t["nabla"], t["nabla_sigma"]))
+        lines.append(f"  ∇ŝ = {nab}")
+        if t["dimension"] == 0:
+            lines.append("  the test sees no error of this hypothesis (q = 0): no lower bound, no δ̄0")
+            continue
+        axes = "; ".join(f"{number(a, '.4g')} along {_vector(d, '+.3f')}"
+                         for a, d in zip(t["ellipse_axes"], t["ellipse_directions"]))
+        if t["dimension"] == 1:
+            lines.append(f"  lower bound (F80 eq. 13, δ0 = {number(t['delta0'], '.3f')}): |∇0s| = {axes}")
+        else:
+            lines.append(f"  lower-bound {'ellipse' if t['dimension'] == 2 else 'ellipsoid'} (F80 eq. 13, δ0 = "
+                         f"{number(t['delta0'], '.3f')}): semi-axes {axes}")
+        q_cols = len(t["nabla"])
+        if t["dimension"] < q_cols:
+            lines.append(f"  δ0′max = ∞: the test sees {t['dimension']} of {q_cols} directions; an error in direction "
+                         f"{_vector(t['weakest'], '+.3f')} is not detectable at all (F80 eq. 14); δ̄0 below is over "
+                         f"the directions seen")
+        else:
+            lines.append(f"  δ0′max = {number(t['delta0_prime_max'], '.4g')} in direction {_vector(t['weakest'], '+.3f')} "
+                         f"(F80 eq. 14)")
+        lines.append(f"  δ̄0max = {_unbounded(t['delta_bar0_max'], '.4g')} (λ̄ = {_unbounded(t['lambda_bar_max'], '.4g')}) "
+                     f"in direction {_vector(t['delta_bar0_direction'], '+.3f')} (F80 eq. 17): an undetected error "
+                     f"moves no function of the coordinates by more than {_unbounded(t['delta_bar0_max'], '.3g')} σ_f "
+                     f"(eq. 18)")
+        d = t["deformation"]
+        pts = d["points"]
+        lines.append(f"  deformation by that undetectable error ∇0s = {_vector(d['nabla0_s'])} (F80 eq. 16), "
+                     f"{min(top, len(pts))} largest of {len(pts)} points:")
+        for p in pts[:top]:
+            lines.append(f"    {p['id']:<12s} dx = {number(p['dx'], '+.3e')}  dy = {number(p['dy'], '+.3e')}  "
+                         f"dz = {number(p['dz'], '+.3e')}  |d| = {number(p['norm'], '.3e')}")
+    return "\n".join(printable(line) for line in lines)

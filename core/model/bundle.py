@@ -61,6 +61,7 @@ References (full in the package docstring): F80; B71 (Brown); E76 (Ebner); F97 (
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 
 import numpy as np
 
@@ -68,7 +69,8 @@ from ..datum import Datum
 from ..errors import NotFoundError, OptionError
 from ..observations.geodetic import LinearSet
 from ..observations.rotation import R_opk, R_opk_derivatives
-from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
+from .geometry import BlockGeometry, CameraGeometry, ImageGeometry
+from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem
 
 EO_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 AP_GROUPS = {
@@ -542,20 +544,13 @@ def build_block_problem(block: Block) -> Problem:
     """Turn a :class:`Block` into an adjustment :class:`~baarda.model.problem.Problem`.
 
     Layout of parameters and observations, datum and units: see the module docstring.
-    ``Problem.extra`` holds ``"block"`` (geometry for the dashboard: images with strip, EO and
-    ground footprint at the mean terrain height, camera, image size, flying height) and
-    ``"ap_groups"`` ({"camera:group": [parameter labels]}).
+    ``Problem.geometry`` holds the images with strip, EO and ground footprint at the mean
+    terrain height, the cameras, image size and flying height (:func:`block_geometry`);
+    ``Problem.extra["ap_groups"]`` maps "camera:group" to the AP parameters' labels.
     """
     cams = {c.id: c for c in block.cameras}
-    labels, x0, kind, point, axis = [], [], [], [], []
-
-    def add(label, value, k, p=-1, a=-1):
-        labels.append(label)
-        x0.append(float(value))
-        kind.append(k)
-        point.append(p)
-        axis.append(a)
-        return len(x0) - 1
+    pl = ParameterList()
+    add = pl.add
 
     ieo_img = np.array([[add(f"{im.id}.{nm}", getattr(im, nm), "t") for nm in EO_NAMES]
                         for im in block.images], dtype=np.int64).reshape(-1, 6)
@@ -569,15 +564,13 @@ def build_block_problem(block: Block) -> Problem:
                                   f"camera {cam.id}: unknown AP group '{g}' (known: {', '.join(AP_GROUPS)})")
             idx = np.array([add(f"{cam.id}.{g}.{nm}", 0.0, "t") for nm in AP_GROUPS[g]], dtype=np.int64)
             groups.append((g, idx))
-            ap_groups[f"{cam.id}:{g}"] = [labels[i] for i in idx]
+            ap_groups[f"{cam.id}:{g}"] = [pl.labels[i] for i in idx]
         ap_idx[cam.id] = tuple(groups)
     index = np.full((len(block.points), 3), -1, dtype=np.int64)
     for i, p in enumerate(block.points):
         for a, (nm, val) in enumerate(zip("xyz", (p.X, p.Y, p.Z))):
             index[i, a] = add(f"{p.id}.{nm}", val, "k", i, a)
-    u = len(x0)
-    params = Parameters(np.asarray(x0), tuple(labels), np.array(kind), np.zeros(u, dtype=bool),
-                        np.array(point, dtype=np.int64), np.array(axis, dtype=np.int64))
+    params = pl.parameters()
 
     obs = block.obs
     m = obs.size
@@ -655,30 +648,28 @@ def build_block_problem(block: Block) -> Problem:
     return Problem(params=params, sets=tuple(sets), l=np.concatenate(l) if l else np.zeros(0),
                    cov=cov, info=info, points=pts, datum=datum, sigma0=block.sigma0,
                    sigma_act="apriori", source=block.source, title=block.title,
-                   extra={"block": block_geometry(block), "ap_groups": ap_groups})
+                   geometry=block_geometry(block), extra={"ap_groups": ap_groups})
 
 
-def block_geometry(block: Block) -> dict:
-    """Geometry for the dashboard (JSON-able): images with footprints, camera, sizes (m, rad)."""
+def block_geometry(block: Block) -> BlockGeometry:
+    """The block's images with attitudes and footprints at the mean terrain height, its cameras,
+    image size, flying and terrain height (:class:`baarda.model.geometry.BlockGeometry`)."""
     Z = np.array([p.Z for p in block.points]) if block.points else np.zeros(1)
     Zm = float(Z.mean())
     cams = {c.id: c for c in block.cameras}
     images = []
     for im in block.images:
         cam = cams[im.camera]
-        images.append({"id": im.id, "strip": im.strip, "camera": im.camera,
-                       "X0": im.X0, "Y0": im.Y0, "Z0": im.Z0,
-                       "omega": im.omega, "phi": im.phi, "kappa": im.kappa,
-                       "footprint": footprint(im, cam, Zm)})
+        images.append(ImageGeometry(im.id, im.camera, im.X0, im.Y0, im.Z0, strip=im.strip,
+                                    details=MappingProxyType({"strip": im.strip, "omega": im.omega, "phi": im.phi,
+                                                              "kappa": im.kappa, "footprint": footprint(im, cam, Zm)})))
     cam = block.cameras[0] if block.cameras else None
     z0 = np.array([im.Z0 for im in block.images]) if block.images else np.zeros(1)
-    return {"images": images,
-            "camera": _camera_dict(cam) if cam else {},
-            "cameras": [_camera_dict(c) for c in block.cameras],
-            "image_size": [cam.width, cam.height] if cam else [0, 0],
-            "image_unit": cam.unit if cam else "mm",
-            "flying_height": float(z0.mean() - Zm),
-            "terrain_height": Zm}
+    cameras = tuple(CameraGeometry(c.id, c.unit, c.width, c.height, c=c.c, x0=c.x0, y0=c.y0, ap_scale=c.scale,
+                                   details=MappingProxyType(_camera_dict(c))) for c in block.cameras)
+    return BlockGeometry(tuple(images), cameras, image_unit=cam.unit if cam else "mm",
+                         image_size=(cam.width, cam.height) if cam else None,
+                         flying_height=float(z0.mean() - Zm), terrain_height=Zm)
 
 
 def _camera_dict(cam: Camera) -> dict:

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..datum import Datum
 from ..observations.geodetic import LinearSet
-from .problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
+from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem
 
 SIM_NAMES = ("a", "b", "c", "d")
 
@@ -132,15 +132,8 @@ class SimilaritySet:
 
 def build_imodel_problem(block: IModelBlock) -> Problem:
     """Turn an :class:`IModelBlock` into an adjustment :class:`~baarda.model.problem.Problem`."""
-    labels, x0, kind, point, axis = [], [], [], [], []
-
-    def add(label, value, k, p=-1, a=-1):
-        labels.append(label)
-        x0.append(float(value))
-        kind.append(k)
-        point.append(p)
-        axis.append(a)
-        return len(x0) - 1
+    pl = ParameterList()
+    add = pl.add
 
     isim = np.array([[add(f"{mo.id}.{nm}", getattr(mo, nm), "t") for nm in SIM_NAMES] for mo in block.models],
                     dtype=np.int64).reshape(-1, 4)
@@ -148,9 +141,7 @@ def build_imodel_problem(block: IModelBlock) -> Problem:
     for i, p in enumerate(block.points):
         index[i, 0] = add(f"{p.id}.x", p.X, "k", i, 0)
         index[i, 1] = add(f"{p.id}.y", p.Y, "k", i, 1)
-    u = len(x0)
-    params = Parameters(np.asarray(x0), tuple(labels), np.array(kind), np.zeros(u, dtype=bool),
-                        np.array(point, dtype=np.int64), np.array(axis, dtype=np.int64))
+    params = pl.parameters()
     obs = block.obs
     m = obs.size
     sets = [SimilaritySet(np.arange(2 * m), isim[obs.model], index[obs.point, :2])] if m else []

@@ -30,6 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import CovarianceError
+from .geometry import BlockGeometry
 
 
 # --------------------------------------------------------------------------------------------
@@ -206,6 +207,48 @@ class Parameters:
     def free(self) -> np.ndarray:
         """Indices of the estimated parameters."""
         return np.flatnonzero(~self.fixed)
+
+
+class ParameterList:
+    """The parameters of a problem collected one at a time by a model's builder (the one
+    owner of that bookkeeping for networks, bundle, independent-model and SfM blocks);
+    :meth:`parameters` makes the frozen :class:`Parameters`, with ``tail`` appended (a
+    vectorised run of coordinates, as an SfM block's points)."""
+
+    def __init__(self):
+        self.labels: list[str] = []
+        self.x0: list[float] = []
+        self.kind: list[str] = []
+        self.fixed: list[bool] = []
+        self.point: list[int] = []
+        self.axis: list[int] = []
+
+    def __len__(self) -> int:
+        return len(self.x0)
+
+    def add(self, label: str, value, kind: str, point: int = -1, axis: int = -1, fixed: bool = False) -> int:
+        """Append one parameter and return its index. kind "k" (coordinate of ``point`` on
+        ``axis``) or "t" (nuisance)."""
+        self.labels.append(label)
+        self.x0.append(float(value))
+        self.kind.append(kind)
+        self.fixed.append(bool(fixed))
+        self.point.append(int(point))
+        self.axis.append(int(axis))
+        return len(self.x0) - 1
+
+    def parameters(self, tail: Parameters | None = None, labels=None) -> Parameters:
+        """The frozen :class:`Parameters` (``labels``: a sequence to use instead of the list,
+        e.g. :class:`baarda.model.problem.JoinedLabels` over ``tail``'s labels)."""
+        head = Parameters(np.asarray(self.x0, dtype=float), tuple(self.labels), np.array(self.kind, dtype="<U1"),
+                          np.array(self.fixed, dtype=bool), np.array(self.point, dtype=np.int64),
+                          np.array(self.axis, dtype=np.int64))
+        if tail is None:
+            return head if labels is None else dataclasses.replace(head, labels=labels)
+        return Parameters(np.concatenate([head.x0, tail.x0]),
+                          labels if labels is not None else head.labels + tuple(tail.labels),
+                          np.concatenate([head.kind, tail.kind]), np.concatenate([head.fixed, tail.fixed]),
+                          np.concatenate([head.point, tail.point]), np.concatenate([head.axis, tail.axis]))
 
 
 class _StackItems(LazySequence):
@@ -554,6 +597,7 @@ class Problem:
     source: str = ""
     title: str = ""
     extra: dict = field(default_factory=dict)
+    geometry: BlockGeometry | None = None     # a photogrammetric block's images and cameras
 
     @property
     def n(self) -> int:

@@ -61,6 +61,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from types import MappingProxyType
+
 import numpy as np
 
 from ..datum import Datum
@@ -68,8 +70,9 @@ from ..errors import ConversionError
 from ..observations.geodetic import LinearSet
 from ..observations.rotation import R_from_rodrigues, opk_from_R, skew
 from .bundle import Block, Camera, Image, ImageObservations, ObjectPoint
-from .problem import (Categorical, Covariance, JoinedLabels, ObservationInfo, Parameters, PointInfo, Problem,
-                      RecordIds)
+from .geometry import BlockGeometry, CameraGeometry, ImageGeometry
+from .problem import (Categorical, Covariance, JoinedLabels, ObservationInfo, ParameterList, Parameters, PointInfo,
+                      Problem, RecordIds)
 
 INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
 
@@ -214,17 +217,47 @@ class ProjectionSet:
         if kernel is None:
             return self._evaluate_numpy(x)
         m = self.ipt.shape[0]
-        jr, jc, pos = self._pattern()
+        jr, jc, start = self._pattern()
         f = np.empty(2 * m)
         jv = np.empty(jr.size)
         kernel(np.ascontiguousarray(x, dtype=float), self.ipt, self.irot, self.itr, self.iint,
-               float(self.sign), pos, f, jv)
+               float(self.sign), start, start[:0, 0], f, jv)
         return f, jr, jc, jv
+
+    def values(self, x):
+        """f(x) alone (a trial point's; no Jacobian values stored)."""
+        kernel = _compiled_projection()
+        if kernel is None:
+            return self._evaluate_numpy(x)[0]
+        start = self._pattern()[2]
+        f = np.empty(2 * self.ipt.shape[0])
+        kernel(np.ascontiguousarray(x, dtype=float), self.ipt, self.irot, self.itr, self.iint,
+               float(self.sign), start, start[:0, 0], f, np.empty(0))
+        return f
+
+    def pattern(self):
+        """The rows and columns :meth:`evaluate` returns (the cached arrays)."""
+        jr, jc, _ = self._pattern()
+        return jr, jc
+
+    def evaluate_into(self, x, dest, out):
+        """f(x), the Jacobian value of :meth:`evaluate`'s entry k written to out[dest[k]] (the
+        design matrix's data in its own order: no array of the entries besides it)."""
+        kernel = _compiled_projection()
+        if kernel is None:
+            f, _, _, jv = self._evaluate_numpy(x)
+            out[dest] = jv
+            return f
+        start = self._pattern()[2]
+        f = np.empty(2 * self.ipt.shape[0])
+        kernel(np.ascontiguousarray(x, dtype=float), self.ipt, self.irot, self.itr, self.iint,
+               float(self.sign), start, dest, f, out)
+        return f
 
     def _pattern(self):
         """Rows and columns of the Jacobian entries (fixed per set; the order of
-        :meth:`_evaluate_numpy`) and the place of each of the (m, 2, 17) values among them
-        (−1: a zero intrinsic, left out)."""
+        :meth:`_evaluate_numpy`) and the place of the first value of each row among them
+        (2, m: x rows, y rows; the row's kept values follow in column order)."""
         pat = self.__dict__.get("_pat")
         if pat is None:
             m = self.ipt.shape[0]
@@ -242,11 +275,10 @@ class ProjectionSet:
             C = C.astype(itype, copy=False).ravel()
             jcols = np.concatenate([C[kr[0].ravel()], C[kr[1].ravel()]])
             del C
-            pos = np.full(keep.size, -1, dtype=itype)
-            pos[keep] = np.arange(int(keep.sum()), dtype=itype)
+            counts = kr.sum(axis=2, dtype=itype).ravel()
             del keep, kr
-            pos = np.ascontiguousarray(pos.reshape(2, m, q).transpose(1, 0, 2))
-            pat = (jrows, jcols, pos)
+            start = (np.cumsum(counts, dtype=itype) - counts).reshape(2, m)
+            pat = (jrows, jcols, start)
             self.__dict__["_pat"] = pat
         return pat
 
@@ -321,11 +353,14 @@ def _kept_entries(jcols: np.ndarray, m: int) -> np.ndarray:
     return keep.ravel()
 
 
-def _projection_kernel(x, ipt, irot, itr, iint, s, pos, f, jv):
+def _projection_kernel(x, ipt, irot, itr, iint, s, start, dest, f, jv):
     """f and the Jacobian values of every image point: the formulas of
     :meth:`ProjectionSet._evaluate_numpy`, one observation at a time (compiled by numba).
-    The values (2 × 17 per point: point, t, ρ, the eight intrinsics) go to jv[pos[i, r, j]]
-    where pos ≥ 0."""
+    The values of row r (x, y) of point i (17: point, t, ρ, the eight intrinsics) go to
+    jv[start[r, i]:] in column order (to jv[dest[k]] for entry k when dest is given; none
+    when jv is empty), those of absent intrinsics and the structural zeros
+    (:data:`_STRUCTURAL_ZERO`) left out."""
+    store, direct = jv.size > 0, dest.size == 0
     K, K2, R, Jr = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     SX, RS, dPr = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     P, ins, g = np.empty(3), np.empty(8), np.empty((2, 3))
@@ -397,9 +432,14 @@ def _projection_kernel(x, ipt, irot, itr, iint, s, pos, f, jv):
         V[1, 13], V[1, 14] = fy * v * r2, fy * v * r2 * r2
         V[1, 15], V[1, 16] = fy * (r2 + 2 * v * v), fy * 2 * u * v
         for r in range(2):
+            k = start[r, i]
             for j in range(17):
-                if pos[i, r, j] >= 0:
-                    jv[pos[i, r, j]] = V[r, j]
+                col = ipt[i, j] if j < 3 else itr[i, j - 3] if j < 6 else irot[i, j - 6] if j < 9 else iint[i, j - 9]
+                if col < 0 or (r == 0 and (j == 10 or j == 12)) or (r == 1 and (j == 9 or j == 11)):
+                    continue           # (_kept_entries: absent parameters, _STRUCTURAL_ZERO)
+                if store:
+                    jv[k if direct else dest[k]] = V[r, j]
+                k += 1
 
 
 def _mat3(A, B, out):
@@ -430,49 +470,40 @@ def _compiled_projection():
 def build_sfm_problem(block: SfmBlock) -> Problem:
     """Turn an :class:`SfmBlock` into an adjustment :class:`~baarda.model.problem.Problem`.
 
-    Layout, datum and units: see the module docstring. ``Problem.extra["block"]`` holds the
-    geometry the dashboard draws (images with their projection centres X0, Y0, Z0; no
-    footprints) and ``extra["image_names"]`` maps image ids to file names.
+    Layout, datum and units: see the module docstring. ``Problem.geometry`` holds the images
+    with their projection centres X0, Y0, Z0 (no footprints) and the cameras
+    (:func:`sfm_geometry`); ``extra["image_names"]`` maps image ids to file names.
     """
     # parameters: the (few) image and camera parameters one by one, the points as arrays
-    labels, x0, kind, fixed = [], [], [], []
-
-    def add(label, value, k, fix=False):
-        labels.append(label)
-        x0.append(float(value))
-        kind.append(k)
-        fixed.append(fix)
-        return len(x0) - 1
-
-    pose = np.array([[add(f"image {im.id}.{nm}", val, "t") for nm, val in
+    pl = ParameterList()
+    pose = np.array([[pl.add(f"image {im.id}.{nm}", val, "t") for nm, val in
                       zip(("rho1", "rho2", "rho3", "tx", "ty", "tz"), (*im.rodrigues, *im.t))]
                      for im in block.images], dtype=np.int64).reshape(-1, 6)
     cam_index = {}
     intrinsics = np.full((len(block.cameras), 8), -1, dtype=np.int64)
     for c, cam in enumerate(block.cameras):
         names, feeds = CAMERA_MODELS[cam.model]
-        where = {nm: add(f"camera {cam.id}.{nm}", val, "t",
-                         fix=not block.refine_intrinsics or nm in ("cx", "cy"))
+        where = {nm: pl.add(f"camera {cam.id}.{nm}", val, "t",
+                            fixed=not block.refine_intrinsics or nm in ("cx", "cy"))
                  for nm, val in zip(names, cam.params)}
         intrinsics[c] = [where[nm] if nm is not None else -1 for nm in feeds]
         cam_index[cam.id] = c
-    h = len(x0)
+    h = len(pl)
     npt = len(block.points)
     index = (h + np.arange(3 * npt, dtype=np.int64)).reshape(-1, 3)
-    u = h + 3 * npt
-    kinds = np.empty(u, dtype="<U1")
-    kinds[:h], kinds[h:] = kind, "k"
-    params = Parameters(np.concatenate([np.asarray(x0, dtype=float), np.asarray(block.X, dtype=float).ravel()]),
-                        JoinedLabels(labels, block.points), kinds,
-                        np.concatenate([np.array(fixed, dtype=bool), np.zeros(3 * npt, dtype=bool)]),
-                        np.concatenate([np.full(h, -1, dtype=np.int64), np.repeat(np.arange(npt, dtype=np.int64), 3)]),
-                        np.concatenate([np.full(h, -1, dtype=np.int64), np.tile(np.arange(3, dtype=np.int64), npt)]))
+    points = Parameters(np.asarray(block.X, dtype=float).ravel(), (), np.full(3 * npt, "k", dtype="<U1"),
+                        np.zeros(3 * npt, dtype=bool), np.repeat(np.arange(npt, dtype=np.int64), 3),
+                        np.tile(np.arange(3, dtype=np.int64), npt))
+    params = pl.parameters(points, labels=JoinedLabels(pl.labels, block.points))
 
     m = block.obs_image.size
     img_cam = np.array([cam_index[im.camera] for im in block.images], dtype=np.int64)
     ii, pp = block.obs_image, block.obs_point
-    sets = [ProjectionSet(rows=np.arange(2 * m), ipt=index[pp], irot=pose[ii, :3], itr=pose[ii, 3:],
-                          iint=intrinsics[img_cam[ii]], sign=SIGN[block.convention])]
+    # int32 indices where they fit (kept with the problem: 5 × 4 bytes per image point saved)
+    it = np.int32 if max(params.size, 2 * m) < 2 ** 31 - 1 else np.int64
+    pose_i, cam_i = pose.astype(it), intrinsics.astype(it)
+    sets = [ProjectionSet(rows=np.arange(2 * m, dtype=it), ipt=index.astype(it)[pp], irot=pose_i[ii, :3],
+                          itr=pose_i[ii, 3:], iint=cam_i[img_cam[ii]], sign=SIGN[block.convention])]
     s2 = block.sigma_px ** 2
     # covariance: the image points stacked (one 2 × 2 matrix broadcast), then the control points
     groups = [(2, np.arange(m, dtype=np.int64), np.arange(2 * m, dtype=np.int64).reshape(m, 2),
@@ -542,25 +573,26 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     datum = Datum("fixed") if block.control else Datum("free", ())
     return Problem(params=params, sets=tuple(sets), l=l, cov=cov, info=info, points=pts, datum=datum,
                    sigma0=1.0, sigma_act="apriori", source=block.source, title=block.title,
-                   extra={"block": sfm_geometry(block), "convention": block.convention,
+                   geometry=sfm_geometry(block), extra={"convention": block.convention,
                           "image_names": {im.id: im.name for im in block.images},
                           "duplicate_keypoints": block.extra.get("duplicate_keypoints")})
 
 
-def sfm_geometry(block: SfmBlock) -> dict:
-    """Geometry for the dashboard (JSON-able): images with projection centres, cameras."""
+def sfm_geometry(block: SfmBlock) -> BlockGeometry:
+    """The block's images with their projection centres and file names, its cameras
+    (:class:`baarda.model.geometry.BlockGeometry`; no attitudes or footprints)."""
     images = []
     for im in block.images:
         C = im.centre
-        images.append({"id": im.id, "camera": im.camera, "name": im.name,
-                       "X0": float(C[0]), "Y0": float(C[1]), "Z0": float(C[2])})
-    cams = [{"id": c.id, "model": c.model, "params": list(c.params), "width": c.width, "height": c.height,
-             "unit": "px"} for c in block.cameras]
-    size = [block.cameras[0].width, block.cameras[0].height] if block.cameras else [0.0, 0.0]
-    out = {"images": images, "cameras": cams, "image_unit": "px", "convention": block.convention}
-    if size[0] > 0 and size[1] > 0:
-        out["image_size"] = size
-    return out
+        images.append(ImageGeometry(im.id, im.camera, float(C[0]), float(C[1]), float(C[2]),
+                                    details=MappingProxyType({"name": im.name})))
+    cams = tuple(CameraGeometry(c.id, "px", c.width, c.height,
+                                details=MappingProxyType({"id": c.id, "model": c.model, "params": list(c.params),
+                                                          "width": c.width, "height": c.height, "unit": "px"}))
+                 for c in block.cameras)
+    size = (block.cameras[0].width, block.cameras[0].height) if block.cameras else (0.0, 0.0)
+    return BlockGeometry(tuple(images), cams, image_unit="px",
+                         image_size=size if size[0] > 0 and size[1] > 0 else None, convention=block.convention)
 
 
 def initial_cost(problem: Problem) -> float:

@@ -29,7 +29,7 @@ import numpy as np
 from ..datum import Datum
 from ..errors import InputError
 from ..model.network import Network
-from ..model.problem import Covariance, ObservationInfo, Parameters, PointInfo, Problem
+from ..model.problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem
 
 AXES = "xyz"
 NEEDS = {
@@ -186,7 +186,7 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
     """
     pindex = net.point_index()
     axes_needed = point_axes(net)
-    labels, x0, kind, fixed, point, axis = [], [], [], [], [], []
+    pl = ParameterList()
     index = np.full((len(net.points), 3), -1, dtype=np.int64)
     status = []
     for i, (p, need) in enumerate(zip(net.points, axes_needed)):
@@ -199,13 +199,7 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
                 raise InputError(net.source, p.line, f"point {p.id} has no {a} coordinate "
                                  "(and none could be computed)", field=a)
             estimated = a in p.adjusted.lower() or a in p.constrained.lower()
-            index[i, AXES.index(a)] = len(x0)
-            labels.append(f"{p.id}.{a}")
-            x0.append(float(val))
-            kind.append("k")
-            fixed.append(not estimated)
-            point.append(i)
-            axis.append(AXES.index(a))
+            index[i, AXES.index(a)] = pl.add(f"{p.id}.{a}", val, "k", i, AXES.index(a), fixed=not estimated)
         if p.constrained:
             status.append("constrained")
         elif p.adjusted:
@@ -220,14 +214,8 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
     set_ids = sorted(station)
     ori_index = {}
     for s in set_ids:
-        ori_index[s] = len(x0)
-        labels.append(f"orientation {s} ({station[s]})")
-        x0.append(0.0)
-        kind.append("t")
-        fixed.append(False)
-        point.append(-1)
-        axis.append(-1)
-    x0 = np.asarray(x0, dtype=float)
+        ori_index[s] = pl.add(f"orientation {s} ({station[s]})", 0.0, "t")
+    params = pl.parameters()
     n = len(net.observations)
 
     def pidx(pid, a):
@@ -269,7 +257,6 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
             sets.append(LinearSet(kd, rows, i_from, i_to, offset))
     l = np.array([o.value for o in obs], dtype=float)
     # initial orientations: circular mean of bearing − direction over each set
-    params = Parameters(x0, tuple(labels), np.array(kind), np.array(fixed), np.array(point), np.array(axis))
     if set_ids:
         _init_orientations(sets, params, l, ori_index)
         for s_id, value in (net.extra.get("orientations") or {}).items():
@@ -297,7 +284,11 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
                    datum=datum, sigma0=net.sigma0, sigma_act=net.sigma_act, conf_pr=net.conf_pr,
                    source=net.source, title=net.description.strip().splitlines()[0] if net.description.strip() else "",
                    extra={"tol_abs": net.tol_abs, "axes_xy": net.axes_xy, "angles": net.angles,
-                          "dropped_observations": [dict(d) for d in net.extra.get("dropped", ())]})
+                          "dropped_observations": [dict(d) for d in net.extra.get("dropped", ())],
+                          # the file's planimetric positions (NaN where none): the distances of a height
+                          # criterion matrix (M84 §2.3) where x, y are not unknowns
+                          "positions": np.array([[np.nan if p.x is None else p.x, np.nan if p.y is None else p.y]
+                                                 for p in net.points], dtype=float).reshape(-1, 2)})
 
 
 def _init_orientations(sets, params, l, ori_index):

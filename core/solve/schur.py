@@ -141,10 +141,9 @@ class Structure:
     col_S: np.ndarray          # (nc, K) S index of each local camera column, −1 padded
     cluster: np.ndarray        # cluster of each observation (n,)
     rpos: np.ndarray           # position of each observation within its cluster (n,)
-    nnz_a: np.ndarray          # design-matrix entries in camera columns ...
-    dest_a: np.ndarray         # ... and their place in a (nc·M·K)
-    nnz_b: np.ndarray          # entries in point columns ...
-    dest_b: np.ndarray         # ... and their place in b (nc·M·3)
+    in_a: np.ndarray           # per design-matrix entry: in a camera column (else a point column)
+    dest_a: np.ndarray         # place in a (nc·M·K) of the camera columns' entries, in order
+    dest_b: np.ndarray         # place in b (nc·M·3) of the point columns' entries, in order
     bptr: np.ndarray           # block pattern of S (CSR over supernodes)
     bcol: np.ndarray
     bstart: np.ndarray         # offset of each block in the flat value array (nblocks+1)
@@ -171,9 +170,9 @@ class Structure:
         camera side, b (clusters × M × 3) on the point side, zero-padded."""
         nc, M, K = self.cl_id.size, self.M, self.K
         a = np.zeros(nc * M * K)
-        a[self.dest_a] = Ar.data[self.nnz_a]
+        a[self.dest_a] = Ar.data[self.in_a]
         b = np.zeros(nc * M * 3)
-        b[self.dest_b] = Ar.data[self.nnz_b]
+        b[self.dest_b] = Ar.data[~self.in_a]
         return a.reshape(nc, M, K), b.reshape(nc, M, 3)
 
     def worthwhile(self) -> bool:
@@ -259,9 +258,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     cm = ~elig[col]
     colc, rowc = col[cm], row[cm]
     # the point side first (its destinations in b), so that the row of every entry goes early
-    nnz = col.size
-    nnz_a = np.flatnonzero(cm).astype(_index_dtype(nnz))
-    nnz_b = np.flatnonzero(~cm).astype(_index_dtype(nnz))
+    in_a = _readonly(cm)
     cb = col[~cm]
     rowb = row[~cm]
     del row, cm
@@ -335,7 +332,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     dest_a *= K
     dest_a += local
     del local
-    col_S = np.full((nc, K), -1, dtype=np.int64)
+    col_S = np.full((nc, K), -1, dtype=_index_dtype(cam.size))
     for s_ in range(G):                          # a cluster sees every column of its supernodes
         g = cl_sn[:, s_]
         for i in range(int(sn_size.max(initial=0))):
@@ -355,18 +352,25 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     brow = np.repeat(np.arange(nsn, dtype=np.int64), np.diff(bptr))
     bsz = sn_size[brow] * sn_size[bcol]
     bstart = np.concatenate([[0], np.cumsum(bsz)]).astype(np.int64)
-    blk = np.repeat(np.arange(bcol.size, dtype=np.int64), bsz)
-    local = np.arange(int(bstart[-1]), dtype=np.int64) - bstart[blk]
-    wh = sn_size[bcol[blk]]
-    flat_r = sn_ptr[brow[blk]] + local // wh
-    flat_c = sn_ptr[bcol[blk]] + local % wh
+    # one entry per stored S value (camera count squared, not image points): int32 where it fits
+    it = _index_dtype(max(int(bstart[-1]), bcol.size + 1))
+    blk = np.repeat(np.arange(bcol.size, dtype=it), bsz)
+    local = np.arange(int(bstart[-1]), dtype=it)
+    local -= bstart.astype(it)[blk]
+    wh = sn_size.astype(it)[bcol.astype(it)[blk]]
+    flat_r = np.divmod(local, wh)
+    flat_c = flat_r[1]
+    flat_c += sn_ptr.astype(it)[bcol.astype(it)[blk]]
+    flat_r = flat_r[0]
+    flat_r += sn_ptr.astype(it)[brow.astype(it)[blk]]
+    del blk, local, wh
     # the pattern is kept by reference (read-only views, no copy of the n·k indices); matches()
     # compares it with the next design matrix's
     return Structure(n=n, u=u, M=M, K=K, G=G, indptr=_readonly(Ar.indptr), indices=_readonly(Ar.indices),
                      cam=cam, cam_pos=cam_pos, sn_ptr=sn_ptr, sn_t=sn_t, n_points=n_points,
                      ent_ptr=ent_ptr, ent_cols=ent_cols, ent_size=ent_size, cl_id=cl_id,
                      cl_pos=cl_pos, cl_ent=cl_ent, cl_sn=cl_sn, cl_off=cl_off.astype(np.int64), col_S=col_S,
-                     cluster=cluster, rpos=rpos, nnz_a=nnz_a, dest_a=dest_a, nnz_b=nnz_b, dest_b=dest_b, bptr=bptr,
+                     cluster=cluster, rpos=rpos, in_a=in_a, dest_a=dest_a, dest_b=dest_b, bptr=bptr,
                      bcol=bcol, bstart=bstart, flat_r=flat_r, flat_c=flat_c,
                      labels=None if labels is None or isinstance(labels, LazySequence) else np.asarray(labels))
 
@@ -1364,6 +1368,7 @@ class StepFactor:
         _step_kernels()["step"](st.ent_ptr, st.ent_cols, st.cl_sn, st.bptr, st.bcol, st.bstart, sn_diag,
                                 a, b, Pd, float(damping),
                                 min(pivot_tol, POINT_PIVOT_TOL), S, E, Ci, dC, dU, bad)
+        del a, b                   # (not alive while S is factored)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
@@ -1389,12 +1394,18 @@ class StepFactor:
 
     @staticmethod
     def applicable(st: Structure, P) -> bool:
-        """numba is there, every cluster sees one supernode, and P is diagonal."""
-        if numba is None or not _uniform6(st) or not (np.diff(st.sn_ptr) == st.K).all():
-            return False
-        Pc = sp.csr_matrix(P)
-        rows = np.repeat(np.arange(Pc.shape[0]), np.diff(Pc.indptr))
-        return not np.any(Pc.data[rows != Pc.indices])
+        """numba is there, every cluster sees one supernode, and P is diagonal (the answer kept
+        with the structure for this P: asked at every step)."""
+        cached = st.__dict__.get("_step_applicable")
+        if cached is not None and cached[0] is P:
+            return cached[1]
+        ok = numba is not None and _uniform6(st) and bool((np.diff(st.sn_ptr) == st.K).all())
+        if ok:
+            Pc = sp.csr_matrix(P)
+            rows = np.repeat(np.arange(Pc.shape[0]), np.diff(Pc.indptr))
+            ok = not np.any(Pc.data[rows != Pc.indices])
+        st.__dict__["_step_applicable"] = (P, ok)
+        return ok
 
     @staticmethod
     def cluster_diagonal(st: Structure, P) -> np.ndarray:

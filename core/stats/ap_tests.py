@@ -9,7 +9,7 @@ import numpy as np
 import scipy.linalg as la
 
 from ..errors import NotFoundError
-from ..solve.linalg import SPDFactor
+from .hypotheses import coordinate_norm
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,26 +56,19 @@ class APTest:
                 "critical": self.critical, "significant": self.significant,
                 "determinability": self.determinability.tolist(),
                 "reliability": self.reliability.tolist(), "reliability_max": self.reliability_max,
-                "delta0_prime_max": self.delta0_prime_max}
+                "delta0_prime_max": self.delta0_prime_max, "ellipsoid_axes": self.ellipsoid_axes.tolist(),
+                "weakest": self.weakest.tolist(), "most_influential": self.most_influential.tolist(),
+                "delta0_1": self.delta0_1, "delta0_q": self.delta0_q}
 
 
-def _coordinate_norm(adj, D: np.ndarray, exclude: np.ndarray) -> np.ndarray:
-    """Dᵀ (C̄ᵀPC̄) D for displacements D of the coordinates (k_free × q), F80 eq. 16.
-
-    C̄ = (I − B(BᵀPB)⁻¹BᵀP)C with B the nuisance columns except ``exclude`` (free positions).
-    The form is datum invariant (C̄ annihilates the coordinate part of the null space).
-    """
-    kind = adj.problem.params.kind[adj.problem.params.free]
-    k = np.flatnonzero(kind == "k")
-    t = np.setdiff1d(np.flatnonzero(kind == "t"), exclude)
-    E = adj.A[:, k] @ D
-    PE = adj.P @ E
-    M = E.T @ PE
-    if t.size:
-        B = adj.A[:, t].tocsr()
-        F = B.T @ PE
-        M = M - F.T @ SPDFactor((B.T @ adj.P @ B).tocsr()).solve(F).reshape(F.shape)
-    return 0.5 * (M + M.T)
+def ap_tests(adj, policy=None) -> list[dict]:
+    """:func:`ap_test` of every AP group the model estimates (``extra["ap_groups"]``), each as
+    :meth:`APTest.as_dict` with its ``camera`` and ``group`` (F80 §7.2-7.3)."""
+    out = []
+    for key in adj.problem.extra.get("ap_groups", {}):
+        camera, _, group = key.rpartition(":")
+        out.append({"camera": camera, "group": group, **ap_test(adj, camera, group, policy=policy).as_dict()})
+    return out
 
 
 def ap_test(adj, camera: str, group: str, policy=None) -> APTest:
@@ -114,7 +107,7 @@ def ap_test(adj, camera: str, group: str, policy=None) -> APTest:
     k = np.flatnonzero(kind == "k")
     # group: effect on k of unit AP errors, ∇k = Σ_kŝ Σ_ŝŝ⁻¹ ∇s
     Dk = S[k] @ W
-    M = _coordinate_norm(adj, Dk, idx)
+    M = coordinate_norm(adj, Dk, idx)
     mu, Ur = la.eigh(M, W)
     rel_max = float(dq * np.sqrt(max(mu[-1], 0.0)))
     most = Ur[:, -1] / np.linalg.norm(Ur[:, -1])
@@ -128,7 +121,7 @@ def ap_test(adj, camera: str, group: str, policy=None) -> APTest:
     rel = np.empty(q)
     for j in range(q):
         Dj = S[k][:, [j]] / Sss[j, j]
-        Mj = _coordinate_norm(adj, Dj, idx[[j]])[0, 0]
+        Mj = coordinate_norm(adj, Dj, idx[[j]])[0, 0]
         rel[j] = d1 * np.sqrt(max(Mj, 0.0) * Sss[j, j])
     lam = np.maximum(la.eigvalsh(Sss), 0.0)
     return APTest(labels=tuple(labels), estimate=s_hat, cov=Sss, T=T, q=q, alpha=alpha,

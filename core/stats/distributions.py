@@ -83,17 +83,47 @@ def alpha_b_method(alpha1: float, beta: float, q: int) -> float:
     return float(np.exp(optimize.brentq(gap, np.log(1e-15), np.log(0.999999), xtol=1e-13)))
 
 
-def global_test(statistic: float, dof: int, conf_pr: float) -> dict:
-    """Two-sided global test of Ω/σ0² ~ χ²(r) at confidence level ``conf_pr`` (F80 §4).
+#: The global tests: F80's one-sided test at the B-method's α_r (default), or gama-local's
+#: two-sided interval at its confidence level ``conf-pr``.
+GLOBAL_TESTS = ("one-sided", "two-sided")
 
-    Returns the statistic, the acceptance interval and whether it passed; with r = 0 the test
-    is not applicable (passed is None).
+#: What a value of Ω/σ0² below the lower bound means: the a priori variances are too large,
+#: not an error in the data.
+TOO_PESSIMISTIC = "σ0 a priori too pessimistic (Ω/r far below σ0²)"
+#: What a value above the upper bound means (F80 §4.1: model errors accumulate in Ω).
+TOO_LARGE = "Ω/σ0² too large: errors in the model or σ0 a priori too optimistic"
+
+
+def global_test(statistic: float, dof: int, conf_pr: float = 0.95, test: str = "two-sided",
+                alpha: float | None = None) -> dict:
+    """Global test of Ω/σ0² ~ χ²(r) under H0 (F80 §4.1, §7.2).
+
+    ``test="one-sided"`` (F80): reject only a value above χ²_{1−α}(r), size ``alpha`` (with the
+    B-method α_r, :func:`alpha_b_method` for q = r, F80 §7.2); ``lower`` = χ²_α(r) is given for
+    the note only: a value below it says σ0 a priori is too pessimistic, the test still passes.
+    ``test="two-sided"`` (gama-local): accept within [χ²_{α/2}(r), χ²_{1−α/2}(r)], α = 1 − conf_pr;
+    a value below the interval fails the test, reported as σ0 a priori too pessimistic
+    (``side`` "low"), not as an error in the data.
+
+    Returns statistic, dof, test, alpha, conf_pr, lower, upper, passed (None with r = 0, the test
+    not applicable), side (None, "low" or "high") and verdict (words).
     """
+    if test not in GLOBAL_TESTS:
+        raise OptionError("global-test", test, GLOBAL_TESTS, f"the global test is one of {', '.join(GLOBAL_TESTS)}")
+    if test == "two-sided":
+        alpha = 1.0 - conf_pr
+    if alpha is None or not 0 < alpha < 1:
+        raise OptionError("alpha", alpha, (), f"need 0 < alpha < 1 for the global test (alpha={alpha})")
+    out = {"statistic": float(statistic), "dof": int(dof), "test": test, "alpha": float(alpha),
+           "conf_pr": float(conf_pr), "lower": None, "upper": None, "passed": None, "side": None,
+           "verdict": "not applicable (no redundancy)"}
     if dof <= 0:
-        return {"statistic": float(statistic), "dof": int(dof), "lower": None, "upper": None,
-                "passed": None, "conf_pr": conf_pr}
-    a = 1.0 - conf_pr
-    lower = float(stats.chi2.ppf(a / 2.0, dof))
-    upper = float(stats.chi2.isf(a / 2.0, dof))
-    return {"statistic": float(statistic), "dof": int(dof), "lower": lower, "upper": upper,
-            "passed": bool(lower <= statistic <= upper), "conf_pr": conf_pr}
+        return out
+    tail = alpha / 2.0 if test == "two-sided" else alpha
+    lower = float(stats.chi2.ppf(tail, dof))
+    upper = float(stats.chi2.isf(tail, dof))
+    side = "high" if statistic > upper else "low" if statistic < lower else None
+    passed = side is None or (side == "low" and test == "one-sided")
+    verdict = {None: "accepted", "high": TOO_LARGE, "low": TOO_PESSIMISTIC}[side]
+    out.update(lower=lower, upper=upper, passed=bool(passed), side=side, verdict=verdict)
+    return out

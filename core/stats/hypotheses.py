@@ -13,6 +13,13 @@ The lower bound of detectable errors is the ellipse/ellipsoid ∇0sᵀ W_s ∇0s
 (F80 eq. 13) with semi-axes δ0/√eig(W_s); the standardised sensitivity
 δ0'(s) = δ0 √(sᵀHᵀPHs / sᵀW_s s) (F80 eq. 14) is largest, δ0 √λmax, in the weakest direction of
 the pencil (HᵀPH, W_s) (F80 §7.3). Computing W_s takes q solves with the cached factor.
+
+An undetectable error ∇0s moves the coordinates by ∇0k = Q_kk C̄ᵀ P H ∇0s (F80 eq. 16, C̄ the
+coordinate columns reduced for the nuisance parameters); its standardised length
+δ̄0(s) = δ0 √(sᵀ M s / sᵀ W_s s), M = HᵀP C̄ Q_kk C̄ᵀ P H (F80 eq. 17), bounds the effect on any
+function f = gᵀk: ∇0f ≤ σ_f δ̄0(s) (F80 eq. 18). Its maximum over s, δ0 √λmax of the pencil
+(M, W_s), and the direction that reaches it come from :func:`external_reliability`; Baarda's
+λ̄ = ∇0kᵀ Q_kk⁻ ∇0k (M84 §3.2) is δ̄0(s)².
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ import scipy.sparse as sp
 
 from ..errors import HypothesisError, NotFoundError
 from ..model.bundle import AP_GROUPS, BASES, CollinearitySet, control_rows, image_rows, problem_of
+from ..solve.linalg import SPDFactor
 
 
 def selection(n: int, members, weights=None) -> sp.csc_matrix:
@@ -179,8 +187,81 @@ def deformation(adj, h: HypothesisTest, nabla_s=None) -> np.ndarray:
     return adj.deformation(err)
 
 
+def coordinate_norm(adj, D: np.ndarray, exclude=()) -> np.ndarray:
+    """Dᵀ (C̄ᵀPC̄) D for displacements D of the coordinates (k_free × q), F80 eq. 16.
+
+    C̄ = (I − B(BᵀPB)⁻¹BᵀP)C with B the nuisance columns except ``exclude`` (free positions;
+    an AP group under test is excluded, :func:`baarda.stats.ap_tests.ap_test`). The form is
+    datum invariant (C̄ annihilates the coordinate part of the null space): with D = ∇0k it is
+    Baarda's λ̄ (M84 §3.2) and δ̄0(s)² (F80 eq. 17).
+    """
+    kind = adj.problem.params.kind[adj.problem.params.free]
+    k = np.flatnonzero(kind == "k")
+    t = np.setdiff1d(np.flatnonzero(kind == "t"), np.asarray(exclude, dtype=np.int64))
+    E = adj.A[:, k] @ D
+    PE = adj.P @ E
+    M = E.T @ PE
+    if t.size:
+        B = adj.A[:, t].tocsr()
+        F = B.T @ PE
+        M = M - F.T @ SPDFactor((B.T @ adj.P @ B).tocsr()).solve(F).reshape(F.shape)
+    return 0.5 * (M + M.T)
+
+
+@dataclass(frozen=True, eq=False)
+class ExternalReliability:
+    """F80 eq. 17-18 for a hypothesis: ``M`` = HᵀP C̄ Q_kk C̄ᵀ P H and ``W`` = W_s (q × q, in the
+    test's ∇s units), δ0 of the test; ``max`` = max_s δ̄0(s) = δ0 √λmax(M, W_s) and ``direction``
+    the unit s that reaches it; ``Dk`` the coordinate effect ∇k of a unit ∇s per column
+    (k_free × q, F80 eq. 16, in the problem's datum)."""
+
+    delta0: float
+    M: np.ndarray
+    W: np.ndarray
+    max: float
+    direction: np.ndarray
+    Dk: np.ndarray
+
+    def delta_bar0(self, s) -> float:
+        """δ̄0(s) = δ0 √(sᵀMs / sᵀW_s s) (F80 eq. 17); inf where the test cannot see s."""
+        s = np.asarray(s, dtype=float)
+        sws = float(s @ self.W @ s)
+        if not sws > 1e-12 * max(float(np.abs(np.diag(self.W)).max(initial=0.0)), 1e-300) * float(s @ s):
+            return float("inf")
+        return float(self.delta0 * np.sqrt(max(float(s @ self.M @ s), 0.0) / sws))
+
+    @property
+    def lambda_bar_max(self) -> float:
+        """Baarda's λ̄ of the most influential undetectable error, δ̄0max² (M84 §3.2)."""
+        return self.max ** 2
+
+
+def external_reliability(adj, h: HypothesisTest) -> ExternalReliability:
+    """δ̄0(s) of hypothesis ``h`` (F80 eq. 17), its maximum and direction (F80 §7.3).
+
+    ∇k per unit ∇s from q solves with the cached factor (Σ AᵀP H, its coordinate part);
+    M = Dkᵀ (C̄ᵀPC̄) Dk (:func:`coordinate_norm`), the maximum from the generalised
+    eigenproblem of (M, W_s) on the directions the test sees (q of them).
+    """
+    H = h.H
+    PH = adj.P @ H
+    rhs = adj.A.T @ (PH.toarray() if sp.issparse(PH) else np.asarray(PH))
+    Y = adj.solve_normal(np.asarray(rhs))
+    kind = adj.problem.params.kind[adj.problem.params.free]
+    Dk = Y[kind == "k"]
+    M = coordinate_norm(adj, Dk)
+    V, pos = h.ellipse_dirs, np.isfinite(h.ellipse_axes)
+    if not pos.any():
+        return ExternalReliability(h.delta0, M, h.W, float("inf"), V[:, 0], Dk)
+    U = V[:, pos] * (h.ellipse_axes[pos] / h.delta0)     # axes = δ0/√λ(W_s): Uᵀ W_s U = I
+    mu, Z = la.eigh(U.T @ M @ U)
+    s = U @ Z[:, -1]
+    s = s / np.linalg.norm(s)
+    return ExternalReliability(h.delta0, M, h.W, float(h.delta0 * np.sqrt(max(mu[-1], 0.0))), s, Dk)
+
+
 # --------------------------------------------------------------------------------------------
-# hypotheses for blocks (F80 §2.2, THEORY.md §3)
+# hypotheses for blocks (F80 §2.2)
 # --------------------------------------------------------------------------------------------
 def h_image_coordinate(problem, image: str, point: str, component: str):
     """H (n × 1) of a gross error in one image coordinate (``component`` "x" or "y")."""
@@ -233,12 +314,12 @@ def h_ap_group(adj, camera: str, group: str) -> sp.csc_matrix:
     adjusted ideal image coordinates of every measurement of ``camera``.
     """
     problem = adj.problem
-    block = problem.extra["block"]
-    cam = next(c for c in block["cameras"] if c["id"] == camera)
+    geo = problem.geometry
+    cam = geo.camera_by_id(camera)
     q = len(AP_GROUPS[group])
     rows, cols, vals = [], [], []
     full = adj.x
-    cam_images = {im["id"] for im in block["images"] if im["camera"] == camera}
+    cam_images = geo.images_of(camera)
     for s in problem.sets:
         if not isinstance(s, CollinearitySet):
             continue
@@ -246,7 +327,7 @@ def h_ap_group(adj, camera: str, group: str) -> sp.csc_matrix:
         if problem.info.ids[xr[0]]["image"] not in cam_images:
             continue
         xb, yb, *_ = s.ideal(full)
-        Fx, Fy, *_ = BASES[group](xb / cam["ap_scale"], yb / cam["ap_scale"])
+        Fx, Fy, *_ = BASES[group](xb / cam.ap_scale, yb / cam.ap_scale)
         for k in range(q):
             rows += [xr, s.rows[1::2]]
             cols += [np.full(xr.size, k)] * 2
@@ -268,3 +349,135 @@ def h_model_point(problem, model: str, point: str):
         raise NotFoundError("model point", {"model": model, "point": point},
                             f"no model coordinates of point {point} in model {model}")
     return selection(problem.n, rows)
+
+
+# --------------------------------------------------------------------------------------------
+# hypotheses named by a specification (``baarda test``; the dashboard's hypothesis dicts)
+# --------------------------------------------------------------------------------------------
+#: The kinds of :func:`hypothesis_matrix`, with the fields each specification needs.
+KINDS = {
+    "observation": ("index",),
+    "group": ("group",),
+    "image-point": ("image", "point"),
+    "control": ("point",),
+    "transfer": ("point", "images"),
+    "ap-group": ("camera", "group"),
+    "exchanged": ("image", "a", "b"),
+    "model-point": ("model", "point"),
+}
+
+
+def _id(problem, field: str, value):
+    """The id object of ``problem.info.ids`` whose text is ``value`` (ids read from a command
+    line are text; a file may hold numbers), or NotFoundError."""
+    want = str(value)
+    for ids in problem.info.ids:
+        v = ids.get(field)
+        if v is not None and str(v) == want:
+            return v
+    raise NotFoundError(field, {field: value}, f"no {field} {value} in the observations")
+
+
+def image_point_index(problem) -> dict:
+    """{(image, point, keypoint): [rows]} of every image observation, ids as text (keypoint None
+    unless the image observes the point by several keypoints, COLMAP), rows in file order —
+    one pass over the observations; :func:`hypothesis_rows` looks image points up in it."""
+    index: dict = {}
+    for i, ids in enumerate(problem.info.ids):
+        if "image" in ids and "point" in ids:
+            kp = ids.get("keypoint")
+            key = (str(ids["image"]), str(ids["point"]), None if kp is None else str(kp))
+            index.setdefault(key, []).append(i)
+    return index
+
+
+def hypothesis_rows(problem, spec: dict, index: dict | None = None) -> list[np.ndarray]:
+    """The observations a hypothesis specification acts on (see :func:`hypothesis_matrix`): one
+    array per component of ∇s for a point transfer (its x rows, its y rows in the images listed,
+    F80 §2.2), else one array of the rows H selects. ``index``: :func:`image_point_index` of
+    ``problem`` if already built. The one place both ``baarda test`` and the dashboard find
+    them; ids are matched by their text."""
+    info = problem.info
+    kind = spec["kind"]
+    if kind == "observation":
+        i = int(spec["index"])
+        if not 0 <= i < problem.n:
+            raise NotFoundError("observation", {"index": i}, f"no observation {i} (0 … {problem.n - 1})")
+        return [np.array([i], dtype=np.int64)]
+    if kind == "group":
+        rows = np.flatnonzero(np.asarray(info.group) == int(spec["group"]))
+        if not rows.size:
+            raise NotFoundError("test group", {"group": spec["group"]}, f"no test group {spec['group']}")
+        return [rows]
+    if kind == "control":
+        point = _id(problem, "id", spec["point"])
+        return [np.array([i for i, ids in enumerate(info.ids) if ids.get("id") == point], dtype=np.int64)]
+    if kind == "ap-group":
+        geo = problem.geometry
+        images = {str(im.id) for im in (geo.images if geo is not None else ())
+                  if str(im.camera) == str(spec["camera"])}
+        return [np.array([i for i, ids in enumerate(info.ids) if str(ids.get("image")) in images], dtype=np.int64)]
+    index = image_point_index(problem) if index is None else index
+    point = str(spec["point"])
+    if kind == "image-point":
+        image = str(spec["image"])
+        found = {kp: r for (im, pt, kp), r in index.items() if im == image and pt == point}
+        if spec.get("keypoint") is not None:
+            want = str(spec["keypoint"])
+            found = {kp: r for kp, r in found.items() if kp == want}
+            if not found:
+                raise NotFoundError("image point", {"image": image, "point": point, "keypoint": want},
+                                    f"image {image} does not observe point {point} by keypoint {want}")
+        if len(found) > 1:
+            raise HypothesisError(f"image {image} observes point {point} by keypoints "
+                                  f"{', '.join(sorted(map(str, found)))}: name one (image-point:IMAGE:POINT:KEYPOINT)")
+        if not found:
+            raise NotFoundError("image point", {"image": image, "point": point},
+                                f"no measurement of point {point} in image {image}")
+        return [np.array(next(iter(found.values())), dtype=np.int64)]
+    if kind == "transfer":
+        images = {str(j) for j in spec["images"]}
+        rows = sorted(i for (im, pt, _), r in index.items() if im in images and pt == point for i in r)
+        missing = images - {im for (im, pt, _) in index if pt == point}
+        if missing:
+            raise NotFoundError("image point", {"images": sorted(missing), "point": point},
+                                f"no measurement of point {point} in image {', '.join(sorted(missing))}")
+        comps: dict = {}
+        for i in rows:
+            comp = info.ids[i].get("component") or info.kind[i].rsplit("-", 1)[-1]
+            comps.setdefault(str(comp), []).append(i)
+        return [np.array(comps[c], dtype=np.int64) for c in sorted(comps)]
+    raise HypothesisError(f"{kind}: no observation rows (a hypothesis built from the solution)")
+
+
+def hypothesis_matrix(adj, spec: dict) -> sp.csc_matrix:
+    """H (n × q) of a hypothesis specification (F80 §2.2, §7.1): a dict ``{"kind": ..., fields}``
+    with the fields of :data:`KINDS` — one observation (``index``), a test group of the problem
+    (``group``), an image point (``keypoint`` optional, for COLMAP images observing a point by
+    several keypoints), a control (or observed-coordinate) point, a point transfer in
+    ``images``, an AP group not in the model (H = ∂f/∂s, :func:`h_ap_group`), a misidentification
+    of points ``a`` and ``b`` in ``image`` (:func:`h_exchanged`), a model point. Ids are matched
+    by their text. NotFoundError for what the model does not have, HypothesisError for a bad
+    specification."""
+    kind = spec.get("kind")
+    if kind not in KINDS:
+        raise HypothesisError(f"unknown hypothesis kind {kind!r} (one of {', '.join(KINDS)})")
+    missing = [f for f in KINDS[kind] if spec.get(f) in (None, "", [])]
+    if missing:
+        raise HypothesisError(f"{kind}: missing {', '.join(missing)}")
+    problem = adj.problem
+    if kind in ("observation", "group", "control", "image-point", "transfer"):
+        rows = hypothesis_rows(problem, spec)
+        return common_error(problem.n, rows) if kind == "transfer" else selection(problem.n, rows[0])
+    if kind == "exchanged":
+        image = _id(problem, "image", spec["image"])
+        return h_exchanged(adj, image, _id(problem, "point", spec["a"]), _id(problem, "point", spec["b"]))
+    if kind == "model-point":
+        return h_model_point(problem, _id(problem, "model", spec["model"]), _id(problem, "point", spec["point"]))
+    cameras = [c.id for c in (problem.geometry.cameras if problem.geometry is not None else ())]
+    camera = next((c for c in cameras if str(c) == str(spec["camera"])), None)
+    if camera is None:
+        raise NotFoundError("camera", {"camera": spec["camera"]}, f"no camera {spec['camera']} in the block")
+    if spec["group"] not in AP_GROUPS:
+        raise HypothesisError(f"ap-group: unknown AP group {spec['group']!r} (one of {', '.join(AP_GROUPS)})")
+    return h_ap_group(adj, camera, spec["group"])

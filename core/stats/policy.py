@@ -9,7 +9,11 @@ hypotheses and observation groups, δ0 of the MDBs and of the lower-bound ellips
 - non-centrality δ0(q): the q-dimensional test of size α_q has power β0 (Förstner 1980, eq. 11),
   which with the B-method is δ0(α0, β0, 1) for every q;
 - critical values: |w| > Φ⁻¹(1 − α0/2) (σ0 a priori), |τ| > τ_c(α0, r) (σ0 a posteriori, Pope
-  1976), T > χ²_{1−α_q}(q), R > F_{1−α_q}(q, r − q) (Förstner 1980, eq. 12).
+  1976), T > χ²_{1−α_q}(q), R > F_{1−α_q}(q, r − q) (Förstner 1980, eq. 12);
+- the global test of Ω/σ0² (Förstner 1980, §4.1): one-sided at the B-method's α_r, so that it has
+  the λ0 = δ0² and β0 of the one-dimensional test (Förstner 1980, §7.2; Baarda 1968) — whether or
+  not the B-method is asked for the multi-dimensional tests — or gama-local's two-sided interval
+  at the file's confidence level ``conf-pr``.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import OptionError
 from . import distributions
 
 #: Which σ0 the decisions of data snooping use: a priori (Baarda's w) or a posteriori (Pope's τ).
@@ -26,8 +31,9 @@ SIGMA0 = ("apriori", "aposteriori")
 
 @dataclass(frozen=True)
 class TestPolicy:
-    """α0 (size of the one-dimensional tests), β0 (power), the B-method, and ``sigma0``:
-    ``"apriori"`` (decide on w) or ``"aposteriori"`` (decide on τ)."""
+    """α0 (size of the one-dimensional tests), β0 (power), the B-method, ``sigma0``:
+    ``"apriori"`` (decide on w) or ``"aposteriori"`` (decide on τ), and ``global_test``:
+    ``"one-sided"`` (F80, at the B-method's α_r) or ``"two-sided"`` (gama-local, at conf-pr)."""
 
     __test__ = False       # not a pytest test class despite its name
 
@@ -35,18 +41,25 @@ class TestPolicy:
     beta0: float = 0.80
     b_method: bool = False
     sigma0: str = "apriori"
+    global_test: str = "one-sided"
 
     def __post_init__(self):
-        if not (0 < self.alpha0 < 1 and 0 < self.beta0 < 1):
-            raise ValueError(f"need 0 < alpha0, beta0 < 1 (alpha0={self.alpha0}, beta0={self.beta0})")
+        for name in ("alpha0", "beta0"):
+            value = getattr(self, name)
+            if not 0 < value < 1:
+                raise OptionError(name, value, (), f"{name} must lie strictly between 0 and 1 (got {value!r})")
         if self.sigma0 not in SIGMA0:
-            raise ValueError(f"sigma0 must be one of {SIGMA0}, got {self.sigma0!r}")
+            raise OptionError("sigma0", self.sigma0, SIGMA0)
+        if self.global_test not in distributions.GLOBAL_TESTS:
+            raise OptionError("global_test", self.global_test, distributions.GLOBAL_TESTS)
 
     @classmethod
-    def from_options(cls, options, sigma0: str = "apriori") -> "TestPolicy":
-        """The policy of :class:`baarda.adjust.Options` (``alpha``, ``beta``, ``b_method``)."""
+    def from_options(cls, options, sigma0: str | None = None) -> "TestPolicy":
+        """The policy of :class:`baarda.adjust.Options` (``alpha``, ``beta``, ``b_method``,
+        ``sigma0``, ``global_test``); ``sigma0`` given here overrides the options'."""
         return cls(alpha0=float(options.alpha), beta0=float(options.beta), b_method=bool(options.b_method),
-                   sigma0=sigma0)
+                   sigma0=sigma0 or getattr(options, "sigma0", "apriori"),
+                   global_test=getattr(options, "global_test", "one-sided"))
 
     # -- the B-method rule ------------------------------------------------------------------------
     def alpha(self, q: int = 1) -> float:
@@ -83,6 +96,20 @@ class TestPolicy:
         when q = 0 or r ≤ q."""
         q = int(q)
         return distributions.critical_f(self.alpha(q), q, dof - q) if (q and dof > q) else float("inf")
+
+    # -- the global test ------------------------------------------------------------------------------
+    def alpha_global(self, dof: int, conf_pr: float = 0.95) -> float:
+        """Size of the global test with redundancy r = ``dof``: the B-method's α_r (one-sided,
+        Förstner 1980, §7.2) or 1 − conf_pr (two-sided, gama-local)."""
+        if self.global_test == "two-sided":
+            return 1.0 - conf_pr
+        return distributions.alpha_b_method(self.alpha0, self.beta0, int(dof)) if dof > 0 else self.alpha0
+
+    def global_decision(self, statistic: float, dof: int, conf_pr: float = 0.95) -> dict:
+        """The global test of Ω/σ0² ~ χ²(r) (Förstner 1980, §4.1;
+        :func:`baarda.stats.distributions.global_test`)."""
+        return distributions.global_test(statistic, dof, conf_pr, test=self.global_test,
+                                         alpha=self.alpha_global(dof, conf_pr))
 
     # -- the decision of data snooping --------------------------------------------------------------
     @property

@@ -23,7 +23,7 @@ G_FF < H_FF; λmin H_FF ≤ G_FF ≤ λmax H_FF.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as la
@@ -34,11 +34,33 @@ from ..errors import BaardaError
 
 
 @dataclass(frozen=True, eq=False)
+class SBase:
+    """The conditions of an S-base over a vector of coordinates (M84 §2.2; :mod:`baarda.datum`):
+    ``in_base`` flags the coordinates held non-stochastic; a 3D S-base of two points adds the normal
+    condition nᵀΔx_C (``normal_rows`` the positions of C's x, y, z, ``normal`` n)."""
+
+    in_base: np.ndarray
+    normal_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    normal: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def matrix(self, G: np.ndarray) -> np.ndarray:
+        """S = I − G (FᵀG)⁺Fᵀ (:func:`baarda.datum.sbase_K`)."""
+        return np.eye(G.shape[0]) - G @ datum_mod.sbase_K(G, self.in_base, self.normal_rows, self.normal)
+
+
+def as_sbase(base) -> SBase:
+    """An :class:`SBase` from S-base flags per coordinate (or an SBase)."""
+    return base if isinstance(base, SBase) else SBase(np.asarray(base, dtype=bool))
+
+
+@dataclass(frozen=True, eq=False)
 class CoordinateCovariance:
     """Covariance of point coordinates in an S-base.
 
     params: parameter indices (into Problem.params) of the coordinates, in order; point, axis:
-    the point index and axis of each; cov: the covariance (m²), σ0 as the adjustment uses.
+    the point index and axis of each; cov: the covariance (m²), σ0 as the adjustment uses;
+    sbase: the S-base ids (with ``normal=C`` for the third condition of a 3D base); base: its
+    conditions over these coordinates (None: the adjustment's own datum).
     """
 
     params: np.ndarray
@@ -46,6 +68,7 @@ class CoordinateCovariance:
     axis: np.ndarray
     cov: np.ndarray
     sbase: tuple[str, ...]
+    base: SBase | None = None
 
     def block(self, p: int) -> np.ndarray:
         sel = np.flatnonzero(self.point == p)
@@ -114,26 +137,56 @@ def covariance(adj, sbase=None) -> CoordinateCovariance:
     i, j = np.meshgrid(loc[est], loc[est], indexing="ij")
     Sigma = np.zeros((coords.size, coords.size))
     Sigma[np.ix_(est, est)] = adj.cov_entries(i, j) * adj.variance_factor
+    base = None
     if sbase is not None:
         cols, G, _ = release_null_space(adj)
         Gk = G[: coords.size]
+        names, normal_id = datum_mod.split_normal(sbase)
         ids = problem.points.ids
-        wanted = set(sbase)
+        wanted = set(names)
         in_base = np.array([ids[params.point[c]] in wanted for c in coords])
         if not in_base.any():
             raise BaardaError(f"S-base {sorted(wanted)} has no coordinates in this problem")
-        E = np.where(in_base[:, None], Gk, 0.0)
-        M = E.T @ Gk
-        if Gk.shape[1] and np.linalg.matrix_rank(M) < Gk.shape[1]:
-            raise BaardaError(f"the S-base {sorted(wanted)} does not fix the datum ({Gk.shape[1]} "
-                              "transformations free)")
-        if Gk.shape[1]:
-            S = np.eye(coords.size) - Gk @ la.solve(M, E.T)
-            Sigma = S @ Sigma @ S.T
+        base = SBase(in_base)
         sb = tuple(sorted(wanted))
+        if Gk.shape[1] and np.linalg.matrix_rank(Gk[in_base]) < Gk.shape[1]:
+            base, third = _with_normal(adj, coords, in_base, wanted, normal_id)
+            if base is None or np.linalg.matrix_rank(
+                    np.vstack([Gk[in_base], base.normal @ Gk[base.normal_rows]])) < Gk.shape[1]:
+                raise BaardaError(f"the S-base {sorted(wanted)} does not fix the datum ({Gk.shape[1]} "
+                                  "transformations free)")
+            sb = sb + (f"normal={third}",)
+        if Gk.shape[1]:
+            S = base.matrix(Gk)
+            Sigma = S @ Sigma @ S.T
     else:
         sb = tuple(problem.datum.sbase) if problem.datum.kind == "free" else ()
-    return CoordinateCovariance(coords, params.point[coords], params.axis[coords], Sigma, sb)
+    return CoordinateCovariance(coords, params.point[coords], params.axis[coords], Sigma, sb, base)
+
+
+def _with_normal(adj, coords, in_base, wanted, normal_id):
+    """The S-base with the normal condition of a 3D base of two points (M84 §2.2,
+    :func:`baarda.datum.normal_condition`) over the coordinates ``coords``: (SBase, C's id), or
+    (None, None) where it does not apply (not 3D, C unknown, all points collinear)."""
+    problem = adj.problem
+    params = problem.params
+    ids = problem.points.ids
+    pos = np.full((len(ids), 3), -1, dtype=np.int64)
+    pos[params.point[coords], params.axis[coords]] = np.arange(coords.size)
+    full = (pos >= 0).all(axis=1)
+    base_pts = [k for k, i in enumerate(ids) if i in wanted]
+    if normal_id is not None and normal_id not in ids:
+        raise BaardaError(f"S-base: unknown point {normal_id} for the normal direction")
+    if len(base_pts) < 2 or not full[base_pts].all():
+        return None, None
+    normal = None if normal_id is None else ids.index(normal_id)
+    if normal is not None and not full[normal]:
+        return None, None
+    found = datum_mod.normal_condition(adj.coordinates, base_pts, np.flatnonzero(full), normal)
+    if found is None:
+        return None, None
+    c, n = found
+    return SBase(in_base, pos[c], n), ids[c]
 
 
 def lambda_bar(adj, error: np.ndarray) -> float:
@@ -165,16 +218,25 @@ def chaotic_d2(l: np.ndarray, kind: str, C0: float, C1: float, C2: float = 1.0) 
     raise BaardaError(f"unknown criterion structure '{kind}' (linear, logarithmic, exponential)")
 
 
+def distances(xy: np.ndarray) -> np.ndarray:
+    """l_ij between the points ``xy`` (m × 2 or m × 3 positions, metres)."""
+    xy = np.asarray(xy, dtype=float)
+    return np.sqrt(((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2))
+
+
 def criterion_matrix(xy: np.ndarray, kind: str = "linear", C0: float = 0.0, C1: float = 1e-6,
                      C2: float = 1.0, d2: float | None = None, axes: int = 2) -> np.ndarray:
-    """Chaotic criterion matrix H for points ``xy`` (m × 2 planimetric positions, metres), with
-    ``axes`` coordinates per point, ordered point by point (M84 eq. 2).
+    """Chaotic criterion matrix H for points ``xy`` (m × 2 planimetric or m × 3 spatial positions,
+    metres; l_ij their distances), with ``axes`` coordinates per point, ordered point by point
+    (M84 eq. 2): ``axes`` 2 for planimetry, 3 for 3D blocks and networks (the homogeneous and
+    isotropic structure in R3, M84 §2.2), 1 for heights (the variance of a height difference d_ij²
+    over the planimetric distance), as M84 §2.3 asks for heights and 3D point determination.
 
     d² (the variance of each coordinate) defaults to the largest d_ij² so that H is positive
     semidefinite on the differences; it cancels in any S-base.
     """
     xy = np.asarray(xy, dtype=float)
-    L = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    L = distances(xy)
     D2 = chaotic_d2(L, kind, C0, C1, C2)
     np.fill_diagonal(D2, 0.0)
     base = D2.max() if d2 is None else d2
@@ -182,10 +244,11 @@ def criterion_matrix(xy: np.ndarray, kind: str = "linear", C0: float = 0.0, C1: 
     return np.kron(Cp, np.eye(axes))
 
 
-def sbase_matrix(G: np.ndarray, in_base: np.ndarray) -> np.ndarray:
-    """Baarda's S-transformation S = I − G (EᵀG)⁻¹ Eᵀ, E the rows of G on the S-base (M84 §2)."""
-    E = np.where(np.asarray(in_base)[:, None], G, 0.0)
-    return np.eye(G.shape[0]) - G @ la.solve(E.T @ G, E.T)
+def sbase_matrix(G: np.ndarray, in_base) -> np.ndarray:
+    """Baarda's S-transformation S = I − G (EᵀG)⁻¹ Eᵀ, E the rows of G on the S-base (M84 §2);
+    ``in_base`` the S-base flags per coordinate or an :class:`SBase` (3D: with the normal
+    condition)."""
+    return as_sbase(in_base).matrix(G)
 
 
 def sbase_transform(H: np.ndarray, G: np.ndarray, in_base: np.ndarray) -> np.ndarray:
@@ -247,7 +310,7 @@ def compare(G: np.ndarray, H: np.ndarray, null: np.ndarray, in_base: np.ndarray)
     complement (control points fix the datum), the S-base coordinates are dropped.
     """
     null = np.asarray(null, dtype=float).reshape(G.shape[0], -1)
-    in_base = np.asarray(in_base, dtype=bool)
+    flags = as_sbase(in_base).in_base
     B = null_complement(null)
     Gb = B.T @ G @ B
     g = np.linalg.eigvalsh(0.5 * (Gb + Gb.T))
@@ -256,7 +319,7 @@ def compare(G: np.ndarray, H: np.ndarray, null: np.ndarray, in_base: np.ndarray)
         # S-base fix the datum (their coordinates have no variance of their own), and G is
         # singular on the complement. The datum is given; compare on the coordinates outside
         # the S-base, as the S-base coordinates carry no variance.
-        B = np.eye(G.shape[0])[:, ~in_base]
+        B = np.eye(G.shape[0])[:, ~flags]
         Gb = B.T @ G @ B
     Hb = B.T @ H @ B
     lam, V = la.eigh(0.5 * (Gb + Gb.T), 0.5 * (Hb + Hb.T))
@@ -268,7 +331,7 @@ def c2_bounds(kind: str, xy: np.ndarray) -> tuple[float, float]:
     logarithmic, C2 a length, in [l_min/1000, 1000 l_max]; exponential, C2² an inverse length
     (C2 in m^-½), 1/C2² in [l_min/1000, 1000 l_max]. Any C2 outside makes d² proportional to l or
     constant over the network."""
-    L = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    L = distances(xy)
     l = L[L > 0]
     if not l.size:
         raise BaardaError("a criterion matrix needs at least two distinct points")

@@ -29,37 +29,53 @@ from ..model.problem import LazySequence
 
 class GroupTests(LazySequence):
     """The group tests of :attr:`Reliability.groups` as arrays; item k is the dict
-    {group, members, T, dimension, redundancy, critical, rejected, alpha, nabla} of group k
-    (members sorted, ∇ŝ in their order), made on demand."""
+    {group, members, T, dimension, redundancy, critical, rejected, alpha, nabla, R, critical_R,
+    delta0, nabla_sigma, ellipse_axes, delta0_prime_max} of group k (members sorted, ∇ŝ and σ∇ŝ in
+    their order; the q semi-axes δ0/√λ(W_s) ascending in λ, F80 eq. 10-14), made on demand.
 
-    def __init__(self, group, ptr, members, T, dimension, redundancy, critical, rejected, alpha, nabla):
+    ``per_group`` and ``per_member`` name the arrays indexed by group and by member position
+    (``members[ptr[k]:ptr[k + 1]]``); each is an attribute too (``groups.T``)."""
+
+    PER_GROUP = ("T", "dimension", "redundancy", "critical", "rejected", "alpha", "R", "critical_R",
+                 "delta0", "delta0_prime_max")
+    PER_MEMBER = ("nabla", "nabla_sigma", "ellipse_axes")
+
+    def __init__(self, group, ptr, members, **arrays):
         self.group, self.ptr, self.members = group, ptr, members
-        self.T, self.dimension, self.redundancy = T, dimension, redundancy
-        self.critical, self.rejected, self.alpha, self.nabla = critical, rejected, alpha, nabla
+        for name in self.PER_GROUP + self.PER_MEMBER:
+            setattr(self, name, arrays[name])
 
     @classmethod
     def empty(cls) -> "GroupTests":
         z, i = np.zeros(0), np.zeros(0, dtype=np.int64)
-        return cls(i, np.zeros(1, dtype=np.int64), i, z, i, z, z, np.zeros(0, dtype=bool), z, z)
+        arrays = {name: z for name in cls.PER_GROUP + cls.PER_MEMBER}
+        arrays.update(dimension=i, rejected=np.zeros(0, dtype=bool))
+        return cls(i, np.zeros(1, dtype=np.int64), i, **arrays)
 
     def __len__(self):
         return self.group.size
 
     def _item(self, k):
         a, b = int(self.ptr[k]), int(self.ptr[k + 1])
+        q = int(self.dimension[k])
+        axes = self.ellipse_axes[a:b]
         return {"group": int(self.group[k]), "members": self.members[a:b], "T": float(self.T[k]),
-                "dimension": int(self.dimension[k]), "redundancy": float(self.redundancy[k]),
+                "dimension": q, "redundancy": float(self.redundancy[k]),
                 "critical": float(self.critical[k]), "rejected": bool(self.rejected[k]),
-                "alpha": float(self.alpha[k]), "nabla": self.nabla[a:b]}
+                "alpha": float(self.alpha[k]), "nabla": self.nabla[a:b], "R": float(self.R[k]),
+                "critical_R": float(self.critical_R[k]), "delta0": float(self.delta0[k]),
+                "nabla_sigma": self.nabla_sigma[a:b], "ellipse_axes": axes[np.isfinite(axes)],
+                "delta0_prime_max": float(self.delta0_prime_max[k])}
 
     def take(self, idx):
         idx = np.asarray(idx, dtype=np.int64)
         sizes = self.ptr[idx + 1] - self.ptr[idx]
         flat = np.repeat(self.ptr[idx], sizes) + (np.arange(int(sizes.sum())) -
                                                    np.repeat(np.cumsum(sizes) - sizes, sizes))
+        arrays = {name: getattr(self, name)[idx] for name in self.PER_GROUP}
+        arrays.update({name: getattr(self, name)[flat] for name in self.PER_MEMBER})
         return GroupTests(self.group[idx], np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
-                          self.members[flat], self.T[idx], self.dimension[idx], self.redundancy[idx],
-                          self.critical[idx], self.rejected[idx], self.alpha[idx], self.nabla[flat])
+                          self.members[flat], **arrays)
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,6 +125,14 @@ class Reliability:
         """|statistic| above its critical value (the policy's σ0; NaN is never rejected)."""
         return self.policy.rejected(self.result.w, self.result.tau, self.result.dof)
 
+    @cached_property
+    def global_test(self) -> dict:
+        """The global test of Ω/σ0² = vᵀPv ~ χ²(r) under the policy (Förstner 1980, §4.1, §7.2;
+        :meth:`baarda.stats.policy.TestPolicy.global_decision`), at the problem's conf-pr when
+        two-sided."""
+        return self.policy.global_decision(self.result.vPv, self.result.dof,
+                                           getattr(self.result.problem, "conf_pr", 0.95))
+
     # -- internal and external reliability ------------------------------------------------------
     @cached_property
     def mdb(self) -> np.ndarray:
@@ -140,19 +164,31 @@ class Reliability:
     @cached_property
     def groups(self) -> GroupTests:
         """Multi-dimensional tests of the problem's observation groups (vectors, image points):
-        T, q and ∇ŝ from :attr:`baarda.result.Adjustment.group_statistics`, α_q and the critical
-        value χ²_{1−α_q}(q) from the policy (Förstner 1980, eq. 12)."""
+        T, q, ∇ŝ, σ∇ŝ and the eigenvalues of W_s from :attr:`baarda.result.Adjustment.group_statistics`;
+        α_q, the critical values χ²_{1−α_q}(q) of T and F_{1−α_q}(q, r − q) of
+        R = (T/q)/((vᵀPv − T)/(r − q)), δ0(q), the lower-bound semi-axes δ0/√λ(W_s) and
+        δ0′max = δ0 √μmax from the policy (Förstner 1980, eq. 10-14)."""
         g = self.result.group_statistics
         if g is None:
             return GroupTests.empty()
-        keys, ptr, members, T, q, red, nabla = g
-        alpha = np.empty(q.size)
-        crit = np.empty(q.size)
+        keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max = g
+        alpha, crit, crit_R, d0 = (np.empty(q.size) for _ in range(4))
+        dof, vPv = self.result.dof, self.result.vPv
         for qq in np.unique(q).tolist():
             alpha[q == qq] = self.policy.alpha(qq)
             crit[q == qq] = self.policy.critical_T(qq)
+            crit_R[q == qq] = self.policy.critical_R(qq, dof)
+            d0[q == qq] = self.policy.delta0(qq)
         rejected = (q > 0) & (T > crit)
-        return GroupTests(keys, ptr, members, T, q, red, crit, rejected, alpha, nabla)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ok = (q > 0) & (dof > q) & (vPv > T)
+            R = np.where(ok, (T / np.maximum(q, 1)) / ((vPv - T) / np.maximum(dof - q, 1)), np.nan)
+            d0_member = np.repeat(d0, np.diff(ptr))
+            axes = np.where(wlam > 0, d0_member / np.sqrt(np.where(wlam > 0, wlam, 1.0)), np.inf)
+            dprime = d0 * np.sqrt(np.maximum(mu_max, 0.0))
+        return GroupTests(keys, ptr, members, T=T, dimension=q, redundancy=red, critical=crit,
+                          rejected=rejected, alpha=alpha, R=R, critical_R=crit_R, delta0=d0,
+                          delta0_prime_max=dprime, nabla=nabla, nabla_sigma=nabla_sigma, ellipse_axes=axes)
 
     def test(self, H, label: str = ""):
         """Multi-dimensional test of a hypothesis matrix H (n × q) under the policy

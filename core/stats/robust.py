@@ -1,31 +1,70 @@
-"""Robust estimation by iteratively reweighted least squares (M84 §3.1, R84).
+"""Robust estimation by iteratively reweighted least squares (M84 §3.1, R84 §6-8).
 
-Each iteration adjusts with weights p_i f(u_i), f a weight function of the normalised residual
-u_i = |v_i| / (σ_i √r_i) of the previous iteration, with σ_i the a priori standard deviation and
-r_i the redundancy number of the starting adjustment (at least 0.1), so that u is Baarda's w in
-the first iteration and an error does not hide in its well-controlled neighbours' residuals
-(for a 2 × 2 or 3 × 3 cluster the largest member's u, so that a cluster keeps its covariance
-shape); until no weight factor changes by more than ``tol``. Weight functions:
+The strategy of R84, in three steps:
 
-- ``huber``:   f(u) = 1 for u ≤ k, k/u above (k = 2);
-- ``danish``:  f(u) = 1 for u ≤ c, exp(1 − (u/c)²) above (c = 3) — the Danish method of Krarup
-  and Kubik in the exponential form of Kubik, Weng & Frederiksen; weights fall fast, so a gross
-  error ends with a weight near 0 while the rest keep theirs. It starts from Huber's weights
-  (``HUBER_START_TOL``): from a least-squares fit that a large error has distorted, a
-  redescending function would reject the error's neighbours along with it;
-- ``r84``:      the scheme of the ISPRS 1984 report (R84): photogrammetric observations start with
-  weight 1 and non-photogrammetric ones (control, coordinates) with 1/100, so that large errors in
-  control cannot pull the block while the image geometry settles; the starting factor of the latter
-  grows tenfold per iteration up to its a priori weight, and the Danish function acts on all.
+1. **Robust start (R84 §6, §8).** Large errors "change the geometry of the block severely and
+   cause worse convergence or even divergence ... the adjustment must be stopped before
+   reaching the point of convergence". So they are met before the first step: the first weight
+   factors are Huber's function of the misclosures at the approximate values,
+   u_i = |l_i − f_i(x0)| / σ_i; and while the geometry settles, the weights follow every single
+   Gauss-Newton step (Huber's convex function) instead of converged adjustments, until the
+   weights change by less than ``HUBER_START_TOL`` and the step is below ``START_STEP``
+   conditional σ. With ``r84`` moreover, as "medium-sized gross errors and all the more large
+   gross errors ... are independent from the a priori weights", the photogrammetric
+   observations (image coordinates) start with the weight 1 and the non-photogrammetric ones
+   (control, coordinates) with 1/100, in baarda as factors s_i on the a priori weights p_i.
+   "This starting weight tends to the introduced specific a priori weight in dependency on the
+   value of σ̂0 by a weight function": here s_i = s_i,start^(1 − g), g = f(z) the Danish
+   function of the global test's normal score z = (Ω/σ0² − r) / √(2r) (Ω/σ0² ~ χ²(r) under H0,
+   F80 §4.1), Ω of the current reweighted fit, g the largest value so far (the weights tend one
+   way only). While gross errors inflate Ω, g ≈ 0 and the start weights hold; once the
+   reweighting has taken them out, z ≤ 3, g = 1 and every observation is back at its a priori
+   weight. (``huber`` and ``danish`` keep s_i = 1.)
+2. **Reweighting (M84 §3.1, R84 §7).** Each iteration adjusts with weights p_i s_i f_i, f a
+   weight function of the normalised residual u_i = |v_i| / (σ_i √r_i) of the previous fit,
+   σ_i = the a priori σ at the current start factor (σ_i,0/√s_i) and r_i the local redundancy
+   of that fit (at least 0.1; R84 §7 "the consideration of the local redundancy (formula 2)"):
+   for a 2 × 2 or 3 × 3 cluster the largest member's u, so that a cluster keeps its covariance
+   shape. Until no weight factor changes by more than ``tol``. Weight functions:
 
-Robust estimation gives no reliability measures of its own (M84 §3.2): the result carries the
-final least-squares adjustment with the robust weights' suspects left out, whose data snooping is
-reported beside the robust findings.
+   - ``huber``:   f(u) = 1 for u ≤ k, k/u above (k = 2);
+   - ``danish``:  f(u) = 1 for u ≤ c, exp(1 − (u/c)²) above (c = 3) — the Danish method of
+     Krarup and Kubik in the exponential form of Kubik, Weng & Frederiksen, after the Huber
+     start of step 1 (from a fit that a large error has distorted, a redescending function
+     would reject the error's good neighbours with it);
+   - ``r84``:     the Danish function with the start weights of step 1.
 
-Detected errors are classed after R84 §6 by their size |∇̂| ≈ |v_i| (the residual of an observation
-with weight ≈ 0 is its error): below 4σ part of the random errors; small 4σ-50σ; medium 50σ to
-``medium_base`` base lengths; large above that (in image units, the base is the image base b = B c/H
-of the block, when known).
+   A weight factor is floored at :data:`WEIGHT_FLOOR`. Where the down-weighted observations
+   leave unknowns undetermined (the normal equations singular: all rays and the control of a
+   point down-weighted, which is not a datum defect of the block), the floor of those points'
+   observations is raised tenfold until the system is regular, and the raise is reported
+   (``floored``) instead of an error.
+3. **Least squares and data snooping on the cleaned set (M84 §3.2, R84 §7).** Robust
+   estimation gives no reliability measures and no test of its own: its candidates (clusters
+   with u above the w-test's critical value in the robust fit) are left out and the rest
+   adjusted by least squares. Each candidate is then tested against that fit: its predicted
+   error ∇̂ = l_c − f_c(x̂) (observed minus computed, nonlinear) with
+   T = ∇̂ᵀ W_s ∇̂, W_s = Hᵀ P C_vv P H of the adjustment that includes it (F80 eq. 10-12, H the
+   selection of the cluster; W_s = (C_c + A_c Q_x̂x̂ A_cᵀ)⁻¹ of the fit without it), and each
+   member's w = (W_s ∇̂)_i / √(W_s)_ii. A candidate with T below the critical value of its
+   q-dimensional test and every |w| below the w-test's is readmitted (the robust fit had
+   inflated its residual). Iterative data snooping on the cleaned set, over the same clusters
+   and with the same two tests (:func:`snoop_clusters`), finds what the robust fit missed (small errors whose weight
+   the function hardly changed); readmission and snooping are repeated until neither changes
+   the set (at most ``MAX_CONFIRM_PASSES``). A point keeps its control or two rays: of its
+   left-out clusters the least suspect go back in rather than leave it undetermined. The
+   suspects are reported with their tests against the final fit.
+
+Separability (M84 §3.3, F80 §7.4): where two hypotheses change the observations alike — the two
+rays of a 2-ray point, a point-transfer error between two strips of three images each, which
+the data cannot tell from the opposite transfer — the suspect may be either one.
+
+Each confirmed error is classed after R84 §6 by its size, the predicted error ∇̂ of step 3 (not
+the residual of a fit it has distorted): its size in σ, √(∇̂ᵀ C_c⁻¹ ∇̂) (|∇̂|/σ for one
+observation or an isotropic cluster), and in base lengths |∇̂| / b — b = B c / H the image base
+for image observations (image units), B the air base for control (metres). Below 4σ part of the
+random errors; small 4σ-50σ; medium 50σ up to ``medium_base`` (2.5, R84: "2-3") base lengths;
+large above.
 """
 
 from __future__ import annotations
@@ -36,17 +75,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..adjust import Options, adjust
-from ..errors import BaardaError
+from ..errors import BaardaError, DatumDefectError, SingularError
 from ..model.problem import subset
+from . import hypotheses
 
 METHODS = ("huber", "danish", "r84")
 #: smallest weight factor: keeps a downweighted observation's parameters determined
-WEIGHT_FLOOR = 1e-4
+WEIGHT_FLOOR = 1e-8
 #: the redescending methods start with Huber's convex function until its weights change less
 #: than this: a redescending function applied to a least-squares fit distorted by a large error
 #: would reject the error's good neighbours with it
 HUBER_START_TOL = 1e-2
 NON_PHOTOGRAMMETRIC = ("control-", "coordinate-")
+#: R84 §8: the start weight of non-photogrammetric observations (photogrammetric ones: 1)
+R84_START_NONPHOTO = 1e-2
+#: the start phase ends once the Gauss-Newton step is below this many conditional σ
+START_STEP = 1.0
+#: how often a step-3 pass (readmission, data snooping) is repeated at most
+MAX_CONFIRM_PASSES = 3
 
 
 def huber(u, k=2.0):
@@ -62,7 +108,11 @@ def danish(u, c=3.0):
 
 
 def error_class(size_sigma: float, size_base: float | None = None, medium_base: float = 2.5) -> str:
-    """R84 §6 class of a gross error of ``size_sigma`` σ (and ``size_base`` base lengths)."""
+    """R84 §6 class of a gross error of ``size_sigma`` σ and ``size_base`` base lengths.
+
+    Below 4σ random; 4σ-50σ small; above 50σ medium up to ``medium_base`` base lengths (R84:
+    "between 50σ and 2-3 base lengths"), large above ("bigger than 3 base lengths"). Without a
+    base length (no block geometry) an error above 50σ is medium."""
     if size_sigma < 4:
         return "random"
     if size_sigma <= 50:
@@ -72,128 +122,413 @@ def error_class(size_sigma: float, size_base: float | None = None, medium_base: 
     return "large"
 
 
+def global_score(omega: float, dof: int) -> float:
+    """z = (Ω/σ0² − r) / √(2r), the global test's statistic as a normal score (Ω/σ0² ~ χ²(r)
+    under H0, F80 §4.1), with Ω already divided by σ0²."""
+    return (omega - dof) / np.sqrt(2.0 * dof) if dof > 0 else 0.0
+
+
+def start_factor(start: np.ndarray, g: float) -> np.ndarray:
+    """R84 §8: the start weight factor s_start tends to 1 (the a priori weight) as g = f(z)
+    goes from 0 to 1: s = s_start^(1 − g)."""
+    return np.asarray(start, dtype=float) ** (1.0 - g)
+
+
 @dataclass(frozen=True, eq=False)
 class RobustResult:
+    """The robust fit (step 2), the confirmed suspects and the final least squares (step 3)."""
+
     method: str
-    weights: np.ndarray          # final weight factor per observation (0..1)
+    weights: np.ndarray          # final weight factor s_i f_i per observation (0..1) of the robust fit
     adjustment: object           # the last reweighted adjustment
     iterations: int
     converged: bool
-    suspects: list               # dicts: index, weight, residual, size_sigma, class
-    final: object = None         # least squares without the suspects (for data snooping beside)
-    history: tuple = ()
+    suspects: list               # dicts: index, members, kind, ids, size_sigma, size_base, class, T, ...
+    final: object = None         # least squares without the suspects (data snooping's final fit)
+    history: tuple = ()          # max weight change per iteration
+    floored: tuple = ()          # dicts: points whose observations' weight floor was raised
+    candidates: int = 0          # clusters the robust fit put forward (before step 3)
+    readmitted: tuple = ()       # candidates the least-squares test cleared (observation indices)
 
     def as_dict(self) -> dict:
         return {"method": self.method, "iterations": self.iterations, "converged": self.converged,
-                "suspects": self.suspects}
+                "suspects": self.suspects, "candidates": self.candidates,
+                "readmitted": [list(m) for m in self.readmitted], "floored": list(self.floored)}
 
 
-def _image_base(problem) -> float | None:
-    """The image base b = B c / H of a block (image units), from Problem.extra["block"]."""
-    blk = problem.extra.get("block") if problem.extra else None
-    if not blk or not blk.get("images"):
-        return None
-    try:
-        by_strip: dict = {}
-        for im in blk["images"]:
-            by_strip.setdefault(im.get("strip", 0), []).append((im["X0"], im["Y0"]))
-        gaps = [np.hypot(*np.diff(np.array(v), axis=0).T) for v in by_strip.values() if len(v) > 1]
-        B = float(np.median(np.concatenate(gaps)))
-        c = float(blk["camera"]["c"]) if "c" in blk.get("camera", {}) else float(blk["camera"]["principal_distance"])
-        H = float(blk.get("flying_height"))
-        return B * c / H
-    except (KeyError, TypeError, ValueError):
-        return None
+def _bases(problem) -> tuple[float | None, float | None]:
+    """(b, B): the image base b = B c / H (image units) and the air base B (object units, the
+    median distance of consecutive images of a strip), from the block's geometry; (None, None)
+    where the block has no flying height or principal distance (SfM, networks)."""
+    geo = problem.geometry
+    if geo is None or not geo.images or geo.flying_height is None or geo.camera is None or geo.camera.c is None:
+        return None, None
+    by_strip: dict = {}
+    for im in geo.images:
+        by_strip.setdefault(im.strip, []).append((im.X0, im.Y0))
+    gaps = [np.hypot(*np.diff(np.array(v), axis=0).T) for v in by_strip.values() if len(v) > 1]
+    if not gaps:
+        return None, None
+    B = float(np.median(np.concatenate(gaps)))
+    return B * geo.camera.c / geo.flying_height, B
 
 
-def estimate(problem, method: str = "danish", options: Options | None = None, tol: float = 1e-3,
+def _residuals_at(problem, x) -> np.ndarray:
+    """v = f(x) − l of every observation of ``problem`` at the parameters ``x`` (nonlinear)."""
+    f = np.empty(problem.n)
+    for s in problem.sets:
+        f[s.rows] = s.evaluate(x)[0]
+    return problem.misclosure(f)
+
+
+def _undetermined(err) -> set:
+    """Ids of the points or images whose unknowns a singular system's error names (``P7.x`` →
+    ``P7``, ``308.X0`` → ``308``)."""
+    names = list(getattr(err, "undetermined", []) or [])
+    if getattr(err, "unknown", None) is not None:
+        names.append(str(err.unknown))
+    return {n.rsplit(".", 1)[0] for n in names}
+
+
+def _cluster_entities(problem) -> list[set]:
+    """The ids of the points and images each covariance cluster observes."""
+    out = []
+    for m in problem.cov.members:
+        ids = set()
+        for i in m:
+            d = problem.info.ids[i]
+            for key in ("point", "id", "from", "to", "image"):
+                if key in d:
+                    ids.add(str(d[key]))
+        out.append(ids)
+    return out
+
+
+def _per_observation(values, members, n) -> np.ndarray:
+    """A value per covariance cluster spread to its observations."""
+    out = np.empty(n)
+    for c, m in enumerate(members):
+        out[m] = values[c]
+    return out
+
+
+def _irls(problem, method, options, tol, max_iter, k):
+    """Steps 1-2 (module docstring). Returns (adj, factor per cluster, u per observation,
+    iterations, converged, history, floored)."""
+    cov = problem.cov
+    sigma = cov.sigma()
+    members = cov.members
+    ncl = len(members)
+    kinds = problem.info.kind
+    nonphoto = np.array([kinds[m[0]].startswith(NON_PHOTOGRAMMETRIC) for m in members])
+    start = np.where(nonphoto, R84_START_NONPHOTO, 1.0) if method == "r84" else np.ones(ncl)
+    s = start.copy()
+    # large errors are found before the adjustment (R84 §6: they break the geometry of the first
+    # step): the start factors follow Huber's function of the misclosures at the approximations
+    v0 = _residuals_at(problem, problem.params.x0)
+    u0 = np.abs(v0) * np.sqrt(_per_observation(s, members, problem.n)) / sigma
+    f = huber(np.array([u0[m].max() for m in members]), 2.0)
+    floor = np.full(ncl, WEIGHT_FLOOR)
+    c_fun = k or (2.0 if method == "huber" else 3.0)
+    entities = None
+    floored = []
+    x0, adj, u_obs = None, None, None
+    converged = False
+    history = []
+    # R84 §6, §8: while large errors may act, the weights follow every Gauss-Newton step (the
+    # adjustment is "stopped before reaching the point of convergence"), with Huber's convex
+    # function; then reweighting after converged adjustments with the method's function
+    phase = "start"
+    g = 0.0
+    one_step = dataclasses.replace(options, max_iter=1)
+    it = 0
+    tries = 0
+    restarted = False
+    while it < max_iter:
+        total = np.maximum(s * f, floor)
+        p = dataclasses.replace(problem, cov=cov.scaled(1.0 / total))
+        try:
+            adj = adjust(p, one_step if phase == "start" else options, x0=x0)
+        except (DatumDefectError, SingularError) as err:
+            if adj is None or tries >= 20:
+                raise
+            tries += 1
+            if x0 is not None and not restarted:
+                # singular after a long step from a distorted fit: again from the approximations
+                x0, restarted = None, True
+                continue
+            # the down-weighted observations leave some points or images undetermined: raise the
+            # floor of their observations (of all down-weighted ones if the error names none)
+            entities = entities or _cluster_entities(problem)
+            bad = _undetermined(err)
+            hit = np.array([bool(e & bad) for e in entities])
+            if not hit.any():
+                hit[:] = True
+            low = hit & (s * f < 10 * floor)
+            if not low.any():
+                raise
+            floor[low] = np.minimum(1.0, floor[low] * 10.0)
+            floored.append({"unknowns": sorted(bad), "floor": float(floor[low].max()), "iteration": it + 1})
+            continue
+        it += 1
+        restarted = False
+        x0 = adj.x
+        r = np.maximum(adj.r, 0.1)
+        u_obs = np.abs(adj.v) * np.sqrt(_per_observation(s, members, problem.n)) / (sigma * np.sqrt(r))
+        u = np.array([u_obs[m].max() for m in members])
+        if phase == "start":
+            new_f = huber(u, c_fun if method == "huber" else 2.0)
+        elif method == "huber":
+            new_f = huber(u, c_fun)
+        else:
+            new_f = danish(u, c_fun)
+        new_s = s
+        if method == "r84":
+            # the start weights only ever tend towards the a priori weights (g never decreases)
+            g = max(g, float(danish(global_score(adj.vPv, adj.dof), c_fun)))
+            new_s = start_factor(start, g)
+        change = float(np.abs(new_s * new_f - s * f).max())
+        history.append(change)
+        f, s = new_f, new_s
+        if phase == "start":
+            step = adj.history[-1] if adj.history else 0.0
+            if change < HUBER_START_TOL and step < START_STEP:
+                phase = "reweight"        # the geometry has settled: on with converged fits
+            continue
+        if change < tol:
+            converged = True
+            break
+    return adj, np.maximum(s * f, floor), u_obs, it, converged, tuple(history), tuple(floored)
+
+
+def _rows_in(keep: np.ndarray, rows) -> np.ndarray:
+    """Positions of the original observations ``rows`` in the subset ``keep`` (sorted)."""
+    return np.searchsorted(keep, np.asarray(rows))
+
+
+def cluster_tests(adj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """F80 eq. 12 for every covariance cluster of ``adj`` (H its selection: an image point, a
+    control point, a single observation): T = gᵀ W_s⁺ g, g = (Pv)_c, W_s = P_c C_vv,c P_c, and
+    q = rank W_s; and the largest w² = g_i² / (W_s)_ii of its members (Baarda's w, F80 §4.2,
+    for correlated observations). Returns (first member of each cluster, T, q, max w²), from
+    the cluster blocks of C_vv."""
+    first, T, q, w2 = [], [], [], []
+    Pv = adj.Pv
+    for members, C, Cvv in adj.cluster_cvv():
+        Pc = np.linalg.inv(C)
+        W = Pc @ Cvv @ Pc
+        W = 0.5 * (W + np.swapaxes(W, 1, 2))
+        lam, V = np.linalg.eigh(W)
+        tol = 1e-10 * np.maximum(np.abs(np.diagonal(Pc, axis1=1, axis2=2)).max(axis=1), 1e-300)
+        pos = lam > tol[:, None]
+        g = np.einsum("kji,kj->ki", V, Pv[members])
+        T.append(np.where(pos, g * g / np.where(pos, lam, 1.0), 0.0).sum(axis=1))
+        q.append(pos.sum(axis=1))
+        first.append(members[:, 0])
+        Wd = np.diagonal(W, axis1=1, axis2=2)
+        w2.append(np.where(Wd > tol[:, None], Pv[members] ** 2 / np.maximum(Wd, 1e-300), 0.0).max(axis=1))
+    first, T, q, w2 = np.concatenate(first), np.concatenate(T), np.concatenate(q), np.concatenate(w2)
+    order = np.argsort(first)
+    return first[order], T[order], q[order], w2[order]
+
+
+def _test_cluster(problem, members, clean, keep, options):
+    """F80 eq. 10-12 for cluster ``members`` left out of ``clean`` (the least-squares fit of the
+    observations ``keep``): the predicted error ∇̂ = l − f(x̂) and T = ∇̂ᵀ W_s ∇̂ with W_s of the
+    adjustment including it. W_s depends on the geometry only: it is taken at x̂ from the
+    adjustment with the cluster's observations set to their computed values f(x̂) (x̂ is then
+    its solution: one step, of zero length). Rejected where T exceeds its critical value or a
+    member's w = (W_s ∇̂)_i / √(W_s)_ii exceeds the w-test's, as in :func:`snoop_clusters`.
+    Returns (∇̂, T, q, critical T, rejected)."""
+    v = _residuals_at(problem, clean.x)[members]
+    nabla = -v
+    with_c = np.union1d(keep, members)
+    l_at = problem.l.copy()
+    l_at[members] = l_at[members] + v
+    one_step = dataclasses.replace(options, max_iter=1)
+    adj_c = adjust(subset(dataclasses.replace(problem, l=l_at), with_c), one_step, x0=clean.x)
+    h = hypotheses.test(adj_c, hypotheses.selection(adj_c.n, _rows_in(with_c, members)))
+    T = float(nabla @ h.W @ nabla)
+    Wn = h.W @ nabla
+    d = np.diag(h.W)
+    w2 = float(np.max(np.where(d > 0, Wn ** 2 / np.maximum(d, 1e-300), 0.0)))
+    crit = float(h.critical_T)
+    rejected = T > crit or w2 > float(adj_c.policy.critical_T(1))
+    return nabla, T, h.q, crit, rejected
+
+
+def _smallest_critical(adj, q: int) -> float:
+    """The smallest critical value of a test of up to ``q`` dimensions under ``adj``'s policy."""
+    return min(float(adj.policy.critical_T(j)) for j in range(1, q + 1))
+
+
+def _fit(problem, keep, options, x0):
+    return adjust(subset(problem, keep), options, x0=x0)
+
+
+def snoop_clusters(problem, keep, options, x0=None, point_of=None):
+    """Iterative data snooping over covariance clusters (M84 §3.1): each image point, control
+    point or single observation is tested as a whole (T of F80 eq. 12 against T_crit(q)) and per
+    member (Baarda's w against the w-test's critical value); the cluster with the largest ratio
+    of statistic to critical value above 1 is left out and the rest readjusted, until none is
+    rejected or leaving one out would leave a point undetermined. Returns (the final
+    adjustment, the kept observations, removed clusters)."""
+    cluster = problem.cov.cluster
+    removed = []
+    adj = _fit(problem, keep, options, x0)
+    while True:
+        first, T, q, w2 = cluster_tests(adj)
+        crit = np.array([float(adj.policy.critical_T(int(j))) if j > 0 else np.inf for j in q])
+        ratio = np.maximum(T / crit, w2 / float(adj.policy.critical_T(1)))
+        k = int(np.argmax(ratio))
+        if ratio[k] <= 1.0:
+            return adj, keep, removed
+        c = int(cluster[keep[first[k]]])
+        m = problem.cov.members[c]
+        if point_of is not None and point_of[c]:
+            left = [m_ for m_ in removed if point_of[int(cluster[m_[0]])] == point_of[c]] + [m]
+            if _determined(problem, left, point_of)[1]:
+                return adj, keep, removed      # the point would be undetermined: stop here
+        new_keep = np.setdiff1d(keep, m)
+        try:
+            adj = _fit(problem, new_keep, options, adj.x)
+        except (DatumDefectError, SingularError):
+            return adj, keep, removed
+        keep = new_keep
+        removed.append(m)
+
+
+def _point_of(problem) -> np.ndarray:
+    """Per covariance cluster: the object point it observes (image point) or holds (control
+    point), "" for other observations."""
+    out = []
+    for m in problem.cov.members:
+        d = problem.info.ids[m[0]]
+        k = problem.info.kind[m[0]]
+        out.append(str(d.get("point", "")) if k.startswith("image-") else
+                   str(d.get("id", "")) if k.startswith(NON_PHOTOGRAMMETRIC) else "")
+    return np.array(out, dtype=object)
+
+
+def _determined(problem, out, point_of):
+    """Split the left-out clusters ``out`` (most suspect first) into those that may stay out and
+    those that must go back: a point keeps its control or at least two rays, else the least
+    suspect of its left-out clusters go back in (without them the point is undetermined, and
+    nothing could test them)."""
+    cluster = problem.cov.cluster
+    kinds = problem.info.kind
+    cl_out = {int(cluster[m[0]]) for m in out}
+    back = []
+    for pt in {point_of[c] for c in cl_out} - {""}:
+        mine = np.flatnonzero(point_of == pt)
+        control_in = any(kinds[problem.cov.members[c][0]].startswith(NON_PHOTOGRAMMETRIC) and c not in cl_out
+                         for c in mine)
+        rays_in = sum(1 for c in mine if kinds[problem.cov.members[c][0]].startswith("image-") and c not in cl_out)
+        if control_in or rays_in >= 2:
+            continue
+        for m in reversed(out):                        # the least suspect first
+            c = int(cluster[m[0]])
+            if point_of[c] == pt and kinds[m[0]].startswith("image-") and c in cl_out:
+                back.append(c)
+                cl_out.discard(c)
+                rays_in += 1
+                if rays_in >= 2:
+                    break
+    stay = [m for m in out if int(cluster[m[0]]) not in back]
+    return stay, [m for m in out if int(cluster[m[0]]) in back]
+
+
+def _confirm(problem, candidates, options, x0):
+    """Step 3 (module docstring). ``candidates``: clusters (arrays of observation indices) put
+    forward by the robust fit, most suspect first. Returns (suspect clusters with their tests,
+    the final least squares, readmitted clusters)."""
+    out = [np.asarray(m) for m in candidates]
+    readmitted = []
+    final = None
+    point_of = _point_of(problem)
+    for _ in range(MAX_CONFIRM_PASSES):
+        out, back = _determined(problem, out, point_of)
+        readmitted += back
+        drop = np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+        keep = np.setdiff1d(np.arange(problem.n), drop)
+        while True:
+            try:
+                if keep.size == 0:
+                    raise DatumDefectError(0, [], "every observation is a candidate")
+                clean = _fit(problem, keep, options, x0)
+                break
+            except (DatumDefectError, SingularError):
+                if not out:
+                    raise
+                # leaving all candidates out leaves part of the model undetermined: the least
+                # suspect goes back in (it cannot be tested against a fit that does not determine it)
+                readmitted.append(out.pop())
+                keep = np.union1d(keep, readmitted[-1])
+        x0 = clean.x
+        v_all = _residuals_at(problem, clean.x)
+        kept_out, back = [], []
+        for m in out:
+            # T ≤ ∇̂ᵀ C_c⁻¹ ∇̂ (W_s ≤ C_c⁻¹): a candidate whose bound is below every critical
+            # value goes back without a test
+            c = int(problem.cov.cluster[m[0]])
+            bound = float(v_all[m] @ np.linalg.solve(np.asarray(problem.cov.blocks[c]), v_all[m]))
+            if bound <= _smallest_critical(clean, m.size):
+                back.append(m)
+                continue
+            rejected = _test_cluster(problem, m, clean, keep, options)[4]
+            (kept_out if rejected else back).append(m)
+        readmitted += back
+        keep = np.setdiff1d(np.arange(problem.n), np.concatenate(kept_out)) if kept_out else np.arange(problem.n)
+        # data snooping on the cleaned set: what the robust weights missed
+        final, keep, found = snoop_clusters(problem, keep, options, x0, point_of)
+        out = kept_out + found
+        if not found and not back:
+            break
+        x0 = final.x
+    tested = [(m, *_test_cluster(problem, m, final, keep, options)) for m in out]
+    return tested, final, readmitted
+
+
+def estimate(problem, method: str = "r84", options: Options | None = None, tol: float = 1e-3,
              max_iter: int = 100, min_size: float = 4.0, medium_base: float = 2.5,
              k: float | None = None) -> RobustResult:
-    """IRLS with ``method`` (huber, danish, r84).
+    """Robust estimation with ``method`` (huber, danish, r84): R84's three steps (module docstring).
 
-    Suspects are the clusters (image points, vectors, single observations) whose normalised
-    residual u in the robust fit exceeds the w-test's critical value, whose estimated error is at
-    least ``min_size`` σ (R84 §6: below 4σ errors are random) and — for the redescending methods,
-    which separate errors sharply — whose weight the method halved at least.
+    Suspects are the clusters (image points, control points, single observations) that the
+    least-squares test of step 3 confirms, with an estimated error of at least ``min_size`` σ
+    (R84 §6: below 4σ errors are random), each with its R84 class.
     """
     if method not in METHODS:
         raise BaardaError(f"unknown robust method '{method}' (known: {', '.join(METHODS)})")
     options = options or Options()
-    cov = problem.cov
-    sigma = cov.sigma()
-    members = cov.members
-    nonphoto = np.array([k_.startswith(NON_PHOTOGRAMMETRIC) for k_ in problem.info.kind])
-    start = np.ones(len(members))
-    if method == "r84":
-        start = np.array([0.01 if nonphoto[m[0]] else 1.0 for m in members])
-    f = start.copy()
-    x0 = None
-    adj = None
-    converged = False
-    history = []
-    it = 0
-    r0 = None
-    phase = "huber"
-    for it in range(1, max_iter + 1):
-        p = dataclasses.replace(problem, cov=cov.scaled(1.0 / np.maximum(f, WEIGHT_FLOOR)))
-        adj = adjust(p, options, x0=x0)
-        x0 = adj.x
-        if r0 is None:
-            r0 = np.maximum(adj.r, 0.1)
-        u_obs = np.abs(adj.v) / (sigma * np.sqrt(r0))
-        u = np.array([u_obs[m].max() for m in members])
-        if method == "huber" or (phase == "huber"):
-            new = huber(u, 2.0 if method != "huber" else (k or 2.0))
-            if method != "huber" and float(np.abs(new - f).max()) < HUBER_START_TOL:
-                phase = "redescending"     # Huber has settled: switch to the Danish function
-                history.append(float(np.abs(new - f).max()))
-                f = new
-                continue
-        elif method == "danish":
-            new = danish(u, k or 3.0)
-        else:
-            # R84: the ramp of the current iteration sets the σ the residuals are judged with,
-            # so that control held loosely at first is not mistaken for erroneous control
-            ramp_now = np.minimum(1.0, start * 10.0 ** (it - 1))
-            ramp = np.minimum(1.0, start * 10.0 ** it)
-            new = danish(u * np.sqrt(ramp_now), k or 3.0) * ramp
-        change = float(np.abs(new - f).max())
-        history.append(change)
-        f = new
-        if change < tol:
-            converged = True
-            break
-    w_obs = np.empty(problem.n)
-    for c, m in enumerate(members):
-        w_obs[m] = f[c]
-    base = _image_base(problem)
+    adj, f, u_obs, it, converged, history, floored = _irls(problem, method, options, tol, max_iter, k)
+    members = problem.cov.members
+    w_obs = _per_observation(f, members, problem.n)
     crit = adj.critical_w
+    cand = [(float(u_obs[m].max()), c) for c, m in enumerate(members) if u_obs[m].max() > crit]
+    cand.sort(reverse=True)
+    candidates = [members[c] for _, c in cand]
+    tested, final, readmitted = _confirm(problem, candidates, options, adj.x)
+    b_img, B = _bases(problem)
+    kinds = problem.info.kind
+    sigma_c = problem.cov.blocks
     suspects = []
-    image_kind = np.array([k_.startswith("image-") for k_ in problem.info.kind])
-    u_obs = np.abs(adj.v) / (sigma * np.sqrt(r0))
-    for c, m in enumerate(members):
-        i = int(m[np.argmax(u_obs[m])])
-        if u_obs[i] <= crit or (method != "huber" and w_obs[i] >= 0.5):
-            continue
-        # the error estimate: the residual itself once downweighted, else v/r (F80 eq. 10)
-        err_m = np.abs(adj.v[m]) / (1.0 if w_obs[i] < 0.5 else r0[m])
-        j = int(np.argmax(err_m / sigma[m]))
-        err = float(err_m[j])
-        size = float(err / sigma[m[j]])
+    for m, nabla, T, q, crit_T, _ in tested:
+        c = int(problem.cov.cluster[m[0]])
+        C = np.asarray(sigma_c[c])
+        size = float(np.sqrt(max(nabla @ np.linalg.solve(C, nabla), 0.0)))
         if size < min_size:
             continue
-        size_base = float(err / base) if (base and image_kind[i]) else None
-        suspects.append({"index": i, "members": [int(j) for j in m], "kind": problem.info.kind[i],
+        kind = kinds[m[0]]
+        base = b_img if kind.startswith("image-") else (B if kind.startswith(NON_PHOTOGRAMMETRIC) else None)
+        size_base = float(np.linalg.norm(nabla) / base) if base else None
+        i = int(m[np.argmax(np.abs(nabla) / np.sqrt(np.diag(C)))])
+        suspects.append({"index": i, "members": [int(j) for j in m], "kind": kinds[i],
                          "ids": problem.info.ids[i], "weight": float(w_obs[i]),
-                         "residual": float(adj.v[i]), "statistic": float(u_obs[i]), "size_sigma": size,
-                         "size_base": size_base, "class": error_class(size, size_base, medium_base)})
+                         "residual": float(adj.v[i]), "statistic": float(u_obs[i]),
+                         "nabla": [float(v) for v in nabla], "T": T, "q": int(q), "critical_T": crit_T,
+                         "size_sigma": size, "size_base": size_base,
+                         "class": error_class(size, size_base, medium_base)})
     suspects.sort(key=lambda d: -d["size_sigma"])
-    out = sorted(j for d in suspects for j in d["members"])
-    keep = np.setdiff1d(np.arange(problem.n), out)
-    final = None
-    if 0 < keep.size < problem.n:      # every observation suspect: nothing left to adjust
-        try:
-            final = adjust(subset(problem, keep), options, x0=adj.x)
-        except BaardaError:
-            final = None
-    return RobustResult(method, w_obs, adj, it, converged, suspects, final, tuple(history))
+    return RobustResult(method, w_obs, adj, it, converged, suspects, final, history, floored,
+                        len(candidates), tuple(tuple(int(j) for j in m) for m in readmitted))

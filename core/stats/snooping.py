@@ -4,7 +4,11 @@ Test every observation with w (σ0 a priori) or τ (σ0 a posteriori); if the la
 exceeds its critical value, remove that observation, readjust and test again, until nothing is
 rejected (or the redundancy would fall below ``min_dof``). Each step is logged: which
 observation, its statistic, the estimated error ∇̂ = −(Pv)_i/(P C_vv P)_ii (the w-test's ∇ŝ of
-F80 eq. 10 for H = e_i; −v_i/r_i for an uncorrelated observation), and σ̂0 before and after. With ``b_method`` the critical value is Baarda's
+F80 eq. 10 for H = e_i; −v_i/r_i for an uncorrelated observation), σ̂0 before and after, and its
+*twins*: the observations whose w-test is (near-)perfectly correlated with the removed one's
+(|ρ| ≥ 0.99, :func:`baarda.stats.separability.twins`; F80 §7.4, M84 §3.3) — the two images of a
+2-ray point, say. The data cannot tell an error in the removed observation from one in a twin: the
+largest |w| picks one of them by round-off. With ``b_method`` the critical value is Baarda's
 consistent one (the 1D test's α0), as for the single pass.
 
 The "find the error" view (``leave_one_out``) shows how σ̂0 changes when each suspect is left out
@@ -20,6 +24,7 @@ import numpy as np
 from ..adjust import Options, adjust
 from ..errors import BaardaError
 from ..model.problem import subset
+from .separability import THRESHOLD, twins
 
 
 @dataclass(frozen=True)
@@ -30,6 +35,8 @@ class SnoopStep:
     nabla: float              # estimated error −(Pv)_i / (P C_vv P)_ii (SI units; F80 eq. 10)
     sigma0_before: float
     sigma0_after: float
+    twins: tuple[int, ...] = ()          # observations (original indices) with |ρ| ≥ 0.99 to the removed one
+    twin_rho: tuple[float, ...] = ()     # their correlations ρ with the removed one's w (F80 §7.4)
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,8 +84,10 @@ def iterate(problem, options: Options | None = None, use_tau: bool = False, max_
             new = adjust(reduced, options, x0=x, progress=inner)
         except BaardaError:
             break          # removing it would leave part of the model undetermined: stop here
+        tw = twins(adj, i, THRESHOLD)
         steps.append(SnoopStep(int(kept[i]), float(stat[i]), float(crit), nabla,
-                               float(adj.sigma0_post), float(new.sigma0_post)))
+                               float(adj.sigma0_post), float(new.sigma0_post),
+                               tuple(int(kept[j]) for j, _ in tw), tuple(rho for _, rho in tw)))
         kept = kept[keep_local]
         adj, x = new, new.x
         if progress is not None:

@@ -145,9 +145,13 @@ class ComponentEstimate:
     iterations: int
     converged: bool
     adjustment: object
+    #: components held at 0 because their estimate was not positive (the constrained estimate)
+    at_zero: tuple = ()
+    notes: tuple = ()
 
     def as_dict(self) -> list[dict]:
-        return [{"component": n, "theta": float(t), "redundancy": float(r), "std_error": float(s)}
+        return [{"component": n, "theta": float(t), "redundancy": float(r),
+                 "std_error": None if n in self.at_zero else float(s), "at_zero": n in self.at_zero}
                 for n, t, r, s in zip(self.names, self.theta, self.redundancy, self.std_error)]
 
 
@@ -184,6 +188,19 @@ def _helmert_step(adj, components, names, problem):
 
 
 
+#: a component whose estimate is ≤ 0 this many steps in a row is held at 0
+NONPOSITIVE_STEPS = 3
+
+
+def _positive_definite(components, names, theta, ncl) -> bool:
+    """Whether Σ_j θ_j C_j is positive definite in every cluster."""
+    for c in range(ncl):
+        C = sum(t * np.asarray(components[n][c]) for t, n in zip(theta, names))
+        if np.linalg.eigvalsh(np.atleast_2d(C)).min() <= 0:
+            return False
+    return True
+
+
 def estimate_components(problem, components: dict[str, tuple], theta0=None, options: Options | None = None,
                         tol: float = 1e-5, max_iter: int = 100, dense_max: int = 4000) -> ComponentEstimate:
     """Iterated estimation of additive variance components (F80 eq. 9).
@@ -194,6 +211,11 @@ def estimate_components(problem, components: dict[str, tuple], theta0=None, opti
     nearly collinear components such as the radial model's a² and b²c²), with the standard errors
     √(2 (S⁻¹)_jj). Above, F80's form with Q_j = θ_j C_j:  θ_j ← θ_j · vᵀPQ_jPv / tr(C_vv P Q_j P),
     which needs only cluster blocks of C_vv but converges slowly for correlated components.
+
+    A component whose full estimate stays ≤ 0 for :data:`NONPOSITIVE_STEPS` steps is held at 0
+    and the others are estimated without it (the estimate constrained to θ_j ≥ 0; ``at_zero``
+    and ``notes`` of the result say so), as long as the remaining components keep every cluster's
+    covariance positive definite; otherwise a BaardaError says which estimate is not positive.
     """
     names = tuple(components)
     ncl = len(problem.cov.members)
@@ -201,12 +223,14 @@ def estimate_components(problem, components: dict[str, tuple], theta0=None, opti
         if len(blocks) != ncl:
             raise BaardaError(f"variance component '{name}': {len(blocks)} blocks for {ncl} clusters")
     theta = np.ones(len(names)) if theta0 is None else np.asarray(theta0, dtype=float).copy()
-    sizes = np.array([m.size for m in problem.cov.members])
     x0 = None
     adj = None
     converged = False
     it = 0
     red = np.zeros(len(names))
+    active = list(range(len(names)))      # the components estimated (others held at 0)
+    nonpositive = np.zeros(len(names), dtype=int)
+    at_zero, notes = [], []
     for it in range(1, max_iter + 1):
         blocks = tuple(sum(t * np.asarray(components[n][c]) for t, n in zip(theta, names)) for c in range(ncl))
         cov = dataclasses.replace(problem.cov, blocks=blocks)
@@ -214,19 +238,42 @@ def estimate_components(problem, components: dict[str, tuple], theta0=None, opti
         adj = adjust(p, options, x0=x0)
         x0 = adj.x
         if problem.n <= dense_max:
-            new_theta, se, red = _helmert_step(adj, components, names, problem)
-            red = red * theta          # tr(C_vv P Q_j P) with Q_j = θ_j C_j of this adjustment
-            if (new_theta <= 0).any():
-                if it >= max_iter // 2:
-                    bad = [f"{n} = {t:.3g}" for n, t in zip(names, new_theta) if t <= 0]
-                    raise BaardaError(f"variance components: estimate {', '.join(bad)} is not positive "
+            act = [names[j] for j in active]
+            est, se_a, red_a = _helmert_step(adj, components, act, problem)
+            new_theta = theta.copy()
+            new_theta[active] = est
+            se = np.full(len(names), np.nan)
+            se[active] = se_a
+            red = np.zeros(len(names))
+            red[active] = red_a * theta[active]   # tr(C_vv P Q_j P) with Q_j = θ_j C_j of this adjustment
+            bad = [j for j in active if new_theta[j] <= 0]
+            nonpositive[bad] += 1
+            nonpositive[[j for j in active if j not in bad]] = 0
+            stuck = [j for j in bad if nonpositive[j] >= NONPOSITIVE_STEPS]
+            if stuck and len(active) > len(stuck):
+                held = theta.copy()
+                held[stuck] = 0.0
+                if _positive_definite(components, names, held, ncl):
+                    # the constrained estimate: a component whose estimate stays ≤ 0 is held at
+                    # 0 (the data show none of it under this model) and the others re-estimated
+                    for j in stuck:
+                        notes.append(f"{names[j]} = {new_theta[j]:.3g} is not positive in {nonpositive[j]} "
+                                     f"steps: held at 0 (the data show none of it under this model)")
+                        at_zero.append(names[j])
+                        active.remove(j)
+                    theta = held
+                    continue
+            if bad:
+                if it >= max_iter // 2 or stuck:
+                    txt = [f"{names[j]} = {new_theta[j]:.3g}" for j in bad]
+                    raise BaardaError(f"variance components: estimate {', '.join(txt)} is not positive "
                                       "(the model does not fit, or the component is not determinable)")
-                new_theta = np.maximum(new_theta, 0.1 * theta)   # keep C positive definite, go on
-            change = np.abs(new_theta / theta - 1.0).max()
+                new_theta[bad] = 0.1 * theta[bad]          # keep C positive definite, go on
+            change = np.abs(new_theta[active] / theta[active] - 1.0).max()
             theta = new_theta
             if change < tol:
                 converged = True
-                return ComponentEstimate(names, theta, red, se, it, converged, adj)
+                return ComponentEstimate(names, theta, red, se, it, converged, adj, tuple(at_zero), tuple(notes))
             continue
         Pv = adj.Pv
         num = np.zeros(len(names))
@@ -249,23 +296,59 @@ def estimate_components(problem, components: dict[str, tuple], theta0=None, opti
         if np.abs(factor - 1.0).max() < tol:
             converged = True
             break
-    del sizes
     return ComponentEstimate(names, theta, red, theta * np.sqrt(2.0 / red), it, converged, adj)
 
 
-def radial_components(problem) -> dict[str, tuple]:
+#: the radial variance model's structures of the b²c² component (:func:`radial_components`)
+RADIAL_STRUCTURES = ("radial", "isotropic")
+
+
+def radial_cofactor(dx: float, dy: float, c: float, structure: str = "radial") -> np.ndarray:
+    r"""The 2 × 2 cofactor of (x, y) that the ray's angular σ b contributes, per unit b² (F80 §2.1).
+
+    F80 §2.1: σ_r² = a² + b² c² / cos⁴α is the variance of the *radial* component of an image
+    point; b is the standard deviation of the ray's angle α to the optical axis. Derivation: the
+    image point lies at the radial distance ρ = c tan α from the principal point, in the
+    direction u = (dx, dy) / ρ. An error dα of the angle moves it along u by
+    dρ = c / cos²α · dα, so its contribution to (x, y) is u · c/cos²α · dα with the variance
+    b² c² / cos⁴α · u uᵀ (rank 1; the tangential component gets nothing from b), and
+
+    .. math::  C_{xy} = a^2 I + \frac{b^2 c^2}{\cos^4\alpha}\, u u^T,
+               \qquad \frac{1}{\cos^4\alpha} = \Big(\frac{c^2 + \rho^2}{c^2}\Big)^2 .
+
+    Returned: (1/cos⁴α) u uᵀ, the cofactor of the component θ = b²c² (the unit of the image
+    coordinates squared). At the principal point (ρ = 0) u is undefined; the mean of u uᵀ over
+    all directions, I/2, is taken there.
+
+    ``structure="isotropic"``: (1/cos⁴α) I, b²c²/cos⁴α on x and y alike (baarda ≤ 0.x's reading,
+    which gives the tangential component the radial variance too).
+    dx, dy: image coordinates relative to the principal point; c: principal distance (same unit).
+    """
+    if structure not in RADIAL_STRUCTURES:
+        raise BaardaError(f"unknown radial structure '{structure}' (known: {', '.join(RADIAL_STRUCTURES)})")
+    rho2 = dx * dx + dy * dy
+    inv_cos4 = ((c * c + rho2) / (c * c)) ** 2
+    if structure == "isotropic":
+        return inv_cos4 * np.eye(2)
+    if rho2 <= (1e-12 * c) ** 2:
+        return inv_cos4 * 0.5 * np.eye(2)
+    u = np.array([dx, dy]) / np.sqrt(rho2)
+    return inv_cos4 * np.outer(u, u)
+
+
+def radial_components(problem, structure: str = "radial") -> dict[str, tuple]:
     """The radial model σ_r² = a² + b² c² / cos⁴α of F80 §2.1 for the image observations of a block.
 
-    Components: ``a²`` (C = I on image coordinates), ``b²c²`` (C = diag(1/cos⁴α), α the angle of the
-    ray to the optical axis, cos²α = c² / (c² + ρ²), ρ the radial distance of the observed point
-    from the principal point), and ``other`` (the a priori covariance of every non-image cluster,
-    e.g. control). Each 2 × 2 image cluster gets diagonal blocks.
+    Components: ``a²`` (C = I on image coordinates), ``b²c²`` (C = (1/cos⁴α) u uᵀ, u the radial
+    unit vector of the observed point, α the angle of the ray to the optical axis,
+    cos²α = c² / (c² + ρ²), ρ the radial distance from the principal point:
+    :func:`radial_cofactor` derives it; ``structure="isotropic"``: (1/cos⁴α) I), and ``other``
+    (the a priori covariance of every non-image cluster, e.g. control). Each image cluster gets
+    its 2 × 2 block (the rows and columns of its members' components).
     """
-    blk = problem.extra.get("block") if problem.extra else None
-    if not blk or "camera" not in blk:
+    geo = problem.geometry
+    if geo is None or not geo.cameras or any(c.c is None for c in geo.cameras):
         raise BaardaError("the radial variance model needs a block with a camera (principal distance)")
-    cams = {c["id"]: c for c in blk.get("cameras", [blk["camera"]])}
-    img_cam = {im["id"]: im.get("camera", blk["camera"]["id"]) for im in blk["images"]}
     info = problem.info
     kinds = info.kind
     a2, b2, other = [], [], []
@@ -273,12 +356,13 @@ def radial_components(problem) -> dict[str, tuple]:
         m = idx.size
         if all(kinds[i].startswith("image-") for i in idx):
             ids = info.ids[idx[0]]
-            cam = cams[img_cam[ids["image"]]]
-            xy = {info.ids[i]["component"]: problem.l[i] for i in idx}
-            rho2 = (xy.get("x", cam["x0"]) - cam["x0"]) ** 2 + (xy.get("y", cam["y0"]) - cam["y0"]) ** 2
-            inv_cos4 = ((cam["c"] ** 2 + rho2) / cam["c"] ** 2) ** 2
+            cam = geo.camera_of(ids["image"])
+            comp = [info.ids[i]["component"] for i in idx]
+            xy = dict(zip(comp, problem.l[idx]))
+            Cb = radial_cofactor(xy.get("x", cam.x0) - cam.x0, xy.get("y", cam.y0) - cam.y0, cam.c, structure)
+            sel = ["xy".index(k) for k in comp]
             a2.append(np.eye(m))
-            b2.append(np.eye(m) * inv_cos4)
+            b2.append(Cb[np.ix_(sel, sel)])
             other.append(np.zeros((m, m)))
         else:
             a2.append(np.zeros((m, m)))

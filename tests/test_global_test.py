@@ -1,0 +1,155 @@
+"""The global test (F80 §4.1, §7.2; B68): one-sided at the B-method's α_r by default, gama-local's
+two-sided interval at conf-pr on request; a low value is σ0 a priori too pessimistic.
+
+The critical values are computed here from the paper's definitions with scipy's χ² and
+non-central χ² and a root finder of this file, not through baarda's distributions module:
+λ0 = δ0² solves P(χ'²(1, λ0) > χ²_{1−α0}(1)) = β0, and α_r solves
+P(χ'²(r, λ0) > χ²_{1−α_r}(r)) = β0 (the same λ0 and β0 as the 1D test, F80 §7.2).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from scipy import optimize
+from scipy import stats as sps
+
+from baarda.adjust import Options, adjust
+from baarda.build import read_problem
+from baarda.cli import main
+from baarda.dashboard.state import State
+from baarda.dashboard.views import Controls
+from baarda.dashboard.views.summary import summary_html
+from baarda.io.results import summary
+from baarda.stats import distributions
+from baarda.stats.reliability import Reliability
+
+from extdata import GAMA, require_extdata
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+WOLF = GAMA / "krumm" / "2D" / "Wolf_DistanceDirectionAngle_free.gkf"
+
+
+def lambda0(alpha0: float, beta0: float) -> float:
+    c = sps.chi2.isf(alpha0, 1)
+    return optimize.brentq(lambda lam: sps.ncx2.sf(c, 1, lam) - beta0, 1e-6, 200.0, xtol=1e-13)
+
+
+def alpha_r(alpha0: float, beta0: float, r: int) -> float:
+    lam = lambda0(alpha0, beta0)
+    return optimize.brentq(lambda a: sps.ncx2.sf(sps.chi2.isf(a, r), r, lam) - beta0, 1e-12, 0.999,
+                           xtol=1e-15)
+
+
+def test_b_method_alpha_of_the_global_test_from_the_definition():
+    a14 = alpha_r(0.001, 0.80, 14)
+    assert a14 == pytest.approx(0.0664, abs=5e-5)            # issue 14: α₁₄ = 6.64 %
+    g = distributions.global_test(2.33, 14, test="one-sided", alpha=a14)
+    assert g["upper"] == pytest.approx(sps.chi2.isf(a14, 14), rel=1e-12)
+    assert g["lower"] == pytest.approx(sps.chi2.ppf(a14, 14), rel=1e-12)
+
+
+def test_one_sided_rejects_only_the_high_side():
+    a = 0.05
+    hi, lo = sps.chi2.isf(a, 6), sps.chi2.ppf(a, 6)
+    high = distributions.global_test(hi * 1.01, 6, test="one-sided", alpha=a)
+    low = distributions.global_test(lo * 0.5, 6, test="one-sided", alpha=a)
+    mid = distributions.global_test(6.0, 6, test="one-sided", alpha=a)
+    assert (high["passed"], high["side"]) == (False, "high")
+    assert (low["passed"], low["side"]) == (True, "low") and "too pessimistic" in low["verdict"]
+    assert (mid["passed"], mid["side"], mid["verdict"]) == (True, None, "accepted")
+    two = distributions.global_test(lo * 0.01, 6, 0.95)
+    assert (two["passed"], two["side"], two["test"]) == (False, "low", "two-sided")
+    assert "too pessimistic" in two["verdict"]
+    with pytest.raises(ValueError):
+        distributions.global_test(1.0, 6, test="both")
+
+
+def test_wolf_free_network_passes_one_sided_and_fails_two_sided_low(tmp_path, capsys):
+    """Wolf's free network: Ω/σ0² = 2.33, r = 14. One-sided at α₁₄ = 6.64 % it passes; gama-local's
+    interval at 0.95 starts at 5.63, so two-sided it fails — on the low side: σ0 a priori is too
+    pessimistic, not an error in the data."""
+    require_extdata(WOLF)
+    adj = adjust(read_problem(WOLF))
+    assert adj.dof == 14 and adj.vPv == pytest.approx(2.33, abs=0.005)
+    a14 = alpha_r(0.001, 0.80, 14)
+    g = adj.global_test
+    assert (g["test"], g["passed"], g["side"]) == ("one-sided", True, "low")
+    assert g["alpha"] == pytest.approx(a14, rel=1e-8)
+    assert g["upper"] == pytest.approx(sps.chi2.isf(a14, 14), rel=1e-8)
+    two = Reliability(adj, replace(adj.policy, global_test="two-sided")).global_test
+    assert two["lower"] == pytest.approx(sps.chi2.ppf(0.025, 14), rel=1e-12)
+    assert round(two["lower"], 2) == 5.63
+    assert (two["passed"], two["side"]) == (False, "low")
+    out = tmp_path / "w.json"
+    assert main(["analyze", str(WOLF), "--json", str(out), "--top", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "one-sided" in text and "6.64 %" in text and "σ0 a priori too pessimistic" in text
+    doc = json.loads(out.read_text())["summary"]["global_test"]
+    assert (doc["test"], doc["passed"], doc["side"]) == ("one-sided", True, "low")
+    assert main(["analyze", str(WOLF), "--global-test", "two-sided", "--json", str(out), "--top", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "two-sided at conf-pr 0.95" in text and "FAILED: σ0 a priori too pessimistic" in text
+    doc = json.loads(out.read_text())["summary"]["global_test"]
+    assert (doc["test"], doc["passed"], doc["side"]) == ("two-sided", False, "low")
+    assert doc["alpha"] == pytest.approx(0.05)
+
+
+def test_demo_levelling_verdict(tmp_path):
+    """The demo levelling network (r = 5, α0 = 0.1 %, β0 = 80 %): the one-sided test at α₅ and the
+    two-sided interval at 0.95 both reject vᵀPv on the high side (the planted 1 cm error)."""
+    adj = adjust(read_problem(DATA / "demo-levelling.gkf"))
+    r, T = adj.dof, adj.vPv
+    a5 = alpha_r(0.001, 0.80, r)
+    assert r == 5
+    g = adj.global_test
+    assert g["alpha"] == pytest.approx(a5, rel=1e-8)
+    assert g["upper"] == pytest.approx(sps.chi2.isf(a5, r), rel=1e-8)
+    assert T > sps.chi2.isf(a5, r)
+    assert (g["passed"], g["side"]) == (False, "high") and "too large" in g["verdict"]
+    two = Reliability(adj, replace(adj.policy, global_test="two-sided")).global_test
+    assert two["upper"] == pytest.approx(sps.chi2.isf(0.025, r), rel=1e-12)
+    assert (two["passed"], two["side"]) == (T <= sps.chi2.isf(0.025, r), "high")
+
+
+def test_global_test_option_reaches_the_policy():
+    o = Options(global_test="two-sided")
+    adj = adjust(read_problem(DATA / "demo-levelling.gkf"), o)
+    assert adj.global_test["test"] == "two-sided" and adj.global_test["alpha"] == pytest.approx(0.05)
+
+
+def test_dashboard_summary_says_which_test(tmp_path):
+    """The summary card names the test, its α and critical value(s), and a low value as σ0 a
+    priori too pessimistic (not as a failure of the data)."""
+    adj = adjust(read_problem(DATA / "demo-levelling.gkf"))
+    s = {**summary(adj), "n_uncontrolled": 0, "n_weak": 0, "n_excluded": 0, "n_points": 8}
+    html = summary_html(s)
+    assert "one-sided, B-method α = 1.3 %" in html and f"≤ {adj.global_test['upper']:.4g}" in html
+    low = {**s, "global_test": distributions.global_test(0.5, 5, 0.95)}
+    html = summary_html(low)
+    assert "two-sided at conf-pr 0.95" in html and "FAILED: σ0 a priori too pessimistic" in html
+
+
+def test_report_follows_the_command_lines_global_test(tmp_path):
+    out = tmp_path / "r.html"
+    assert main(["report", str(DATA / "demo-levelling.gkf"), "-o", str(out), "--quiet", "--global-test", "two-sided"]) == 0
+    html = out.read_text()
+    assert "two-sided at conf-pr 0.95" in html and "one-sided, B-method" not in html
+    assert main(["report", str(DATA / "demo-levelling.gkf"), "-o", str(out), "--quiet"]) == 0
+    assert "one-sided, B-method α = 1.3 %" in out.read_text()
+
+
+def test_dashboard_control_switches_the_global_test():
+    """The sidebar's global-test select drives the state's policy: the reliability is rebuilt over
+    the same result (nothing solved again) and the summary says which test."""
+    adj = adjust(read_problem(DATA / "demo-levelling.gkf"))
+    st = State.from_adjustment(adj)
+    c = Controls(state=st)
+    assert st.summary()["global_test"]["test"] == "one-sided"
+    c.global_test.value = "two-sided"
+    assert st.results is adj and st.reliability.policy.global_test == "two-sided"
+    g = st.summary()["global_test"]
+    assert g["test"] == "two-sided" and g["upper"] == pytest.approx(sps.chi2.isf(0.025, 5), rel=1e-12)

@@ -1,0 +1,112 @@
+"""Misidentified and exchanged points (F80 §7.1): linear test against the dense formulas, q = 0 said,
+a 9,000σ exchange iterated to the adjustment without it."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from importlib import resources
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+from oracle import dense, pcp
+
+from baarda.adjust import adjust
+from baarda.cli import main
+from baarda.build import read_problem
+from baarda.model.bundle import build_block_problem, image_rows
+from baarda.simulate import simulate_block
+from baarda.stats.hypotheses import h_exchanged
+from baarda.stats.misidentification import LINEAR_LIMIT_SIGMA, exchange_test
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+@pytest.fixture(scope="module")
+def demo():
+    p = read_problem(DATA / "demo-block.json")
+    return p, adjust(p)
+
+
+def test_linear_statistic_against_dense(demo):
+    """T = (hᵀPv)² / hᵀP C_vv P h, ∇ŝ = −hᵀPv / hᵀP C_vv P h (F80 eq. 10, 12, q = 1), dense."""
+    p, adj = demo
+    t = exchange_test(adj, "204", "P03004", "P03005")
+    d = dense(adj)
+    h = h_exchanged(adj, "204", "P03004", "P03005").toarray().ravel()
+    g = h @ d.P @ d.v
+    W = h @ d.P @ d.Cvv @ d.P @ h
+    assert t.linear.T == pytest.approx(g * g / W, rel=1e-6)
+    assert t.linear.nabla[0] == pytest.approx(-g / W, rel=1e-6, abs=1e-9)
+    ra, rb = image_rows(p, "204", "P03004"), image_rows(p, "204", "P03005")
+    assert t.size_sigma == pytest.approx(np.abs(adj.f[rb] - adj.f[ra]).max() / 0.005, rel=1e-9)
+    # points 90 mm apart: ~18,000 σ, far beyond the linear range; not exchanged: the refit with the two
+    # measurements swapped is much worse, and the test keeps the linear branch (s ≈ 0, not rejected)
+    assert t.size_sigma > LINEAR_LIMIT_SIGMA and t.iterated
+    assert t.omega1 > 1e3 * t.omega0
+    assert t.T == t.linear.T and abs(t.s_hat) < 1e-3 and not t.rejected
+
+
+def test_large_exchange_is_iterated_to_the_adjustment_without_it(demo):
+    """Swap two points (~9,200 σ apart) in image 204 of the demo: the adjustment with the swap does
+    not converge and has no linear test; the iterated test readjusts with the swap undone — which is
+    the demo itself, so Ω1 is the demo's vᵀPv — and finds ŝ ≈ 1 (the full exchange), rejected."""
+    p, adj = demo
+    ra, rb = image_rows(p, "204", "P02004"), image_rows(p, "204", "P03004")
+    l = p.l.copy()
+    l[ra], l[rb] = p.l[rb], p.l[ra]
+    bad = adjust(dataclasses.replace(p, l=l))
+    t = exchange_test(bad, "204", "P02004", "P03004")
+    assert t.size_sigma > 9000 and t.iterated and t.testable
+    assert t.omega1 == pytest.approx(adj.vPv, rel=1e-6)
+    assert t.s_hat == pytest.approx(1.0, abs=1e-3)
+    assert t.rejected and t.T == pytest.approx(t.omega0 - t.omega1 + t.T1, rel=1e-12)
+    d = t.as_dict()
+    assert d["iterated"] and not d["linear_range"] and d["T_linear"] is None      # no factor at the diverged solution
+
+
+def test_untestable_exchange_is_said():
+    """In a flat, regular one-strip design block the exchange of two 2-ray points across the strip is
+    reproduced by the unknowns: hᵀP C_vv P h = 0 (dense), q = 0 — reported, not tested."""
+    block, _ = simulate_block(strips=1, images_per_strip=4, design=True, attitude_sigma=0.0, relief=0.0,
+                              position_sigma=0.0, approx_sigma=0.0, seed=1)
+    adj = adjust(build_block_problem(block))
+    t = exchange_test(adj, "101", "P00001", "P02001")
+    assert not t.testable and t.linear is None and not t.rejected
+    assert "not testable (q = 0)" in t.message
+    S, P = pcp(adj), dense(adj).P
+    h = h_exchanged(adj, "101", "P00001", "P02001").toarray().ravel()
+    assert h @ S @ h < 1e-10 * (h @ P @ h)
+    ok = exchange_test(adj, "101", "P00001", "P01001")
+    assert ok.testable
+
+
+def test_cli_exchange_and_misidentified(tmp_path, capsys):
+    out = tmp_path / "r.json"
+    code = main(["analyze", str(DATA / "demo-block.json"), "--exchange", "204:P03004:P03005",
+                 "--misidentified", "101:P00001:P01001", "--json", str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "exchange of P03004/P03005 in image 204 (F80 §7.1)" in text and "accepted" in text
+    assert "far from 1" in text                 # the misidentification rejects with ŝ ≈ 0: not this error
+    doc = json.loads(out.read_text())
+    ex, mis = doc["exchange_tests"]
+    assert ex["exchange"] and ex["iterated"] and not ex["rejected"] and ex["omega1"] > ex["omega0"]
+    assert not mis["exchange"] and mis["omega1"] is None
+    for bad in ("204:P03004", "204:P03004:NOPE"):
+        assert main(["analyze", str(DATA / "demo-block.json"), "--exchange", bad, "--quiet"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("baarda: error: --exchange") and "\n" not in err
+
+
+def test_baarda_test_exchanged_reports_the_iterated_test(tmp_path, capsys):
+    out = tmp_path / "t.json"
+    assert main(["test", str(DATA / "demo-block.json"), "--hypothesis", "exchanged:204:P03004:P03005",
+                 "--json", str(out)]) == 0
+    assert "(exchange, F80 §7.1): T = " in capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    jsonschema.validate(doc, json.loads(resources.files("baarda").joinpath("schema/test.schema.json").read_text()))
+    e = doc["tests"][0]["exchange_test"]
+    assert e["iterated"] and not e["linear_range"] and not e["rejected"]

@@ -1,0 +1,189 @@
+"""R84's robust strategy (M84 §3.1, R84 §6-8) on simulated blocks with planted small, medium and
+large errors (issue 14, item 8): each found, with at most one false suspect and its R84 §6 class.
+
+The errors go where the block can reveal them, chosen from the error-free design block of the
+same seed (F80 §7.3 design mode: same geometry, exact observations): the image error on the
+best-controlled coordinate of a tie point with at least four rays (with two rays an error of
+one ray is the other's, F80 §7.4), the control height error on the control point whose height
+has the largest redundancy number, the point transfer on the tie point whose three images of one
+strip are best controlled. A point-transfer error between two strips of three images each cannot
+be told from the opposite transfer (the two hypotheses change the observations alike, up to a
+shift of the point): it counts as found with any suspect on that point.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baarda.adjust import adjust
+from baarda.model.bundle import build_block_problem
+from baarda.simulate import simulate_block
+from baarda.stats import robust
+
+SEED = 4
+BLOCK = {"strips": 3, "images_per_strip": 8}
+
+
+def _places(seed):
+    """Where to plant (module docstring), from the design block of ``seed``."""
+    block, _ = simulate_block(**BLOCK, seed=seed, design=True, approx_sigma=0.0)
+    p = build_block_problem(block)
+    a = adjust(p)
+    ids, kinds = p.info.ids, p.info.kind
+    status = {pt.id: pt.status for pt in block.points}
+    strip = {im["id"]: im["strip"] for im in p.geometry.as_dict()["images"]}
+    rays: dict = {}
+    for i, d in enumerate(ids):
+        if kinds[i] == "image-x":
+            rays.setdefault(d["point"], []).append(i)
+    tie = [i for i in range(p.n) if kinds[i].startswith("image") and status[ids[i]["point"]] == "tie"]
+    img = max((i for i in tie if len(rays[ids[i]["point"]]) >= 4), key=lambda i: a.r[i])
+    transfer = []
+    for pt, xs in rays.items():
+        by_strip: dict = {}
+        for i in xs:
+            by_strip.setdefault(strip[ids[i]["image"]], []).extend([i, i + 1])
+        if status[pt] != "tie" or pt == ids[img]["point"] or len(by_strip) < 2:
+            continue
+        transfer += [(float(a.r[rows].min()), pt, s) for s, rows in by_strip.items() if len(rows) >= 6]
+    _, pt, s = max(transfer)
+    z = max((i for i in range(p.n) if kinds[i] == "control-z"), key=lambda i: a.r[i])
+    ctrl = max((i for i in range(p.n) if kinds[i].startswith("control")), key=lambda i: a.r[i])
+    return {"image": {"kind": "image", "point": ids[img]["point"], "image": ids[img]["image"],
+                      "component": ids[img]["component"]},
+            "image-point": {"kind": "image-point", "point": ids[img]["point"], "image": ids[img]["image"]},
+            "transfer": {"kind": "transfer", "point": pt, "strip": s},
+            "control-z": {"kind": "control", "point": ids[z]["id"], "axis": "z"},
+            "control": {"kind": "control", "point": ids[ctrl]["id"]}}
+
+
+@pytest.fixture(scope="module")
+def places():
+    return _places(SEED)
+
+
+def _block(errors):
+    block, truth = simulate_block(**BLOCK, seed=SEED, errors=errors)
+    return build_block_problem(block), truth
+
+
+def _point(problem, rows):
+    return {problem.info.ids[i].get("point") or problem.info.ids[i].get("id") for i in rows}
+
+
+def _judge(problem, truth, res):
+    """Per planted error the classes of the suspects on its point; the false suspects."""
+    planted = [_point(problem, e["rows"]) for e in truth["errors"]]
+    found = [[s["class"] for s in res.suspects if _point(problem, s["members"]) & pl] for pl in planted]
+    false = [s for s in res.suspects if not any(_point(problem, s["members"]) & pl for pl in planted)]
+    return found, false
+
+
+def test_small_errors_found_with_their_class(places):
+    """15σ point transfer, 12σ image coordinate, 20σ control height (R84 §6 "small", 4σ-50σ)."""
+    p, truth = _block([{**places["transfer"], "size": 15}, {**places["image"], "size": 12},
+                       {**places["control-z"], "size": 20}])
+    assert [e["class"] for e in truth["errors"]] == ["small"] * 3
+    res = robust.estimate(p, "r84")
+    found, false = _judge(p, truth, res)
+    assert all(f and set(f) == {"small"} for f in found), found
+    assert len(false) <= 1, false
+    assert res.converged and not res.floored
+    # the planted rows themselves for the separable errors (image, control)
+    flagged = {j for s in res.suspects for j in s["members"]}
+    assert set(truth["errors"][1]["rows"]) <= flagged and set(truth["errors"][2]["rows"]) <= flagged
+    # the final least squares without the suspects passes data snooping (M84 §3.2)
+    assert int(res.final.rejected.sum()) == 0
+
+
+def test_medium_errors_where_least_squares_fails(places):
+    """An 80σ image point and a control error of one base length (R84 §6 "medium": 50σ to 2-3
+    base lengths): least squares does not converge and rejects nearly everything; R84's strategy
+    finds both, sized and classed from the predicted errors of the cleaned fit."""
+    p, truth = _block([{**places["image-point"], "size": 80}, {**places["control"], "size_base": 1.0}])
+    assert [e["class"] for e in truth["errors"]] == ["medium", "medium"]
+    ls = adjust(p)
+    assert not ls.converged or ls.rejected.sum() > p.n / 4
+    res = robust.estimate(p, "r84")
+    found, false = _judge(p, truth, res)
+    assert found == [["medium"], ["medium"]] and len(false) <= 1, (found, false)
+    by_point = {s["ids"].get("point") or s["ids"].get("id"): s for s in res.suspects}
+    img = by_point[places["image-point"]["point"]]
+    ctl = by_point[places["control"]["point"]]
+    # the estimated sizes against the planted ones (noise: a few σ)
+    assert abs(img["size_sigma"] - 80.0) < 5.0
+    assert abs(ctl["size_base"] - 1.0) < 0.01      # B from the images' positions
+    assert int(res.final.rejected.sum()) == 0
+
+
+def test_large_error_found_and_classed_large(places):
+    """A control error of three base lengths (R84 §6 "large": it breaks the geometry of the
+    block) is found and classed large by R84's strategy."""
+    p, truth = _block([{**places["control"], "size_base": 3.0}])
+    assert truth["errors"][0]["class"] == "large"
+    res = robust.estimate(p, "r84")
+    found, false = _judge(p, truth, res)
+    assert found == [["large"]] and len(false) <= 1, (found, false)
+    assert abs(res.suspects[0]["size_base"] - 3.0) < 0.03 and truth["errors"][0]["rows"][0] in res.suspects[0]["members"]
+    assert int(res.final.rejected.sum()) == 0
+
+
+@pytest.mark.parametrize("method", ["huber", "danish"])
+def test_huber_and_danish_return_a_result_on_a_large_error(places, method):
+    """Huber and Danish crashed with DatumDefectError here (down-weighted control taken for a
+    datum defect); now they return, with the error among their suspects."""
+    p, truth = _block([{**places["control"], "size_base": 3.0}])
+    res = robust.estimate(p, method)
+    assert res.final is not None
+    assert truth["errors"][0]["rows"][0] in {j for s in res.suspects for j in s["members"]}
+
+
+def test_start_weights_tend_to_the_a_priori_weights():
+    """R84 §8: s = s_start^(1 − g) — the start weight at g = 0 (gross errors acting), the a
+    priori weight at g = 1; g from the Danish function of the global test's normal score."""
+    start = np.array([1.0, robust.R84_START_NONPHOTO])
+    np.testing.assert_allclose(robust.start_factor(start, 0.0), start)
+    np.testing.assert_allclose(robust.start_factor(start, 1.0), [1.0, 1.0])
+    mid = robust.start_factor(start, 0.5)
+    assert mid[0] == 1.0 and start[1] < mid[1] < 1.0
+    r = 200
+    assert robust.global_score(r, r) == 0.0
+    assert robust.global_score(r + 3 * np.sqrt(2 * r), r) == pytest.approx(3.0)
+    assert robust.danish(robust.global_score(r + 3 * np.sqrt(2 * r), r)) == 1.0
+
+
+def test_classes_of_r84_section_6():
+    """Below 4σ random; 4σ-50σ small; above 50σ medium up to 2-3 base lengths, large above."""
+    assert robust.error_class(3.9) == "random"
+    assert robust.error_class(4.0, 0.0) == "small" and robust.error_class(50.0, 0.0) == "small"
+    assert robust.error_class(80.0, 0.004) == "medium"
+    assert robust.error_class(18000.0, 1.0) == "medium"
+    assert robust.error_class(54000.0, 3.0) == "large"
+    assert robust.error_class(54000.0) == "medium"        # no block geometry: no base length
+
+
+def test_a_weight_that_would_leave_unknowns_undetermined_is_floored_and_reported(places, monkeypatch):
+    """Where the down-weighted observations of a point leave its unknowns undetermined (here
+    simulated: the solver refuses while the control point's weight factor is below 1e-6), the
+    point's weight floor is raised tenfold until the solver accepts, the raise is reported, and
+    the error is still found — no DatumDefectError."""
+    from baarda.errors import DatumDefectError
+
+    p, truth = _block([{**places["control"], "size_base": 3.0}])
+    pt = places["control"]["point"]
+    mine = [c for c, m in enumerate(p.cov.members) if p.info.ids[m[0]].get("id") == pt]
+    real = robust.adjust
+
+    def refusing(problem, options=None, x0=None, **kw):
+        if problem.n == p.n and any(problem.cov.blocks[c][0, 0] > 1e6 * p.cov.blocks[c][0, 0] for c in mine):
+            raise DatumDefectError(3, [f"{pt}.x", f"{pt}.y", f"{pt}.z"])
+        return real(problem, options, x0=x0, **kw)
+
+    monkeypatch.setattr(robust, "adjust", refusing)
+    res = robust.estimate(p, "r84")
+    assert res.floored and all(fl["unknowns"] == [pt] for fl in res.floored)
+    assert res.floored[-1]["floor"] == pytest.approx(1e-6)
+    assert res.weights[truth["errors"][0]["rows"][0]] >= 1e-6 * (1 - 1e-9)
+    assert truth["errors"][0]["rows"][0] in {j for s in res.suspects for j in s["members"]}
+    assert res.as_dict()["floored"] == list(res.floored)
