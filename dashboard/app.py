@@ -19,6 +19,8 @@ from pathlib import Path
 
 import holoviews as hv
 import panel as pn
+import panel.reactive
+from panel.io import resources as pn_resources
 from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 from tornado.ioloop import IOLoop
@@ -27,7 +29,8 @@ from .state import Cancelled, State
 from .text import html_text
 from .views.controls import MAX_UPLOAD_MB
 from .views import (MAP_VIEWS, AnalysisPanel, Controls, CriterionView, FilePanel, HypothesisPanel, ImageResidualView,
-                    RiskView, SelectionPanel, SummaryHeader, TaskPanel, TeachingView, TestsTable, InjectPanel)
+                    RiskView, SelectionPanel, SummaryHeader, SuspectsView, TaskPanel, TeachingView, TestsTable,
+                    InjectPanel)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 #: The server's websocket message limit: above the upload limit of the app (uploads come in
@@ -115,7 +118,24 @@ class FastListTemplate(pn.template.FastListTemplate):
         return doc
 
 
+def _server_dist_path(cdn="auto") -> str:
+    """Panel's dist path as the server has it, never the CDN (see :func:`_local_stylesheets`)."""
+    return pn_resources.get_dist_path(cdn=False)
+
+
+def _local_stylesheets() -> None:
+    """Every served component links Panel's ``loading.css`` from this server, never from the CDN.
+
+    Panel picks the link through the process-wide resource mode, which it switches for a moment
+    while it writes resources (``set_resource_mode``); a component made on another thread in
+    that moment linked ``cdn.holoviz.org`` — unreachable offline, a failed request in the page
+    (seen in the browser tests under load). The server serves the same file under /static."""
+    panel.reactive.get_dist_path = _server_dist_path
+
+
 def _extensions():
+    if _served():
+        _local_stylesheets()
     pn.extension("tabulator", "filedropper", notifications=False, sizing_mode="stretch_width")
     # HoloViews' backend is the process's (a sixth of a session's setup when set each time)
     if hv.Store.current_backend != "bokeh" or "bokeh" not in hv.Store.renderers:
@@ -359,7 +379,7 @@ def _main(state):
     maps.append(("Criterion", CriterionView(state=state)))
     map_tabs = pn.Tabs(*maps, dynamic=True, sizing_mode="stretch_width", min_height=660,
                        css_classes=["map-tabs"])
-    right = pn.Tabs(("Tests table", TestsTable(state=state)), ("Hypotheses", HypothesisPanel(state=state)),
+    right = pn.Tabs(("Suspects", SuspectsView(state=state)), ("Tests table", TestsTable(state=state)), ("Hypotheses", HypothesisPanel(state=state)),
                     ("Find errors", AnalysisPanel(state=state)),
                     ("Teaching", pn.Column(InjectPanel(state=state), TeachingView(state=state),
                                            RiskView(state=state), scroll=True, height=640,

@@ -45,13 +45,15 @@ import pandas as pd
 import param
 import scipy.sparse as sp
 from scipy.sparse.csgraph import shortest_path
+from scipy.spatial import cKDTree
 
 from baarda.adjust import Options, adjust
 from baarda.datum import Datum
 from baarda.errors import BaardaError
 from baarda.stats import analyses, precision, risk, robust, snooping, variance
 from baarda.stats.ap_tests import ap_test
-from baarda.stats.hypotheses import HypothesisTest, common_error, deformation, h_ap_group, selection
+from baarda.stats.hypotheses import (HypothesisTest, common_error, deformation, external_reliability, h_ap_group,
+                                     hypothesis_rows, image_point_index, selection)
 from baarda.stats.policy import TestPolicy
 from baarda.model.problem import without
 from baarda.stats.reliability import Reliability
@@ -65,6 +67,8 @@ NOT_POINT_KEYS = ("image", "keypoint", "component", "group", "set")
 
 #: Robust methods of the controls ("none": plain least squares).
 ROBUST_METHODS = ("none", *robust.METHODS)
+#: variance models: per family, the radial model of F80 §2.1, its isotropic variant
+VARIANCE_MODELS = ("families", "radial", "radial-isotropic")
 #: How many of the largest |w| the leave-one-out ("find the error") view tries.
 LOO_SUSPECTS = 5
 
@@ -123,7 +127,7 @@ def display_matrix(problem) -> np.ndarray:
     block's X, Y are plotted as they are (M = I).
     """
     axes = problem.extra.get("axes_xy")
-    if not axes or "block" in problem.extra:
+    if not axes or problem.geometry is not None:
         return np.eye(2)
     unit = {"n": (1.0, 0.0), "e": (0.0, 1.0), "s": (-1.0, 0.0), "w": (0.0, -1.0)}
     ax, ay = unit[axes[0]], unit[axes[1]]  # (north, east) components of +x and +y
@@ -140,11 +144,20 @@ def display_xy(problem, coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, str
     X, Y = coords[:, 0], coords[:, 1]
     if np.isfinite(X).any() and np.isfinite(Y).any():
         e, n = display_matrix(problem) @ np.vstack([np.nan_to_num(X), np.nan_to_num(Y)])
-        if "block" in problem.extra or not problem.extra.get("axes_xy"):
-            return e, n, "X [m]", "Y [m]"
+        if problem.geometry is not None or not problem.extra.get("axes_xy"):
+            unit = f" [{object_unit(problem)}]" if object_unit(problem) else ""
+            return e, n, f"X{unit}", f"Y{unit}"
         return e, n, "east [m]", "north [m]"
     e, n = schematic_layout(problem)
     return e, n, "schematic position", "schematic position"
+
+
+def object_unit(problem) -> str:
+    """The unit of the object coordinates: "m", or "" for a structure-from-motion block (BAL,
+    Bundler, COLMAP) without control, whose scale is arbitrary."""
+    if problem.extra.get("convention") and getattr(problem.datum, "kind", "") == "free":
+        return ""
+    return "m"
 
 
 def schematic_layout(problem) -> tuple[np.ndarray, np.ndarray]:
@@ -169,7 +182,32 @@ def schematic_layout(problem) -> tuple[np.ndarray, np.ndarray]:
     lam, V = np.linalg.eigh(B)
     top = np.argsort(lam)[::-1][:2]
     xy = V[:, top] * np.sqrt(np.maximum(lam[top], 1e-12))
+    if m <= SCHEMATIC_STRESS_MAX:
+        xy = stress_layout(D, xy)
     return xy[:, 0], xy[:, 1]
+
+
+#: Up to this many points the schematic layout is refined by stress majorization.
+SCHEMATIC_STRESS_MAX = 400
+
+
+def stress_layout(D: np.ndarray, xy: np.ndarray, iterations: int = 300) -> np.ndarray:
+    """Positions whose distances fit the graph distances D (SMACOF stress majorization, de Leeuw
+    1977; unit weights), started from ``xy`` spread by a small circle: classical scaling of a
+    symmetric graph puts several points on one position (the levelling demo's 8 benchmarks on
+    4), which stress majorization from distinct points does not."""
+    m = len(D)
+    span = max(float(np.ptp(xy)), 1.0)
+    t = 2 * np.pi * np.arange(m) / m
+    X = xy + 0.1 * span * np.column_stack([np.cos(t), np.sin(t)])
+    for _ in range(iterations):
+        d = np.sqrt(((X[:, None, :] - X[None, :, :]) ** 2).sum(-1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Bm = np.where(d > 0, -D / d, 0.0)
+        np.fill_diagonal(Bm, 0.0)
+        np.fill_diagonal(Bm, -Bm.sum(axis=1))
+        X = Bm @ X / m
+    return X
 
 
 def observation_points(problem) -> list[list[int]]:
@@ -223,6 +261,9 @@ class State(param.Parameterized):
     b_method = param.Boolean(default=False, doc="Baarda's B-method for multi-dimensional tests.")
     sigma0_mode = param.Selector(default="apriori", objects=["apriori", "aposteriori"],
                                  doc="σ0 used for covariances and the decision (w or τ).")
+    global_test = param.Selector(default="one-sided", objects=["one-sided", "two-sided"],
+                                 doc="The global test: F80's one-sided test at the B-method's α_r, or "
+                                     "gama-local's two-sided interval at conf-pr (TestPolicy).")
     excluded = param.Parameter(default=frozenset(), doc="Excluded observations (full indices).")
     hypotheses = param.List(default=[], doc="Hypothesis specifications (module docstring).")
     hyp_results = param.List(default=[], doc="Per hypothesis: HypothesisTest, an error text or None.")
@@ -262,8 +303,9 @@ class State(param.Parameterized):
     variance = param.Parameter(default=None, doc="The core's VarianceComponents, or None.")
     injection = param.Dict(default=None, allow_None=True, doc="What the tests see of an injected error.")
     analysis_error = param.String(default="", doc="A message of the last analysis the core refused.")
-    variance_model = param.Selector(default="families", objects=["families", "radial"],
-                                    doc="Variance components per family, or the radial model of a block.")
+    variance_model = param.Selector(default="families", objects=list(VARIANCE_MODELS),
+                                    doc="Variance components per family, or the radial model of a block "
+                                        "(b on the radial component, F80 §2.1; or isotropic).")
     components = param.Parameter(default=None, doc="The core's ComponentEstimate (radial model), or None.")
     criterion = param.Dict(default=None, allow_None=True, doc="The last criterion comparison (criterion_*).")
     criterion_error = param.String(default="", doc="Why the criterion comparison was refused.")
@@ -281,10 +323,15 @@ class State(param.Parameterized):
             self.load(path)
 
     @classmethod
-    def from_adjustment(cls, adj) -> "State":
-        """A state showing an existing adjustment (no exclusions, no new solve)."""
+    def from_adjustment(cls, adj, policy=None) -> "State":
+        """A state showing an existing adjustment (no exclusions, no new solve); ``policy`` (a
+        :class:`TestPolicy`, e.g. the command line's) sets σ0 of the decisions and the global
+        test, else the file's σ0 and the one-sided test."""
         st = cls()
         mode = adj.problem.sigma_act if adj.problem.sigma_act in ("apriori", "aposteriori") else "apriori"
+        if policy is not None:
+            mode = policy.sigma0
+            st.global_test = policy.global_test
         with param.parameterized.discard_events(st):
             st.param.update(problem=adj.problem, source=str(adj.problem.source), sigma0_mode=mode,
                             alpha0=adj.options.alpha, beta0=adj.options.beta,
@@ -514,7 +561,7 @@ class State(param.Parameterized):
     def policy(self) -> TestPolicy:
         """The test policy of the controls: α0, β0, the B-method and the σ0 of the decisions."""
         return TestPolicy(alpha0=float(self.alpha0), beta0=float(self.beta0), b_method=bool(self.b_method),
-                          sigma0=self.sigma0_mode)
+                          sigma0=self.sigma0_mode, global_test=self.global_test)
 
     def _readjust(self) -> bool:
         """Adjust the problem without the excluded observations; False (and ``error``) on failure.
@@ -562,7 +609,7 @@ class State(param.Parameterized):
             return True
         return bool(self.on_loop(apply))
 
-    @param.depends("alpha0", "beta0", "b_method", watch=True)
+    @param.depends("alpha0", "beta0", "b_method", "global_test", watch=True)
     def _options_changed(self):
         if self.results is None:
             return
@@ -666,7 +713,10 @@ class State(param.Parameterized):
                                        policy=self.reliability.policy))
                     continue
                 H = self.hypothesis_matrix(spec)
-                out.append(self.reliability.test(H, label=spec.get("label", "")))
+                h = self.reliability.test(H, label=spec.get("label", ""))
+                if h.q:      # δ̄0(s) at its maximum (F80 eq. 17), shown beside δ0′max
+                    h.extra["external"] = external_reliability(self.results, h)
+                out.append(h)
             except (ValueError, KeyError, BaardaError, np.linalg.LinAlgError) as err:
                 out.append(f"{spec.get('label', '')}: {err}")
         self.hyp_results = out
@@ -674,32 +724,10 @@ class State(param.Parameterized):
 
     def hypothesis_rows(self, spec: dict) -> list[np.ndarray]:
         """The full observation indices a hypothesis acts on, one array per component of ∇s
-        for a common error (point transfer), else one array of independently tested rows."""
-        info = self.problem.info
-        kind = spec["kind"]
-        if kind == "observation":
-            return [np.array([int(spec["index"])])]
-        if kind == "group":
-            return [np.flatnonzero(np.asarray(info.group) == int(spec["group"]))]
-        if kind == "image-point":
-            return [np.array(self.image_point_rows(spec["image"], spec["point"], spec.get("keypoint")),
-                             dtype=np.int64)]
-        if kind == "control":
-            rows = [i for i, ids in enumerate(info.ids) if str(ids.get("id")) == str(spec["point"])]
-            return [np.array(rows, dtype=np.int64)]
-        if kind == "transfer":
-            comps = {}
-            rows = sorted(i for j in {str(j) for j in spec["images"]}
-                          for i in self.point_rows_in_image(j, spec["point"]))
-            for i in rows:
-                comp = info.ids[i].get("component") or info.kind[i].rsplit("-", 1)[-1]
-                comps.setdefault(str(comp), []).append(i)
-            return [np.array(comps[c], dtype=np.int64) for c in sorted(comps)]
-        if kind == "ap-group":
-            images = {str(im["id"]) for im in self.images if str(im.get("camera")) == str(spec["camera"])}
-            return [np.array([i for i, ids in enumerate(info.ids) if str(ids.get("image")) in images],
-                             dtype=np.int64)]
-        raise ValueError(f"unknown hypothesis kind '{kind}'")
+        for a common error (point transfer), else one array of independently tested rows — the
+        core's :func:`baarda.stats.hypotheses.hypothesis_rows` (``baarda test`` uses the same)
+        over this state's image-point index."""
+        return hypothesis_rows(self.problem, spec, index=self.problem_index()["image_rows"])
 
     def ap_estimated(self, spec: dict) -> bool:
         """True if the AP group of an ``ap-group`` hypothesis is estimated in the model."""
@@ -758,7 +786,8 @@ class State(param.Parameterized):
     # -- derived data for the views -------------------------------------------------------------
     @property
     def block(self) -> dict | None:
-        return self.problem.extra.get("block") if self.problem is not None else None
+        geo = self.problem.geometry if self.problem is not None else None
+        return geo.as_dict() if geo is not None else None
 
     @property
     def images(self) -> list[dict]:
@@ -787,14 +816,9 @@ class State(param.Parameterized):
         lines = [(i, pp[0], k) for i, pp in enumerate(obs_points)
                  if len(pp) >= 2 and not p.info.kind[i].startswith("image") for k in pp[1:]]
         lines = np.array(lines, dtype=np.int64).reshape(-1, 3)
-        image_rows: dict = {}
-        for i, ids in enumerate(p.info.ids):
-            if "image" in ids and "point" in ids:
-                # one image point = (image, point, keypoint): COLMAP may observe a point by
-                # several keypoints of one image, each an image point of its own
-                kp = ids.get("keypoint")
-                key = (str(ids["image"]), str(ids["point"]), None if kp is None else str(kp))
-                image_rows.setdefault(key, []).append(i)
+        # one image point = (image, point, keypoint): COLMAP may observe a point by several
+        # keypoints of one image, each an image point of its own
+        image_rows = image_point_index(p)
         self._index = {"obs_points": obs_points, "inc_obs": inc_obs, "inc_pt": inc_pt,
                        "line_obs": lines[:, 0], "line_from": lines[:, 1], "line_to": lines[:, 2],
                        "labels": [plain(observation_label(p, i).split(" ", 2)[-1]) for i in range(p.n)],
@@ -1142,14 +1166,15 @@ class State(param.Parameterized):
 
     def run_variance(self) -> bool:
         """Variance components per observation family (:func:`baarda.stats.variance.estimate`), or
-        with ``variance_model == "radial"`` the radial model σ² = a² + b²c²/cos⁴α of a block
+        with ``variance_model`` "radial" (or "radial-isotropic") the radial model σ² = a² + b²c²/cos⁴α of a block
         (:func:`baarda.stats.variance.radial_components`, :func:`~baarda.stats.variance.estimate_components`,
         F80 §2.1) started at θ0 = (σ²/2, σ²/2, 1), σ² the median a priori image variance."""
         try:
             with self._busy():
                 problem = self.results.problem
-                if self.variance_model == "radial":
-                    est = analyses.radial_variance(problem, self.options())
+                if self.variance_model.startswith("radial"):
+                    structure = "isotropic" if self.variance_model == "radial-isotropic" else "radial"
+                    est = analyses.radial_variance(problem, self.options(), structure)
                     self._check_cancel()
                     if self.results.problem is not problem:
                         return False
@@ -1169,7 +1194,7 @@ class State(param.Parameterized):
     def variance_table(self) -> pd.DataFrame:
         if self.components is not None:
             return pd.DataFrame([{"component": d["component"], "θ": f"{d['theta']:.4g}",
-                                  "± s.e.": f"{d['std_error']:.2g}", "√θ": f"{math.sqrt(max(d['theta'], 0.0)):.4g}",
+                                  "± s.e.": "held at 0" if d["std_error"] is None else f"{d['std_error']:.2g}", "√θ": f"{math.sqrt(max(d['theta'], 0.0)):.4g}",
                                   "redundancy": round(d["redundancy"], 2)}
                                  for d in self.components.as_dict()],
                                 columns=["component", "θ", "± s.e.", "√θ", "redundancy"])
@@ -1184,10 +1209,7 @@ class State(param.Parameterized):
     # -- criterion matrices and risk (M84 §2, §3.3) ---------------------------------------------
     def criterion_reason(self) -> str:
         """Why the criterion comparison does not apply to this problem ("" if it does)."""
-        if self.block:
-            return ("Criterion matrices compare planimetric networks (M84 §2); a block's "
-                    "3D coordinates are not supported.")
-        reason = analyses.planimetric_reason(self.results)
+        reason = analyses.criterion_reason(self.results)
         return f"{reason[0].upper()}{reason[1:]}." if reason else ""
 
     def criterion_base(self) -> list[str]:
@@ -1221,7 +1243,8 @@ class State(param.Parameterized):
             self.param.update(criterion=None, criterion_error=f"Criterion: {err}")
             return None
         pattern = np.zeros((len(self.problem.points.ids), 2))
-        pattern[cc.point, cc.axis] = cmp_.worst_pattern()
+        plan = cc.axis < 2                       # the map shows x, y (heights and Z are not drawn)
+        pattern[cc.point[plan], cc.axis[plan]] = cmp_.worst_pattern()[plan]
         out = {"kind": kind, "sbase": base, "fitted": fitted, "C1": float(C1), "C2": float(C2),
                "units": analyses.criterion_units(kind), "C2_at_bound": bool(fitted and fit["C2_at_bound"]),
                "lam_max": cmp_.lam_max, "lam_min": cmp_.lam_min, "ratio": cmp_.lam_max / cmp_.lam_min,
@@ -1304,19 +1327,36 @@ class State(param.Parameterized):
         return sorted(set(index["inc_obs"][index["inc_pt"] == k].tolist()))
 
     def _auto_exaggeration(self) -> float:
-        """Image residual vectors: the 90th percentile of |v| drawn 4 % of the image width long
-        (a round factor), so that ordinary residuals are visible and gross ones stand out."""
+        """Image residual vectors at the block's own scale (BAL and Bundler files have no image
+        size): the median residual vector drawn half the median spacing of the image points
+        (nearest neighbours in their images, up to 30 images), the largest at most 30 % of the
+        span of the image coordinates (1st to 99th percentile); a round factor (1, 2 or 5 × 10^k)."""
         adj = self.results
         if adj is None or not self.images:
             return 1.0
-        kinds = np.asarray(adj.problem.info.kind)
-        v = np.abs(adj.v[np.char.startswith(kinds.astype(str), "image")])
-        size = (self.block or {}).get("image_size") or [1.0, 1.0]
-        vref = float(np.percentile(v, 90)) if v.size else 0.0
-        if vref <= 0:
+        value = np.asarray(self.problem.info.value_file, dtype=float)
+        v = self.expand(adj.v) * self.display_factor()[0]
+        spacing, lengths, by_image = [], [], {}
+        for (im, _pid, _kp), rows in self.problem_index()["image_rows"].items():
+            if len(rows) == 2:
+                lengths.append(math.hypot(v[rows[0]], v[rows[1]]))
+                by_image.setdefault(im, []).append((value[rows[0]], value[rows[1]]))
+        for im in list(by_image)[:30]:
+            xy = np.asarray(by_image[im], dtype=float)
+            if len(xy) >= 2:
+                d, _ = cKDTree(xy).query(xy, k=2)
+                spacing.append(np.median(d[:, 1]))
+        lengths = np.asarray(lengths, dtype=float)
+        lengths = lengths[np.isfinite(lengths)]
+        vref = float(np.median(lengths)) if lengths.size else 0.0
+        sref = float(np.median(spacing)) if spacing else 0.0
+        if vref <= 0 or sref <= 0:
             return 1.0
-        raw = 0.04 * float(size[0]) / vref
-        return float(10 ** math.floor(math.log10(raw)))
+        xy = np.concatenate([np.asarray(v, dtype=float) for v in by_image.values()])
+        span = float(np.ptp(np.percentile(xy, [1, 99], axis=0), axis=0).max())
+        raw = min(0.5 * sref / vref, 0.3 * span / float(lengths.max()))
+        k = math.floor(math.log10(raw))
+        return float(next(m * 10 ** k for m in (5, 2, 1) if m * 10 ** k <= raw))
 
     # -- summary --------------------------------------------------------------------------------
     def summary(self) -> dict:

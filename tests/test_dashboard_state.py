@@ -159,6 +159,22 @@ def test_block_hypotheses_match_bundle_builders(block_problem):
     assert st.hyp_results[k1].q == 2 and st.hyp_results[k1].ellipse().shape[1] == 2
 
 
+def test_hypothesis_table_shows_delta_bar0_of_the_core(block_problem):
+    """The hypothesis panel's δ̄0max is the core's F80 eq. 17 maximum (external_reliability), the
+    same hypothesis as baarda test builds (hypothesis_matrix: one owner of the rows)."""
+    from baarda.dashboard.views import HypothesisPanel
+    from baarda.stats import hypotheses
+
+    st = State(problem=block_problem)
+    spec = {"kind": "transfer", "point": "P8", "images": ["101", "102"]}
+    k = st.add_hypothesis(spec)
+    ref = st.results.test(hypotheses.hypothesis_matrix(st.results, spec))
+    ext = hypotheses.external_reliability(st.results, ref)
+    assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-12)
+    row = HypothesisPanel(state=st).frame().iloc[k]
+    assert row["δ̄0max"] == round(ext.max, 2) and row["δ0'max"] == round(ref.delta0_prime_max, 2)
+
+
 def test_hypothesis_follows_exclusion_and_alpha():
     st = network_state("gama-local.gkf")
     k = st.add_hypothesis({"kind": "observation", "index": 10})
@@ -678,7 +694,10 @@ def test_inject_error_on_a_copy_and_keep(block_problem):
     assert inj["largest"] == pytest.approx(np.nanmax(np.abs(ref.w)))
     g = next(g for g in ref.groups if i in g["members"])
     assert inj["group_T"] == pytest.approx(g["T"])
-    assert "REJECTED" in panel.result.object or "not rejected" in panel.result.object
+    assert "**rejected**" in panel.result.object or "**not rejected**" in panel.result.object
+    assert "δ0 (δ0 = " in panel.result.object
+    # what the panel teaches: an error of k MDB moves w by k δ0 (linear model; F80 §5)
+    assert abs(inj["w_after"] - inj["w_before"]) == pytest.approx(1.5 * st.reliability.delta0, rel=1e-2)
     np.testing.assert_array_equal(st.problem.l, l0)       # the loaded data are untouched
     assert st.results is adj
     st.inject(i, 10, "sigma")
@@ -740,15 +759,20 @@ def test_criterion_fit_and_given_c1_c2_match_the_core():
     assert st.criterion is None and "does not fix the datum" in st.criterion_error and view.message.visible
 
 
-def test_criterion_refused_for_blocks_and_levelling(block_problem):
+def test_criterion_for_blocks_and_heights_refused_without_positions(block_problem):
+    """M84 §2.3 asks for criterion matrices of heights and 3D blocks: the tab compares them (λmax = 1
+    after the fit); a levelling network without point positions has no distances and is refused."""
     from baarda.dashboard.views import CriterionView
 
     for st in (State(problem=block_problem), network_state("krumm/1D/Niemeier_Height_free.gkf")):
-        assert st.criterion_reason()
+        assert st.criterion_reason() == ""
         view = CriterionView(state=st)
         pn.panel(view).get_root(Document())
-        assert st.criterion is None
-        assert st.criterion_compare("linear") is None and st.criterion_error.startswith("Criterion:")
+        c = st.criterion_compare("logarithmic")
+        assert c is not None and c["lam_max"] == pytest.approx(1.0, rel=1e-6), st.criterion_error
+    st = State(Path(__file__).resolve().parents[1] / "data" / "demo-levelling.gkf")
+    assert "planimetric positions" in st.criterion_reason()
+    assert st.criterion_compare("linear") is None and st.criterion_error.startswith("Criterion:")
 
 
 def test_risk_panel_matches_closed_form():
@@ -791,6 +815,7 @@ def test_radial_variance_model_matches_core_and_refusal_is_a_message(block_probl
         e[idx] = np.linalg.cholesky(C) @ rng.normal(size=idx.size)
     st = State(problem=replace(p, l=p.l + e))
     panel = AnalysisPanel(state=st)
+    assert list(panel.variance_model.options) == ["families", "radial", "radial-isotropic"]
     panel.variance_model.value = "radial"
     assert st.variance_model == "radial"
     panel.variance_button.clicks += 1

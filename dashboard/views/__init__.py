@@ -7,9 +7,10 @@ from .hypotheses import HypothesisPanel
 from .maps import (MAP_VIEWS, ExternalMap, ImageResidualView, LayoutMap, MDBMap, PrecisionMap,
                    RedundancyMap, ResidualMap)
 from .summary import SummaryHeader
+from .suspects import SuspectsView
 from .table import TestsTable
 from .teaching import TeachingView
 
 __all__ = ["AnalysisPanel", "InjectPanel", "Controls", "FilePanel", "SelectionPanel", "HypothesisPanel", "MAP_VIEWS", "ExternalMap",
            "ImageResidualView", "LayoutMap", "MDBMap", "PrecisionMap", "RedundancyMap", "ResidualMap",
-           "SummaryHeader", "TaskPanel", "TestsTable", "TeachingView", "CriterionView", "RiskView"]
+           "SummaryHeader", "SuspectsView", "TaskPanel", "TestsTable", "TeachingView", "CriterionView", "RiskView"]

@@ -12,7 +12,7 @@ import pandas as pd
 import panel as pn
 import param
 
-from ..state import State, observation_label
+from ..state import VARIANCE_MODELS, State, observation_label
 from ..text import md_text
 
 TABLE = dict(show_index=False, disabled=True, sizing_mode="stretch_width", layout="fit_data_stretch",
@@ -45,8 +45,8 @@ class AnalysisPanel(pn.viewable.Viewer):
         self.loo_table = _table("loo-table", 130)
         self.variance_button = pn.widgets.Button(label="Estimate variance components", width=230,
                                                  css_classes=["variance-run"])
-        self.variance_model = pn.widgets.RadioButtonGroup(options=["families", "radial"], value=s.variance_model,
-                                                          color="primary", variant="outline", width=180,
+        self.variance_model = pn.widgets.RadioButtonGroup(options=list(VARIANCE_MODELS), value=s.variance_model,
+                                                          color="primary", variant="outline", width=300,
                                                           css_classes=["variance-model"])
         self.variance_model.link(s, value="variance_model")
         self.variance_table = _table("variance-table", 110)
@@ -179,13 +179,18 @@ class InjectPanel(pn.viewable.Viewer):
         unit = "σ" if inj["unit"] == "sigma" else "MDB"
         group = ("" if inj["group_T"] is None else
                  f"  \nT of its group = {inj['group_T']:.2f} (critical {inj['group_critical']:.2f})")
+        dw = inj["w_after"] - inj["w_before"]
+        d0 = s.reliability.delta0
         where = ("the same observation" if inj["largest_index"] == inj["index"]
                  else f"obs {md_text(inj['largest_label'])}")
         self.result.object = (
             f"Error of {inj['size']:g} {unit} = {inj['error']:.4g} {md_text(inj['error_unit'])} "
             f"in obs {inj['index']} (a copy of the data):  \n"
             f"{st} of that observation: {inj['w_before']:.3f} → **{inj['w_after']:.3f}** "
-            f"(critical {inj['critical']:.3f}): **{'REJECTED' if inj['rejected'] else 'not rejected'}**  \n"
+            f"(critical {inj['critical']:.3f}): **{'rejected' if inj['rejected'] else 'not rejected'}**  \n"
+            f"Δ{st} = {dw:+.3f} = {dw / d0:+.2f} δ0 (δ0 = {d0:.3f}): an error of one MDB moves {st} by δ0 "
+            f"(F80 §5); whether it is then rejected depends on where the noise had put {st} before — "
+            f"the test finds it with probability β0 = {s.beta0:.2f}  \n"
             f"largest |{st}| = {inj['largest']:.3f} at {where}{group}  \n"
             f"σ̂0 = {inj['sigma0_post']:.4g}, global test "
             f"{'passed' if inj['global_passed'] else 'failed' if inj['global_passed'] is False else 'n/a'}")

@@ -27,7 +27,7 @@ def _two_way(widget, state, name):
 
 
 class Controls(pn.viewable.Viewer):
-    """α0, β0 (δ0 updates live), the B-method and which σ0 the decisions use."""
+    """α0, β0 (δ0 updates live), the B-method, which σ0 the decisions use and the global test."""
 
     state = param.ClassSelector(class_=State)
 
@@ -43,11 +43,17 @@ class Controls(pn.viewable.Viewer):
         self.sigma = pn.widgets.RadioButtonGroup(label="σ0", options={"σ0 a priori (w)": "apriori",
                                                                    "σ̂0 a posteriori (τ)": "aposteriori"},
                                                  value=s.sigma0_mode, sizing_mode="stretch_width")
+        self.global_test = pn.widgets.Select(label="Global test (F80 §4.1)",
+                                             options={"one-sided, B-method α_r (F80)": "one-sided",
+                                                      "two-sided at conf-pr (gama-local)": "two-sided"},
+                                             value=s.global_test, css_classes=["global-test-select"],
+                                             sizing_mode="stretch_width")
         self.robust = pn.widgets.Select(label="Robust reweighting (M84 §3.1, R84)", options=list(ROBUST_METHODS),
                                         value=s.robust_method, css_classes=["robust-select"],
                                         sizing_mode="stretch_width")
         for w, name in ((self.alpha, "alpha0"), (self.beta, "beta0"), (self.b_method, "b_method"),
-                        (self.sigma, "sigma0_mode"), (self.robust, "robust_method")):
+                        (self.sigma, "sigma0_mode"), (self.global_test, "global_test"),
+                        (self.robust, "robust_method")):
             _two_way(w, s, name)
         self.delta = pn.pane.Markdown(pn.bind(self._delta_text, s.param.reliability),
                                       css_classes=["delta0"], sizing_mode="stretch_width")
@@ -61,7 +67,7 @@ class Controls(pn.viewable.Viewer):
 
     def __panel__(self):
         return pn.Column("### Tests", self.alpha, self.beta, self.delta, self.b_method, self.sigma,
-                         self.robust, sizing_mode="stretch_width")
+                         self.global_test, self.robust, sizing_mode="stretch_width")
 
 
 class SelectionPanel(pn.viewable.Viewer):

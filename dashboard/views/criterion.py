@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import holoviews as hv
 import numpy as np
+import pandas as pd
 import panel as pn
 import param
 
@@ -21,11 +22,13 @@ from baarda.stats import analyses
 
 from ..state import State, display_matrix, display_xy
 from ..text import labels, md_text, plain
-from .common import formatters
+from .common import formatters, frame_size
 
 KINDS = ["linear", "logarithmic", "exponential"]
 #: Length of the longest pattern arrow as a share of the network's extent.
 ARROW_SHARE = 0.12
+#: The larger side of the criterion map's frame (pixels): it fits the map column at 1280 px.
+MAP_SIZE = 400
 #: Networks up to this many points are fitted when the view opens (the covariance is dense).
 AUTO_FIT_POINTS = 300
 
@@ -45,9 +48,10 @@ class CriterionView(pn.viewable.Viewer):
                                             value=s.criterion_base(), css_classes=["criterion-sbase"])
         self.fit = pn.widgets.Button(label="Fit C1, C2", color="primary", width=120,
                                      css_classes=["criterion-fit"])
-        self.C1 = pn.widgets.FloatInput(label="C1 [m²/m]", value=1e-6, width=140,
+        # four significant digits in the fields (C1 of a fit is some 1e-7: its digits were cut)
+        self.C1 = pn.widgets.FloatInput(label="C1 [m²/m]", value=1e-6, width=150, format="0.000e+0",
                                         css_classes=["criterion-c1"])
-        self.C2 = pn.widgets.FloatInput(label="C2 [m]", value=1.0, width=140,
+        self.C2 = pn.widgets.FloatInput(label="C2 [m]", value=1.0, width=150, format="0.000e+0",
                                         css_classes=["criterion-c2"])
         self.check = pn.widgets.Button(label="Compare with C1, C2", width=170, css_classes=["criterion-check"])
         self.info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["criterion-info"])
@@ -108,7 +112,8 @@ class CriterionView(pn.viewable.Viewer):
         c = s.criterion
         title = "Eigenvector of λmax (M84 §2.3)"
         if c is None:
-            return pts.opts(title=title, responsive=True, height=460, data_aspect=1, **formatters())
+            return pts.opts(title=title, xticks=4, yticks=5, fontscale=0.9,
+                            **frame_size(pd.DataFrame({"x": e, "y": n}), size=MAP_SIZE), **formatters())
         d = (display_matrix(s.problem) @ c["pattern"].T).T
         extent = max(float(np.ptp(e)), float(np.ptp(n)), 1e-9)
         scale = ARROW_SHARE * extent / max(float(np.hypot(*d.T).max()), 1e-300)
@@ -119,18 +124,23 @@ class CriterionView(pn.viewable.Viewer):
         base = np.isin(list(s.problem.points.ids), c["sbase"])
         sb = hv.Points((e[base], n[base]), [xl, yl], label="S-base").opts(
             color="black", marker="square", size=10, fill_alpha=0)
+        # the frame holds the points and the arrows' tips, with equal scales (nothing cropped)
+        frame = frame_size(pd.DataFrame({"x": np.r_[e, e + scale * d[:, 0]], "y": np.r_[n, n + scale * d[:, 1]]}),
+                           size=MAP_SIZE)
         return (pts * sb * arrows * tips).opts(
-            title=f"Eigenvector of λmax = {c['lam_max']:.3g} (M84 §2.3), longest arrow {ARROW_SHARE:.0%} "
-                  "of the extent", responsive=True, height=460, data_aspect=1, show_legend=False,
-            xlabel=xl, ylabel=yl, fontscale=0.9, **formatters())
+            title=f"Eigenvector of λmax = {c['lam_max']:.3g} (M84 §2.3); arrows ≤ {ARROW_SHARE:.0%} of the extent",
+            show_legend=False, xlabel=xl, ylabel=yl, fontscale=0.9, fontsize={"title": "9.5pt"},
+            xticks=4, yticks=5, **frame, **formatters())
 
     def __panel__(self):
         if self.reason:
             return pn.pane.Markdown(f"*{self.reason}*", css_classes=["criterion-reason"],
                                     sizing_mode="stretch_width")
         return pn.Column("#### Criterion matrix (M84 §2)",
-                         pn.Row(self.kind, self.sbase, pn.Column(pn.Spacer(height=20), self.fit)),
-                         pn.Row(self.C1, self.C2, pn.Column(pn.Spacer(height=20), self.check)),
+                         pn.FlexBox(self.kind, self.sbase, pn.Column(pn.Spacer(height=20), self.fit),
+                                    sizing_mode="stretch_width"),
+                         pn.FlexBox(self.C1, self.C2, pn.Column(pn.Spacer(height=20), self.check),
+                                    sizing_mode="stretch_width"),
                          self.message, self.info, self.plot, sizing_mode="stretch_width")
 
 

@@ -1,5 +1,6 @@
-"""The hypothesis panel: build a hypothesis, toggle it, read T, R, critical value, ∇ŝ and its
-lower-bound ellipse (F80 eq. 10-15, computed by the core's ``Adjustment.test``)."""
+"""The hypothesis panel: build a hypothesis, toggle it, read T, R, critical value, ∇ŝ, its
+lower-bound ellipse, δ0′max and δ̄0max (F80 eq. 10-17, computed by the core's ``Adjustment.test``
+and ``external_reliability``)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,11 @@ import numpy as np
 import pandas as pd
 import panel as pn
 import param
+from bokeh.models.widgets.tables import CheckboxEditor, HTMLTemplateFormatter
 
 from baarda.model.bundle import AP_GROUPS
 from baarda.stats.ap_tests import APTest
+from baarda.stats.hypotheses import HypothesisTest
 
 from ..state import State, observation_label
 from ..text import labels, md_text, plain
@@ -26,6 +29,49 @@ def text_options(values) -> dict:
             label, k = f"{plain(v)} ({k})", k + 1
         out[label] = v
     return out
+
+#: Decisions in words: rejected red, accepted green, not testable grey.
+DECISION = HTMLTemplateFormatter(template=(
+    '<span style="color:<%= value.startsWith("rejected") ? "#b2182b" : (value.startsWith("accepted") '
+    '? "#1a7f37" : "#555555") %>"><%- value %></span>'))
+
+
+def with_selection(widget, options) -> None:
+    """Set a Select's options and keep a selection: the current value if it is still offered,
+    else the first option (a dropdown never opens blank)."""
+    widget.options = options
+    values = list(options.values()) if isinstance(options, dict) else list(options)
+    if values and widget.value not in values:
+        widget.value = values[0]
+
+
+def rank_deficient(h) -> bool:
+    """The test sees fewer dimensions than H has columns (W singular, F80 eq. 12): part of the
+    error is absorbed by the unknowns and cannot be tested."""
+    return not isinstance(h, APTest) and h.q < h.H.shape[1]
+
+
+def not_testable(state, h, partly: bool = False) -> str:
+    """Why a rank-deficient hypothesis is not (``partly``: not wholly) testable, naming the points
+    whose unknowns absorb the untestable error direction (its effect ∇x = Σ AᵀP H s, the core's
+    ``Adjustment.deformation``, F80 §6)."""
+    s = state
+    null = np.flatnonzero(~np.isfinite(h.ellipse_axes))
+    what = (f"q = {h.q} of {h.H.shape[1]}" if h.q else "W = 0")
+    head = (f"tests {h.q} of {h.H.shape[1]} dimensions" if partly else "not testable: rank-deficient")
+    if not null.size:
+        return f"{head} ({what})"
+    direction = h.ellipse_dirs[:, null[0]]
+    shifts = s.results.point_shifts(s.results.deformation(np.asarray(h.H @ direction).ravel()))
+    size = np.linalg.norm(shifts, axis=1)
+    top = np.flatnonzero(size > 0.1 * size.max(initial=0.0)) if size.max(initial=0.0) > 0 else []
+    ids = [str(s.problem.points.ids[k]) for k in top[np.argsort(-size[top])][:4]] if len(top) else []
+    by = (f"the coordinates of {', '.join(ids)}" + (" and others" if len(top) > 4 else "")) if ids else \
+        "the other unknowns (orientations, camera parameters)"
+    if partly:
+        return f"{head}: the other is absorbed by {by}"
+    return f"{head} ({what}): the error is absorbed by {by}"
+
 
 KINDS = {
     "observation": "one observation",
@@ -65,11 +111,12 @@ class HypothesisPanel(pn.viewable.Viewer):
         self.remove.on_click(self._remove)
         self.kind.param.watch(self._kind_changed, "value")
         self.point.param.watch(self._point_changed, "value")
-        self.camera.param.watch(lambda e: setattr(self.ap_group, "options", self._ap_options()), "value")
+        self.camera.param.watch(lambda e: with_selection(self.ap_group, self._ap_options()), "value")
         self.results.on_edit(self._edited)
         self.results.param.watch(self._selected, "selection")
         s.param.watch(self._refresh_options, ["problem"])
         s.param.watch(self._refresh_table, ["hyp_results", "hypotheses"])
+        s.param.watch(self._sync_selection, ["selected_hypothesis"])
         s.param.watch(self._follow_selection, ["selected_obs", "selected_point"])
         self.plot = hv.DynamicMap(self._ellipse_plot, streams=[hv.streams.Params(
             s, ["hyp_results", "selected_hypothesis"])])
@@ -118,14 +165,14 @@ class HypothesisPanel(pn.viewable.Viewer):
 
     def _refresh_options(self, *_):
         p = self.state.problem
-        self.kind.options = self._available()
+        with_selection(self.kind, self._available())
         self.obs_input.end = p.n - 1
         groups = {}
         for g, i in self._group_firsts().items():     # one pass (a block has thousands of groups)
             groups[plain(f"{g}: group {g} ({observation_label(p, i).split(' ', 2)[-1]})")] = g
-        self.group.options = groups
-        self.camera.options = text_options(self._cameras())
-        self.ap_group.options = self._ap_options()
+        with_selection(self.group, groups)
+        with_selection(self.camera, text_options(self._cameras()))
+        with_selection(self.ap_group, self._ap_options())
         self._kind_changed()
 
     def _kind_changed(self, *_):
@@ -138,7 +185,7 @@ class HypothesisPanel(pn.viewable.Viewer):
             pts = sorted({str(ids["id"]) for ids in p.info.ids if "id" in ids}, key=lambda x: (len(x), x))
         else:
             pts = []
-        self.point.options = text_options(pts)
+        with_selection(self.point, text_options(pts))
         self._point_changed()
         self.obs_input.visible = kind == "observation"
         self.group.visible = kind == "group"
@@ -165,7 +212,7 @@ class HypothesisPanel(pn.viewable.Viewer):
                 while label in opts:
                     label, k = f"{plain(im)} ({k})", k + 1
                 opts[label] = im
-        self.image.options = opts
+        with_selection(self.image, opts)
         self.images.options = labels(ims)
         self.images.value = ims[:2] if len(ims) >= 2 else ims
 
@@ -217,7 +264,10 @@ class HypothesisPanel(pn.viewable.Viewer):
 
     def _edited(self, event):
         if event.column == "active":
-            self.state.toggle_hypothesis(int(event.row), bool(event.value))
+            value = event.value
+            if isinstance(value, str):          # never bool("false") == True
+                value = value.strip().lower() in ("true", "1", "yes")
+            self.state.toggle_hypothesis(int(event.row), bool(value))
 
     def _selected(self, event):
         if event.new:
@@ -232,7 +282,7 @@ class HypothesisPanel(pn.viewable.Viewer):
         for spec, h in zip(s.hypotheses, s.hyp_results + [None] * (len(s.hypotheses) - len(s.hyp_results))):
             row = {"active": bool(spec.get("active", True)), "hypothesis": plain(spec.get("label", "")),
                    "q": None, "T": None, "critical T": None, "R": None, "decision": "",
-                   "∇ŝ": "", "σ∇ŝ": "", "δ0'max": None}
+                   "∇ŝ": "", "σ∇ŝ": "", "δ0'max": None, "δ̄0max": None}
             if isinstance(h, str):
                 row["decision"] = plain(h)
             elif isinstance(h, APTest):
@@ -240,28 +290,43 @@ class HypothesisPanel(pn.viewable.Viewer):
                             "decision": "SIGNIFICANT" if h.significant else "not significant",
                             "∇ŝ": ", ".join(f"{x:.3g}" for x in h.estimate) + " (ŝ)",
                             "σ∇ŝ": ", ".join(f"{x:.3g}" for x in h.sigma),
-                            "δ0'max": round(h.delta0_prime_max, 2) if np.isfinite(h.delta0_prime_max) else None})
+                            "δ0'max": round(h.delta0_prime_max, 2) if np.isfinite(h.delta0_prime_max) else None,
+                            "δ̄0max": round(h.reliability_max, 2) if np.isfinite(h.reliability_max) else None})
+            elif h is not None and rank_deficient(h) and h.q == 0:
+                row["q"] = 0
+                row["decision"] = plain(not_testable(s, h))
             elif h is not None:
                 first = s.hypothesis_rows(spec)[0]
                 f = factor[int(first[0])] if len(first) else 1.0
                 u = units[int(first[0])] if len(first) else ""
                 row.update({"q": h.q, "T": round(h.T, 3), "critical T": round(h.critical_T, 3),
                             "R": None if not np.isfinite(h.R) else round(h.R, 3),
-                            "decision": "REJECTED" if h.rejected_T else "accepted",
+                            "decision": ("rejected" if h.rejected_T else "accepted")
+                            + (f" ({plain(not_testable(s, h, partly=True))})" if rank_deficient(h) else ""),
                             "∇ŝ": ", ".join(f"{x * f:.3g}" for x in h.nabla) + f" {u}",
                             "σ∇ŝ": ", ".join(f"{x * f:.3g}" for x in h.nabla_sigma) + f" {u}",
                             "δ0'max": round(h.delta0_prime_max, 2) if np.isfinite(h.delta0_prime_max) else None})
+                ext = h.extra.get("external")
+                if ext is not None and np.isfinite(ext.max):
+                    row["δ̄0max"] = round(ext.max, 2)
             rows.append(row)
         return pd.DataFrame(rows, columns=["active", "hypothesis", "q", "T", "critical T", "R", "decision",
-                                           "∇ŝ", "σ∇ŝ", "δ0'max"])
+                                           "∇ŝ", "σ∇ŝ", "δ0'max", "δ̄0max"])
 
     def _refresh_table(self, *_):
         df = self.frame()
-        self.results.editors = {c: None for c in df.columns if c != "active"}
-        self.results.formatters = {"active": {"type": "tickCross"}}
+        self.results.editors = {**{c: None for c in df.columns if c != "active"}, "active": CheckboxEditor()}
+        self.results.formatters = {"active": {"type": "tickCross"}, "decision": DECISION}
         self.results.value = df
+        self._sync_selection()
+
+    def _sync_selection(self, *_):
+        """The selected hypothesis (a new one once added) is the highlighted row."""
         k = self.state.selected_hypothesis
-        self.results.selection = [k] if k is not None and k < len(df) else []
+        n = len(self.results.value)
+        sel = [k] if k is not None and k < n else []
+        if list(self.results.selection) != sel:
+            self.results.selection = sel
 
     def _ellipse_plot(self, **_):
         s = self.state
@@ -271,29 +336,47 @@ class HypothesisPanel(pn.viewable.Viewer):
         if isinstance(h, APTest):
             title = (f"AP group, q = {h.q}: T = {h.T:.2f}, semi-axes "
                      + ", ".join(f"{x:.3g}" for x in h.ellipsoid_axes))
+        elif h is not None and not isinstance(h, str) and rank_deficient(h) and h.q == 0:
+            title = "Not testable: rank-deficient (see the table)"
         elif h is not None and not isinstance(h, str):
             spec = s.hypotheses[k]
             factor, units = s.display_factor()
             first = s.hypothesis_rows(spec)[0]
             f = factor[int(first[0])] if len(first) else 1.0
             u = units[int(first[0])] if len(first) else ""
-            if h.q == 2 and np.isfinite(h.ellipse_axes).all():
+            finite = np.flatnonzero(np.isfinite(h.ellipse_axes))
+            if h.q == 1 and h.H.shape[1] == 2 and finite.size == 1:
+                d = h.ellipse_dirs[:, finite[0]] * float(h.ellipse_axes[finite[0]]) * f
+                ell = [np.array([-d, d])]
+                est = pd.DataFrame({"s1": [h.nabla[0] * f], "s2": [h.nabla[1] * f]})
+                title = (f"q = 1 of 2 (one direction absorbed): |∇0s| = "
+                         f"{float(h.ellipse_axes[finite[0]]) * f:.3g} {u}")
+            elif h.q == 2 and np.isfinite(h.ellipse_axes).all():
                 ell = [h.ellipse() * f]  # 73 points
                 est = pd.DataFrame({"s1": [h.nabla[0] * f], "s2": [h.nabla[1] * f]})
                 title = f"∇0s (β0) and ∇ŝ [{u}], T = {h.T:.2f}"
-            elif h.q == 1:
+            elif h.q == 1 and h.H.shape[1] == 1:
                 a = float(h.ellipse_axes[0]) * f
                 ell = [np.array([[-a, 0.0], [a, 0.0]])]
                 est = pd.DataFrame({"s1": [h.nabla[0] * f], "s2": [0.0]})
                 title = f"q = 1: |∇0s| = {a:.3g} {u}, ∇ŝ = {h.nabla[0] * f:.3g}"
             else:
                 title = f"q = {h.q}: semi-axes " + ", ".join(f"{x * f:.3g}" for x in h.ellipse_axes) + f" {u}"
-        extent = float(np.abs(np.concatenate(ell)).max()) * 1.2 if ell else 1.0
-        return (hv.Path(ell, ["s1", "s2"]).opts(color="#e6007e", line_width=2, framewise=True)
-                * hv.Points(est, ["s1", "s2"]).opts(color="black", size=10, marker="x", framewise=True)
+        # the critical region's boundary ∇ŝᵀ W ∇ŝ = k (rejected outside; F80 eq. 12), drawn over
+        # the lower bound ∇0sᵀ W ∇0s = δ0² (F80 eq. 13): the same ellipse scaled by √k / δ0
+        crit = ([e * np.sqrt(h.critical_T) / h.delta0 for e in ell]
+                if ell and isinstance(h, HypothesisTest) and h.delta0 > 0 else [])
+        pts = ell + crit + ([est[["s1", "s2"]].to_numpy(dtype=float)] if len(est) else [])
+        extent = float(np.nanmax(np.abs(np.concatenate(pts)))) * 1.15 if ell else 1.0
+        return (hv.Path(ell, ["s1", "s2"], label="∇0s: lower bound (β0)").opts(
+                    color="#e6007e", line_width=2, framewise=True)
+                * hv.Path(crit, ["s1", "s2"], label="critical: rejected outside").opts(
+                    color="#333333", line_width=2, line_dash="dashed", framewise=True)
+                * hv.Points(est, ["s1", "s2"], label="∇ŝ").opts(color="black", size=10, marker="x", framewise=True)
                 * hv.VLine(0).opts(color="#bbbbbb") * hv.HLine(0).opts(color="#bbbbbb")).opts(
             title=title, xlabel="∇s₁", ylabel="∇s₂", xlim=(-extent, extent), ylim=(-extent, extent),
-            frame_width=220, frame_height=220, framewise=True, xticks=5, yticks=5)
+            frame_width=240, frame_height=240, framewise=True, xticks=5, yticks=5, show_legend=False,
+            fontscale=0.9)
 
     def __panel__(self):
         form = pn.FlexBox(self.kind, self.obs_input, self.group, self.point, self.image, self.images,
@@ -304,4 +387,8 @@ class HypothesisPanel(pn.viewable.Viewer):
             "### Hypotheses (F80 eq. 10-15)", form, self.message, self.results,
             pn.pane.HoloViews(self.plot, css_classes=["hyp-ellipse"],
                                                    linked_axes=False),
+            pn.pane.Markdown("Magenta: the lower bound ∇0s, the smallest error found with power β0 (F80 "
+                             "eq. 13); dashed: the critical ellipse ∇ŝᵀW∇ŝ = k — an estimate ∇ŝ (×) outside "
+                             "it is rejected (F80 eq. 12).", css_classes=["hyp-caption"],
+                             sizing_mode="stretch_width"),
             sizing_mode="stretch_width")

@@ -23,12 +23,14 @@ import pandas as pd
 import panel as pn
 import param
 from bokeh.events import Tap
-from bokeh.models import ColumnDataSource
+from bokeh.models import ColumnDataSource, FixedTicker
 
+from baarda.errors import BaardaError
 from baarda.stats import precision
 from baarda.stats.hypotheses import HypothesisTest
 
-from ..state import State, display_matrix
+from .. import sbase as sbase_lesson
+from ..state import State, display_matrix, object_unit
 from ..text import html_text, labels, plain
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
                      round_scale, selection_data, selection_layer, suspects_layer)
@@ -97,6 +99,88 @@ def point_size(pts: pd.DataFrame) -> int:
     return 12 if len(pts) <= 500 else 6
 
 
+#: The map frame of a block or network of at least FRAME_MIN_POINTS points: the box of the
+#: points' 5th to 95th percentiles, widened by FRAME_MARGIN of its size on every side (and never
+#: beyond the points). Points outside it are far points: drawn at the frame's edge with their own
+#: marker and listed, instead of setting the frame (Ladybug's few points drifting towards
+#: infinity shrank its 7,764 real points to one pixel). Smaller sets keep their full extent.
+FRAME_QUANTILES = (5.0, 95.0)
+FRAME_MARGIN = 0.75
+FRAME_MIN_POINTS = 50
+
+
+def robust_box(x, y) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1) of the map frame of points at (x, y) (see :data:`FRAME_MARGIN`)."""
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    if not ok.any():
+        return -1.0, 1.0, -1.0, 1.0
+    x, y = x[ok], y[ok]
+    if x.size < FRAME_MIN_POINTS:
+        return float(x.min()), float(x.max()), float(y.min()), float(y.max())
+    (ax, bx), (ay, by) = np.percentile(x, FRAME_QUANTILES), np.percentile(y, FRAME_QUANTILES)
+    m = FRAME_MARGIN * max(bx - ax, by - ay, 1e-9)
+    return (max(float(x.min()), ax - m), min(float(x.max()), bx + m),
+            max(float(y.min()), ay - m), min(float(y.max()), by + m))
+
+
+def framed(pts: pd.DataFrame) -> pd.DataFrame:
+    """The points with far points moved to the frame's edge: columns ``x``, ``y`` clamped to
+    :func:`robust_box`, ``far`` (bool) and the true coordinates ``x_true``, ``y_true``."""
+    x0, x1, y0, y1 = robust_box(pts["x"], pts["y"])
+    x = pts["x"].to_numpy(dtype=float)
+    y = pts["y"].to_numpy(dtype=float)
+    far = (x < x0) | (x > x1) | (y < y0) | (y > y1) | ~np.isfinite(x) | ~np.isfinite(y)
+    return pts.assign(x=np.clip(np.nan_to_num(x), x0, x1), y=np.clip(np.nan_to_num(y), y0, y1), far=far,
+                      x_true=x, y_true=y)
+
+
+def far_note(pts: pd.DataFrame, limit: int = 12) -> str:
+    """The far points of a map as text: how many, and the ``limit`` farthest from the frame's
+    centre with their coordinates."""
+    far = pts[pts["far"]]
+    if far.empty:
+        return ""
+    cx, cy = float(np.median(pts["x"])), float(np.median(pts["y"]))
+    dist = np.hypot(far["x_true"].to_numpy(dtype=float) - cx, far["y_true"].to_numpy(dtype=float) - cy)
+    far = far.iloc[np.argsort(-np.nan_to_num(dist, nan=np.inf), kind="stable")]
+    listed = ", ".join(f"{r.id} ({r.x_true:.4g}, {r.y_true:.4g})" for r in far.head(limit).itertuples())
+    more = f" and {len(far) - limit} more" if len(far) > limit else ""
+    return f"{len(far)} far point(s) drawn at the frame's edge (▽), farthest first: {listed}{more}."
+
+
+#: Standard ellipses larger than this many times the 90th percentile of the semi-major axes are
+#: off-scale: not drawn (a drifting SfM point's σ of 10⁹ would shrink every other ellipse to nothing).
+OFF_SCALE = 20.0
+
+
+def length_text(value: float, unit: str) -> str:
+    """A length in metres as millimetres where the block has units, else in the block's units."""
+    if not np.isfinite(value):
+        return "∞"
+    return f"{1000 * value:.3g} mm" if unit == "m" else f"{value:.3g} (block units)"
+
+
+#: Colours of a |w| scale: two bins below the critical value (accepted: grey, light blue), five
+#: above it (rejected: orange to dark red) on a geometric scale up to the largest |w|.
+W_COLORS = ["#d9d9d9", "#9ecae1", "#fee08b", "#fdae61", "#f46d43", "#d73027", "#7f0000"]
+
+
+def w_levels(critical: float, top: float) -> list[float]:
+    """Bin edges of the |w| colour scale: 0, critical/2, the critical value, then five geometric
+    steps to the largest |w| (at least 1.5 × critical), rounded to two significant digits: a 13.4
+    outlier is two bins above a 4.5 one, and the critical value is a tick of the colour bar."""
+    top = max(float(top) if np.isfinite(top) else 0.0, 1.5 * critical)
+    above = critical * np.geomspace(1.0, top / critical, 6)[1:]
+    rounded = [float(f"{v:.2g}") for v in above]
+    edges = [0.0, round(critical / 2, 2), round(critical, 2)]
+    for v in rounded:
+        edges.append(max(v, edges[-1] * 1.01))
+    edges[-1] = max(edges[-1], top)
+    return edges
+
+
 class MapView(pn.viewable.Viewer):
     """Base class: subclasses give ``key``, ``layers()`` and ``title()``."""
 
@@ -113,7 +197,7 @@ class MapView(pn.viewable.Viewer):
         self.tap.add_subscriber(on_tap(self.state))
         self._hooked = set()
         s = self.state
-        self._layers = [*self.layers(),
+        self._layers = [*self.layers(), self.layer(self._far, "solution"),
                         self.layer(self._suspects, "solution", "robust", opts=suspect_opts())]
         # the selection's Bokeh sources, one pair per figure of this view (same document)
         self._selection_sources: list[tuple[ColumnDataSource, ColumnDataSource]] = []
@@ -123,6 +207,24 @@ class MapView(pn.viewable.Viewer):
                  for render, kinds, opts in self._layers]
         self.dmap = functools.reduce(operator.mul, [block_context(s), *dmaps]).opts(self._overlay_opts())
         self._pane = pn.pane.HoloViews(self.dmap, css_classes=[f"map-{self.key}"], linked_axes=False)
+        self.far_note = pn.pane.HTML("", css_classes=["far-note"], sizing_mode="stretch_width", visible=False)
+        self._far_changed()
+        s.param.watch(self._far_changed, ["solution"])
+
+    def _far_changed(self, *_):
+        note = far_note(self.points()) if self.state.results is not None else ""
+        self.far_note.param.update(object=plain(note), visible=bool(note))
+
+    def _far(self):
+        pts = self.points()
+        far = pts[pts["far"]]
+        return hv.Points(far, ["x", "y"], ["id", "x_true", "y_true"],
+                         label="far points (at the edge)" if len(far) else "").opts(
+            marker="inverted_triangle", size=11, fill_color="white", line_color="#555555", line_width=2,
+            tools=["hover"], nonselection_alpha=1, show_legend=True)
+
+    def far_count(self) -> int:
+        return int(self.points()["far"].sum())
 
     def _overlay_opts(self):
         xl, yl = self.state.map_labels()
@@ -210,10 +312,16 @@ class MapView(pn.viewable.Viewer):
         cols = ["kind", "ids", *columns]
         seg = seg.join(obs[cols], on="obs") if len(seg) else pd.DataFrame(
             columns=["obs", "x0", "y0", "x1", "y1", *cols])
+        if len(seg):
+            x0, x1, y0, y1 = robust_box(self.state.frames()[1]["x"], self.state.frames()[1]["y"])
+            seg = seg.assign(x0=seg["x0"].clip(x0, x1), x1=seg["x1"].clip(x0, x1),
+                             y0=seg["y0"].clip(y0, y1), y1=seg["y1"].clip(y0, y1))
         return seg[~obs["excluded"].to_numpy()[seg["obs"].to_numpy(dtype=int)]] if len(seg) else seg
 
     def points(self) -> pd.DataFrame:
-        return self.state.frames()[1]
+        """The points table of the state with far points at the frame's edge (:func:`framed`)."""
+        raw = self.state.frames()[1]
+        return self.cached("points", (raw,), lambda: framed(raw))
 
     def labels(self) -> hv.Labels:
         pts = self.points()
@@ -223,7 +331,7 @@ class MapView(pn.viewable.Viewer):
                                                       text_color="#333333")
 
     def __panel__(self):
-        return self._pane
+        return pn.Column(self._pane, self.far_note, sizing_mode="stretch_width")
 
 
 class LayoutMap(MapView):
@@ -234,6 +342,8 @@ class LayoutMap(MapView):
     def title(self):
         s = self.state
         text = f"Layout: {len(s.problem.points.ids)} points, {s.problem.n} observations"
+        if self.far_count():
+            text += f" ({self.far_count()} far, at the edge)"
         h, _ = self._hypothesis_ellipse()
         if h is not None:
             text = f"Lower-bound ellipse {h}"     # short: the figure is narrow
@@ -327,16 +437,22 @@ class ResidualMap(MapView):
         seg = self.segments(["w", "v", "unit", "rejected"])
         return seg.assign(abs_w=np.abs(seg["w"].astype(float))) if len(seg) else seg.assign(abs_w=[])
 
-    def _clim(self):
+    def _levels(self) -> list[float]:
+        """The |w| scale (:func:`w_levels`) up to the largest |w| of the lines and points."""
         seg = self._segments()
         top = float(np.nanmax(seg["abs_w"], initial=0.0)) if len(seg) else 0.0
-        return (0, max(self.state.reliability.critical, top))
+        top = max(top, float(np.nanmax(self.points()["max_w"], initial=0.0)))
+        return w_levels(self.state.reliability.critical, top)
+
+    def _scale_opts(self) -> dict:
+        levels = self._levels()
+        return dict(cmap=W_COLORS, color_levels=levels, clim=(0, levels[-1]),
+                    colorbar_opts={"ticker": FixedTicker(ticks=levels)})
 
     def _lines(self):
         return hv.Segments(self._segments(), ["x0", "y0", "x1", "y1"], [*HOVER_OBS, "w", "v", "unit", "abs_w"]).opts(
             hover_tooltips=tips([*HOVER_OBS, "w", "v", "unit", "abs_w"]),
-            color="abs_w", cmap="YlOrRd", clim=self._clim(), line_width=3, tools=["hover"],
-            nonselection_alpha=1)
+            color="abs_w", line_width=3, tools=["hover"], nonselection_alpha=1, **self._scale_opts())
 
     def _rejected(self):
         seg = self._segments()
@@ -346,10 +462,15 @@ class ResidualMap(MapView):
             color="#b2182b", line_width=7, alpha=0.8, nonselection_alpha=0.8)
 
     def _points(self):
-        return hv.Points(self.points(), ["x", "y"], ["id", "status", "max_w"]).opts(
-            color="max_w", cmap="YlOrRd", clim=self._clim(), colorbar=True, size=point_size(self.points()),
-            line_color="#333333", tools=["hover", "tap"], nonselection_alpha=1,
-            clipping_colors={"NaN": "#cccccc"}, clabel="max |w|")
+        pts = self.points()
+        crit = self.state.reliability.critical
+        # the rejected points drawn last (on top of the accepted ones of a dense block)
+        pts = pts.iloc[np.argsort(np.nan_to_num(pts["max_w"].to_numpy(dtype=float), nan=-1.0), kind="stable")]
+        return hv.Points(pts, ["x", "y"], ["id", "status", "max_w"]).opts(
+            color="max_w", colorbar=True, size=point_size(pts),
+            line_color="#333333" if len(pts) <= 500 else None, tools=["hover", "tap"], nonselection_alpha=1,
+            clipping_colors={"NaN": "#cccccc"}, clabel=f"largest |w| per point (critical {crit:.2f}: rejected above)",
+            **self._scale_opts())
 
 
 class ExternalMap(MapView):
@@ -381,7 +502,7 @@ class ExternalMap(MapView):
         if not label:
             return "External reliability δ̄0 (select an observation or a hypothesis: its ∇0x)"
         return (f"External reliability: ∇0x of {label}, "
-                f"max {1000 * size.max(initial=0):.3g} mm ×{scale:g}")
+                f"max {length_text(size.max(initial=0), object_unit(self.state.problem))} ×{scale:g}")
 
     def layers(self):
         return [self.layer(self._context, "solution"), self.layer(self._points, "results"),
@@ -472,45 +593,136 @@ class PrecisionMap(MapView):
             sizing_mode="stretch_width", visible=s.problem.points.dim > 1, stylesheets=[INLINE_DROPDOWN])
         self.sbase.param.watch(lambda e: setattr(s, "sbase", list(e.new)), "value")
         s.param.watch(lambda e: setattr(self.sbase, "value", list(e.new)), "sbase")
-        self.note = pn.pane.HTML(pn.bind(lambda *_: html_text(s.sbase_check()), s.param.solution, s.param.sbase),
-                                     css_classes=["sbase-note"], sizing_mode="stretch_width",
-                                     visible=s.problem.points.dim > 1)
+        self.free_reason = sbase_lesson.free_block_reason(s) if s.problem.points.dim > 1 else "not planimetric"
+        self.free_box().visible = not self.free_reason
+        self.note = pn.pane.HTML(pn.bind(lambda *_: self._note(), s.param.solution, s.param.sbase,
+                                         self.free.param.value),
+                                 css_classes=["sbase-note"], sizing_mode="stretch_width",
+                                 visible=s.problem.points.dim > 1)
+        self.compare = pn.pane.HoloViews(pn.bind(lambda *_: self._comparison(), s.param.solution, s.param.sbase,
+                                                 self.free.param.value),
+                                         css_classes=["sbase-compare"], linked_axes=False,
+                                         visible=s.problem.points.dim > 1)
+
+    def free_box(self) -> pn.widgets.Checkbox:
+        """The free-block view's checkbox (made with the map's layers, whose ellipses follow it)."""
+        if getattr(self, "free", None) is None:
+            self.free = pn.widgets.Checkbox(label="free-block view (control left out: the S-base matters)",
+                                            value=False, css_classes=["sbase-free"])
+        return self.free
+
+    def _stream(self, kind):
+        """The map's streams, and one over the free-block checkbox (a layer redrawn by a state
+        parameter triggered with an unchanged value would return its memoized element)."""
+        if kind == "free":
+            if kind not in self._streams:
+                self._streams[kind] = hv.streams.Params(self.free_box(), ["value"])
+            return self._streams[kind]
+        return super()._stream(kind)
+
+    def free_view(self) -> bool:
+        free = getattr(self, "free", None)      # the title is asked for while the map is made
+        return free is not None and bool(free.value) and not getattr(self, "free_reason", "not yet known")
+
+    def _note(self) -> str:
+        s = self.state
+        if self.free_view():
+            base = ", ".join(s.sbase) if s.sbase else "every point (inner constraints)"
+            self._ellipses()
+            return html_text(f"Free-block view: the control observations left out, the block adjusted as a "
+                             f"free network (M84 §2); S-base: {base}. Choose other S-base points: the "
+                             "ellipses change, r and w do not. " + getattr(self, "_free_error", ""))
+        if getattr(s.problem.datum, "kind", "") != "free" and s.problem.points.dim > 1:
+            text = sbase_lesson.WHY_NOT if not self.free_reason else (
+                sbase_lesson.WHY_NOT.split(" Tick")[0] + f" (No free-block view: {self.free_reason}.)")
+            return html_text(text + (" " + s.sbase_check() if s.sbase else ""))
+        return html_text(s.sbase_check())
+
+    def point_cov2(self) -> np.ndarray:
+        """The planimetric point covariances the map shows: the state's (its S-base) or, in the
+        free-block view, the free block's in the chosen S-base."""
+        s = self.state
+        self._free_error = ""
+        if self.free_view():
+            try:
+                return sbase_lesson.free_point_cov2(s, s.sbase)
+            except (BaardaError, np.linalg.LinAlgError) as err:   # a base that does not fix the datum
+                self._free_error = f"S-base {', '.join(s.sbase)}: {err}; shown with every point instead."
+                return sbase_lesson.free_point_cov2(s, [])
+        return s.point_cov2()
+
+    def _comparison(self):
+        """The same ellipses at the same scale in the reference base (the problem's own datum; in
+        the free-block view the inner constraints over every point) beside the chosen S-base."""
+        s = self.state
+        pts = self.points()
+        _, scale, _, _ = self._ellipses()
+        if self.free_view():
+            cov, name = sbase_lesson.free_point_cov2(s, []), "free block, all points (inner constraints)"
+        else:
+            cov, name = s.results.point_cov[:, :2, :2], "the problem's own datum"
+        paths, _, _, _ = self._ellipse_paths(cov, scale)
+        size = frame_size(pts, s.images, size=260)
+        return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
+                * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=3)).opts(
+            title=f"Same scale ×{scale:g}: {name}", xlabel="", ylabel="", toolbar=None, fontsize={"title": "9pt"},
+            **size, **formatters())
 
     def __panel__(self):
-        return pn.Column(self.sbase, self.note, self._pane, sizing_mode="stretch_width")
+        return pn.Column(self.sbase, self.free, self.note, self._pane, self.far_note, self.compare,
+                         sizing_mode="stretch_width")
 
     def _ellipses(self):
         s = self.state
-        return self.cached("ellipses", (s.solution, s.sbase), self._ellipses_now)
+        return self.cached("ellipses", (s.solution, s.sbase, self.free_view()), self._ellipses_now)
 
-    def _ellipses_now(self):
+    def _ellipse_paths(self, cov2: np.ndarray, scale: float | None = None):
+        """Ellipse paths of point covariances (m × 2 × 2), exaggerated so that the 90th
+        percentile of the semi-major axes of the points inside the frame is 5 % of the frame
+        (or by ``scale``); ellipses over :data:`OFF_SCALE` times that percentile, and those of
+        far points, are not drawn. Returns (paths, scale, largest drawn axis, off-scale count)."""
         s = self.state
         pts = self.points()
         M = display_matrix(s.problem)
-        C = np.einsum("ij,mjk,lk->mil", M, s.point_cov2(), M)
+        C = np.einsum("ij,mjk,lk->mil", M, cov2, M)
         ell = precision.standard_ellipses(0.5 * (C + np.swapaxes(C, 1, 2)))     # the core's (a, b, bearing)
         axis = ell[:, 0]
-        big = axis.max(initial=0.0)
-        scale = round_scale(0.05 * extent(pts) / big) if big > 0 else 1.0
+        far = pts["far"].to_numpy(dtype=bool)
+        inside = axis[(axis > 0) & np.isfinite(axis) & ~far]
+        ref = float(np.percentile(inside, 90)) if inside.size else 0.0
+        drawn = (axis > 0) & np.isfinite(axis) & ~far & (axis <= OFF_SCALE * ref)
+        if scale is None:
+            scale = round_scale(0.05 * extent(pts) / ref) if ref > 0 else 1.0
         centre = pts[["x", "y"]].to_numpy(dtype=float)[:, None, :]
-        paths = (precision.ellipse_points(ell) * scale + centre)[axis > 0]
-        return joined(paths), scale, big
+        paths = (precision.ellipse_points(ell[drawn]) * scale + centre[drawn])
+        big = float(axis[drawn].max(initial=0.0))
+        off = int(((axis > 0) & ~drawn).sum())
+        return joined(paths), scale, big, off
+
+    def _ellipses_now(self):
+        return self._ellipse_paths(self.point_cov2())
 
     def title(self):
         s = self.state
         sig = "σ̂0" if s.sigma0_mode == "aposteriori" else "σ0 a priori"
+        unit = object_unit(s.problem)
         if s.problem.points.dim == 1:
-            return f"Precision: σ of the heights [mm] ({sig})"
-        _, scale, big = self._ellipses()
+            return f"Precision: σ of the heights [{'mm' if unit == 'm' else 'block units'}] ({sig})"
+        _, scale, big, off = self._ellipses()
         base = f"S-base {plain(', '.join(s.sbase))}" if s.sbase and not s.sbase_error else "own datum"
-        return f"Standard ellipses ×{scale:g}, max {1000 * big:.3g} mm ({sig}, {base})"
+        if self.free_view():
+            base = "free block, " + (f"S-base {plain(', '.join(s.sbase))}" if s.sbase else "all points")
+        text = f"Standard ellipses ×{scale:g}, largest drawn {length_text(big, unit)}"
+        if off:
+            text += f"; {off} off-scale, not drawn"
+        return f"{text} ({sig}, {base})"
 
     def layers(self):
-        return [self.layer(self._ellipse_layer, "solution", "sbase"), self.layer(self._points, "solution"),
+        return [self.layer(self._ellipse_layer, "solution", "sbase", "free"), self.layer(self._points, "solution"),
                 self.layer(self.labels, "solution")]
 
     def _ellipse_layer(self):
-        paths, _, _ = self._ellipses() if self.state.problem.points.dim > 1 else ([], 1, 0)
+        paths = self._ellipses()[0] if self.state.problem.points.dim > 1 else []
         return hv.Path(paths, label="ellipses").opts(color="#1f4e9c", line_width=2, nonselection_alpha=1)
 
     def _points(self):
@@ -577,10 +789,12 @@ class ImageResidualView(pn.viewable.Viewer):
             x0, y0 = (0.0, 0.0) if (len(df) == 0 or df["x"].min() >= -1) else (-w / 2, -h / 2)
             frame = [np.array([[x0, y0], [x0 + w, y0], [x0 + w, y0 + h], [x0, y0 + h], [x0, y0]])]
         border = hv.Path(frame).opts(color="#888888", nonselection_alpha=1)
+        levels = w_levels(crit, top)
         vec = hv.Segments(df, ["x", "y", "x1", "y1"], ["point", "vx", "vy", "abs_w"]).opts(
             hover_tooltips=tips(["point", "vx", "vy", "abs_w"]),
-            color="abs_w", cmap="YlOrRd", clim=(0, top), line_width=3, colorbar=True, clabel="|w|",
-            tools=["hover"], nonselection_alpha=1)
+            color="abs_w", cmap=W_COLORS, color_levels=levels, clim=(0, levels[-1]), line_width=3,
+            colorbar=True, colorbar_opts={"ticker": FixedTicker(ticks=levels)},
+            clabel=f"|w| (critical {crit:.2f}: rejected above)", tools=["hover"], nonselection_alpha=1)
         pts = hv.Points(df, ["x", "y"], ["point", "vx", "vy", "abs_w"]).opts(
             color="#333333", size=5, tools=["hover"], nonselection_alpha=1)
         unit = ""

@@ -20,10 +20,17 @@ def summary_html(s: dict) -> str:
     else:
         gt = "passed" if g["passed"] else "FAILED"
         cls = "ok" if g["passed"] else "bad"
+        if g.get("side") == "low":        # not an error in the data (F80 §4.1)
+            gt, cls = gt + ": σ0 a priori too pessimistic", "na"
+    if g.get("test") == "one-sided" and g["upper"] is not None:
+        how = f" ≤ {g['upper']:.4g}<br>one-sided, B-method α = {100 * g['alpha']:.3g} %"
+    elif g["lower"] is not None:
+        how = f" ∈ [{g['lower']:.4g}, {g['upper']:.4g}]<br>two-sided at conf-pr {g['conf_pr']:.3g}"
+    else:
+        how = ""
     post = s["sigma0_aposteriori"]
     cards = [
-        ("Global test", f"<b class='{cls}'>{gt}</b><br>vᵀPv = {g['statistic']:.4g}"
-         + (f" ∈ [{g['lower']:.4g}, {g['upper']:.4g}]" if g["lower"] is not None else "")),
+        ("Global test", f"<b class='{cls}'>{gt}</b><br>vᵀPv = {g['statistic']:.4g}{how}"),
         ("σ0", f"a priori {s['sigma0_apriori']:.4g}<br>σ̂0 = " + ("–" if post is None else f"{post:.4g}")
          + f" (uses {s['sigma0_used']})"),
         ("Model", f"n = {s['n_observations']}, u = {s['n_unknowns']}, r = {s['dof']}<br>{html_text(s['datum'])}"),

@@ -1,23 +1,29 @@
 """The tests table: every observation with the core's v, w, τ, r, MDB, δ̄0 and the decision.
 
 Selecting one row selects that observation in the state (and so on the maps); a point selected
-on a map selects all rows of its observations here. The table is sortable, has header filters
-and can be limited to the rows of the current selection.
+on a map selects all rows of its observations here. The table is sortable (by |w| descending at
+first: |w| and |τ| have their own columns, as sorting the signed w would put large negative
+values last), has header filters and can be limited to the rows of the current selection. The
+decision is in words, rejected in red and accepted in green (issue 15).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import panel as pn
-from bokeh.models.widgets.tables import NumberFormatter
+from bokeh.models.widgets.tables import HTMLTemplateFormatter, NumberFormatter
 import param
 
 from ..state import State
 
-COLUMNS = {"kind": "kind [unit]", "ids": "ids", "v": "v", "w": "w", "tau": "τ", "r": "r",
-           "mdb": "MDB", "ext": "δ̄0", "rejected": "rej.", "excluded": "excl.",
+COLUMNS = {"kind": "kind [unit]", "ids": "ids", "v": "v", "w": "w", "abs_w": "|w|", "tau": "τ", "abs_tau": "|τ|",
+           "decision": "decision", "r": "r", "mdb": "MDB", "ext": "δ̄0", "excluded": "excluded",
            "robust_w": "robust weight"}
-WIDTHS = {"index": 48, "kind": 105, "ids": 112, "rejected": 44, "excluded": 44}
+WIDTHS = {"index": 48, "kind": 105, "ids": 112, "decision": 84, "excluded": 70}
+#: The decision in words: rejected red, accepted green (the colours people read correctly).
+DECISION = HTMLTemplateFormatter(template=(
+    '<span style="font-weight:600;color:<%= value == "rejected" ? "#b2182b" : '
+    '(value == "accepted" ? "#1a7f37" : "#777777") %>"><%- value %></span>'))
 TABLE_CSS = ".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; }"
 
 
@@ -38,16 +44,19 @@ class TestsTable(pn.viewable.Viewer):
             pagination="local", page_size=200,
             header_filters={"kind": {"type": "input", "func": "like", "placeholder": "kind"},
                             "ids": {"type": "input", "func": "like", "placeholder": "ids"},
-                            "rejected": {"type": "tickCross", "tristate": True, "indeterminateValue": None},
-                            "excluded": {"type": "tickCross", "tristate": True, "indeterminateValue": None}},
-            formatters={"rejected": {"type": "tickCross"}, "excluded": {"type": "tickCross"},
+                            "decision": {"type": "list", "values": ["rejected", "accepted", "excluded",
+                                                                   "not testable"], "clearable": True},
+                            "excluded": {"type": "list", "values": ["excluded", ""], "clearable": True}},
+            formatters={"decision": DECISION,
                         "v": NumberFormatter(format="0.[000]"), "w": NumberFormatter(format="0.000"),
+                        "abs_w": NumberFormatter(format="0.000"), "abs_tau": NumberFormatter(format="0.000"),
                         "tau": NumberFormatter(format="0.000"), "r": NumberFormatter(format="0.000"),
                         "mdb": NumberFormatter(format="0.[000]"), "ext": NumberFormatter(format="0.00"),
                         "robust_w": NumberFormatter(format="0.000", nan_format="")},
             titles=COLUMNS, css_classes=["tests-table"], stylesheets=[TABLE_CSS], widths=WIDTHS,
             text_align={"v": "right", "w": "right", "tau": "right", "r": "right", "mdb": "right", "ext": "right",
-                        "robust_w": "right"})
+                        "robust_w": "right", "abs_w": "right", "abs_tau": "right"},
+            sorters=[{"field": "abs_w", "dir": "desc"}])
         self.only_selection.param.watch(self._refresh, "value")
         self.table.param.watch(self._on_selection, "selection")
         self.state.param.watch(self._refresh, ["results", "robust"])
@@ -55,12 +64,20 @@ class TestsTable(pn.viewable.Viewer):
 
     def _frame(self):
         obs, _ = self.state.frames()
-        df = obs[list(COLUMNS)].copy()
+        df = obs[["kind", "ids", "v", "w", "tau", "r", "mdb", "ext", "robust_w"]].copy()
         df["kind"] = obs["kind"] + " [" + obs["unit"] + "]"
+        df["abs_w"] = np.abs(obs["w"].to_numpy(dtype=float))
+        df["abs_tau"] = np.abs(obs["tau"].to_numpy(dtype=float))
+        excluded = obs["excluded"].to_numpy(dtype=bool)
+        df["decision"] = np.where(excluded, "excluded", np.where(
+            obs["rejected"].to_numpy(dtype=bool), "rejected",
+            np.where(np.isfinite(obs["w"].to_numpy(dtype=float)), "accepted", "not testable")))
+        df["excluded"] = np.where(excluded, "excluded", "")
+        df = df[list(COLUMNS)]
         rows = self._state_rows()
         if self.only_selection.value and rows is not None:
             df = df.loc[df.index.isin(rows)]
-        for c in ("v", "w", "tau", "r", "mdb", "ext", "robust_w"):
+        for c in ("v", "w", "abs_w", "tau", "abs_tau", "r", "mdb", "ext", "robust_w"):
             df[c] = df[c].astype(float)
         return df
 

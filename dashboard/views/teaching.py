@@ -1,10 +1,11 @@
 """Teaching views: the power function of the test and the MDB against the redundancy number.
 
-The left plot shows the density of T under H0 (central χ²(q)) and under Ha (non-central
+The first plot shows the density of T under H0 (central χ²(q)) and under Ha (non-central
 χ'²(q, δ0²)), the critical value k = χ²_{1−α}(q) with the size α (area of H0 right of k) and
-the power β0 (area of Ha right of k). δ0 and k come from the core (:mod:`baarda.stats.distributions`); the
-densities are only drawn here. The right plot is ∇0l/σ = δ0/√r (F80 §5) with the observations
-of the problem on it.
+the power β0 (area of Ha right of k); the second shows the tail right of k on a log scale, where
+α = 0.001 is visible. δ0 and k come from the core (:mod:`baarda.stats.distributions`); the
+densities are only drawn here. The last plot is ∇0l/σ = δ0/√r (F80 §5) with the observations
+of the problem on it (those with r ≈ 0 at its top edge).
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ class TeachingView(pn.viewable.Viewer):
         self.q_widget.link(self, value="q")
         self.power = hv.DynamicMap(self._power, streams=[hv.streams.Params(self.state, ["results", "reliability"]),
                                                          hv.streams.Params(self, ["q"])])
+        self.tail = hv.DynamicMap(self._tail, streams=[hv.streams.Params(self.state, ["results", "reliability"]),
+                                                       hv.streams.Params(self, ["q"])])
         self.mdb = hv.DynamicMap(self._mdb_curve, streams=[hv.streams.Params(self.state, ["results", "reliability"])])
 
     def _power(self, **_):
@@ -58,40 +61,81 @@ class TeachingView(pn.viewable.Viewer):
         x = np.linspace(1e-3, top, 600)
         f0 = sps.chi2.pdf(x, q)
         fa = sps.ncx2.pdf(x, q, lam)
-        ymax = float(np.nanmax(fa)) * 2.5
+        # χ²(1) goes to infinity at 0 (the only density clipped); for q ≥ 2 both curves show whole
+        ymax = float(np.nanmax(fa)) * 2.5 if q == 1 else 1.1 * float(max(np.nanmax(f0), np.nanmax(fa)))
         f0 = np.minimum(f0, ymax)
         right = x >= k
         kd, vd = "T", "density"
+        pad = 0.015 * top
+        h0 = f"H0: χ²({q})" + (" (→ ∞ at 0)" if q == 1 else "")
         return (hv.Area((x[right], fa[right]), kd, vd, label=f"power β0 = {policy.beta0:.2f}").opts(
                     color="#e6007e", alpha=0.3)
                 * hv.Area((x[right], f0[right]), kd, vd, label=f"size α = {alpha:.2g}").opts(color="#1f4e9c", alpha=0.6)
-                * hv.Curve((x, f0), kd, vd, label=f"H0: χ²({q})").opts(color="#1f4e9c", line_width=2)
+                * hv.Curve((x, f0), kd, vd, label=h0).opts(color="#1f4e9c", line_width=2)
                 * hv.Curve((x, fa), kd, vd, label=f"Ha: χ'²({q}, δ0² = {lam:.2f})").opts(color="#e6007e", line_width=2)
                 * hv.VLine(k).opts(color="black", line_dash="dashed")
-                * hv.Text(k, ymax * 0.9, f" k = {k:.2f}", halign="left", kdims=[kd, vd]).opts(text_font_size="10pt")
+                * hv.Text(k + pad, ymax * 0.9, f"k = {k:.2f}", halign="left", kdims=[kd, vd]).opts(text_font_size="10pt")
                 * hv.VLine(lam).opts(color="#e6007e", line_dash="dotted")
-                * hv.Text(lam, ymax * 0.75, f" δ0² (δ0 = {d0:.2f})", halign="left", kdims=[kd, vd]).opts(text_font_size="10pt")
+                * hv.Text(lam + pad, ymax * 0.75, f"δ0² (δ0 = {d0:.2f})", halign="left", kdims=[kd, vd]).opts(
+                    text_font_size="10pt")
                 ).opts(title=f"Power of the {q}-dimensional test (α = {alpha:.2g}, β0 = {policy.beta0:.2f})",
                        xlabel="T", ylabel="density", ylim=(0, ymax), responsive=True, height=290,
                        legend_position="top_right", fontscale=0.9)
 
+    def _tail(self, **_):
+        """The tail right of k on a log scale: the size α (area of H0 there), invisible on the
+        linear plot at α = 0.001, beside the power β0 (area of Ha)."""
+        policy = self.state.reliability.policy
+        q = self.q
+        alpha, d0, k = policy.alpha(q), policy.delta0(q), policy.critical_T(q)
+        lam = d0 ** 2
+        top = max(lam + q + 5 * np.sqrt(2 * (q + 2 * lam)), k * 1.3)
+        x = np.linspace(k, top, 300)
+        f0 = sps.chi2.pdf(x, q)
+        fa = sps.ncx2.pdf(x, q, lam)
+        floor = max(float(f0.min()), 1e-5 * float(fa.max()))
+        kd, vd = "T", "density"
+        base = np.full(x.size, floor)
+        f0 = np.maximum(f0, floor)
+        return (hv.Area((x, base, fa), kd, [vd, "top"], label=f"β0 = {policy.beta0:.2f}").opts(
+                    color="#e6007e", alpha=0.3)
+                * hv.Area((x, base, f0), kd, [vd, "top"], label=f"α = {alpha:.2g}").opts(color="#1f4e9c", alpha=0.6)
+                * hv.Curve((x, f0), kd, vd).opts(color="#1f4e9c", line_width=2)
+                * hv.Curve((x, fa), kd, vd).opts(color="#e6007e", line_width=2)
+                ).opts(hv.opts.Overlay(
+                    title=f"Right of k = {k:.2f} on a log scale: the size α (area under H0)",
+                    xlabel="T", ylabel="density (log)", logy=True, ylim=(floor, float(fa.max()) * 3),
+                    responsive=True, height=200, legend_position="top_right", fontscale=0.85))
+
     def _mdb_curve(self, **_):
+        """δ0/√r with the observations on it; those above the plot (r ≈ 0: MDB → ∞) are drawn at
+        its top edge as triangles and counted in the legend, not dropped."""
         obs, _ = self.state.frames()
         r = np.linspace(0.02, 1.0, 200)
         d0 = self.state.reliability.delta0
-        live = thinned(obs[~obs["excluded"] & np.isfinite(obs["mdb_sigma"])])
+        ytop = max(6 * d0, 1.0)
+        live = obs[~obs["excluded"]]
+        m = live["mdb_sigma"].to_numpy(dtype=float)
+        off = ~np.isfinite(m) | (m > ytop)
+        on = thinned(live[~off])
+        high = live[off].assign(mdb_sigma=ytop * 0.985, r=np.clip(live["r"][off].to_numpy(dtype=float), 0, 1))
         return (hv.Curve((r, d0 / np.sqrt(r)), "r", "mdb_sigma", label="δ0 / √r").opts(color="black")
-                * hv.Points(live, ["r", "mdb_sigma"], ["kind", "ids"]).opts(
-                    color="kind", cmap="Category10", size=7, tools=["hover"], alpha=0.8, show_legend=False)
+                * hv.Points(on, ["r", "mdb_sigma"], ["kind", "ids"]).opts(
+                    color="kind", cmap="Category10", size=7, tools=["hover"], alpha=0.8, show_legend=True)
+                * hv.Points(high, ["r", "mdb_sigma"], ["kind", "ids"],
+                            label=f"{int(off.sum())} above the plot (r ≈ 0)" if off.any() else "").opts(
+                    marker="triangle", size=9, color="#d7191c", tools=["hover"], show_legend=bool(off.any()))
                 * hv.VSpan(0, 0.1).opts(color="#d7191c", alpha=0.1)
                 * hv.VSpan(0.1, 0.3).opts(color="#fdae61", alpha=0.1)
                 ).opts(title=f"MDB in units of σ against the redundancy number (δ0 = {d0:.2f})",
-                       xlim=(0, 1.02), ylim=(0, max(6 * d0, 1.0)), responsive=True, height=290,
+                       xlim=(0, 1.02), ylim=(0, ytop), responsive=True, height=290, legend_position="top_right",
                        fontscale=0.9, xlabel="redundancy number r", ylabel="∇0l / σ")
 
     def __panel__(self):
         return pn.Column(self.q_widget,
                          pn.pane.HoloViews(self.power, sizing_mode="stretch_width", css_classes=["teach-power"],
+                                           linked_axes=False),
+                         pn.pane.HoloViews(self.tail, sizing_mode="stretch_width", css_classes=["teach-tail"],
                                            linked_axes=False),
                          pn.pane.HoloViews(self.mdb, sizing_mode="stretch_width", css_classes=["teach-mdb"],
                                            linked_axes=False),

@@ -1,4 +1,4 @@
-"""Browser tests of the served dashboard with Debian's Chromium (PANEL_NOTES.md).
+"""Browser tests of the served dashboard with Debian's Chromium (../shared/PANEL_NOTES.md).
 
 The app runs in this process (``pn.serve(..., threaded=True)``) on 127.0.0.1 and a free port;
 the fixture keeps every session's template so tests can compare the page with the state, and

@@ -134,6 +134,8 @@ def test_hostile_ids_are_text_everywhere(page, hostile_app, tmp_path, screenshot
     page.screenshot(path=str(screenshots / "hostile-selection.png"))
 
     # the tests table, the image list, the hypotheses with hostile labels
+    # (the Suspects view is the first tab on the right now: open the tests table)
+    page.get_by_text("Tests table", exact=True).first.click()
     expect(page.locator(".tests-table")).to_contain_text(printable(HOSTILE[4]), timeout=30_000)
     image = next(im["id"] for im in state.images if im["id"].startswith(IFRAME))
     point = next(str(ids["point"]) for ids in state.problem.info.ids if ids.get("image") == image)

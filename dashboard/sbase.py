@@ -1,0 +1,78 @@
+"""The S-base lesson on any problem: a controlled block seen as a free block (M84 §2).
+
+An S-transformation changes the coordinate covariance of a *free* network: Σ_S = S Σ Sᵀ with
+S = I − G (EᵀG)⁻¹ Eᵀ over the datum's null space G (M84 §2.1-2.2). A block or network whose datum
+is its control (fixed and weighted points) has no datum defect: G is empty, S = I, and choosing
+another S-base changes nothing — which is why the precision map of the demo block stays the same
+to the last digit. The lesson needs a free network: :func:`free_block` adjusts the current
+(reduced) problem again without its control observations as a free network (inner constraints
+over every point), and :func:`free_point_cov2` gives its planimetric point covariances in a
+chosen S-base (the core's :func:`baarda.stats.precision.covariance`). Nothing is computed here
+that the core does not compute.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from baarda.adjust import adjust
+from baarda.datum import Datum
+from baarda.model.problem import without
+from baarda.stats import precision
+
+#: Why the S-base does not change a controlled problem's covariance (shown beside the control).
+WHY_NOT = ("The datum of this problem is its control (fixed and weighted points): it has no datum "
+           "defect, so an S-transformation is the identity (S = I − G (EᵀG)⁻¹Eᵀ with an empty null "
+           "space G, M84 §2) and the covariance does not change with the S-base. Tick the free-block "
+           "view to leave the control out and see the same points as a free network, whose "
+           "covariance does depend on the S-base.")
+
+
+def control_rows(problem) -> np.ndarray:
+    """Indices of the control observations (the kinds ``control-*``) of a problem."""
+    return np.flatnonzero(np.char.startswith(np.asarray(problem.info.kind, dtype=str), "control"))
+
+
+def free_block_reason(state) -> str:
+    """Why the free-block view cannot be offered ("" if it can)."""
+    p = state.results.problem if state.results is not None else None
+    if p is None:
+        return "no adjustment"
+    if getattr(p.datum, "kind", "") == "free":
+        return "the problem is a free network already"
+    if not control_rows(p).size:
+        return "its datum is given by fixed points (not estimated), which a free view cannot release"
+    if np.any(np.asarray(state.problem.points.status) == "fixed"):
+        return "it has fixed points (not estimated), which a free view cannot release"
+    return ""
+
+
+def free_block(state):
+    """The current (reduced) problem without its control observations, adjusted as a free network
+    (the core's :func:`baarda.adjust.adjust` with ``Datum("free")``: inner constraints over every
+    point). Cached on the state per adjustment."""
+    adj = state.results
+    hit = getattr(state, "_free_block", None)
+    if hit is not None and hit[0] is adj:
+        return hit[1]
+    reduced, _ = without(adj.problem, control_rows(adj.problem))
+    free = adjust(replace(reduced, datum=Datum("free", ())), state.options())
+    state._free_block = (adj, free)
+    return free
+
+
+def free_point_cov2(state, sbase) -> np.ndarray:
+    """Planimetric 2 × 2 covariance per point (m × 2 × 2, m²) of :func:`free_block` in the S-base
+    ``sbase`` (point ids; empty: the inner constraints over every point)."""
+    free = free_block(state)
+    cc = precision.covariance(free, list(sbase) or None)
+    m = len(state.problem.points.ids)
+    out = np.zeros((m, 2, 2))
+    plan = cc.axis < 2
+    for p in np.unique(cc.point[plan]):
+        sel = np.flatnonzero((cc.point == p) & plan)
+        if sel.size == 2:
+            out[p] = cc.cov[np.ix_(sel, sel)]
+    return out

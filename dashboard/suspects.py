@@ -1,0 +1,262 @@
+"""The reviewer's ranked list of suspects: 1D tests, group tests and point-transfer scans in one table.
+
+Every row is a hypothesis the core has tested on the current adjustment (:class:`State`'s
+``results`` under its test policy, ``reliability``):
+
+- **observation**: Baarda's w-test of one observation (H = e_i; F80 eq. 10-12, q = 1), for the
+  :data:`TOP_1D` largest |w| (or |τ|);
+- **group**: the multi-dimensional test of an observation group of the problem — an image point
+  (x, y), a GNSS vector, a control point (F80 eq. 12; the core's ``Reliability.groups``), for
+  the :data:`TOP_GROUPS` largest T / k;
+- **transfer**: the point-transfer hypothesis H = (0 … I₂ … I₂ … 0)ᵀ (F80 §2.2) of a suspect
+  point over consecutive images of one strip (a scan over the runs of at least two of its images
+  in each strip; :data:`TRANSFER_POINTS` points at most), each tested by ``Reliability.test``.
+
+Columns: |w| and |τ| (the largest over the hypothesis' observations), T and its critical value k,
+the decision in words, the estimated error ∇ŝ (F80 eq. 10, in the file's units of the
+observations), and the MDB ratio √T / δ0(q): the length of ∇ŝ over the lower bound ∇0s in its
+own direction (F80 eq. 13, ∇0s = s δ0 / √(sᵀ W s) with s = ∇ŝ and ∇ŝᵀ W ∇ŝ = T); for one
+observation |∇ŝ| / MDB = |w| / δ0. Hypotheses whose statistics are (near-)perfectly correlated
+(|ρ| ≥ :data:`baarda.stats.separability.THRESHOLD`; F80 §7.4, M84 §3.3) cannot be told apart by
+the data: each row names its twins. The list is sorted by |w|, largest first.
+
+The dashboard computes nothing here: the statistics are the core's, the list only orders and
+names them (issue 15, item 2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from baarda.errors import BaardaError
+from baarda.stats import separability
+from baarda.stats.hypotheses import common_error, selection
+
+from .text import plain
+
+#: Observations listed: the largest |w| (the rejected ones first, as they have the largest).
+TOP_1D = 40
+#: Groups listed: the largest T / k (the rejected ones first).
+TOP_GROUPS = 30
+#: Points whose point-transfer hypotheses are scanned (those of the largest suspects).
+TRANSFER_POINTS = 8
+#: Transfer hypotheses kept per point (the largest T / k first).
+TRANSFER_PER_POINT = 3
+
+COLUMNS = ["rank", "what", "hypothesis", "|w|", "decision", "|τ|", "T", "k", "MDB ratio", "∇ŝ",
+           "cannot be told apart from", "obs", "point", "image"]
+
+
+def _max_abs(values: np.ndarray, rows) -> float:
+    v = np.abs(np.asarray(values, dtype=float)[np.asarray(rows, dtype=np.int64)])
+    v = v[np.isfinite(v)]
+    return float(v.max()) if v.size else float("nan")
+
+
+def _estimate_text(nabla, factor: float, unit: str) -> str:
+    return ", ".join(f"{x * factor:+.3g}" for x in np.atleast_1d(nabla)) + f" {unit}"
+
+
+def _point_of(state, rows) -> int | None:
+    """The point an observation set is about (the last point named by its first row)."""
+    pts = state.obs_points[int(rows[0])] if len(rows) else []
+    return int(pts[-1]) if pts else None
+
+
+def group_name(state, rows) -> tuple[str, str]:
+    """(what, name) of an observation group (full indices): an image point, a control point, a
+    GNSS vector or a plain group, named by its ids."""
+    info = state.problem.info
+    ids = info.ids[int(rows[0])]
+    kinds = {str(info.kind[int(i)]) for i in rows}
+    if "image" in ids and "point" in ids:
+        kp = f" (keypoint {ids['keypoint']})" if ids.get("keypoint") is not None else ""
+        return "image point", f"{ids['point']} in image {ids['image']}{kp}"
+    if "id" in ids and all(k.startswith("control") for k in kinds):
+        return "control point", f"{ids['id']}"
+    if "from" in ids:
+        rest = [str(v) for k, v in ids.items() if k not in ("from", "component", "group", "set")]
+        what = "vector" if any("gnss" in k or "vector" in k for k in kinds) else "group"
+        return what, f"{ids['from']}→{','.join(rest)}"
+    return "group", " ".join(str(v) for v in ids.values())
+
+
+def _one_dimensional(state, picked: np.ndarray) -> list[dict]:
+    """Rows of the w-tests (τ-tests under σ̂0) of the reduced observations ``picked``: T = w²
+    against k = w_c² (F80 eq. 12 with H = e_i, q = 1), ∇ŝ = −(Pv)_i / (P C_vv P)_ii (F80 eq. 10,
+    as :mod:`baarda.stats.snooping` reports it), from the core's arrays (no solve per row)."""
+    s = state
+    adj, rel = s.results, s.reliability
+    factor, units = s.display_factor()
+    obs, _ = s.frames()
+    d0 = rel.delta0
+    stat = np.asarray(rel.statistic, dtype=float)
+    out = []
+    for k in picked.tolist():
+        i = int(s.kept[k])
+        ids = s.problem.info.ids[i]
+        qpp = float(adj.qvv_pp[k])
+        nabla = -float(adj.Pv[k]) / qpp if qpp > 0 else float("nan")
+        out.append({"what": "observation", "hypothesis": plain(f"{i} {obs['kind'].iat[i]} {obs['ids'].iat[i]}"),
+                    "|w|": abs(float(adj.w[k])), "|τ|": abs(float(adj.tau[k])),
+                    "T": float(stat[k]) ** 2, "k": float(rel.critical) ** 2, "rejected": bool(rel.rejected[k]),
+                    "∇ŝ": _estimate_text(nabla, factor[i], units[i]),
+                    "MDB ratio": abs(float(stat[k])) / d0,
+                    "obs": i, "point": _point_of(s, [i]),
+                    "image": str(ids["image"]) if "image" in ids else None,
+                    "_H": selection(adj.n, [k]), "_key": ("obs", k)})
+    return out
+
+
+def _groups(state) -> list[dict]:
+    s = state
+    adj, rel = s.results, s.reliability
+    g = rel.groups
+    if len(g) == 0:
+        return []
+    factor, units = s.display_factor()
+    ratio = np.where(g.critical > 0, g.T / np.where(g.critical > 0, g.critical, 1.0), 0.0)
+    ratio = np.where(g.dimension > 0, ratio, -np.inf)
+    order = np.argsort(-ratio, kind="stable")
+    chosen = [int(k) for k in order[:TOP_GROUPS] if np.isfinite(ratio[k])]
+    out = []
+    for k in chosen:
+        d = g[k]
+        members = np.asarray(d["members"], dtype=np.int64)
+        rows = s.kept[members]
+        what, name = group_name(s, rows)
+        i0 = int(rows[0])
+        q = int(d["dimension"])
+        ids = s.problem.info.ids[i0]
+        out.append({"what": what, "hypothesis": plain(name),
+                    "|w|": _max_abs(adj.w, members), "|τ|": _max_abs(adj.tau, members),
+                    "T": float(d["T"]), "k": float(d["critical"]), "rejected": bool(d["rejected"]),
+                    "∇ŝ": _estimate_text(d["nabla"], factor[i0], units[i0]),
+                    "MDB ratio": float(np.sqrt(max(d["T"], 0.0)) / rel.policy.delta0(q)) if q else float("nan"),
+                    "obs": i0, "point": _point_of(s, rows),
+                    "image": str(ids["image"]) if "image" in ids else None,
+                    "_H": selection(adj.n, members), "_key": ("group", int(d["group"]))})
+    return out
+
+
+def transfer_candidates(state, point: str) -> list[list[str]]:
+    """The image sets of the point-transfer scan of ``point``: every run of at least two
+    consecutive images (in the order of the block's images) of one strip in which the point is
+    measured, leaving at least one of its images outside (else the error is absorbed by the
+    point's coordinates and cannot be tested)."""
+    order = {str(im["id"]): k for k, im in enumerate(state.images)}
+    strip = {str(im["id"]): str(im.get("strip", "")) for im in state.images}
+    seen = [im for im in state.images_of_point(point) if im in order]
+    if len(seen) < 3:
+        return []
+    by_strip: dict = {}
+    for im in sorted(seen, key=order.get):
+        by_strip.setdefault(strip[im], []).append(im)
+    out = []
+    for ims in by_strip.values():
+        for a in range(len(ims)):
+            for b in range(a + 2, len(ims) + 1):
+                run = ims[a:b]
+                if len(run) < len(seen) and all(order[y] - order[x] == 1 for x, y in zip(run, run[1:])):
+                    out.append(run)
+    return out
+
+
+def _transfers(state, seeds: list[dict]) -> list[dict]:
+    """Point-transfer scans of the points of the largest image suspects (``seeds`` sorted)."""
+    s = state
+    if not s.images or not any(str(k).startswith("image") for k in set(s.problem.info.kind)):
+        return []
+    adj, rel = s.results, s.reliability
+    factor, units = s.display_factor()
+    points = []
+    for row in seeds:
+        ids = s.problem.info.ids[int(row["obs"])]
+        pid = str(ids.get("point")) if "image" in ids and "point" in ids else None
+        if pid is not None and pid not in points:
+            points.append(pid)
+        if len(points) >= TRANSFER_POINTS:
+            break
+    out = []
+    for pid in points:
+        found = []
+        for ims in transfer_candidates(s, pid):
+            rows = [s.reduced_index(s.point_rows_in_image(j, pid)) for j in ims]
+            rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
+            rows = rows[rows >= 0]
+            comps: dict = {}
+            for k in rows.tolist():
+                i = int(s.kept[k])
+                c = s.problem.info.ids[i].get("component") or s.problem.info.kind[i].rsplit("-", 1)[-1]
+                comps.setdefault(str(c), []).append(k)
+            if not comps:
+                continue
+            H = common_error(adj.n, [np.array(comps[c], dtype=np.int64) for c in sorted(comps)])
+            try:
+                h = rel.test(H, label=f"transfer of {pid} in images {', '.join(ims)}")
+            except (BaardaError, np.linalg.LinAlgError, ValueError):
+                continue
+            if h.q == 0:
+                continue
+            i0 = int(s.kept[rows[0]])
+            found.append({"what": "transfer", "hypothesis": plain(f"{pid} in images {', '.join(ims)}"),
+                          "|w|": _max_abs(adj.w, rows), "|τ|": _max_abs(adj.tau, rows),
+                          "T": float(h.T), "k": float(h.critical_T), "rejected": bool(h.rejected_T),
+                          "∇ŝ": _estimate_text(h.nabla, factor[i0], units[i0]),
+                          "MDB ratio": float(np.sqrt(max(h.T, 0.0)) / h.delta0),
+                          "obs": i0, "point": s.point_index.get(pid), "image": ims[0],
+                          "_H": H, "_key": ("transfer", pid, tuple(ims))})
+        found.sort(key=lambda r: -r["T"] / r["k"])
+        out += found[:TRANSFER_PER_POINT]
+    return out
+
+
+def _mark_twins(state, rows: list[dict]) -> None:
+    """Each row's "cannot be told apart from": its twins among the other rows (F80 §7.4), from
+    the core's :func:`baarda.stats.separability.twins` (w-tests) and
+    :func:`~baarda.stats.separability.inseparable_pairs` (the group and transfer hypotheses)."""
+    adj = state.results
+    for r in rows:
+        r["_twins"] = []
+    one = {r["_key"][1]: r for r in rows if r["_key"][0] == "obs"}
+    for k, r in one.items():
+        for j, rho in separability.twins(adj, k):
+            name = plain(f"obs {int(state.kept[j])} {state.frames()[0]['ids'].iat[int(state.kept[j])]}")
+            r["_twins"].append(f"{name} (ρ = {rho:+.2f})")
+    multi = [r for r in rows if r["_key"][0] != "obs"]
+    if len(multi) >= 2:
+        labels = [str(n) for n in range(len(multi))]
+        groups = separability.inseparable_pairs(adj, [(lab, r["_H"]) for lab, r in zip(labels, multi)])
+        for grp in groups:
+            members = [multi[int(m)] for m in grp.members]
+            for r in members:
+                r["_twins"] += [f"{o['what']} {o['hypothesis']}" for o in members if o is not r]
+
+
+def suspects(state) -> pd.DataFrame:
+    """The ranked list of suspects of ``state`` (module docstring): one row per hypothesis,
+    sorted by |w| (largest first), with ``rank`` 1, 2, …; ``decision`` is "rejected" or
+    "accepted"; ``obs``, ``point`` and ``image`` say what a click selects (full observation index,
+    point index, image id)."""
+    s = state
+    if s.results is None:
+        return pd.DataFrame(columns=COLUMNS)
+    adj, rel = s.results, s.reliability
+    stat = np.abs(np.nan_to_num(np.asarray(rel.statistic, dtype=float), nan=-1.0))
+    order = np.argsort(-stat, kind="stable")
+    picked = order[:TOP_1D]
+    picked = picked[stat[picked] >= 0]
+    rows = _one_dimensional(s, picked)
+    rows += _groups(s)
+    seeds = sorted(rows, key=lambda r: -np.nan_to_num(r["|w|"]))
+    rows += _transfers(s, [r for r in seeds if r["image"] is not None])
+    _mark_twins(s, rows)
+    df = pd.DataFrame([{**{c: r.get(c) for c in COLUMNS if c in r},
+                        "decision": "rejected" if r["rejected"] else "accepted",
+                        "cannot be told apart from": "; ".join(r["_twins"])} for r in rows])
+    if df.empty:
+        return pd.DataFrame(columns=COLUMNS)
+    df = df.sort_values(["|w|", "T"], ascending=False, na_position="last", kind="stable").reset_index(drop=True)
+    df.insert(0, "rank", np.arange(1, len(df) + 1))
+    return df[COLUMNS]

@@ -1,0 +1,157 @@
+"""The suspects view: the reviewer's ranked list of hypotheses (:mod:`baarda.dashboard.suspects`).
+
+One table of 1D tests, group tests and point-transfer scans sorted by |w|; the decision in words
+(rejected in red, accepted in green); hypotheses the data cannot tell apart named in their own
+column. A click on a row selects what it is about in the state — the observation (maps, tests
+table), its point and its image (image view) — so the other views show it at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import panel as pn
+import param
+from bokeh.models.widgets.tables import HTMLTemplateFormatter, NumberFormatter
+
+from baarda.errors import BaardaError
+
+from ..state import TASKS, State
+from ..suspects import COLUMNS, suspects
+from ..text import html_text
+
+#: The decision in words and colours people read correctly: rejected red, accepted green.
+DECISION = HTMLTemplateFormatter(template=(
+    '<span style="font-weight:600;color:<%= value == "rejected" ? "#b2182b" : "#1a7f37" %>">'
+    '<%= value == "rejected" ? "✗ rejected" : "✓ accepted" %></span>'))
+#: Twins: the "cannot be told apart" note in the warning colour.
+TWINS = HTMLTemplateFormatter(template='<span style="color:#a15c00"><%- value %></span>')
+SHOWN = [c for c in COLUMNS if c not in ("obs", "point", "image")]
+TABLE_CSS = ".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; }"
+
+
+class SuspectsView(pn.viewable.Viewer):
+    """The ranked suspects of the state's adjustment; a row click selects it in the state."""
+
+    state = param.ClassSelector(class_=State)
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        self._frame = pd.DataFrame(columns=COLUMNS)
+        self._for = None
+        self.note = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["suspects-note"])
+        self.table = pn.widgets.Tabulator(
+            pd.DataFrame(columns=SHOWN), disabled=True, selectable=1, show_index=False,
+            sizing_mode="stretch_width", height=560, layout="fit_data_stretch", pagination="local",
+            page_size=100, css_classes=["suspects-table"], stylesheets=[TABLE_CSS],
+            header_filters={"what": {"type": "input", "func": "like", "placeholder": "what"},
+                            "hypothesis": {"type": "input", "func": "like", "placeholder": "name"},
+                            "decision": {"type": "list", "values": ["rejected", "accepted"],
+                                         "clearable": True}},
+            formatters={"decision": DECISION, "cannot be told apart from": TWINS,
+                        "|w|": NumberFormatter(format="0.00"), "|τ|": NumberFormatter(format="0.00"),
+                        "T": NumberFormatter(format="0.0"), "k": NumberFormatter(format="0.0"),
+                        "MDB ratio": NumberFormatter(format="0.00")},
+            titles={"k": "critical k", "∇ŝ": "∇ŝ (estimate)", "MDB ratio": "∇ŝ / ∇0s"},
+            text_align={c: "right" for c in ("|w|", "|τ|", "T", "k", "MDB ratio")},
+            widths={"rank": 40, "what": 88, "hypothesis": 170, "decision": 92}, frozen_columns=["rank"])
+        self.table.param.watch(self._clicked, "selection")
+        self.state.param.watch(self._refresh, ["results", "reliability"])
+        self._refresh()
+
+    def _current(self) -> bool:
+        s = self.state
+        return self._for is not None and self._for[0] is s.results and self._for[1] is s.reliability
+
+    def frame(self) -> pd.DataFrame:
+        """The suspects of the current results (computed once per results and policy)."""
+        s = self.state
+        if not self._current():
+            key = (s.results, s.reliability)
+            self._frame, self._for = suspects(s), key
+        return self._frame
+
+    def _note(self, df: pd.DataFrame) -> str:
+        s = self.state
+        if s.results is None:
+            return ""
+        rel = s.reliability
+        n_obs = int(np.count_nonzero(rel.rejected))
+        g = rel.groups
+        n_grp = int(np.count_nonzero(g.rejected)) if len(g) else 0
+        shown_obs = int(((df["what"] == "observation") & (df["decision"] == "rejected")).sum())
+        shown_grp = int(((df["what"] != "observation") & (df["what"] != "transfer")
+                         & (df["decision"] == "rejected")).sum())
+        twins = int((df["cannot be told apart from"] != "").sum())
+        more = []
+        if n_obs > shown_obs:
+            more.append(f"{n_obs - shown_obs} more rejected observations in the tests table")
+        if n_grp > shown_grp:
+            more.append(f"{n_grp - shown_grp} more rejected groups")
+        text = (f"<b>{len(df)} suspects</b>, largest |{rel.policy.statistic_name}| first: "
+                f"{n_obs} observation(s) and {n_grp} group(s) rejected in all"
+                + (f" ({'; '.join(more)})" if more else "") + ". "
+                + (f"<span style='color:#a15c00'>{twins} cannot be told apart from others</span> "
+                   "(their tests are perfectly correlated: the data cannot say which one is wrong). "
+                   if twins else "")
+                + "∇ŝ / ∇0s: the estimated error over the smallest one the test finds with power β0. "
+                  "Click a row: it is selected on the maps, in the image view and in the tests table.")
+        return text
+
+    def _refresh(self, *_):
+        """Show the suspects of the current results. Served, they are computed on a worker thread
+        (some hundred solves on a 1,000-image block: seconds the event loop must not wait) and
+        shown on the session's loop when done."""
+        s = self.state
+        if s.results is None:
+            return
+        if not s.background or self._current():
+            self._show(self.frame())
+            return
+        self.note.object = "<i>Testing the suspects…</i>"
+        key = (s.results, s.reliability)
+
+        def compute():
+            try:
+                df = suspects(s)
+            except (BaardaError, np.linalg.LinAlgError, ValueError) as err:
+                message = f"<b>The suspects could not be tested:</b> {html_text(err)}"
+                s.on_loop(lambda: setattr(self.note, "object", message))
+                return
+            if s.results is key[0] and s.reliability is key[1] and not s._closed:
+                def apply():
+                    self._frame, self._for = df, key
+                    self._show(df)
+                s.on_loop(apply)
+        TASKS.submit(compute)
+
+    def _show(self, df: pd.DataFrame) -> None:
+        self.table.value = df[SHOWN]
+        self.table.selection = []
+        self.note.object = self._note(df)
+
+    def _clicked(self, event):
+        if not event.new:
+            return
+        if not self._current():
+            return
+        df = self._frame
+        row = df.iloc[int(self.table.value.index[event.new[0]])]
+        self.select(row)
+
+    def select(self, row) -> None:
+        """Select what a suspect is about: its observation (a point hypothesis: its point) and
+        its image."""
+        s = self.state
+        upd = {}
+        if row["image"] is not None and not (isinstance(row["image"], float) and np.isnan(row["image"])):
+            upd["selected_image"] = str(row["image"])
+        if row["what"] in ("control point", "transfer") and row["point"] is not None and np.isfinite(row["point"]):
+            upd.update(selected_obs=None, selected_point=int(row["point"]))
+        else:
+            upd.update(selected_point=None, selected_obs=int(row["obs"]))
+        s.param.update(**upd)
+
+    def __panel__(self):
+        return pn.Column(pn.pane.HTML(f"<h3 style='margin:4px 0'>{html_text('Suspects')}</h3>"), self.note,
+                         self.table, sizing_mode="stretch_width")

@@ -1,0 +1,59 @@
+"""Real controls in Chromium (issue 15, item 4): the Hypothesis dropdown opens with a selection,
+the new hypothesis is the highlighted row, the "active" column is a checkbox that a click turns
+off (and on), and the precision tab of the controlled demo block says why the S-base changes
+nothing and offers the free-block view.
+"""
+
+from __future__ import annotations
+
+import pytest
+from playwright.sync_api import expect
+
+from test_app import click_tab, open_app, real_errors, wait_for_title, wait_until
+
+pytestmark = pytest.mark.browser
+
+
+def test_hypothesis_controls(page, block_app, screenshots):
+    state, errors = open_app(page, block_app)
+    click_tab(page, "Hypotheses")
+    kind = page.locator(".hyp-kind select").first
+    kind.wait_for(timeout=30_000)
+    assert kind.evaluate("(s) => s.value") != ""                # a selection, not blank
+    assert kind.evaluate("(s) => s.options[s.selectedIndex].text") == "one observation"
+    page.get_by_role("button", name="Test", exact=True).click()
+    assert wait_until(lambda: len(state.hyp_results) == 1 and state.hyp_results[0] is not None)
+    page.locator(".hyp-obs input").first.fill("301")
+    page.locator(".hyp-obs input").first.press("Enter")
+    page.get_by_role("button", name="Test", exact=True).click()
+    assert wait_until(lambda: len(state.hyp_results) == 2 and state.hyp_results[1] is not None)
+    # the new hypothesis is the highlighted row
+    rows = page.locator(".hyp-table .tabulator-row")
+    assert wait_until(lambda: "tabulator-selected" in (rows.nth(1).get_attribute("class") or ""))
+    assert "tabulator-selected" not in (rows.nth(0).get_attribute("class") or "")
+    # the active column is a checkbox: one click turns the first hypothesis off, another on
+    cell = rows.nth(0).locator(".tabulator-cell[tabulator-field='active']")
+    cell.click()
+    box = cell.locator("input[type='checkbox']")
+    if box.count():
+        box.first.click()
+    page.keyboard.press("Enter")
+    assert wait_until(lambda: state.hypotheses[0]["active"] is False and state.hyp_results[0] is None, 20)
+    page.screenshot(path=str(screenshots / "block-hypothesis-controls.png"))
+    assert real_errors(errors) == []
+
+
+def test_sbase_lesson_on_the_controlled_demo(page, block_app, screenshots):
+    state, errors = open_app(page, block_app)
+    click_tab(page, "Precision")
+    wait_for_title(page, "Standard ellipses")
+    expect(page.locator(".sbase-note").get_by_text("no datum defect", exact=False).first).to_be_visible()
+    page.locator(".sbase-free input[type='checkbox']").first.check()
+    wait_for_title(page, "Standard ellipses", timeout=60_000)
+    # the map itself (not only the reference plot below it) shows the free block
+    assert wait_until(lambda: any(t.startswith("Standard ellipses") and "free block" in t for t in page.evaluate(
+        "() => Bokeh.documents.flatMap(d => [...d.all_models].filter(m => m.constructor.__name__ === 'Title')"
+        ".map(m => String(m.text)))")), 60)
+    expect(page.locator(".sbase-note").get_by_text("Free-block view", exact=False).first).to_be_visible()
+    page.screenshot(path=str(screenshots / "block-sbase-free.png"))
+    assert real_errors(errors) == []
