@@ -250,9 +250,11 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--quiet", "-q", action="store_true")
     sim.add_argument("--debug", action="store_true")
 
-    rp = sub.add_parser("report", help="write a standalone HTML report (opens without a server)",
-                        description="Analyse INPUT and write a standalone HTML report: summary, global test, "
-                                    "maps, hypotheses, group tests and the observation table.")
+    rp = sub.add_parser("report", help="write the client report: standalone HTML, three A4 pages when printed",
+                        description="Analyse INPUT and write the client report (standalone HTML, opens without a "
+                                    "server or network; three A4 pages when printed to PDF): the verdict in plain "
+                                    "language with the key numbers and the map of the tests; the reliability maps; "
+                                    "the suspects and the rejected group tests. The full tables: analyze --csv.")
     rp.add_argument("input", help="the network or block file")
     rp.add_argument("--out", "-o", metavar="HTML", help="the report to write (default: INPUT with .html)")
     rp.add_argument("--format", default="auto", help="input format (see analyze)")

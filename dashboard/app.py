@@ -98,8 +98,99 @@ FIRST_PAGE = """{% extends "fast/list/fast_list_template.html" %}
 </script>
 {{ bokeh_js }}
 {% endif %}
+<script type="text/javascript">{{ keyboard_js }}</script>
 {% endblock %}
 """
+
+#: Keyboard and screen-reader basics for Bokeh's tab bars and checkboxes (issue 15, item 6), in
+#: every shadow root of the page: each bar is a ``tablist``, each header a ``tab`` with
+#: ``aria-selected``; Enter or Space opens the focused tab, the arrow keys, Home and End move to
+#: the previous, next, first and last tab and open it. Only the open tab is in the Tab order (a
+#: roving tabindex), so the Tab key goes from one bar to the next, the right panel's included. A
+#: checkbox's label toggles it and is its accessible name. Bokeh redraws a bar's headers when its
+#: tabs change: the page is looked at again after every click and key, and once a second.
+KEYBOARD_JS = """
+(function () {
+  if (window.baardaKeyboard) return;
+  window.baardaKeyboard = true;
+  let moves = 0;
+  function roots(root, out) {
+    out.push(root);
+    for (const el of root.querySelectorAll('*')) if (el.shadowRoot) roots(el.shadowRoot, out);
+    return out;
+  }
+  function onKey(e) {
+    const tab = e.currentTarget, tabs = Array.from(tab.parentNode.querySelectorAll('.bk-tab'));
+    const i = tabs.indexOf(tab);
+    let j = null;
+    if (e.key === 'Enter' || e.key === ' ') { e.preventDefault(); tab.click(); setTimeout(enhance, 0); return; }
+    if (e.key === 'ArrowRight' || e.key === 'ArrowDown') j = (i + 1) % tabs.length;
+    else if (e.key === 'ArrowLeft' || e.key === 'ArrowUp') j = (i - 1 + tabs.length) % tabs.length;
+    else if (e.key === 'Home') j = 0;
+    else if (e.key === 'End') j = tabs.length - 1;
+    if (j === null) return;
+    e.preventDefault();
+    const titles = tabs.map(t => t.textContent).join('\u0000');
+    const key = ++moves;                  // a later key press ends this one's refocusing
+    tabs[j].click();
+    // Panel redraws the tab bar when the open tab changes: focus tab j of the bar with the
+    // same headers as it is then
+    let tries = 0;
+    (function refocus() {
+      if (key !== moves) return;
+      enhance();
+      let now = null;
+      for (const root of roots(document, []))
+        for (const bar of root.querySelectorAll('.bk-headers-wrapper')) {
+          const ts = Array.from(bar.querySelectorAll('.bk-tab'));
+          if (ts.map(t => t.textContent).join('\u0000') === titles) now = ts[j];
+        }
+      // (for ten seconds: the redraw comes after the server has built the tab's view; the
+      // focus is moved only while it is nowhere, so a user who moved on keeps it)
+      let at = document.activeElement;
+      while (at && at.shadowRoot && at.shadowRoot.activeElement) at = at.shadowRoot.activeElement;
+      if (now && (at === null || at === document.body || at === tabs[j] || !at.isConnected)) now.focus();
+      if (++tries < 200) setTimeout(refocus, 50);
+    })();
+  }
+  function onLabel(e) {
+    const box = e.currentTarget.previousElementSibling;
+    if (box && !box.disabled) box.click();
+  }
+  function enhance() {
+    for (const root of roots(document, [])) {
+      for (const bar of root.querySelectorAll('.bk-headers-wrapper')) {
+        bar.setAttribute('role', 'tablist');
+        for (const tab of bar.querySelectorAll('.bk-tab')) {
+          const open = tab.classList.contains('bk-active');
+          tab.setAttribute('role', 'tab');
+          tab.setAttribute('aria-selected', open ? 'true' : 'false');
+          tab.tabIndex = open ? 0 : -1;
+          if (!tab.baardaKeys) { tab.baardaKeys = true; tab.addEventListener('keydown', onKey); }
+        }
+      }
+      // a checkbox's label (Bokeh draws it as a div beside the box) toggles it and names it
+      for (const box of root.querySelectorAll('input[type=checkbox]')) {
+        const label = box.nextElementSibling;
+        if (!label || !label.classList.contains('bk-label') || label.baardaLabel) continue;
+        label.baardaLabel = true;
+        box.setAttribute('aria-label', label.textContent);
+        label.style.cursor = 'pointer';
+        label.addEventListener('click', onLabel);
+      }
+    }
+  }
+  document.addEventListener('click', function () { setTimeout(enhance, 0); }, true);
+  document.addEventListener('keyup', function () { setTimeout(enhance, 0); }, true);
+  setInterval(enhance, 1000);
+  enhance();
+})();
+"""
+
+#: A focus ring on every control reached by the keyboard (tabs, buttons, inputs, table cells),
+#: added to every component's stylesheets (Panel's ``raw_css``: inside their shadow roots).
+FOCUS_CSS = (":focus-visible { outline: 2px solid #0b5cad !important; outline-offset: 2px; }"
+             " .bk-tab:focus-visible { outline-offset: -2px; }")
 
 
 class FastListTemplate(pn.template.FastListTemplate):
@@ -115,6 +206,7 @@ class FastListTemplate(pn.template.FastListTemplate):
     def server_doc(self, doc=None, title=None, location=True):
         doc = super().server_doc(doc, title, location)
         doc.template_variables["first_summary"] = self.first_summary
+        doc.template_variables["keyboard_js"] = KEYBOARD_JS
         return doc
 
 
@@ -137,6 +229,8 @@ def _extensions():
     if _served():
         _local_stylesheets()
     pn.extension("tabulator", "filedropper", notifications=False, sizing_mode="stretch_width")
+    if FOCUS_CSS not in pn.config.raw_css:
+        pn.config.raw_css = [*pn.config.raw_css, FOCUS_CSS]
     # HoloViews' backend is the process's (a sixth of a session's setup when set each time)
     if hv.Store.current_backend != "bokeh" or "bokeh" not in hv.Store.renderers:
         hv.extension("bokeh", logo=False)
@@ -247,7 +341,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
     waiting = pn.pane.HTML("<i>Drawing the maps…</i>" if state.results is not None else
                            "<i>Reading and adjusting the file…</i>" if (path and not state.error)
                            else "<i>Upload a file (sidebar).</i>", css_classes=["main-waiting"])
-    content = pn.Column(waiting, sizing_mode="stretch_width")
+    content = pn.Column(waiting, sizing_mode="stretch_width", min_width=MAP_MIN_WIDTH)
 
     waits = {"summary": False}
 
@@ -323,7 +417,8 @@ def create_app(path=None, problem=None, background: bool | None = None):
     state.param.watch(rebuild, "problem")
     state.param.watch(lambda e: setattr(content, "objects", [pn.pane.HTML("<i>Adjusting the new file…</i>")]),
                       "replacing")
-    template.main.append(pn.Column(SummaryHeader(state=state), content, sizing_mode="stretch_width"))
+    template.main.append(pn.Column(SummaryHeader(state=state), content, sizing_mode="stretch_width",
+                                   min_width=MAP_MIN_WIDTH))
 
     def fill_sidebar():
         sidebar.objects = [files, TaskPanel(state=state), Controls(state=state), SelectionPanel(state=state)]
@@ -367,6 +462,16 @@ def create_app(path=None, problem=None, background: bool | None = None):
     return template
 
 
+#: The narrowest the map tabs get before the tables go below them: a map's frame (420 px), its
+#: axes, colour bar and legend.
+MAP_MIN_WIDTH = 640
+#: Tab headers that do not fit one line wrap to a second (Bokeh cuts them off otherwise).
+WRAP_TAB_HEADERS = ".bk-headers-wrapper { flex-wrap: wrap; overflow: visible; } .bk-tab { white-space: nowrap; }"
+#: The narrowest the tables get beside the maps (both grow with the screen; below the maps,
+#: where the main area holds less than both, the tables take the whole row).
+RIGHT_MIN_WIDTH = 420
+
+
 def _main(state):
     """The maps in tabs (left) and the tests table / hypotheses / teaching in tabs (right), made
     but not yet rendered (the summary is above them, built once per session)."""
@@ -378,19 +483,26 @@ def _main(state):
             maps.append(("Image v", ImageResidualView(state=state)))
     maps.append(("Criterion", CriterionView(state=state)))
     map_tabs = pn.Tabs(*maps, dynamic=True, sizing_mode="stretch_width", min_height=660,
+                       min_width=MAP_MIN_WIDTH, styles={"flex": f"1 1 {MAP_MIN_WIDTH}px"},
+                       stylesheets=[WRAP_TAB_HEADERS],
                        css_classes=["map-tabs"])
     right = pn.Tabs(("Suspects", SuspectsView(state=state)), ("Tests table", TestsTable(state=state)), ("Hypotheses", HypothesisPanel(state=state)),
                     ("Find errors", AnalysisPanel(state=state)),
                     ("Teaching", pn.Column(InjectPanel(state=state), TeachingView(state=state),
                                            RiskView(state=state), scroll=True, height=640,
                                            sizing_mode="stretch_width")),
-                    dynamic=True, sizing_mode="fixed", width=590, height=660, css_classes=["right-tabs"])
+                    dynamic=True, sizing_mode="stretch_width", min_width=RIGHT_MIN_WIDTH, height=660,
+                    styles={"flex": f"1 1 {RIGHT_MIN_WIDTH}px"}, stylesheets=[WRAP_TAB_HEADERS],
+                    css_classes=["right-tabs"])
     return map_tabs, right
 
 
 def _attach(state, map_tabs, right):
     """The maps and the tables side by side, shown as loading while the state is busy."""
-    row = pn.Row(map_tabs, right, sizing_mode="stretch_width")
+    # side by side where the main area holds both (1920 px screens), else the tables below the
+    # maps: nothing overlaps, nothing is cut (1024-1600 px: laptops and projectors)
+    row = pn.FlexBox(map_tabs, right, flex_direction="row", flex_wrap="wrap", align_content="flex-start",
+                     sizing_mode="stretch_width", css_classes=["main-row"], styles={"row-gap": "12px"})
     row.loading = state.busy
     state.param.watch(lambda e: setattr(row, "loading", e.new), "busy")
     return row

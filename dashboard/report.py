@@ -1,9 +1,17 @@
-"""A standalone HTML report of an analysis: summary, tables and the maps, readable offline.
+"""The client report: a verdict in plain language and the key numbers on two or three A4 pages.
 
-The plots are Bokeh figures rendered from the dashboard's own map views (HoloViews → Bokeh) and
-embedded with Bokeh's *inline* resources (the BokehJS code is inside the file, about 1 MB per
-library; links that other libraries' Bokeh extensions would add are left out), so the report
-opens without a server or network. No Panel stylesheets are involved.
+What a consultant hands a client (issue 15, item 5): page 1 the verdict, the summary cards and
+the map of the tests (|w|); page 2 the reliability maps (redundancy numbers, external
+reliability δ̄0, precision); page 3 the suspects (the largest tests, the rejected groups named by
+their points and images, inseparable twins marked) and the user's hypotheses. Printed from
+Chromium (``@page`` A4, each section on its own page) or read on screen. The full tables are CSV
+downloads of the app (:mod:`baarda.dashboard.tables`) and ``baarda analyze --csv``.
+
+The report is made from a fresh state over the session's result and test policy: nothing of
+the session's view (selection rings, a hypothesis' deformation field, an S-base lesson, the
+image chosen) reaches it. The maps are Bokeh figures without toolbars, embedded with Bokeh's
+*inline* resources (the BokehJS code is inside the file), so the report opens offline.
+Every string from the file is escaped (:func:`baarda.dashboard.text.html_text`).
 
     from baarda.dashboard.report import write_report
     write_report(adj, "report.html")
@@ -12,121 +20,296 @@ opens without a server or network. No Panel stylesheets are involved.
 from __future__ import annotations
 
 import datetime as _dt
-import html
+import math
+import re
 from pathlib import Path
 
 import holoviews as hv
 import numpy as np
+from bokeh.embed import components
+from bokeh.resources import Resources
 
+from .state import R_UNCONTROLLED, State
+from .suspects import suspects
 from .text import html_text
+from .views.common import frame_size
+from .views.maps import ExternalMap, PrecisionMap, RedundancyMap, ResidualMap
+from .views.summary import summary_html
 
-MAX_ROWS = 500
-
-
-def _figures(state) -> list[tuple[str, object]]:
-    from .views.maps import MAP_VIEWS
-
-    hv.extension("bokeh", logo=False)
-    figs = []
-    for V in MAP_VIEWS:
-        view = V(state=state)
-        obj = view.static().opts(hv.opts.Overlay(responsive=False, frame_width=760, frame_height=560,
-                                                           min_height=None))
-        fig = hv.render(obj, backend="bokeh")
-        figs.append((view.title(), fig))     # view.title() is text; escaped where it is used
-    return figs
+#: Maps of the report: the tests on page 1, the reliability on page 2 (one per concept).
+FIRST_MAP = ResidualMap
+RELIABILITY_MAPS = (RedundancyMap, ExternalMap, PrecisionMap)
+#: Rows of the suspects table (the largest tests first).
+TOP_SUSPECTS = 14
+#: Redundancy number below which an observation is "hardly controlled" (the summary's r < 0.1).
+WEAK_R = R_UNCONTROLLED
+#: Printable width of an A4 page with 14 mm margins, CSS px.
+PAGE_PX = 680
 
 
-def _table_html(state) -> str:
-    obs, _ = state.frames()
-    df = obs.copy()
-    note = ""
-    if len(df) > MAX_ROWS:
-        order = np.argsort(-np.nan_to_num(np.abs(df["w"].to_numpy(dtype=float)), nan=-1.0))
-        df = df.iloc[order[:MAX_ROWS]]
-        note = f"<p>The {MAX_ROWS} observations with the largest |w| of {len(obs)} (full table: baarda's CSV output).</p>"
-    df = df.drop(columns=["mdb_sigma"]).rename(columns={"tau": "τ", "mdb": "MDB", "ext": "δ̄0"})
-    return note + df.to_html(float_format=lambda x: f"{x:.4g}", classes="obs", border=0, na_rep="–")
+def _render(view_class, state, width: int, height: int):
+    """The map ``view_class`` of ``state`` as a Bokeh figure of ``width`` × ``height`` px, no toolbar."""
+    view = view_class(state=state)
+    fs = frame_size(view.points(), state.images)
+    # equal scales on both axes (as in the app), the frame fitted into the box left by the axes,
+    # the legend and the colour bar
+    k = min((width - 150) / fs["frame_width"], (height - 90) / fs["frame_height"])
+    obj = view.static().opts(hv.opts.Overlay(responsive=False, frame_width=int(fs["frame_width"] * k),
+                                             frame_height=int(fs["frame_height"] * k), min_height=None,
+                                             toolbar=None, fontscale=0.85))
+    fig = hv.render(obj, backend="bokeh")
+    fig.toolbar_location = None
+    fig.sizing_mode = None            # the frame's size sets the figure's (no "fixed" without width)
+    fig.title.text = ""               # the caption above it says it (and wraps)
+    return caption(view.title()), fig, view.far_count()
 
 
-def _hypotheses_html(state) -> str:
-    if not state.hypotheses:
-        return ""
-    from .views.hypotheses import HypothesisPanel
-
-    df = HypothesisPanel.frame(type("P", (), {"state": state})())
-    return "<h2>Hypotheses</h2>" + df.to_html(classes="obs", border=0, index=False, na_rep="–")
+def caption(title: str) -> str:
+    """A map's title without the app's instructions ("select an observation …")."""
+    return re.sub(r"\s*\((select|click)[^)]*\)", "", title).strip()
 
 
-def _bokeh_js() -> str:
-    """BokehJS (core, WebGL, widgets) inline, without the links other libraries' extensions add."""
-    from bokeh.resources import Resources
-
-    res = Resources(mode="inline", components=["bokeh", "bokeh-gl", "bokeh-widgets"])
-    return "\n".join(f"<script>\n{code}\n</script>" for code in res.js_raw)
+def _fmt(x, spec: str = ".3g") -> str:
+    return "–" if x is None or not math.isfinite(float(x)) else format(float(x), spec)
 
 
-def report_html(adj, state=None) -> str:
-    """The report of the adjustment ``adj`` as one HTML string (see the module docstring).
+def verdict(s: dict, obs) -> tuple[str, str, list[str]]:
+    """(level, headline, sentences) of the summary ``s`` (:meth:`State.summary`) and the
+    observations table ``obs`` (:meth:`State.frames`) in plain language (plain text, not HTML).
+    level is ``ok`` (the observations agree with their precision and no test rejects), ``warn``
+    (weakly controlled observations or a pessimistic σ0) or ``bad`` (not converged, the global
+    test failed high, rejections)."""
+    g = s["global_test"]
+    live = obs[~obs["excluded"]]
+    stat = "τ" if s["statistic"] == "tau" else "w"
+    col = "tau" if stat == "τ" else "w"
+    crit = s["critical_tau"] if stat == "τ" else s["critical_w"]
+    said: list[str] = []
+    if not s["converged"]:
+        return ("bad", "Not converged: these numbers cannot be relied on.",
+                [f"The adjustment stopped after {s['iterations']} iterations without converging "
+                 f"({s['termination']}). Every number below belongs to the last iterate, not to the "
+                 "least-squares solution."])
+    rejected = int(s["n_rejected"])
+    high = g["passed"] is False and g.get("side") != "low"
+    low = g["passed"] is False and g.get("side") == "low"
+    if g["passed"] is None:
+        said.append("There is no redundancy (r = 0): nothing can be tested.")
+    elif high:
+        said.append(f"The observations do not agree with their stated precision: the global test fails "
+                    f"(vᵀPv = {g['statistic']:.4g} for r = {g['dof']}, critical {g['upper']:.4g}; "
+                    f"σ̂0 = {_fmt(s['sigma0_aposteriori'], '.3g')} against σ0 = {s['sigma0_apriori']:.3g}).")
+    elif low:
+        said.append(f"The observations are better than their stated precision (σ̂0 = "
+                    f"{_fmt(s['sigma0_aposteriori'], '.3g')} against σ0 = {s['sigma0_apriori']:.3g}): "
+                    "σ0 a priori is too pessimistic; this is not an error in the data.")
+    else:
+        said.append(f"The observations agree with their stated precision: the global test passes "
+                    f"(σ̂0 = {_fmt(s['sigma0_aposteriori'], '.3g')}).")
+    if rejected:
+        v = live[col].abs()
+        worst = int(v.idxmax()) if v.notna().any() else None
+        what = (f" The largest is observation {worst} ({live.at[worst, 'kind']} {live.at[worst, 'ids']}), "
+                f"|{stat}| = {v.max():.3g}." if worst is not None else "")
+        said.append(f"{rejected} observation{'s' if rejected != 1 else ''} fail{'s' if rejected == 1 else ''} the "
+                    f"{stat}-test at α0 = {100 * s['alpha0']:.3g} % (|{stat}| > {crit:.3g}).{what} "
+                    "Check them before the result is used (page 3 lists the suspects).")
+    elif g["passed"] is not None:
+        said.append(f"No observation fails the {stat}-test at α0 = {100 * s['alpha0']:.3g} %.")
+    weak = int(s["n_uncontrolled"])
+    if weak:
+        said.append(f"{weak} observation{'s are' if weak != 1 else ' is'} hardly controlled by the others "
+                    "(redundancy number r < 0.1): an error there would go unseen or be taken for an error "
+                    "elsewhere (page 2, redundancy map).")
+    controlled = live["r"].to_numpy(dtype=float) >= WEAK_R
+    ext = live["ext"].to_numpy(dtype=float)[controlled]
+    ext = ext[np.isfinite(ext)]
+    if ext.size:
+        said.append(f"An error the tests cannot find (at β0 = {100 * s['beta0']:.3g} %) in a controlled observation "
+                    f"(r ≥ {WEAK_R:g}) shifts the coordinates by up to δ̄0 = {ext.max():.3g} times their standard "
+                    "deviation (external reliability).")
+    if s["n_excluded"]:
+        said.append(f"{s['n_excluded']} observation{'s were' if s['n_excluded'] != 1 else ' was'} excluded "
+                    "from the adjustment by the reviewer.")
+    if high or rejected:
+        head = ("Not acceptable as it stands: " + (f"{rejected} rejected observation{'s' if rejected != 1 else ''}"
+                                                     if rejected else "the global test fails") + ".")
+        return "bad", head, said
+    if low or weak:
+        return ("warn", "Consistent, with reservations: " + ("σ0 a priori too pessimistic" if low else
+                                                            f"{weak} weakly controlled observations") + ".", said)
+    return "ok", "Consistent: no test rejects the observations.", said
 
-    state: the dashboard's :class:`~baarda.dashboard.state.State` if there is one (its
-    exclusions and hypotheses are reported too); otherwise one is made from ``adj``.
-    """
-    from bokeh.embed import components
 
-    from baarda.io.results import text_summary
-    from baarda.text import printable_lines
+def _suspects_html(state: State) -> str:
+    try:
+        df = suspects(state)
+    except Exception as err:              # noqa: BLE001 — the report says what it could not do
+        return f"<p>The suspects list could not be made: {html_text(err)}</p>"
+    if df.empty:
+        return "<p>No suspects.</p>"
+    df = df.head(TOP_SUSPECTS)
+    head = "".join(f"<th>{h}</th>" for h in ("#", "what", "hypothesis", "|w|", "decision", "T / k",
+                                            "estimated error", "cannot be told apart from"))
+    rows = []
+    for _, r in df.iterrows():
+        dec = str(r["decision"])
+        cls = "bad" if dec.startswith("rejected") else "ok"
+        rows.append(f"<tr><td>{int(r['rank'])}</td><td>{html_text(r['what'])}</td><td>{html_text(r['hypothesis'])}</td>"
+                    f"<td class='n'>{_fmt(r['|w|'])}</td><td class='{cls}'>{html_text(dec)}</td>"
+                    f"<td class='n'>{_fmt(r['T'])} / {_fmt(r['k'])}</td><td>{html_text(r['∇ŝ'])}</td>"
+                    f"<td>{html_text(r['cannot be told apart from'])}</td></tr>")
+    return f"<table class='t'><tr>{head}</tr>{''.join(rows)}</table>"
 
-    from .state import State
-    from .views.summary import summary_html
 
-    if state is None or state.results is not adj:
-        state = State.from_adjustment(adj)
-    figs = _figures(state)
-    script, divs = components([f for _, f in figs])
-    s = state.summary()
-    title = html_text(s["title"] or Path(s["source"]).name or "baarda report")
-    plots = "".join(f"<h3>{html_text(t)}</h3>{d}" for (t, _), d in zip(figs, divs))
-    groups = ""
+def _groups_html(state: State) -> str:
+    """The rejected group tests (largest T / k first), named by their observations' ids."""
     rel = state.reliability
-    if rel.groups:
-        rows = "".join(
-            f"<tr><td>{html_text(g['group'])}</td><td>{g['dimension']}</td><td>{g['T']:.4g}</td><td>{g['critical']:.4g}</td>"
-            f"<td>{'REJECTED' if g['rejected'] else 'accepted'}</td></tr>" for g in rel.groups[:MAX_ROWS])
-        groups = ("<h2>Group tests</h2><table class='obs'><tr><th>group</th><th>q</th><th>T</th>"
-                  f"<th>critical</th><th>decision</th></tr>{rows}</table>")
+    groups = [g for g in rel.groups if g["rejected"]] if rel.groups else []
+    if not groups:
+        return ""
+    obs, _ = state.frames()
+    groups.sort(key=lambda g: -g["T"] / g["critical"])
+    rows = []
+    for g in groups[:10]:
+        members = np.asarray(g["members"], dtype=np.int64)
+        names = sorted({str(obs.at[int(m), "ids"]) for m in members if int(m) in obs.index})
+        rows.append(f"<tr><td>{html_text(', '.join(names[:3]) + (' …' if len(names) > 3 else ''))}</td>"
+                    f"<td>{g['dimension']}</td><td>{g['T']:.4g}</td><td>{g['critical']:.4g}</td></tr>")
+    more = f" (the 10 largest of {len(groups)})" if len(groups) > 10 else ""
+    return (f"<h3>Rejected group tests{more}</h3><table class='t'><tr><th>observations of</th><th>q</th>"
+            f"<th>T</th><th>critical</th></tr>{''.join(rows)}</table>")
+
+
+def _hypotheses_html(session: State | None) -> str:
+    if session is None or not session.hypotheses:
+        return ""
+    rows = []
+    for spec, h in zip(session.hypotheses, session.hyp_results):
+        if h is None or not hasattr(h, "T"):
+            continue
+        label = getattr(h, "label", "") or ", ".join(f"{k}={v}" for k, v in spec.items() if k != "active")
+        rejected = bool(getattr(h, "rejected_T", False))
+        rows.append(f"<tr><td>{html_text(label)}</td><td>{h.q}</td><td>{_fmt(h.T, '.4g')}</td>"
+                    f"<td>{_fmt(h.critical_T, '.4g')}</td><td class='{'bad' if rejected else 'ok'}'>"
+                    f"{'rejected' if rejected else 'accepted'}</td></tr>")
+    if not rows:
+        return ""
+    return ("<h3>Hypotheses tested by the reviewer</h3><table class='t'><tr><th>hypothesis</th><th>q</th>"
+            f"<th>T</th><th>critical</th><th>decision</th></tr>{''.join(rows)}</table>")
+
+
+CSS = f"""
+@page {{ size: A4; margin: 14mm; }}
+* {{ box-sizing: border-box; }}
+body {{ font-family: system-ui, 'DejaVu Sans', sans-serif; margin: 0 auto; padding: 12px; max-width: {PAGE_PX + 24}px;
+       color: #222; font-size: 12px; }}
+h1 {{ font-size: 19px; margin: 0 0 2px; overflow-wrap: anywhere; }}
+h2 {{ font-size: 15px; margin: 10px 0 4px; }}
+h3 {{ font-size: 13px; margin: 8px 0 3px; }}
+.meta {{ color: #555; margin: 0 0 8px; overflow-wrap: anywhere; }}
+.page {{ break-after: page; page-break-after: always; }}
+.page.last {{ break-after: auto; page-break-after: auto; }}
+.verdict {{ border-left: 6px solid; padding: 6px 10px; margin: 6px 0 8px; background: #f7f7f7; }}
+.verdict.ok {{ border-color: #1a7f37; }} .verdict.warn {{ border-color: #b26a00; }} .verdict.bad {{ border-color: #b2182b; }}
+.verdict .head {{ font-size: 15px; font-weight: 600; }}
+.verdict p {{ margin: 4px 0; }}
+.cards .card {{ min-width: 140px; font-size: 11px; }}
+.notconv {{ background: #b00020; color: #fff; padding: 6px 10px; font-size: 13px; }}
+figure {{ margin: 6px 0; break-inside: avoid; }}
+figcaption {{ font-weight: 600; font-size: 12px; margin-bottom: 2px; overflow-wrap: anywhere; }}
+.far {{ color: #555; font-size: 11px; }}
+table.t {{ border-collapse: collapse; width: 100%; font-size: 10.5px; }}
+table.t th {{ text-align: left; border-bottom: 1.5px solid #999; padding: 2px 4px; }}
+table.t td {{ border-bottom: 1px solid #e4e4e4; padding: 2px 4px; overflow-wrap: break-word; }}
+table.t td.n {{ white-space: nowrap; }}
+td.bad, .bad {{ color: #b2182b; }} td.ok, .ok {{ color: #1a7f37; }}
+.foot {{ color: #666; font-size: 10.5px; margin-top: 8px; }}
+"""
+
+
+def report_html(adj, state: State | None = None) -> str:
+    """The client report of ``adj`` as one HTML string (see the module docstring).
+
+    state: the session's :class:`~baarda.dashboard.state.State`, if any: its test policy, its
+    exclusions and its hypotheses are reported; nothing of its view is.
+    """
+    session = state if state is not None and state.results is adj else None
+    clean = State.from_adjustment(adj, policy=session.policy() if session is not None else getattr(adj, "policy", None))
+    if session is not None:
+        clean.param.update(alpha0=session.alpha0, beta0=session.beta0, b_method=session.b_method)
+    hv.extension("bokeh", logo=False)
+    s = clean.summary()
+    if session is not None:
+        s["n_excluded"] = len(session.excluded)
+    level, head, said = verdict(s, clean.frames()[0])
+    title = html_text(s["title"] or Path(str(s["source"])).name or "baarda report")
+    first = _render(FIRST_MAP, clean, PAGE_PX, 430)
+    rel = [_render(V, clean, PAGE_PX, 300) for V in RELIABILITY_MAPS]
+    script, divs = components([f for _, f, _ in (first, *rel)])
+
+    def figure(entry, div):
+        name, _, far = entry
+        note = (f"<div class='far'>{far} point{'s' if far != 1 else ''} far outside the block drawn at the "
+                "frame's edge (▽).</div>" if far else "")
+        return f"<figure><figcaption>{html_text(name)}</figcaption>{div}{note}</figure>"
+
     banner = ("" if adj.converged else
               "<p class='notconv'><b>NOT converged</b> after "
               f"{adj.iterations} iterations: {html_text(getattr(adj, 'termination', '') or 'not converged')}. "
               "The numbers below belong to the last iterate, not to the least-squares solution.</p>")
-    excluded = ("<p><b>Excluded observations:</b> " + ", ".join(map(str, sorted(state.excluded))) + "</p>"
-                if state.excluded else "")
-    css = ("body{font-family:system-ui,sans-serif;margin:20px;max-width:1100px}"
-           "table.obs{border-collapse:collapse;font-size:12px}table.obs td,table.obs th{padding:2px 6px;"
-           "border-bottom:1px solid #eee;text-align:right}pre{background:#f6f6f6;padding:8px;font-size:12px}"
-           ".notconv{background:#b00020;color:#fff;padding:8px 12px;font-size:15px}")
+    excluded = ""
+    if session is not None and session.excluded:
+        ids = sorted(session.excluded)
+        excluded = ("<p><b>Excluded observations:</b> " + html_text(", ".join(map(str, ids[:40])))
+                    + (f" … ({len(ids)} in all)" if len(ids) > 40 else "") + "</p>")
+    when = _dt.datetime.now().isoformat(timespec="minutes")
+    said_html = "".join(f"<p>{html_text(x)}</p>" for x in said)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>baarda — {title}</title>
-<style>{css}</style>
+<style>{CSS}</style>
 {_bokeh_js()}
 {script}
 </head><body>
-<h1>baarda — {title}</h1>
+<section class="page">
+<h1>{title}</h1>
+<p class="meta">Quality report of <code>{html_text(Path(str(s['source'])).name)}</code> · baarda · {when}</p>
 {banner}
-<p>Source: <code>{html_text(Path(str(s['source'])).name)}</code>; written {_dt.datetime.now().isoformat(timespec='seconds')}.</p>
+<div class="verdict {level}"><div class="head">{html_text(head)}</div>{said_html}</div>
 {summary_html(s)}
 {excluded}
-<h2>Summary</h2><pre>{html.escape(printable_lines(text_summary(adj, reliability=rel)))}</pre>
-<h2>Maps</h2>{plots}
-{_hypotheses_html(state)}
-{groups}
-<h2>Observations</h2>{_table_html(state)}
+{figure(first, divs[0])}
+</section>
+<section class="page">
+<h2>Reliability</h2>
+<p>Redundancy numbers r (0: an error there is not seen, 1: fully controlled by the other observations),
+external reliability δ̄0 (how far an error the tests cannot find moves the coordinates, in their
+standard deviations) and the precision of the points.</p>
+{''.join(figure(e, d) for e, d in zip(rel, divs[1:]))}
+</section>
+<section class="page last">
+<h2>Suspects</h2>
+<p>The largest tests of single observations, of image points, control points and point transfers
+(|w| largest first); tests the data cannot tell apart name each other.</p>
+{_suspects_html(clean)}
+{_groups_html(clean)}
+{_hypotheses_html(session)}
+<p class="foot">Tests at α0 = {100 * s['alpha0']:.3g} %, β0 = {100 * s['beta0']:.3g} %, δ0 = {s['delta0']:.3f}
+{'(B-method)' if s['b_method'] else ''}. Full tables: the dashboard's CSV downloads or
+<code>baarda analyze FILE --csv DIR</code>. Formulas: Baarda (1968), Förstner (1980), Molenaar (1984).</p>
+</section>
 </body></html>
 """
 
 
-def write_report(adj, path, state=None) -> Path:
-    """Write the standalone HTML report of ``adj`` to ``path`` (UTF-8) and return the path."""
+def _bokeh_js() -> str:
+    """BokehJS (core, WebGL, widgets) inline, without the links other libraries' extensions add."""
+    res = Resources(mode="inline", components=["bokeh", "bokeh-gl", "bokeh-widgets"])
+    return "\n".join(f"<script>\n{code}\n</script>" for code in res.js_raw)
+
+
+def write_report(adj, path, state: State | None = None) -> Path:
+    """Write the client report of ``adj`` to ``path`` (UTF-8) and return the path."""
     path = Path(path)
     path.write_text(report_html(adj, state=state), encoding="utf-8")
     return path

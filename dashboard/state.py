@@ -310,8 +310,11 @@ class State(param.Parameterized):
     criterion = param.Dict(default=None, allow_None=True, doc="The last criterion comparison (criterion_*).")
     criterion_error = param.String(default="", doc="Why the criterion comparison was refused.")
 
-    def __init__(self, path=None, problem=None, **params):
+    def __init__(self, path=None, problem=None, progress_to: "State | None" = None, **params):
+        """progress_to: the state whose ``progress`` the adjustment's iterations are written
+        to (a session's, for a state made on its worker thread to read a file); default self."""
         super().__init__(**params)
+        self._progress_to = progress_to
         self._frames = None
         self._cov = None
         self._cancel = threading.Event()
@@ -444,7 +447,7 @@ class State(param.Parameterized):
                     problem = replace(problem, source=str(name))
                 self.progress = f"adjusting {shown}"
                 with self._busy():
-                    fresh = State(problem=problem, path=name if name is not None else path,
+                    fresh = State(problem=problem, path=name if name is not None else path, progress_to=self,
                                   alpha0=self.alpha0, beta0=self.beta0, b_method=self.b_method)
                 if fresh.results is None:
                     self.error = message(fresh.error)
@@ -563,6 +566,12 @@ class State(param.Parameterized):
         return TestPolicy(alpha0=float(self.alpha0), beta0=float(self.beta0), b_method=bool(self.b_method),
                           sigma0=self.sigma0_mode, global_test=self.global_test)
 
+    def _iteration(self, it: int, step: float) -> None:
+        """The adjustment's progress, shown while a background computation runs (``progress``)."""
+        sink = self._progress_to or self
+        if sink.task:
+            sink.progress = f"adjusting: iteration {it}, largest step {step:.2g} σ"
+
     def _readjust(self) -> bool:
         """Adjust the problem without the excluded observations; False (and ``error``) on failure.
 
@@ -576,7 +585,7 @@ class State(param.Parameterized):
             with self._busy():
                 reduced, kept = without(problem, excluded)
                 reduced = replace(reduced, sigma_act=mode)
-                adj = adjust(reduced, options)
+                adj = adjust(reduced, options, progress=self._iteration)
         except Cancelled:
             raise
         except BaardaError as err:

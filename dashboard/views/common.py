@@ -42,7 +42,7 @@ def round_scale(raw: float) -> float:
     return float(10 ** k)
 
 
-def frame_size(pts: pd.DataFrame, images=(), size: int = 440) -> dict:
+def frame_size(pts: pd.DataFrame, images=(), size: int = 420) -> dict:
     """Frame width/height and limits with equal scales on both axes (metres per pixel), the
     larger side ``size`` pixels; the block's footprints are included in the extent."""
     xs = list(pts["x"]) if len(pts) else [0.0]

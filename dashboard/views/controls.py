@@ -3,6 +3,7 @@ re-include, the image and exaggeration of block views, file upload and report ex
 
 from __future__ import annotations
 
+import functools
 import io
 import re
 import shutil
@@ -14,6 +15,7 @@ import panel as pn
 import param
 
 from ..state import ROBUST_METHODS, State, observation_label
+from ..tables import TABLES, table_csv
 from ..text import html_text, md_text, plain
 
 ALPHAS = [1e-5, 1e-4, 2e-4, 5e-4, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1]
@@ -192,7 +194,15 @@ class FilePanel(pn.viewable.Viewer):
         s.param.watch(self._show_error, "error")
         self.download = pn.widgets.FileDownload(callback=self._report, filename="baarda-report.html",
                                                 label="Download HTML report", color="success",
-                                                sizing_mode="stretch_width")
+                                                sizing_mode="stretch_width",
+                                                description="The client report: verdict, maps and suspects on "
+                                                            "three A4 pages (print it to PDF from the browser)")
+        # the full tables, for spreadsheets (baarda.dashboard.tables)
+        self.tables = {name: pn.widgets.FileDownload(callback=functools.partial(self._table, name),
+                                                     filename=f"baarda-{name}.csv", label=f"{name.capitalize()} table (CSV)",
+                                                     color="default", sizing_mode="stretch_width",
+                                                     css_classes=[f"csv-{name}"])
+                       for name in TABLES}
         self.source = pn.pane.HTML(pn.bind(lambda name: f"File: <code>{html_text(name)}</code>"
                                            if name else "", s.param.file_name),
                                    sizing_mode="stretch_width", css_classes=["file-source"])
@@ -262,9 +272,15 @@ class FilePanel(pn.viewable.Viewer):
 
         return io.StringIO(report_html(self.state.results, state=self.state))
 
+    def _table(self, name):
+        if self.state.results is None:
+            return io.BytesIO(b"")
+        return table_csv(self.state, name)
+
     def __panel__(self):
         return pn.Column("### File", self.source, self.upload, self.limit, self.alert, self.download,
-                         sizing_mode="stretch_width")
+                         pn.pane.HTML("<small>Full tables for spreadsheets:</small>", margin=(4, 10, 0, 10)),
+                         *self.tables.values(), sizing_mode="stretch_width")
 
 
 class TaskPanel(pn.viewable.Viewer):

@@ -734,6 +734,11 @@ class PrecisionMap(MapView):
             nonselection_alpha=1, show_legend=False)
 
 
+#: The image view's frame (px): with its axes and colour bar it fits the map tabs' narrowest
+#: width (``app.MAP_MIN_WIDTH``), so it is never cut beside the tables.
+IMAGE_FRAME = 400
+
+
 class ImageResidualView(pn.viewable.Viewer):
     """Image-space residual vectors of one image of a block, exaggerated, coloured by |w|."""
 
@@ -803,7 +808,7 @@ class ImageResidualView(pn.viewable.Viewer):
         return (border * vec * pts).opts(
             hv.opts.Overlay(title=f"Image {plain(s.selected_image)}: residual vectors ×{s.exaggeration:g} "
                                   f"(image units {plain(unit)}), colour |w|",
-                            xlabel=f"x [{unit}]", ylabel=f"y [{unit}]", frame_width=480, frame_height=480,
+                            xlabel=f"x [{unit}]", ylabel=f"y [{unit}]", frame_width=IMAGE_FRAME, frame_height=IMAGE_FRAME,
                             data_aspect=1, legend_position="top_left"))
 
     def __panel__(self):

@@ -57,6 +57,9 @@ class SummaryHeader(pn.viewable.Viewer):
         super().__init__(**params)
         self.pane = pn.pane.HTML(pn.bind(self._html, self.state.param.results, self.state.param.task),
                                  sizing_mode="stretch_width", css_classes=["summary"])
+        s = self.state
+        self.progress = pn.pane.HTML(pn.bind(self._progress, s.param.results, s.param.task, s.param.progress),
+                                     sizing_mode="stretch_width", css_classes=["load-progress"])
 
     @staticmethod
     def html(state: State) -> str:
@@ -66,10 +69,15 @@ class SummaryHeader(pn.viewable.Viewer):
         title = html_text(s["title"] or Path(s["source"]).name)
         return f"<div style='font-size:15px;margin-bottom:4px'><b>{title}</b></div>" + summary_html(s)
 
+    @staticmethod
+    def _progress(adj, task="", progress=""):
+        """While a file is read and adjusted (no result yet): how far it is, in words."""
+        return f"<small>{html_text(progress)}</small>" if adj is None and task and progress else ""
+
     def _html(self, adj, task=""):
         if adj is None:
             return f"<i>{html_text(task)}…</i>" if task else "<i>No problem loaded.</i>"
         return self.html(self.state)
 
     def __panel__(self):
-        return self.pane
+        return pn.Column(self.pane, self.progress, sizing_mode="stretch_width")

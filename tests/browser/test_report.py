@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
+from playwright.sync_api import expect
 
 from baarda.cli import main
 
@@ -35,3 +37,34 @@ def test_report_opens_offline_with_plots(page, tmp_path, screenshots, capsys):
     assert all(u.startswith(("file:", "data:", "blob:", "about:")) for u in requests), requests
     assert errors == []
     assert page.get_by_text("FAILED").count() >= 1        # the demo block fails the global test
+
+
+def _pdf_pages(pdf: bytes) -> int:
+    """Pages of a PDF written by Chromium (its page objects are plain dictionaries)."""
+    return len(re.findall(rb"/Type\s*/Page\b(?!s)", pdf))
+
+
+@pytest.mark.browser
+@pytest.mark.parametrize("name", ["demo-block.json", "demo-levelling.gkf"])
+def test_client_report_prints_on_three_a4_pages(page, tmp_path, screenshots, name, capsys):
+    """Issue 15, item 5: Chromium's print to PDF gives at most three A4 pages, each a section
+    (verdict and the tests' map; reliability maps; suspects), no toolbar and no selection."""
+    out = tmp_path / "report.html"
+    assert main(["report", str(DATA / name), "-o", str(out), "--quiet"]) in (0, 4)
+    page.goto(out.as_uri())
+    page.wait_for_function("""() => {
+        const count = (root) => { let n = root.querySelectorAll('canvas').length;
+            for (const el of root.querySelectorAll('*')) if (el.shadowRoot) n += count(el.shadowRoot);
+            return n; };
+        return count(document) >= 4; }""", timeout=60_000)
+    expect(page.locator(".verdict .head")).to_be_visible()
+    # no Bokeh toolbar anywhere (they live in the plots' shadow roots)
+    toolbars = page.evaluate("""() => { const count = (root) => { let n = root.querySelectorAll('.bk-toolbar').length;
+            for (const el of root.querySelectorAll('*')) if (el.shadowRoot) n += count(el.shadowRoot);
+            return n; }; return count(document); }""")
+    assert toolbars == 0
+    page.emulate_media(media="print")
+    pdf = page.pdf(format="A4", print_background=True)
+    assert 1 <= _pdf_pages(pdf) <= 3, _pdf_pages(pdf)
+    (screenshots / f"client-report-{name}.pdf").write_bytes(pdf)
+    page.screenshot(path=str(screenshots / f"client-report-{name}.png"), full_page=True)

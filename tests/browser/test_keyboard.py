@@ -1,0 +1,82 @@
+"""Keyboard and screen-reader basics (issue 15, item 6) in Chromium, on the demo block: the tab
+bars are tablists of tabs with ``aria-selected``; Enter and Space open the focused tab, the arrow
+keys, Home and End move through a bar (the focus follows); a focused control shows a focus ring;
+a checkbox's label toggles it and names it. (That the Tab key alone reaches the right panel's bar
+is not yet so: it passes from the map to the suspects table's content and on; see the README.)
+"""
+
+from __future__ import annotations
+
+import pytest
+from playwright.sync_api import expect
+
+from test_app import open_app, real_errors, wait_until
+
+pytestmark = pytest.mark.browser
+
+#: The focused element, through the shadow roots: [role, text, outline style].
+JS_FOCUSED = """() => {
+  let a = document.activeElement;
+  while (a && a.shadowRoot && a.shadowRoot.activeElement) a = a.shadowRoot.activeElement;
+  if (!a) return null;
+  return [a.getAttribute('role'), (a.innerText || '').trim(), getComputedStyle(a).outlineStyle];
+}"""
+
+
+def focused_tab(page, name):
+    """Wait until the focused element is the tab ``name``; return [role, text, outline]."""
+    page.wait_for_function(f"() => {{ const f = ({JS_FOCUSED})(); return f && f[0] === 'tab' && f[1] === {name!r}; }}",
+                           timeout=30_000)
+    return page.evaluate(JS_FOCUSED)
+
+
+def test_tabs_by_keyboard(page, block_app, screenshots):
+    state, errors = open_app(page, block_app)
+    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=60_000)
+    tabs = page.get_by_role("tab")
+    expect(tabs.first).to_be_visible()
+    assert wait_until(lambda: page.get_by_role("tablist").count() >= 2)
+    layout = page.get_by_role("tab", name="Layout", exact=True)
+    expect(layout).to_have_attribute("aria-selected", "true")
+    layout.focus()
+    page.keyboard.press("ArrowRight")
+    expect(page.get_by_role("tab", name="Redundancy", exact=True)).to_have_attribute("aria-selected", "true")
+    role, _, outline = focused_tab(page, "Redundancy")
+    assert outline != "none"                                   # the focus ring
+    page.keyboard.press("End")
+    expect(page.get_by_role("tab", name="Criterion", exact=True)).to_have_attribute("aria-selected", "true")
+    focused_tab(page, "Criterion")
+    page.keyboard.press("Home")
+    expect(layout).to_have_attribute("aria-selected", "true")
+    focused_tab(page, "Layout")
+    page.keyboard.press("ArrowLeft")                           # wraps round to the last tab
+    expect(page.get_by_role("tab", name="Criterion", exact=True)).to_have_attribute("aria-selected", "true")
+    suspects = page.get_by_role("tab", name="Suspects", exact=True)
+    suspects.focus()
+    page.keyboard.press("ArrowRight")
+    expect(page.get_by_role("tab", name="Tests table", exact=True)).to_have_attribute("aria-selected", "true")
+    hyp = page.get_by_role("tab", name="Hypotheses", exact=True)
+    hyp.focus()
+    page.keyboard.press("Enter")
+    expect(hyp).to_have_attribute("aria-selected", "true")
+    teaching = page.get_by_role("tab", name="Teaching", exact=True)
+    teaching.focus()
+    page.keyboard.press(" ")
+    expect(teaching).to_have_attribute("aria-selected", "true")
+    page.screenshot(path=str(screenshots / "keyboard-tabs.png"))
+    assert real_errors(errors) == []
+
+
+def test_checkbox_label_toggles_it(page, block_app):
+    state, errors = open_app(page, block_app)
+    box = page.get_by_role("checkbox", name="B-method (same δ0 for all dimensions)")
+    expect(box).to_be_visible(timeout=30_000)
+    before = bool(state.b_method)
+    assert box.is_checked() == before
+    page.get_by_text("B-method (same δ0 for all dimensions)", exact=True).click()
+    expect(box).to_be_checked(checked=not before)
+    assert wait_until(lambda: state.b_method == (not before))
+    page.get_by_text("B-method (same δ0 for all dimensions)", exact=True).click()
+    expect(box).to_be_checked(checked=before)
+    assert wait_until(lambda: state.b_method == before)
+    assert real_errors(errors) == []
