@@ -136,6 +136,17 @@ def block_app(serve_app):
     return serve_app(lambda: create_app(problem=problem))
 
 
+@pytest.fixture(scope="module")
+def ladybug_app(serve_app):
+    """Ladybug (BAL, 49 images, 7,776 points; ../shared/extdata), served."""
+    from extdata import EXTDATA, require_extdata
+
+    from baarda.dashboard.app import create_app
+
+    path = require_extdata(EXTDATA / "bal" / "problem-49-7776-pre.txt")
+    return serve_app(lambda: create_app(path))
+
+
 @pytest.fixture(scope="session")
 def screenshots():
     SCREENSHOTS.mkdir(exist_ok=True)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import pytest
 
-from extdata import EXTDATA, require_extdata
 from test_app import click_tab, open_app, real_errors, wait_for_title
 from test_maps import MAPS
 
@@ -97,14 +96,6 @@ def test_demo_block_at_every_size(page, block_app, screenshots):
     check(page, "demo 1024×768")
     page.screenshot(path=str(screenshots / "layout-demo-1024-layout.png"))
     assert real_errors(errors) == []
-
-
-@pytest.fixture(scope="module")
-def ladybug_app(serve_app):
-    from baarda.dashboard.app import create_app
-
-    path = require_extdata(EXTDATA / "bal" / "problem-49-7776-pre.txt")
-    return serve_app(lambda: create_app(path))
 
 
 def test_ladybug_at_every_size(page, ladybug_app, screenshots):

@@ -9,7 +9,6 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from extdata import EXTDATA, require_extdata
 from test_app import click_tab, open_app, real_errors, wait_for_title
 
 pytestmark = pytest.mark.browser
@@ -24,14 +23,6 @@ JS_RANGES = """(prefix) => {
               m.below.map(a => a.axis_label), m.left.map(a => a.axis_label)];
   return null;
 }"""
-
-
-@pytest.fixture(scope="module")
-def ladybug_app(serve_app):
-    from baarda.dashboard.app import create_app
-
-    path = require_extdata(EXTDATA / "bal" / "problem-49-7776-pre.txt")
-    return serve_app(lambda: create_app(path))
 
 
 def test_ladybug_maps_read(page, ladybug_app, screenshots):
