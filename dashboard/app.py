@@ -20,6 +20,7 @@ from pathlib import Path
 import holoviews as hv
 import panel as pn
 import panel.reactive
+import panel.theme.base
 from panel.io import resources as pn_resources
 from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
@@ -161,6 +162,16 @@ KEYBOARD_JS = """
     for (const root of roots(document, [])) {
       for (const bar of root.querySelectorAll('.bk-headers-wrapper')) {
         bar.setAttribute('role', 'tablist');
+        // the tab bar first in the focus order, then its panel (the WAI-ARIA tabs pattern):
+        // Bokeh places the header by its grid area, so its place among the shadow root's
+        // children is not seen, but it may append it after the panel it redraws, and the Tab
+        // key then left the panel for the page's end without ever reaching the bar
+        const header = bar.parentNode;
+        if (header && header.parentNode === root) {
+          let first = root.firstElementChild;
+          while (first && (first.tagName === 'STYLE' || first.tagName === 'LINK')) first = first.nextElementSibling;
+          if (first && first !== header) root.insertBefore(header, first);
+        }
         for (const tab of bar.querySelectorAll('.bk-tab')) {
           const open = tab.classList.contains('bk-active');
           tab.setAttribute('role', 'tab');
@@ -215,6 +226,16 @@ def _server_dist_path(cdn="auto") -> str:
     return pn_resources.get_dist_path(cdn=False)
 
 
+def _patch_stylesheet_locally(stylesheet, dist_url):
+    """Panel's ``patch_stylesheet`` with this server's dist path where Panel would use the CDN."""
+    if dist_url == pn_resources.CDN_DIST:
+        dist_url = _server_dist_path()
+    return _PANEL_PATCH_STYLESHEET(stylesheet, dist_url)
+
+
+_PANEL_PATCH_STYLESHEET = pn_resources.patch_stylesheet
+
+
 def _local_stylesheets() -> None:
     """Every served component links Panel's ``loading.css`` from this server, never from the CDN.
 
@@ -223,6 +244,11 @@ def _local_stylesheets() -> None:
     that moment linked ``cdn.holoviz.org`` — unreachable offline, a failed request in the page
     (seen in the browser tests under load). The server serves the same file under /static."""
     panel.reactive.get_dist_path = _server_dist_path
+    # A model updated outside a document that has Panel's ``dist_url`` (not yet attached, or
+    # attached to a document without the template's variables) has its stylesheets patched
+    # towards the CDN by Panel: ``loading.css?v=…`` from cdn.holoviz.org (seen again under load)
+    panel.reactive.patch_stylesheet = _patch_stylesheet_locally
+    panel.theme.base.patch_stylesheet = _patch_stylesheet_locally
 
 
 def _extensions():

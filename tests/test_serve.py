@@ -64,3 +64,23 @@ def test_serve_demo_on_loopback(tmp_path):
     finally:
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(timeout=20)
+
+
+def test_served_stylesheets_never_point_at_the_cdn():
+    """Panel patches a stylesheet towards cdn.holoviz.org when the model's document lacks the
+    template's ``dist_url`` (unreachable offline: a failed request in the page, seen under load);
+    served, baarda's patch gives this server's dist path instead, and leaves others alone."""
+    from bokeh.models import ImportedStyleSheet
+    from panel.io import resources as pn_resources
+
+    from baarda.dashboard.app import _patch_stylesheet_locally
+
+    sheet = ImportedStyleSheet(url=f"{pn_resources.LOCAL_DIST}css/loading.css")
+    _patch_stylesheet_locally(sheet, pn_resources.CDN_DIST)
+    assert not sheet.url.startswith("http") and sheet.url.split("?")[0].endswith("css/loading.css")
+    unpatched = ImportedStyleSheet(url=f"{pn_resources.LOCAL_DIST}css/loading.css")
+    pn_resources.patch_stylesheet(unpatched, pn_resources.CDN_DIST)
+    assert unpatched.url.startswith(pn_resources.CDN_DIST)          # what Panel itself does
+    other = ImportedStyleSheet(url="https://example.org/a.css")
+    _patch_stylesheet_locally(other, pn_resources.CDN_DIST)
+    assert other.url == "https://example.org/a.css"

@@ -1,8 +1,9 @@
 """Keyboard and screen-reader basics (issue 15, item 6) in Chromium, on the demo block: the tab
 bars are tablists of tabs with ``aria-selected``; Enter and Space open the focused tab, the arrow
 keys, Home and End move through a bar (the focus follows); a focused control shows a focus ring;
-a checkbox's label toggles it and names it. (That the Tab key alone reaches the right panel's bar
-is not yet so: it passes from the map to the suspects table's content and on; see the README.)
+a checkbox's label toggles it and names it; the Tab key alone reaches every tab bar, each before
+the panel it opens (Bokeh appends a redrawn bar after its panel, and the Tab key then went from the
+suspects table to the end of the page, never reaching the right panel's bar).
 """
 
 from __future__ import annotations
@@ -79,4 +80,39 @@ def test_checkbox_label_toggles_it(page, block_app):
     page.get_by_text("B-method (same δ0 for all dimensions)", exact=True).click()
     expect(box).to_be_checked(checked=before)
     assert wait_until(lambda: state.b_method == before)
+    assert real_errors(errors) == []
+
+
+#: The focused element's chain of shadow hosts and itself, as [class or role, text] pairs.
+JS_FOCUS_PATH = """() => {
+  let a = document.activeElement; const path = [];
+  while (a) {
+    path.push([a.getAttribute('role') || String(a.className || ''), (a.innerText || '').trim()]);
+    a = a.shadowRoot && a.shadowRoot.activeElement;
+  }
+  return path;
+}"""
+
+
+def test_tab_key_reaches_every_bar_before_its_panel(page, block_app):
+    """From the map's open tab, the Tab key alone goes through the map to the right panel's open
+    tab, then into that tab's panel (the suspects table); Shift+Tab comes back to the tab."""
+    state, errors = open_app(page, block_app)
+    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=60_000)
+    page.get_by_role("tab", name="Layout", exact=True).focus()
+    seen = []
+    for _ in range(60):                                         # the map's tools come first
+        page.keyboard.press("Tab")
+        path = page.evaluate(JS_FOCUS_PATH)
+        seen.append(path[-1])
+        if path[-1] == ["tab", "Suspects"]:
+            break
+    assert seen[-1] == ["tab", "Suspects"], f"Tab never reached the right panel's bar: {seen}"
+    assert any("right-tabs" in cls for cls, _ in page.evaluate(JS_FOCUS_PATH))
+    page.keyboard.press("Tab")                                  # into the open tab's panel
+    inside = page.evaluate(JS_FOCUS_PATH)
+    assert any("right-tabs" in cls for cls, _ in inside) and inside[-1][0] != "tab", inside
+    assert any("DataTabulator" in cls for cls, _ in inside), inside
+    page.keyboard.press("Shift+Tab")
+    assert page.evaluate(JS_FOCUS_PATH)[-1] == ["tab", "Suspects"]
     assert real_errors(errors) == []
