@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import html
 import re
+import textwrap
 
 from baarda.text import printable
 
@@ -52,3 +53,19 @@ def labels(values) -> dict:
             k += 1
         out[label] = v
     return out
+
+
+#: The advance of an average glyph of a bold sans-serif title, in font sizes: 0.56-0.62 em
+#: measured in Chromium for the maps' titles (system-ui, 12 and 14 px), with a margin.
+TITLE_EM = 0.66
+
+
+def fit_title(text: str, width: float, font_px: float = 14.0) -> str:
+    """``text`` broken at spaces into lines that fit ``width`` pixels in a bold ``font_px`` font.
+
+    Bokeh draws a plot's title on the canvas in one line per line of text and cuts what runs
+    beyond the canvas (a map's title lost its scale and maximum: "…205, ma"); the title starts
+    at the frame's left edge, so ``width`` is the frame's width."""
+    per_line = max(int(width / (TITLE_EM * font_px)), 12)
+    lines = textwrap.wrap(text, per_line, break_long_words=True, break_on_hyphens=False)
+    return "\n".join(lines) if lines else text

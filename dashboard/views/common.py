@@ -42,6 +42,11 @@ def round_scale(raw: float) -> float:
     return float(10 ** k)
 
 
+#: Pixels a responsive plot's title may take in the narrowest right panel (its least width, 420 px,
+#: less the plot's vertical axis): such titles are broken to fit it (:func:`fit_title`).
+NARROW_TITLE = 330
+
+
 def frame_size(pts: pd.DataFrame, images=(), size: int = 420) -> dict:
     """Frame width/height and limits with equal scales on both axes (metres per pixel), the
     larger side ``size`` pixels; the block's footprints are included in the extent."""

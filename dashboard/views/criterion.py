@@ -21,8 +21,8 @@ import param
 from baarda.stats import analyses
 
 from ..state import State, display_matrix, display_xy
-from ..text import labels, md_text, plain
-from .common import formatters, frame_size
+from ..text import fit_title, labels, md_text, plain
+from .common import NARROW_TITLE, formatters, frame_size
 
 KINDS = ["linear", "logarithmic", "exponential"]
 #: Length of the longest pattern arrow as a share of the network's extent.
@@ -128,7 +128,8 @@ class CriterionView(pn.viewable.Viewer):
         frame = frame_size(pd.DataFrame({"x": np.r_[e, e + scale * d[:, 0]], "y": np.r_[n, n + scale * d[:, 1]]}),
                            size=MAP_SIZE)
         return (pts * sb * arrows * tips).opts(
-            title=f"Eigenvector of λmax = {c['lam_max']:.3g} (M84 §2.3); arrows ≤ {ARROW_SHARE:.0%} of the extent",
+            title=fit_title(f"Eigenvector of λmax = {c['lam_max']:.3g} (M84 §2.3); arrows ≤ {ARROW_SHARE:.0%} of "
+                            "the extent", frame["frame_width"], 12.7),
             show_legend=False, xlabel=xl, ylabel=yl, fontscale=0.9, fontsize={"title": "9.5pt"},
             xticks=4, yticks=5, **frame, **formatters())
 
@@ -180,7 +181,8 @@ class RiskView(pn.viewable.Viewer):
             hv.Curve((rc["grid"], rc["r"]), "C", "r_C").opts(color="#1f4e9c", line_width=2)
             * hv.VLine(rc["C"]).opts(color="#e6007e", line_dash="dashed")
             * hv.Points([(rc["C"], rc["r_C"])], ["C", "r_C"]).opts(color="#e6007e", size=8)
-        ).opts(title="Risk r_C = (1−p) α_C L1 + p (1−β_C) L2 (M84 §3.3)", responsive=True, height=260,
+        ).opts(title=fit_title("Risk r_C = (1−p) α_C L1 + p (1−β_C) L2 (M84 §3.3)", NARROW_TITLE, 14.4),
+               responsive=True, height=260,
                fontscale=0.9)
 
     def __panel__(self):

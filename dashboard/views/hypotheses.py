@@ -16,7 +16,7 @@ from baarda.stats.ap_tests import APTest
 from baarda.stats.hypotheses import HypothesisTest
 
 from ..state import State, observation_label
-from ..text import labels, md_text, plain
+from ..text import fit_title, labels, md_text, plain
 
 
 def text_options(values) -> dict:
@@ -374,7 +374,7 @@ class HypothesisPanel(pn.viewable.Viewer):
                     color="#333333", line_width=2, line_dash="dashed", framewise=True)
                 * hv.Points(est, ["s1", "s2"], label="∇ŝ").opts(color="black", size=10, marker="x", framewise=True)
                 * hv.VLine(0).opts(color="#bbbbbb") * hv.HLine(0).opts(color="#bbbbbb")).opts(
-            title=title, xlabel="∇s₁", ylabel="∇s₂", xlim=(-extent, extent), ylim=(-extent, extent),
+            title=fit_title(title, 240, 13), xlabel="∇s₁", ylabel="∇s₂", xlim=(-extent, extent), ylim=(-extent, extent),
             frame_width=240, frame_height=240, framewise=True, xticks=5, yticks=5, show_legend=False,
             fontscale=0.9)
 

@@ -31,7 +31,7 @@ from baarda.stats.hypotheses import HypothesisTest
 
 from .. import sbase as sbase_lesson
 from ..state import State, display_matrix, object_unit
-from ..text import html_text, labels, plain
+from ..text import fit_title, html_text, labels, plain
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
                      round_scale, selection_data, selection_layer, suspects_layer)
 
@@ -228,9 +228,14 @@ class MapView(pn.viewable.Viewer):
 
     def _overlay_opts(self):
         xl, yl = self.state.map_labels()
-        return hv.opts.Overlay(title=plain(self.title()), xlabel=xl, ylabel=yl, legend_position="bottom", legend_cols=4,
-                               show_legend=self.key == "layout", hooks=[self._hook],
-                               **frame_size(self.points(), self.state.images), **formatters(), **MAP_OPTS)
+        size = frame_size(self.points(), self.state.images)
+        return hv.opts.Overlay(title=self.title_text(size["frame_width"]), xlabel=xl, ylabel=yl, legend_position="bottom",
+                               legend_cols=4, show_legend=self.key == "layout", hooks=[self._hook],
+                               **size, **formatters(), **MAP_OPTS)
+
+    def title_text(self, width: float) -> str:
+        """The title as text (:func:`plain`) in lines that fit a frame ``width`` pixels wide."""
+        return fit_title(plain(self.title()), width)
 
     @staticmethod
     def layer(render, *kinds, opts=()) -> tuple:
@@ -250,7 +255,8 @@ class MapView(pn.viewable.Viewer):
         layers = [*self._layers, self.layer(self._selection, opts=selection_opts())]
         overlay = functools.reduce(operator.mul, [block_context(self.state),
                                                   *(r().opts(*o) for r, _, o in layers)])
-        return overlay.opts(self._overlay_opts()).opts(hv.opts.Overlay(title=plain(self.title()), hooks=[]))
+        opts = self._overlay_opts()
+        return overlay.opts(opts).opts(hv.opts.Overlay(title=opts.kwargs["title"], hooks=[]))
 
     def cached(self, name: str, key: tuple, compute):
         """``compute()``, kept until ``key`` changes (shared by a layer and the title)."""
@@ -263,7 +269,7 @@ class MapView(pn.viewable.Viewer):
 
     def _hook(self, plot, element):
         fig = plot.state
-        fig.title.text = plain(self.title())
+        fig.title.text = self.title_text(fig.frame_width or frame_size(self.points(), self.state.images)["frame_width"])
         if fig.id in self._hooked:
             return
         self._hooked.add(fig.id)
@@ -665,7 +671,8 @@ class PrecisionMap(MapView):
         size = frame_size(pts, s.images, size=260)
         return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
                 * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=3)).opts(
-            title=f"Same scale ×{scale:g}: {name}", xlabel="", ylabel="", toolbar=None, fontsize={"title": "9pt"},
+            title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"], 12), xlabel="", ylabel="",
+            toolbar=None, fontsize={"title": "9pt"},
             **size, **formatters())
 
     def __panel__(self):
@@ -806,8 +813,8 @@ class ImageResidualView(pn.viewable.Viewer):
         if len(df):
             unit = s.frames()[0]["unit"].iat[int(df["obs"].iat[0])]
         return (border * vec * pts).opts(
-            hv.opts.Overlay(title=f"Image {plain(s.selected_image)}: residual vectors ×{s.exaggeration:g} "
-                                  f"(image units {plain(unit)}), colour |w|",
+            hv.opts.Overlay(title=fit_title(f"Image {plain(s.selected_image)}: residual vectors ×{s.exaggeration:g} "
+                                            f"(image units {plain(unit)}), colour |w|", IMAGE_FRAME),
                             xlabel=f"x [{unit}]", ylabel=f"y [{unit}]", frame_width=IMAGE_FRAME, frame_height=IMAGE_FRAME,
                             data_aspect=1, legend_position="top_left"))
 

@@ -18,6 +18,8 @@ from scipy import stats as sps
 
 
 from ..state import State
+from ..text import fit_title
+from .common import NARROW_TITLE
 
 
 #: Above this many observations the MDB plot shows one point per occupied cell of a fine grid.
@@ -78,7 +80,8 @@ class TeachingView(pn.viewable.Viewer):
                 * hv.VLine(lam).opts(color="#e6007e", line_dash="dotted")
                 * hv.Text(lam + pad, ymax * 0.75, f"δ0² (δ0 = {d0:.2f})", halign="left", kdims=[kd, vd]).opts(
                     text_font_size="10pt")
-                ).opts(title=f"Power of the {q}-dimensional test (α = {alpha:.2g}, β0 = {policy.beta0:.2f})",
+                ).opts(title=fit_title(f"Power of the {q}-dimensional test (α = {alpha:.2g}, β0 = {policy.beta0:.2f})",
+                                       NARROW_TITLE, 14.4),
                        xlabel="T", ylabel="density", ylim=(0, ymax), responsive=True, height=290,
                        legend_position="top_right", fontscale=0.9)
 
@@ -103,7 +106,7 @@ class TeachingView(pn.viewable.Viewer):
                 * hv.Curve((x, f0), kd, vd).opts(color="#1f4e9c", line_width=2)
                 * hv.Curve((x, fa), kd, vd).opts(color="#e6007e", line_width=2)
                 ).opts(hv.opts.Overlay(
-                    title=f"Right of k = {k:.2f} on a log scale: the size α (area under H0)",
+                    title=fit_title(f"Right of k = {k:.2f} on a log scale: the size α (area under H0)", NARROW_TITLE, 13.6),
                     xlabel="T", ylabel="density (log)", logy=True, ylim=(floor, float(fa.max()) * 3),
                     responsive=True, height=200, legend_position="top_right", fontscale=0.85))
 
@@ -127,7 +130,7 @@ class TeachingView(pn.viewable.Viewer):
                     marker="triangle", size=9, color="#d7191c", tools=["hover"], show_legend=bool(off.any()))
                 * hv.VSpan(0, 0.1).opts(color="#d7191c", alpha=0.1)
                 * hv.VSpan(0.1, 0.3).opts(color="#fdae61", alpha=0.1)
-                ).opts(title=f"MDB in units of σ against the redundancy number (δ0 = {d0:.2f})",
+                ).opts(title=fit_title(f"MDB in units of σ against the redundancy number (δ0 = {d0:.2f})", NARROW_TITLE, 14.4),
                        xlim=(0, 1.02), ylim=(0, ytop), responsive=True, height=290, legend_position="top_right",
                        fontscale=0.9, xlabel="redundancy number r", ylabel="∇0l / σ")
 

@@ -61,10 +61,10 @@ JS_TABLE_SELECTION = """() => {
   return null;
 }"""
 
-JS_TITLES = """() => {
+JS_TITLES = """() => {  // a title broken into lines to fit its plot, as one line
   const out = [];
   for (const doc of Bokeh.documents) for (const m of doc.all_models)
-    if (m.constructor.__name__ === 'Title' && m.text) out.push(String(m.text));
+    if (m.constructor.__name__ === 'Title' && m.text) out.push(String(m.text).replace(/\\n/g, ' '));
   return out;
 }"""
 

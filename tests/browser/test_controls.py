@@ -53,7 +53,7 @@ def test_sbase_lesson_on_the_controlled_demo(page, block_app, screenshots):
     # the map itself (not only the reference plot below it) shows the free block
     assert wait_until(lambda: any(t.startswith("Standard ellipses") and "free block" in t for t in page.evaluate(
         "() => Bokeh.documents.flatMap(d => [...d.all_models].filter(m => m.constructor.__name__ === 'Title')"
-        ".map(m => String(m.text)))")), 60)
+        ".map(m => String(m.text).replace(/\\n/g, ' ')))")), 60)
     expect(page.locator(".sbase-note").get_by_text("Free-block view", exact=False).first).to_be_visible()
     page.screenshot(path=str(screenshots / "block-sbase-free.png"))
     assert real_errors(errors) == []

@@ -7,7 +7,8 @@ nothing is cut:
   the maps where they do not);
 - every drawn map (its canvases) lies inside the map tabs, every tab header inside its tab bar
   (headers wrap to a second line rather than being cut), the right panel's content inside it;
-- nothing reaches beyond the page's width; no button's label is cut.
+- nothing reaches beyond the page's width; no button's label is cut; no plot's title (drawn on
+  the canvas, measured with the title's font) runs beyond its canvas.
 
 The checks wait for the condition (the views render after a tab is clicked); where it never
 holds, the test fails with the list of what overlaps or is cut. Screenshots of each view at each
@@ -59,6 +60,21 @@ JS_PROBLEMS = """() => {
   for (const b of all(document, 'button')) {
     const r = box(b);
     if (r.width > 0 && b.scrollWidth > b.clientWidth + 1) out.push(`button "${b.innerText}" cut`); }
+  // Bokeh draws a title on the canvas from its panel's left edge: it must end inside the canvas
+  const ctx = document.createElement('canvas').getContext('2d');
+  for (const doc of (window.Bokeh ? Bokeh.documents : []))
+    for (const m of doc.all_models) {
+      const t = m.title;
+      if (!t || typeof t !== 'object' || !('text_font_size' in t) || !t.text) continue;
+      const tv = Bokeh.index.find_one(t);
+      if (!tv || !tv.layout || !tv.parent || !tv.parent.el) continue;
+      const r = tv.parent.el.getBoundingClientRect();
+      if (!(r.width > 0 && r.height > 0) || !tv.parent.el.isConnected) continue;
+      ctx.font = `${t.text_font_style} ${t.text_font_size} ${t.text_font}`;
+      for (const line of String(t.text).split('\\n')) {
+        const end = tv.layout.bbox.left + t.offset + ctx.measureText(line).width;
+        if (end > r.width + 1) out.push(`title "${line}" cut (ends at ${Math.round(end)} px of ${Math.round(r.width)})`); }
+    }
   return out;
 }"""
 
