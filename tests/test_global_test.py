@@ -127,10 +127,26 @@ def test_dashboard_summary_says_which_test(tmp_path):
     adj = adjust(read_problem(DATA / "demo-levelling.gkf"))
     s = {**summary(adj), "n_uncontrolled": 0, "n_weak": 0, "n_excluded": 0, "n_points": 8}
     html = summary_html(s)
-    assert "one-sided, B-method α = 1.3 %" in html and f"≤ {adj.global_test['upper']:.4g}" in html
+    assert adj.global_test["statistic"] > adj.global_test["upper"]       # 14.98 > 14.44: failed
+    assert "one-sided, B-method α = 1.3 %" in html and f"> {adj.global_test['upper']:.4g}" in html
     low = {**s, "global_test": distributions.global_test(0.5, 5, 0.95)}
     html = summary_html(low)
     assert "two-sided at conf-pr 0.95" in html and "FAILED: σ0 a priori too pessimistic" in html
+    assert "vᵀPv = 0.5 ∉ [" in html
+
+
+def test_dashboard_summary_shows_a_failed_test_beyond_its_bound():
+    """A failed one-sided test reads "vᵀPv = T > bound" (it read "383 ≤ 125.9" on the demo
+    block); a passed one "≤"; a two-sided pass "∈"."""
+    adj = adjust(read_problem(DATA / "demo-block.json"))
+    g = adj.global_test
+    assert g["passed"] is False and g["statistic"] > g["upper"]
+    s = {**summary(adj), "n_uncontrolled": 0, "n_weak": 0, "n_excluded": 0, "n_points": 60}
+    html = summary_html(s)
+    assert f"vᵀPv = {g['statistic']:.4g} > {g['upper']:.4g}" in html and "≤" not in html
+    r = g["dof"]
+    ok = {**s, "global_test": {**distributions.global_test(float(r), r, 0.95), "test": "two-sided"}}
+    assert f"vᵀPv = {r:.4g} ∈ [" in summary_html(ok)
 
 
 def test_report_follows_the_command_lines_global_test(tmp_path):
@@ -153,3 +169,18 @@ def test_dashboard_control_switches_the_global_test():
     assert st.results is adj and st.reliability.policy.global_test == "two-sided"
     g = st.summary()["global_test"]
     assert g["test"] == "two-sided" and g["upper"] == pytest.approx(sps.chi2.isf(0.025, 5), rel=1e-12)
+
+
+def test_cli_line_shows_the_statistics_relation_to_its_bounds():
+    """The CLI's global-test line says "T > bound" for a failed one-sided test and "not in" for
+    a value outside the two-sided interval (it said "≤" and "in" whatever the value was)."""
+    from baarda.io.results import global_test_text
+    s = {"sigma0_apriori": 1.0, "sigma0_aposteriori": 2.0}
+    high = distributions.global_test(40.0, 10, test="one-sided", alpha=0.01)
+    assert high["passed"] is False and f"40 > {high['upper']:.4g}" in global_test_text(high, s)
+    ok = distributions.global_test(9.0, 10, test="one-sided", alpha=0.01)
+    assert ok["passed"] is True and "9 ≤ " in global_test_text(ok, s)
+    low = distributions.global_test(0.5, 5, 0.95)
+    assert "0.5 not in [" in global_test_text(low, s)
+    mid = distributions.global_test(5.0, 5, 0.95)
+    assert "5 in [" in global_test_text(mid, s) and "not in" not in global_test_text(mid, s)

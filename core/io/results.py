@@ -292,12 +292,15 @@ def global_test_text(g: dict, s: dict) -> str:
     if g["passed"] is None:
         return "  global test: not applicable (no redundancy)"
     sig = f"σ0 a priori {number(s['sigma0_apriori'])}, a posteriori {number(s['sigma0_aposteriori'])}"
+    T = g["statistic"]              # the relation to the bound(s) as it is: "> bound" when failed
     if g["test"] == "one-sided":
+        rel = "≤" if T <= g["upper"] else ">"
         how = (f"one-sided (F80 §4.1), B-method α_{g['dof']} = {number(100 * g['alpha'], '.3g')} %: "
-               f"vᵀPv = {number(g['statistic'])} vs χ²(r = {g['dof']}) ≤ {number(g['upper'])}")
+               f"vᵀPv = {number(T)} {rel} {number(g['upper'])} (χ², r = {g['dof']})")
     else:
-        how = (f"two-sided at conf-pr {number(g['conf_pr'], '.3g')} (gama-local): vᵀPv = {number(g['statistic'])} "
-               f"in [{number(g['lower'])}, {number(g['upper'])}] (χ², r = {g['dof']})")
+        rel = "in" if g["lower"] <= T <= g["upper"] else "not in"
+        how = (f"two-sided at conf-pr {number(g['conf_pr'], '.3g')} (gama-local): vᵀPv = {number(T)} "
+               f"{rel} [{number(g['lower'])}, {number(g['upper'])}] (χ², r = {g['dof']})")
     verdict = "passed" if g["passed"] else "FAILED"
     if g["side"] is not None:
         verdict += f": {g['verdict']}" + (", not an error in the data" if g["side"] == "low" else "")

@@ -22,10 +22,13 @@ def summary_html(s: dict) -> str:
         cls = "ok" if g["passed"] else "bad"
         if g.get("side") == "low":        # not an error in the data (F80 §4.1)
             gt, cls = gt + ": σ0 a priori too pessimistic", "na"
+    # the relation the statistic has to its bound(s), as it is (a failed test reads "> bound")
     if g.get("test") == "one-sided" and g["upper"] is not None:
-        how = f" ≤ {g['upper']:.4g}<br>one-sided, B-method α = {100 * g['alpha']:.3g} %"
+        rel = "≤" if g["statistic"] <= g["upper"] else ">"
+        how = f" {rel} {g['upper']:.4g}<br>one-sided, B-method α = {100 * g['alpha']:.3g} %"
     elif g["lower"] is not None:
-        how = f" ∈ [{g['lower']:.4g}, {g['upper']:.4g}]<br>two-sided at conf-pr {g['conf_pr']:.3g}"
+        rel = "∈" if g["lower"] <= g["statistic"] <= g["upper"] else "∉"
+        how = f" {rel} [{g['lower']:.4g}, {g['upper']:.4g}]<br>two-sided at conf-pr {g['conf_pr']:.3g}"
     else:
         how = ""
     post = s["sigma0_aposteriori"]
