@@ -144,6 +144,18 @@ class Adjustment:
             self.__dict__[name] = value
         return self
 
+    def computed(self, *names: str) -> dict:
+        """The cached properties among ``names`` that are already computed, name → value;
+        nothing is computed here. With :meth:`seed`, another result built over the same
+        linearisation takes what this one has (an exclusion's factor and hat blocks)."""
+        out = {}
+        for name in names:
+            if not isinstance(getattr(type(self), name, None), cached_property):
+                raise TypeError(f"Adjustment.computed: {name!r} is not a cached property")
+            if name in self.__dict__:
+                out[name] = self.__dict__[name]
+        return out
+
     # -- basic quantities -------------------------------------------------------------------
     @cached_property
     def v(self) -> np.ndarray:

@@ -135,3 +135,21 @@ def test_seed_hands_over_cached_properties_only_once():
     twin.seed(factor=fresh.factor, hat_blocks=fresh.hat_blocks)
     assert twin.factor is fresh.factor
     np.testing.assert_array_equal(twin.r, fresh.r)
+
+
+def test_computed_lists_the_cached_properties_already_computed():
+    """Adjustment.computed: what seed can hand to another result — the computed values among
+    the names asked for, nothing computed on the way; a name that is not a cached property is
+    refused."""
+    fresh = adjust(problem(grid_network(3, 3, noise_seed=6)))
+    assert fresh.computed("hat_blocks") == {}
+    assert fresh.computed("hat_blocks") == {}          # asking computed nothing
+    fresh.r
+    got = fresh.computed("factor", "hat_blocks")
+    assert set(got) == {"factor", "hat_blocks"} and got["factor"] is fresh.factor
+    assert got["hat_blocks"] is fresh.hat_blocks
+    with pytest.raises(TypeError, match="not a cached property"):
+        fresh.computed("n")
+    twin = dataclasses.replace(fresh).seed(**got)
+    assert twin.factor is fresh.factor
+    np.testing.assert_array_equal(twin.r, fresh.r)
