@@ -115,7 +115,8 @@ STATUS = {
 class Options:
     """Options of the adjustment and of the tests.
 
-    alpha: size α0 of the one-dimensional tests (data snooping). beta: power β0.
+    alpha0: size α0 of the one-dimensional tests (data snooping). beta0: power β0 (the names of
+    :class:`baarda.stats.policy.TestPolicy`; the CLI's ``--alpha``, ``--beta``).
     b_method: derive α of multi-dimensional tests from α0 and β0 (Baarda's B-method).
     tol, max_iter: convergence and the iteration limit (module docstring; ``baarda analyze
     --max-iter``). method: ``"auto"`` (Levenberg-Marquardt after the first step where points are
@@ -131,8 +132,8 @@ class Options:
     :class:`baarda.stats.policy.TestPolicy`).
     """
 
-    alpha: float = 0.001
-    beta: float = 0.80
+    alpha0: float = 0.001
+    beta0: float = 0.80
     b_method: bool = False
     tol: float = 1e-9
     max_iter: int = 200

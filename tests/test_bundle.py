@@ -194,7 +194,7 @@ def test_ap_test_rejection_rate_is_alpha():
     rejected = 0
     for seed in range(n):
         blk, _ = simulate_block(seed=1000 + seed, strips=2, images_per_strip=4, ap=["brown"])
-        t = ap_test(adjust(build_block_problem(blk), Options(alpha=alpha, tol=1e-10)), "RC30", "brown")
+        t = ap_test(adjust(build_block_problem(blk), Options(alpha0=alpha, tol=1e-10)), "RC30", "brown")
         rejected += t.significant
     se = np.sqrt(alpha * (1 - alpha) / n)
     assert abs(rejected / n - alpha) < 3 * se

@@ -269,7 +269,7 @@ def test_alpha_changes_delta0_and_mdb_plot_data():
     assert before and d_old == pytest.approx(distributions.delta0(0.001, 0.8, 1))
     st.alpha0 = 0.01
     assert st.reliability.delta0 == pytest.approx(distributions.delta0(0.01, 0.8, 1))
-    ref = adjust(replace(st.results.problem), Options(alpha=0.01))
+    ref = adjust(replace(st.results.problem), Options(alpha0=0.01))
     np.testing.assert_allclose(st.reliability.mdb, ref.mdb, rtol=1e-9)
     after = [np.asarray(s.data["mdb_sigma"], dtype=float) for s in sources_with(root, "mdb_sigma")]
     ratio = st.reliability.delta0 / d_old
@@ -1122,7 +1122,7 @@ def test_policy_change_rebuilds_only_the_reliability_over_the_same_result(monkey
     assert st.results is adj and st.solution == sol
     assert st.reliability is not rel and st.reliability.result is adj
     assert st.reliability.policy == TestPolicy(0.02, 0.9, True, sigma0_mode)
-    ref = adjust(replace(adj.problem), Options(alpha=0.02, beta=0.9, b_method=True))
+    ref = adjust(replace(adj.problem), Options(alpha0=0.02, beta0=0.9, b_method=True))
     np.testing.assert_allclose(st.reliability.mdb, ref.mdb, rtol=1e-12)
     np.testing.assert_allclose(st.reliability.external, ref.external, rtol=1e-12)
     assert st.reliability.delta0 == ref.delta0 == distributions.delta0(0.02, 0.9, 1)
