@@ -524,9 +524,11 @@ class Adjustment:
             red[k] = float(r[mem].sum())
         return keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max
 
-    def _cluster_group_tests(self) -> dict:
-        """{group: (T, q, ∇ŝ)} of the groups that are one covariance cluster
-        (:meth:`_cluster_group_stacks` as a dict, for inspection)."""
+    def cluster_group_tests(self) -> dict:
+        """{group: (T, q, ∇ŝ)} of the groups that are exactly one covariance cluster (an image
+        point, a GNSS vector): those :attr:`group_statistics` takes from the cluster blocks of
+        C_vv at once, without a test per group (for inspection; ∇ŝ in the order of the sorted
+        members)."""
         gid = self.problem.info.group
         out = {}
         for mem, T, q, nabla, *_ in self._cluster_group_stacks():

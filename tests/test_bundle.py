@@ -343,10 +343,9 @@ def test_compiled_collinearity_equals_the_numpy_formulas(cal):
 
     import scipy.sparse as sp
 
-    from baarda.model.bundle import CollinearitySet, _compiled_collinearity
+    from baarda.model.bundle import CollinearitySet
 
-    if _compiled_collinearity() is None:
-        pytest.skip("numba not installed: only the numpy path exists")
+    pytest.importorskip("numba", reason="numba not installed: only the numpy path exists")
     block, _ = simulate_block(strips=2, images_per_strip=4, seed=5)
     pr = build_block_problem(block)
     s = next(s for s in pr.sets if isinstance(s, CollinearitySet))

@@ -20,6 +20,7 @@ import pytest
 pytest.importorskip("panel")
 
 import holoviews as hv  # noqa: E402
+from bokeh.models import ColorBar  # noqa: E402
 
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.views.maps import (MAP_VIEWS, FRAME_MIN_POINTS, ResidualMap, far_note,  # noqa: E402
@@ -70,8 +71,9 @@ def test_demo_maps_keep_every_point_and_metres():
     assert st.map_labels() == ("X [m]", "Y [m]")
     view = ResidualMap(state=st)
     assert view.far_count() == 0 and not view.far_note.visible
-    hv.render(view.dmap)
-    fig_levels = view._levels()
+    fig = hv.render(view.dmap)
+    (bar,) = fig.select(type=ColorBar)          # the |w| scale drawn: its ticks are the levels
+    fig_levels = list(bar.ticker.ticks)
     assert fig_levels[2] == round(st.reliability.critical, 2)
     assert fig_levels[-1] >= np.nanmax(np.abs(st.results.w))
     # the largest image residual drawn at most 30 % of the image (the 20σ error), a round factor
