@@ -19,7 +19,7 @@ from baarda.stats.ap_tests import ap_test
 from baarda.stats.hypotheses import (h_ap_group, h_control_point, h_exchanged, h_image_coordinate, h_image_point,
                                      h_point_transfer)
 
-from oracle import reduced_design
+from tests.oracle import reduced_design
 
 # ------------------------------------------------------------------------------------------
 # collinearity Jacobian

@@ -18,7 +18,7 @@ from bokeh.models.widgets.tables import CheckboxEditor  # noqa: E402
 
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.views.hypotheses import HypothesisPanel  # noqa: E402
-from extdata import GAMA, require_extdata  # noqa: E402
+from tests.extdata import GAMA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
 

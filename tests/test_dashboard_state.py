@@ -35,7 +35,7 @@ from baarda.adjust import Options, adjust  # noqa: E402
 from baarda.dashboard.state import State, observation_points  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
 from baarda.model.problem import subset, without  # noqa: E402
-from extdata import GAMA, require_extdata  # noqa: E402
+from tests.extdata import GAMA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
 
@@ -887,7 +887,7 @@ def test_teaching_mdb_plot_thins_large_blocks_but_keeps_every_cell():
 # --------------------------------------------------------------------------------------------
 def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
     from baarda.build import read_problem
-    from test_colmap import duplicate_model
+    from tests.test_colmap import duplicate_model
 
     txt, _, _, added = duplicate_model(tmp_path)
     p = read_problem(txt)
@@ -928,7 +928,7 @@ def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
 # --------------------------------------------------------------------------------------------
 def dangling_levelling(m: int, sigma: float):
     """A levelling loop of m points and one point X hanging on one height difference (r = 0)."""
-    from networks import Cluster, NetObservation, NetPoint, Network, levelling_loop, problem
+    from tests.networks import Cluster, NetObservation, NetPoint, Network, levelling_loop, problem
 
     net = levelling_loop(m, sigma)
     pts = net.points + (NetPoint("X", z=50.0, adjusted="z"),)

@@ -13,8 +13,8 @@ from baarda.errors import HypothesisError
 from baarda.stats import distributions
 from baarda.stats.hypotheses import common_error, deformation, external_reliability, selection
 
-from networks import grid_network, problem, vector_network
-from oracle import dense, reduced_design
+from tests.networks import grid_network, problem, vector_network
+from tests.oracle import dense, reduced_design
 
 
 @pytest.fixture(scope="module")

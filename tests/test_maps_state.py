@@ -25,7 +25,7 @@ from bokeh.models import ColorBar  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.views.maps import (MAP_VIEWS, FRAME_MIN_POINTS, ResidualMap, far_note,  # noqa: E402
                                          framed, robust_box, w_levels)
-from extdata import EXTDATA, require_extdata  # noqa: E402
+from tests.extdata import EXTDATA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
 
@@ -130,7 +130,7 @@ def test_levelling_schematic_gives_every_benchmark_its_own_place():
 
 
 def test_criterion_map_holds_the_network_and_its_arrows():
-    from extdata import GAMA
+    from tests.extdata import GAMA
 
     from baarda.dashboard.state import display_matrix, display_xy
     from baarda.dashboard.views.criterion import ARROW_SHARE, CriterionView

@@ -30,7 +30,7 @@ from baarda.model.bundle import build_block_problem
 from baarda.model.sfm import CAMERA_MODELS, ProjectionSet, SfmBlock, build_sfm_problem, initial_cost, to_block
 from baarda.observations.rotation import R_from_rodrigues
 
-from extdata import EXTDATA, require_extdata
+from tests.extdata import EXTDATA, require_extdata
 
 BAL = EXTDATA / "bal"
 VALID = Path(__file__).resolve().parent / "malformed" / "valid"

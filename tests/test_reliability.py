@@ -12,8 +12,8 @@ from baarda.adjust import Options, adjust
 from baarda.stats import distributions
 from baarda.stats.hypotheses import selection
 
-from networks import grid_network, levelling_loop, problem, vector_network, with_values
-from oracle import dense, reduced_design
+from tests.networks import grid_network, levelling_loop, problem, vector_network, with_values
+from tests.oracle import dense, reduced_design
 
 
 # -- closed forms --------------------------------------------------------------------------------

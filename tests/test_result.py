@@ -12,8 +12,8 @@ from baarda.adjust import Options, adjust
 from baarda.exclusion import exclude
 from baarda.model.problem import subset
 
-from networks import grid_network, problem, vector_network
-from oracle import dense, normal_inverse, nuisance_share, redundancy, reduced_design
+from tests.networks import grid_network, problem, vector_network
+from tests.oracle import dense, normal_inverse, nuisance_share, redundancy, reduced_design
 
 
 @pytest.fixture(scope="module", params=["grid", "vectors"])
