@@ -27,14 +27,15 @@ test: install
 test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow and not browser"
 
+# every benchmark, as a module from the repository root (bench/__init__.py)
 bench: install
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_solve.py
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_read.py
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_memory.py
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_network.py
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_blocks.py
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_dashboard.py
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_load.py
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_solve
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_read
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_memory
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_network
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_blocks
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_dashboard
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_load
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

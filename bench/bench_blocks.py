@@ -17,7 +17,7 @@ from the published start values, then the analysis (r, w, MDB, δ̄0; median of 
 pycolmap's bundle adjustment from the same start and its pose covariance, and SciPy's
 least_squares (peers "pycolmap", "scipy").
 
-    OPENBLAS_NUM_THREADS=1 python bench/bench_blocks.py [--blocks aerial-100 aerial-1000 ...]
+    OPENBLAS_NUM_THREADS=1 python -m bench.bench_blocks [--blocks aerial-100 aerial-1000 ...]   # (from the repository root)
 
 Peak memory is the process's maximum resident set (ru_maxrss) after each block.
 """
@@ -29,7 +29,6 @@ import os
 
 os.environ.setdefault("GLOG_minloglevel", "2")     # quiet pycolmap/Ceres
 import resource
-import sys
 import time
 from pathlib import Path
 
@@ -40,9 +39,7 @@ from baarda.exclusion import exclude
 from baarda.model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem, project
 from baarda.stats.hypotheses import common_error
 from baarda.simulate import simulate_block
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from oracle import redundancy  # noqa: E402  (the tests' dense oracle, F80 §5)
+from tests.oracle import redundancy          # the tests' dense oracle, F80 §5
 
 LADYBUG = Path("/work/shared/extdata/bal/problem-49-7776-pre.txt")
 AERIAL = {"aerial-100": (5, 20), "aerial-1000": (20, 50), "aerial-5000": (50, 100)}
@@ -120,7 +117,7 @@ def analyse(problem, solver, repeat: int = 3):
     for _ in range(repeat):
         a = dataclasses.replace(adj, timings={})
         if adj.solver == "schur":
-            a.__dict__["schur_structure"] = adj.schur_structure
+            a.seed(schur_structure=adj.schur_structure)
         t0 = time.perf_counter()
         for name in ("r", "w", "mdb", "external", "u_t"):
             getattr(a, name)
@@ -356,7 +353,7 @@ def main():
             times = []
             for _ in range(5):                       # analysis only, after the solve: median of 5
                 a = dataclasses.replace(adj, timings={})
-                a.__dict__["schur_structure"] = adj.schur_structure
+                a.seed(schur_structure=adj.schur_structure)
                 t0 = time.perf_counter()
                 for q in ("r", "w", "mdb", "external"):
                     getattr(a, q)

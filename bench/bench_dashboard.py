@@ -20,7 +20,7 @@ the action with every view live, ``naive`` a full re-render of the views after t
 Blocks: the demo block (``data/demo-block.json``) and the 1,000-image aerial block of
 ``bench/bench_blocks.py`` (``aerial-1000``: 20 strips × 50 images, design mode, seed 1).
 
-    OPENBLAS_NUM_THREADS=1 python bench/bench_dashboard.py [--blocks demo aerial-1000] [--repeat 5]
+    OPENBLAS_NUM_THREADS=1 python -m bench.bench_dashboard [--blocks demo aerial-1000] [--repeat 5]   # (from the repository root)
 """
 
 from __future__ import annotations
@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -42,10 +41,9 @@ from baarda.dashboard import views as V
 from baarda.dashboard.state import State
 from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
+from bench.bench_blocks import AERIAL        # the recipe of the 1,000-image block
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "bench"))
-from bench_blocks import AERIAL  # noqa: E402  (the recipe of the 1,000-image block)
 
 
 def problem_for(name: str):

@@ -20,7 +20,7 @@ and a point-transfer error, so that iterative snooping runs for some 20 iteratio
 
 Everything is bounded (``--timeout`` seconds in all); the server is stopped at the end.
 
-    OPENBLAS_NUM_THREADS=1 python bench/bench_load.py [--sessions 20] [--clicks 5] [--timeout 600]
+    OPENBLAS_NUM_THREADS=1 python -m bench.bench_load [--sessions 20] [--clicks 5] [--timeout 600]
 """
 
 from __future__ import annotations

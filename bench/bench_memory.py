@@ -9,7 +9,7 @@ reliability). After each stage the table shows its seconds, the process's peak r
 far (``ru_maxrss``) and its resident set after the stage (what the stage keeps), with wall and CPU
 seconds (CPU seconds are the fairer figure on a shared machine).
 
-    OPENBLAS_NUM_THREADS=1 python bench/bench_memory.py [--sizes 1e6 2.5e6 5e6] [--network 100000]
+    OPENBLAS_NUM_THREADS=1 python -m bench.bench_memory [--sizes 1e6 2.5e6 5e6] [--network 100000]
         [--json] [--limit-gb 8]
 
 ``--limit-gb`` caps each worker's address space (RLIMIT_AS is not RSS, so it is set well above

@@ -5,25 +5,21 @@ the problem, the adjustment and the reliability (r, w, MDB, δ̄0, u_k), peak me
 sizes where it fits — the time of a dense numpy reference computing r_i from the full inverse in
 the same process, with the ratio.
 
-    python bench/bench_network.py [--sizes 10 30 100] [--dense-max 900]
+    python -m bench.bench_network [--sizes 10 30 100] [--dense-max 900]     # (from the repository root)
 """
 
 from __future__ import annotations
 
 import argparse
 import resource
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from baarda.adjust import adjust
 from baarda.model.network import Cluster, NetObservation, NetPoint, Network
 from baarda.observations.geodetic import build_problem
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from oracle import redundancy  # noqa: E402  (the tests' dense oracle, F80 §5)
+from tests.oracle import redundancy          # the tests' dense oracle, F80 §5
 
 
 def grid(n_side: int, spacing=100.0, seed=1) -> Network:

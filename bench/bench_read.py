@@ -8,8 +8,8 @@ naive baseline "read the text, split it into tokens, convert them" that the read
 (each token a Python string with its line number). CPU seconds (user + system) are printed
 beside the wall-clock seconds: on a loaded machine they are the steadier figure.
 
-    python bench/bench_read.py [--obs 5000000] [--dir /tmp/baarda-bench] [--bz2] [--no-before]
-    python bench/bench_read.py --colmap 40 50000     # COLMAP text and binary: baarda vs pycolmap
+    python -m bench.bench_read [--obs 5000000] [--dir /tmp/baarda-bench] [--bz2] [--no-before]
+    python -m bench.bench_read --colmap 40 50000     # COLMAP text and binary: baarda vs pycolmap
 """
 
 from __future__ import annotations

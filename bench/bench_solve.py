@@ -3,13 +3,14 @@
 For each problem: baarda's solve (``adjust``: datum analysis, structure, iterations; read and
 build excluded; numba kernels warmed up on a small problem first), then pycolmap's Ceres bundle
 adjuster (set-up and solve; one thread; focal length, k1, k2 refined per camera as BAL defines;
-the block written as a COLMAP RADIAL model with flipped axes, :func:`bench_blocks.bal_as_colmap`),
+the block written as a COLMAP RADIAL model with flipped axes, :func:`bench.bench_blocks.bal_as_colmap`),
 the ratio of the two times, both final costs ½Σr² (Ceres' evaluated in BAL's model over the image
 points COLMAP kept: it drops those whose point is behind the camera), both iteration counts
 (Ceres: successful + unsuccessful steps) and the end-to-end ``baarda analyze FILE --json`` time
 (a subprocess).
 
-Usage: ``python bench/bench_solve.py [--problems DIR/FILE ...] [--no-analyze] [--repeat N]``.
+Usage (from the repository root): ``python -m bench.bench_solve [--problems DIR/FILE ...] [--no-analyze]
+[--repeat N]``.
 Compressed BAL files are decompressed to a temporary file when the reader does not take them.
 """
 
@@ -28,13 +29,11 @@ os.environ.setdefault("GLOG_minloglevel", "2")     # quiet pycolmap/Ceres
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_blocks import bal_as_colmap  # noqa: E402
-
 from baarda.adjust import Options, adjust  # noqa: E402
 from baarda.model.sfm import build_sfm_problem, initial_cost  # noqa: E402
 from baarda.errors import InputError  # noqa: E402
 from baarda.io.bal import read_bal  # noqa: E402
+from bench.bench_blocks import bal_as_colmap  # noqa: E402
 
 EXTDATA = Path(__file__).resolve().parents[2] / "shared" / "extdata" / "bal"
 PROBLEMS = [EXTDATA / "problem-21-11315-pre.txt.bz2", EXTDATA / "problem-16-22106-pre.txt.bz2",

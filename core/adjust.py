@@ -115,7 +115,8 @@ STATUS = {
 class Options:
     """Options of the adjustment and of the tests.
 
-    alpha: size α0 of the one-dimensional tests (data snooping). beta: power β0.
+    alpha0: size α0 of the one-dimensional tests (data snooping). beta0: power β0 (the names of
+    :class:`baarda.stats.policy.TestPolicy`; the CLI's ``--alpha``, ``--beta``).
     b_method: derive α of multi-dimensional tests from α0 and β0 (Baarda's B-method).
     tol, max_iter: convergence and the iteration limit (module docstring; ``baarda analyze
     --max-iter``). method: ``"auto"`` (Levenberg-Marquardt after the first step where points are
@@ -131,8 +132,8 @@ class Options:
     :class:`baarda.stats.policy.TestPolicy`).
     """
 
-    alpha: float = 0.001
-    beta: float = 0.80
+    alpha0: float = 0.001
+    beta0: float = 0.80
     b_method: bool = False
     tol: float = 1e-9
     max_iter: int = 200
@@ -162,14 +163,15 @@ class _Labels:
         return np.asarray(take(self.labels, self.idx), dtype=dtype)
 
 
-class _Linearisation:
+class Linearisation:
     """f(x) and the design matrix A = ∂f/∂x over the free parameters, on a pattern found once.
 
     The observation sets return their Jacobian entries as (row, column, value) triples in a
     fixed order; the CSR pattern of A (and of the reduced Ar, without the datum's held columns)
     and the place of every triple in it are computed at the first evaluation, so each later
     one is a single weighted bincount (duplicates summed as scipy's COO conversion does).
-    A set that returns another pattern makes the layout be found again.
+    A set that returns another pattern makes the layout be found again. :attr:`direct` tells
+    whether the last :meth:`linearise` wrote the values straight into A's data.
     """
 
     def __init__(self, problem, free: np.ndarray):
@@ -178,6 +180,14 @@ class _Linearisation:
         self.col = np.full(problem.params.size, -1, dtype=np.int64)
         self.col[free] = np.arange(free.size)
         self._key = self._take = self._first = self._dest = None
+
+    @property
+    def direct(self) -> bool:
+        """True once :meth:`linearise` writes the set's Jacobian values straight into A's data
+        (``evaluate_into``, on the layout found before): no array of the raw entries is made and
+        their gathering order is dropped. False while A is gathered from the raw entries
+        (:meth:`design`)."""
+        return self._dest is not None and self._take is None
 
     def values(self, x: np.ndarray) -> np.ndarray:
         """f(x) alone (a trial point's: its Jacobian is made once the step is accepted)."""
@@ -340,7 +350,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     x_ref = x.copy()
     P = weight_matrix(problem.cov)
     labels = _Labels(params.labels, free)
-    lin = _Linearisation(problem, free)
+    lin = Linearisation(problem, free)
     f, parts = lin.evaluate(x)
     A = lin.design(parts)
     del parts                      # the entries live on in A

@@ -70,7 +70,7 @@ def _options(args, problem) -> Options:
         sigma0 = "aposteriori" if getattr(problem, "sigma_act", "apriori") == "aposteriori" else "apriori"
     else:
         sigma0 = "aposteriori" if args.statistic == "tau" else "apriori"
-    return Options(alpha=args.alpha, beta=args.beta, b_method=args.b_method, max_iter=args.max_iter,
+    return Options(alpha0=args.alpha, beta0=args.beta, b_method=args.b_method, max_iter=args.max_iter,
                    sigma0=sigma0, global_test=args.global_test)
 
 

@@ -95,8 +95,7 @@ def exclude(adj: Adjustment, rows, method: str = "auto") -> Adjustment:
     out = Adjustment(problem=problem, options=adj.options, x=x, f=f, A=A, P=P, plan=adj.plan,
                      converged=True, iterations=0, history=(),
                      timings={"solve": time.perf_counter() - t0}, solver=adj.solver)
-    out.seed(**{name: new.__dict__[name] for name in ("keep", "Ar", "factor", "schur_structure", "hat_blocks",
-                                                     "nuisance_factor") if name in new.__dict__})
+    out.seed(**new.computed("keep", "Ar", "factor", "schur_structure", "hat_blocks", "nuisance_factor"))
     return out
 
 

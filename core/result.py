@@ -144,6 +144,18 @@ class Adjustment:
             self.__dict__[name] = value
         return self
 
+    def computed(self, *names: str) -> dict:
+        """The cached properties among ``names`` that are already computed, name → value;
+        nothing is computed here. With :meth:`seed`, another result built over the same
+        linearisation takes what this one has (an exclusion's factor and hat blocks)."""
+        out = {}
+        for name in names:
+            if not isinstance(getattr(type(self), name, None), cached_property):
+                raise TypeError(f"Adjustment.computed: {name!r} is not a cached property")
+            if name in self.__dict__:
+                out[name] = self.__dict__[name]
+        return out
+
     # -- basic quantities -------------------------------------------------------------------
     @cached_property
     def v(self) -> np.ndarray:
@@ -512,9 +524,11 @@ class Adjustment:
             red[k] = float(r[mem].sum())
         return keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max
 
-    def _cluster_group_tests(self) -> dict:
-        """{group: (T, q, ∇ŝ)} of the groups that are one covariance cluster
-        (:meth:`_cluster_group_stacks` as a dict, for inspection)."""
+    def cluster_group_tests(self) -> dict:
+        """{group: (T, q, ∇ŝ)} of the groups that are exactly one covariance cluster (an image
+        point, a GNSS vector): those :attr:`group_statistics` takes from the cluster blocks of
+        C_vv at once, without a test per group (for inspection; ∇ŝ in the order of the sorted
+        members)."""
         gid = self.problem.info.group
         out = {}
         for mem, T, q, nabla, *_ in self._cluster_group_stacks():

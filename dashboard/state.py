@@ -99,7 +99,7 @@ def _file_key(path, options) -> tuple | None:
     try:
         st = os.stat(path)
         return (str(Path(path).resolve()), st.st_mtime_ns, st.st_size,
-                options.alpha, options.beta, options.b_method)
+                options.alpha0, options.beta0, options.b_method)
     except OSError:
         return None
 
@@ -337,7 +337,7 @@ class State(param.Parameterized):
             st.global_test = policy.global_test
         with param.parameterized.discard_events(st):
             st.param.update(problem=adj.problem, source=str(adj.problem.source), sigma0_mode=mode,
-                            alpha0=adj.options.alpha, beta0=adj.options.beta,
+                            alpha0=adj.options.alpha0, beta0=adj.options.beta0,
                             b_method=adj.options.b_method, kept=np.arange(adj.n), results=adj)
             st.reliability = Reliability(adj, st.policy())
             images = st.images
@@ -559,7 +559,7 @@ class State(param.Parameterized):
 
     # -- recomputation --------------------------------------------------------------------------
     def options(self) -> Options:
-        return Options(alpha=float(self.alpha0), beta=float(self.beta0), b_method=bool(self.b_method))
+        return Options(alpha0=float(self.alpha0), beta0=float(self.beta0), b_method=bool(self.b_method))
 
     def policy(self) -> TestPolicy:
         """The test policy of the controls: α0, β0, the B-method and the σ0 of the decisions."""

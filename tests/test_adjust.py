@@ -16,7 +16,7 @@ from baarda.adjust import STATUS, Options, adjust, gain_ratio, update_radius
 from baarda.build import read_problem
 from baarda.cli import NOT_CONVERGED, main
 
-from extdata import EXTDATA, require_extdata
+from tests.extdata import EXTDATA, require_extdata
 
 BAL = EXTDATA / "bal"
 DEMO = str(Path(__file__).resolve().parents[1] / "data" / "demo-block.json")

@@ -19,7 +19,7 @@ from baarda.stats.ap_tests import ap_test
 from baarda.stats.hypotheses import (h_ap_group, h_control_point, h_exchanged, h_image_coordinate, h_image_point,
                                      h_point_transfer)
 
-from oracle import reduced_design
+from tests.oracle import reduced_design
 
 # ------------------------------------------------------------------------------------------
 # collinearity Jacobian
@@ -194,7 +194,7 @@ def test_ap_test_rejection_rate_is_alpha():
     rejected = 0
     for seed in range(n):
         blk, _ = simulate_block(seed=1000 + seed, strips=2, images_per_strip=4, ap=["brown"])
-        t = ap_test(adjust(build_block_problem(blk), Options(alpha=alpha, tol=1e-10)), "RC30", "brown")
+        t = ap_test(adjust(build_block_problem(blk), Options(alpha0=alpha, tol=1e-10)), "RC30", "brown")
         rejected += t.significant
     se = np.sqrt(alpha * (1 - alpha) / n)
     assert abs(rejected / n - alpha) < 3 * se
@@ -343,10 +343,9 @@ def test_compiled_collinearity_equals_the_numpy_formulas(cal):
 
     import scipy.sparse as sp
 
-    from baarda.model.bundle import CollinearitySet, _compiled_collinearity
+    from baarda.model.bundle import CollinearitySet
 
-    if _compiled_collinearity() is None:
-        pytest.skip("numba not installed: only the numpy path exists")
+    pytest.importorskip("numba", reason="numba not installed: only the numpy path exists")
     block, _ = simulate_block(strips=2, images_per_strip=4, seed=5)
     pr = build_block_problem(block)
     s = next(s for s in pr.sets if isinstance(s, CollinearitySet))

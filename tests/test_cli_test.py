@@ -22,8 +22,8 @@ from baarda.cli import main, parse_hypothesis
 from baarda.errors import BaardaError
 from baarda.stats.hypotheses import hypothesis_matrix
 
-from oracle import dense, pcp, reduced_design
-from test_colmap import duplicate_model
+from tests.oracle import dense, pcp, reduced_design
+from tests.test_colmap import duplicate_model
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 DEMO = DATA / "demo-block.json"

@@ -4,7 +4,7 @@ The verdict is checked against the summary's own numbers on three files whose ca
 (global test failed with rejections, passed with no rejection, not converged); the report carries
 no session state (a selection, an active hypothesis' deformation field) and no toolbar; the CSV
 tables round-trip through pandas to the app's tables, and a hostile id is text in a spreadsheet.
-The printed page count is tested in Chromium (tests/browser/test_report.py; this file has another name: pytest imports test modules by their base name).
+The printed page count is tested in Chromium (tests/browser/test_report.py).
 """
 
 from __future__ import annotations

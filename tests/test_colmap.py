@@ -21,7 +21,7 @@ from baarda.errors import InputError
 from baarda.io.colmap import read_colmap
 from baarda.model.sfm import initial_cost
 
-from extdata import EXTDATA, require_extdata
+from tests.extdata import EXTDATA, require_extdata
 
 REAL = EXTDATA / "colmap" / "test_colmap-sparse0"
 

@@ -22,7 +22,7 @@ from baarda.io import detect_format
 from baarda.io.source import Numbers, compression, open_binary, read_text
 from baarda.model.sfm import initial_cost
 
-from extdata import EXTDATA, require_extdata
+from tests.extdata import EXTDATA, require_extdata
 
 HERE = Path(__file__).resolve().parent
 VALID = HERE / "malformed" / "valid"

@@ -18,7 +18,7 @@ from bokeh.models.widgets.tables import CheckboxEditor  # noqa: E402
 
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.views.hypotheses import HypothesisPanel  # noqa: E402
-from extdata import GAMA, require_extdata  # noqa: E402
+from tests.extdata import GAMA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
 
@@ -139,4 +139,4 @@ def test_sbase_lesson_on_a_controlled_block(demo):
     other = lesson.free_point_cov2(st, ["P00004", "P06004", "P03001"])
     assert not np.allclose(other, free)
     hv.render(view.dmap)
-    hv.render(view._comparison())
+    hv.render(view.compare.object)            # the comparison pane, after the last change

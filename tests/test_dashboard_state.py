@@ -35,7 +35,7 @@ from baarda.adjust import Options, adjust  # noqa: E402
 from baarda.dashboard.state import State, observation_points  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
 from baarda.model.problem import subset, without  # noqa: E402
-from extdata import GAMA, require_extdata  # noqa: E402
+from tests.extdata import GAMA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
 
@@ -269,7 +269,7 @@ def test_alpha_changes_delta0_and_mdb_plot_data():
     assert before and d_old == pytest.approx(distributions.delta0(0.001, 0.8, 1))
     st.alpha0 = 0.01
     assert st.reliability.delta0 == pytest.approx(distributions.delta0(0.01, 0.8, 1))
-    ref = adjust(replace(st.results.problem), Options(alpha=0.01))
+    ref = adjust(replace(st.results.problem), Options(alpha0=0.01))
     np.testing.assert_allclose(st.reliability.mdb, ref.mdb, rtol=1e-9)
     after = [np.asarray(s.data["mdb_sigma"], dtype=float) for s in sources_with(root, "mdb_sigma")]
     ratio = st.reliability.delta0 / d_old
@@ -445,7 +445,7 @@ def test_messages_and_selection_are_text_not_markup():
     evil = '<iframe srcdoc="<script>parent.alert(1)</script>"> **b** [l](javascript:x) \x1b[31m\nz'
     assert "<" not in html_text(evil) and "\x1b" not in html_text(evil) and "\\x1b" in html_text(evil)
     md = md_text(evil)
-    rendered = pn.pane.Markdown(md)._transform_object(md)["object"]
+    rendered = pn.pane.Markdown(md).get_root(Document()).text      # the HTML the model carries
     import html as _html
     out = _html.unescape(rendered)           # what the browser gets as HTML
     assert "<iframe" not in out and "<strong>" not in out and "<a " not in out and "\x1b" not in out
@@ -577,7 +577,7 @@ def test_ap_group_hypotheses_match_bundle(ap_block):
     panel.camera.value = "RC30"
     assert list(panel.ap_group.options.values())[0] == "brown"     # the estimated one first
     panel.ap_group.value = "brown"
-    panel._add()
+    panel.add.clicks += 1                       # the "Test" button
     est = st.hyp_results[-1]
     ref = ap_tests.ap_test(adj, "RC30", "brown")
     assert isinstance(est, ap_tests.APTest)
@@ -887,7 +887,7 @@ def test_teaching_mdb_plot_thins_large_blocks_but_keeps_every_cell():
 # --------------------------------------------------------------------------------------------
 def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
     from baarda.build import read_problem
-    from test_colmap import duplicate_model
+    from tests.test_colmap import duplicate_model
 
     txt, _, _, added = duplicate_model(tmp_path)
     p = read_problem(txt)
@@ -928,7 +928,7 @@ def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
 # --------------------------------------------------------------------------------------------
 def dangling_levelling(m: int, sigma: float):
     """A levelling loop of m points and one point X hanging on one height difference (r = 0)."""
-    from networks import Cluster, NetObservation, NetPoint, Network, levelling_loop, problem
+    from tests.networks import Cluster, NetObservation, NetPoint, Network, levelling_loop, problem
 
     net = levelling_loop(m, sigma)
     pts = net.points + (NetPoint("X", z=50.0, adjusted="z"),)
@@ -1122,7 +1122,7 @@ def test_policy_change_rebuilds_only_the_reliability_over_the_same_result(monkey
     assert st.results is adj and st.solution == sol
     assert st.reliability is not rel and st.reliability.result is adj
     assert st.reliability.policy == TestPolicy(0.02, 0.9, True, sigma0_mode)
-    ref = adjust(replace(adj.problem), Options(alpha=0.02, beta=0.9, b_method=True))
+    ref = adjust(replace(adj.problem), Options(alpha0=0.02, beta0=0.9, b_method=True))
     np.testing.assert_allclose(st.reliability.mdb, ref.mdb, rtol=1e-12)
     np.testing.assert_allclose(st.reliability.external, ref.external, rtol=1e-12)
     assert st.reliability.delta0 == ref.delta0 == distributions.delta0(0.02, 0.9, 1)

@@ -13,7 +13,7 @@ from baarda.model.problem import weight_matrix
 from baarda.model.problem import Covariance
 from baarda.simulate import simulate_block
 
-from networks import grid_network, problem, vector_network
+from tests.networks import grid_network, problem, vector_network
 
 
 def test_normal_diagonal_equals_the_diagonal_of_the_normal_matrix():

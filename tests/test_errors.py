@@ -19,7 +19,7 @@ from baarda.solve.linalg import SPDFactor
 from baarda.simulate import simulate_block
 from baarda.stats import distributions, risk
 
-from networks import grid_network, problem
+from tests.networks import grid_network, problem
 
 
 def _singular_normal_matrix(seed=2, u=12):

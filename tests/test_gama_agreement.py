@@ -29,9 +29,9 @@ from baarda.model.problem import subset
 from baarda.observations.geodetic import build_problem
 from baarda.stats.reliability import Reliability
 
-from extdata import GAMA, gama_cases, require_extdata
+from tests.extdata import GAMA, gama_cases, require_extdata
 
-from gama_result import read_gama_result
+from tests.gama_result import read_gama_result
 
 CASES = gama_cases()
 IDS = [str(p.relative_to(GAMA)) for p in CASES] if CASES else []

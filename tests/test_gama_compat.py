@@ -34,8 +34,8 @@ from baarda.errors import InputError
 from baarda.io import read_model
 from baarda.io.gama import GON, UndefinedPointsWarning, read_gama
 
-from extdata import GAMA, require_extdata
-from gama_result import read_gama_result
+from tests.extdata import GAMA, require_extdata
+from tests.gama_result import read_gama_result
 
 SCHEMA = json.loads((Path(__file__).parents[1] / "core" / "schema" / "analysis.schema.json").read_text())
 

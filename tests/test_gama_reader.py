@@ -18,8 +18,8 @@ from baarda.approx import approximate_coordinates
 from baarda.errors import InputError
 from baarda.io.gama import ARCSEC, CC, GON, MM, read_gama
 
-from extdata import GAMA, require_extdata
-from gama_result import read_gama_result
+from tests.extdata import GAMA, require_extdata
+from tests.gama_result import read_gama_result
 
 
 def _gama_files():

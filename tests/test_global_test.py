@@ -27,7 +27,7 @@ from baarda.io.results import summary
 from baarda.stats import distributions
 from baarda.stats.reliability import Reliability
 
-from extdata import GAMA, require_extdata
+from tests.extdata import GAMA, require_extdata
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 WOLF = GAMA / "krumm" / "2D" / "Wolf_DistanceDirectionAngle_free.gkf"

@@ -13,8 +13,8 @@ from baarda.errors import HypothesisError
 from baarda.stats import distributions
 from baarda.stats.hypotheses import common_error, deformation, external_reliability, selection
 
-from networks import grid_network, problem, vector_network
-from oracle import dense, reduced_design
+from tests.networks import grid_network, problem, vector_network
+from tests.oracle import dense, reduced_design
 
 
 @pytest.fixture(scope="module")
@@ -72,8 +72,8 @@ def test_lower_bound_lies_on_the_ellipse_and_the_weakest_direction_is_the_pencil
 def test_b_method_sets_the_size_of_the_q_dimensional_test():
     a = adjust(problem(grid_network(3, 3, noise_seed=5)), Options(b_method=True))
     h = a.test(selection(a.n, [2, 9]))
-    assert h.alpha == pytest.approx(distributions.alpha_b_method(a.options.alpha, a.options.beta, 2))
-    assert h.delta0 == pytest.approx(distributions.delta0(a.options.alpha, a.options.beta, 1))
+    assert h.alpha == pytest.approx(distributions.alpha_b_method(a.options.alpha0, a.options.beta0, 2))
+    assert h.delta0 == pytest.approx(distributions.delta0(a.options.alpha0, a.options.beta0, 1))
 
 
 def test_deformation_is_the_dense_normal_solution():

@@ -13,7 +13,7 @@ import pytest
 from baarda.adjust import adjust
 from baarda.build import read_problem
 
-from extdata import EXTDATA, GAMA, require_extdata
+from tests.extdata import EXTDATA, GAMA, require_extdata
 
 KRUMM = EXTDATA / "krumm"
 #: differences of model named in the extdata README (Gama differs from these by 1.3-60 mm too)

@@ -17,7 +17,7 @@ from baarda.io import read_model
 from baarda.model.sfm import SfmCamera, SfmImage, build_sfm_problem
 from baarda.sfm_defects import adjust_block, find_defects
 
-from extdata import EXTDATA, require_extdata
+from tests.extdata import EXTDATA, require_extdata
 
 BALBIANELLO = EXTDATA / "bal" / "Balbianello.out"
 

@@ -20,11 +20,12 @@ import pytest
 pytest.importorskip("panel")
 
 import holoviews as hv  # noqa: E402
+from bokeh.models import ColorBar  # noqa: E402
 
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.views.maps import (MAP_VIEWS, FRAME_MIN_POINTS, ResidualMap, far_note,  # noqa: E402
                                          framed, robust_box, w_levels)
-from extdata import EXTDATA, require_extdata  # noqa: E402
+from tests.extdata import EXTDATA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
 
@@ -70,8 +71,9 @@ def test_demo_maps_keep_every_point_and_metres():
     assert st.map_labels() == ("X [m]", "Y [m]")
     view = ResidualMap(state=st)
     assert view.far_count() == 0 and not view.far_note.visible
-    hv.render(view.dmap)
-    fig_levels = view._levels()
+    fig = hv.render(view.dmap)
+    (bar,) = fig.select(type=ColorBar)          # the |w| scale drawn: its ticks are the levels
+    fig_levels = list(bar.ticker.ticks)
     assert fig_levels[2] == round(st.reliability.critical, 2)
     assert fig_levels[-1] >= np.nanmax(np.abs(st.results.w))
     # the largest image residual drawn at most 30 % of the image (the 20σ error), a round factor
@@ -128,7 +130,7 @@ def test_levelling_schematic_gives_every_benchmark_its_own_place():
 
 
 def test_criterion_map_holds_the_network_and_its_arrows():
-    from extdata import GAMA
+    from tests.extdata import GAMA
 
     from baarda.dashboard.state import display_matrix, display_xy
     from baarda.dashboard.views.criterion import ARROW_SHARE, CriterionView

@@ -11,7 +11,7 @@ from pathlib import Path
 import jsonschema
 import numpy as np
 import pytest
-from oracle import dense, pcp
+from tests.oracle import dense, pcp
 
 from baarda.adjust import adjust
 from baarda.cli import main

@@ -8,8 +8,8 @@ import pytest
 from baarda.adjust import adjust
 from baarda.stats import precision, risk
 
-from networks import grid_network, problem
-from oracle import reduced_design
+from tests.networks import grid_network, problem
+from tests.oracle import reduced_design
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ from scipy.linalg import block_diag
 
 from baarda.model.problem import Covariance, subset
 
-from networks import grid_network, problem, vector_network
+from tests.networks import grid_network, problem, vector_network
 
 
 def _clusters(seed=3, sizes=(1, 2, 3, 2, 1, 3, 3)):

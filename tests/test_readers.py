@@ -30,7 +30,7 @@ from baarda.model.bundle import build_block_problem
 from baarda.model.sfm import CAMERA_MODELS, ProjectionSet, SfmBlock, build_sfm_problem, initial_cost, to_block
 from baarda.observations.rotation import R_from_rodrigues
 
-from extdata import EXTDATA, require_extdata
+from tests.extdata import EXTDATA, require_extdata
 
 BAL = EXTDATA / "bal"
 VALID = Path(__file__).resolve().parent / "malformed" / "valid"
@@ -459,17 +459,14 @@ def test_malformed_big_bal_is_refused_early(tmp_path):
 
 @pytest.mark.parametrize("path", ["compiled", "numpy"])
 @pytest.mark.parametrize("fmt", ["%.6e", "%.17g", "%.16e", "%.3f", "%.12g", "%r"])
-def test_chunk_parser_gives_pythons_numbers(fmt, path, monkeypatch):
+def test_chunk_parser_gives_pythons_numbers(fmt, path):
     """The chunk parser (the exact fast path compiled by numba when installed; numpy's
     fromstring otherwise) against Python's float, token by token: the same double, sign of zero
     included."""
-    from baarda.io import source
-    from baarda.io.source import _fast_parse
+    from baarda.io.source import parse_chunk
 
-    if path == "numpy":
-        monkeypatch.setitem(source._KERNEL, "scan", None)
-    elif source._compiled_scan() is None:
-        pytest.skip("numba is not installed")
+    if path == "compiled":
+        pytest.importorskip("numba", reason="numba is not installed")
 
     rng = np.random.default_rng(11)
     x = rng.normal(size=20000) * 10.0 ** rng.integers(-40, 40, size=20000)
@@ -477,7 +474,7 @@ def test_chunk_parser_gives_pythons_numbers(fmt, path, monkeypatch):
             "1e-22", "4.9e-324", "1.7976931348623157e308", "2.2250738585072014e-308", "0.1", "-7e-5"]
     toks = [fmt % float(v) for v in x] + edge
     buf = ("\n".join(" ".join(toks[k:k + 4]) for k in range(0, len(toks), 4)) + "\n").encode()
-    vals, lines, starts, _ = _fast_parse(buf, 1, None)
+    vals, lines, starts, _ = parse_chunk(buf, 1, None, compiled=(path == "compiled"))
     ref = np.array([float(t) for t in toks])
     assert np.array_equal(vals, ref) and np.array_equal(np.signbit(vals), np.signbit(ref))
     assert lines.tolist() == [1 + k // 4 for k in range(len(toks))]

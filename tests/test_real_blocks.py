@@ -9,7 +9,7 @@ import json
 import pytest
 
 from baarda.cli import main
-from extdata import EXTDATA, require_extdata
+from tests.extdata import EXTDATA, require_extdata
 
 BAL = EXTDATA / "bal"
 COLMAP = EXTDATA / "colmap"

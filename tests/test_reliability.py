@@ -12,8 +12,8 @@ from baarda.adjust import Options, adjust
 from baarda.stats import distributions
 from baarda.stats.hypotheses import selection
 
-from networks import grid_network, levelling_loop, problem, vector_network, with_values
-from oracle import dense, reduced_design
+from tests.networks import grid_network, levelling_loop, problem, vector_network, with_values
+from tests.oracle import dense, reduced_design
 
 
 # -- closed forms --------------------------------------------------------------------------------
@@ -108,7 +108,7 @@ def test_group_tests_from_cluster_blocks_equal_the_general_test(b_method):
     block, _ = simulate_block(strips=3, images_per_strip=6, seed=4)
     adj = adjust(build_block_problem(block), Options(b_method=b_method))
     groups = adj.groups
-    fast = adj._cluster_group_tests()
+    fast = adj.cluster_group_tests()
     sizes = np.array([m.size for m in adj.problem.cov.members])
     one_cluster = [g for g in groups
                    if sizes[adj.problem.cov.cluster[g["members"][0]]] == g["members"].size

@@ -12,8 +12,8 @@ from baarda.adjust import Options, adjust
 from baarda.exclusion import exclude
 from baarda.model.problem import subset
 
-from networks import grid_network, problem, vector_network
-from oracle import dense, normal_inverse, nuisance_share, redundancy, reduced_design
+from tests.networks import grid_network, problem, vector_network
+from tests.oracle import dense, normal_inverse, nuisance_share, redundancy, reduced_design
 
 
 @pytest.fixture(scope="module", params=["grid", "vectors"])
@@ -133,5 +133,23 @@ def test_seed_hands_over_cached_properties_only_once():
         fresh.seed(factor=None)
     twin = dataclasses.replace(fresh)
     twin.seed(factor=fresh.factor, hat_blocks=fresh.hat_blocks)
+    assert twin.factor is fresh.factor
+    np.testing.assert_array_equal(twin.r, fresh.r)
+
+
+def test_computed_lists_the_cached_properties_already_computed():
+    """Adjustment.computed: what seed can hand to another result — the computed values among
+    the names asked for, nothing computed on the way; a name that is not a cached property is
+    refused."""
+    fresh = adjust(problem(grid_network(3, 3, noise_seed=6)))
+    assert fresh.computed("hat_blocks") == {}
+    assert fresh.computed("hat_blocks") == {}          # asking computed nothing
+    fresh.r
+    got = fresh.computed("factor", "hat_blocks")
+    assert set(got) == {"factor", "hat_blocks"} and got["factor"] is fresh.factor
+    assert got["hat_blocks"] is fresh.hat_blocks
+    with pytest.raises(TypeError, match="not a cached property"):
+        fresh.computed("n")
+    twin = dataclasses.replace(fresh).seed(**got)
     assert twin.factor is fresh.factor
     np.testing.assert_array_equal(twin.r, fresh.r)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from oracle import dense, normal_inverse, pcp, reduced_design
+from tests.oracle import dense, normal_inverse, pcp, reduced_design
 
 from baarda.adjust import adjust
 from baarda.build import read_problem

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from networks import problem
+from tests.networks import problem
 
 from baarda.adjust import adjust
 from baarda.build import read_problem

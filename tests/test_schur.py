@@ -17,7 +17,7 @@ from baarda.solve import schur
 from baarda.solve.linalg import LowRankUpdate
 from baarda.stats.hypotheses import h_point_transfer
 
-from oracle import nuisance_share, redundancy
+from tests.oracle import nuisance_share, redundancy
 
 BACKENDS = ["numpy"] + (["numba"] if schur.numba is not None else [])
 QUANTITIES = ("r", "u_k", "u_t")

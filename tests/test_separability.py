@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import scipy.linalg as la
 import scipy.sparse as sp
-from oracle import pcp
+from tests.oracle import pcp
 
 from baarda.adjust import adjust
 from baarda.build import read_problem

@@ -74,8 +74,8 @@ def test_snooping_detection_rate_and_false_alarms():
 def test_estimated_error_for_correlated_observations_is_f80_nabla_s():
     """∇ŝ = −(Hᵀ P v)/(Hᵀ P C_vv P H) for H = e_i (F80 eq. 10): for GNSS vectors with full 3 × 3
     covariances it is not −v_i/r_i. Checked against the dense oracle of the first adjustment."""
-    from networks import problem, vector_network
-    from oracle import dense
+    from tests.networks import problem, vector_network
+    from tests.oracle import dense
 
     net = vector_network(seed=3)
     k = 7                                                   # a dy of the third vector

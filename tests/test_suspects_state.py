@@ -24,7 +24,7 @@ from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.suspects import suspects, transfer_candidates  # noqa: E402
 from baarda.dashboard.views.suspects import SuspectsView  # noqa: E402
 from baarda.stats.hypotheses import h_point_transfer  # noqa: E402
-from oracle import dense  # noqa: E402
+from tests.oracle import dense  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

@@ -12,7 +12,7 @@ from baarda.errors import BaardaError
 from baarda.model.network import Cluster
 from baarda.stats import variance
 
-from networks import grid_network, problem
+from tests.networks import grid_network, problem
 
 
 def _network_with_true_factors(seed, f_dist=2.0, f_dir=0.5, sd=0.002, sr=1e-5):
@@ -47,7 +47,7 @@ def test_single_group_factor_is_the_variance_factor():
 
 
 def test_split_cluster_is_refused():
-    from networks import vector_network
+    from tests.networks import vector_network
     p = problem(vector_network())
     with pytest.raises(BaardaError, match="cluster"):
         variance.estimate(p, {"a": np.arange(0, 4), "b": np.arange(4, p.n)})
@@ -172,7 +172,7 @@ def test_std_errors_rigorous_at_convergence():
     """At convergence D(σ̂_j²) = 2 (S⁻¹)_jj with S_jk = tr(W C_j W C_k), W = P C_vv P and C_j the
     groups' covariances as they stand (Förstner 1979; F80 eq. 9): checked against the dense
     oracle's C_vv. f √(2 / r_j) is only its diagonal approximation, and differs here."""
-    from oracle import dense
+    from tests.oracle import dense
 
     p = problem(_network_with_true_factors(5))
     vc = variance.estimate(p)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, OptionError
 
 #: compression → (first bytes, file extension, name used in messages)
 COMPRESSIONS = {"gzip": (b"\x1f\x8b", ".gz"), "bzip2": (b"BZh", ".bz2"), "xz": (b"\xfd7zXZ\x00", ".xz")}
@@ -156,15 +156,22 @@ def _pool() -> ThreadPoolExecutor:
     return _POOL
 
 
-def _fast_parse(buf: bytes, first: int, comment: bytes | None):
+def parse_chunk(buf: bytes, first: int, comment: bytes | None = None, compiled: bool | None = None):
     """(values, line of each, offset of each, the chunk without its comment lines) of a chunk
-    of whole lines, or None when numpy cannot read it all (then :meth:`Numbers._parse_slow`
-    finds out why)."""
+    of whole lines numbered from ``first``, or None when it cannot all be read as numbers (then
+    :class:`Numbers` reads it line by line to say why).
+
+    ``compiled``: True takes the exact fast path compiled by numba (:class:`OptionError` without
+    numba), False numpy's ``fromstring``, None (what :class:`Numbers` uses) the compiled one
+    where numba is installed. Both give Python's ``float`` of every token.
+    """
     if comment is not None and comment in buf:
         # comment lines become empty lines (the line numbers stay); a comment elsewhere fails below
         buf = b"\n".join(b"" if ln.lstrip().startswith(comment) else ln for ln in buf.split(b"\n"))
     b = np.frombuffer(buf, dtype=np.uint8)
-    kernel = _compiled_scan()
+    kernel = None if compiled is False else _compiled_scan()
+    if compiled and kernel is None:
+        raise OptionError("compiled", compiled, (False, None), "the compiled chunk parser needs numba")
     if kernel is not None:
         ws = WHITESPACE[b]
         m = int(np.count_nonzero(ws[:-1] & ~ws[1:])) + int(b.size > 0 and not ws[0])
@@ -396,7 +403,7 @@ class Numbers:
                 if nxt is None:
                     break
                 buf, first, last = nxt
-                self._pending.append((_pool().submit(_fast_parse, buf, first, comment), buf, first, last))
+                self._pending.append((_pool().submit(parse_chunk, buf, first, comment), buf, first, last))
             if not self._pending:
                 return False
             fut, buf, first, last = self._pending.popleft()

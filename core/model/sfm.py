@@ -254,6 +254,12 @@ class ProjectionSet:
                float(self.sign), start, dest, f, out)
         return f
 
+    @property
+    def pattern_held(self) -> bool:
+        """Whether the Jacobian pattern is held (made by the first evaluation, kept for the whole
+        adjustment; :meth:`release` lets it go)."""
+        return "_pat" in self.__dict__
+
     def _pattern(self):
         """Rows and columns of the Jacobian entries (fixed per set; the order of
         :meth:`_evaluate_numpy`) and the place of the first value of each row among them

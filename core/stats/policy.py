@@ -55,9 +55,9 @@ class TestPolicy:
 
     @classmethod
     def from_options(cls, options, sigma0: str | None = None) -> "TestPolicy":
-        """The policy of :class:`baarda.adjust.Options` (``alpha``, ``beta``, ``b_method``,
+        """The policy of :class:`baarda.adjust.Options` (``alpha0``, ``beta0``, ``b_method``,
         ``sigma0``, ``global_test``); ``sigma0`` given here overrides the options'."""
-        return cls(alpha0=float(options.alpha), beta0=float(options.beta), b_method=bool(options.b_method),
+        return cls(alpha0=float(options.alpha0), beta0=float(options.beta0), b_method=bool(options.b_method),
                    sigma0=sigma0 or getattr(options, "sigma0", "apriori"),
                    global_test=getattr(options, "global_test", "one-sided"))
 

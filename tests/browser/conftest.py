@@ -113,7 +113,7 @@ def serve_app():
 
 @pytest.fixture(scope="session")
 def network_app(serve_app):
-    from extdata import GAMA
+    from tests.extdata import GAMA
 
     from baarda.dashboard.app import create_app
 
@@ -130,7 +130,7 @@ def block_app(serve_app):
     demo = ROOT / "data" / "demo-block.json"
     if demo.exists():
         return serve_app(lambda: create_app(demo))
-    from test_dashboard_state import tiny_block_problem
+    from tests.test_dashboard_state import tiny_block_problem
 
     problem = tiny_block_problem()
     return serve_app(lambda: create_app(problem=problem))
@@ -139,7 +139,7 @@ def block_app(serve_app):
 @pytest.fixture(scope="module")
 def ladybug_app(serve_app):
     """Ladybug (BAL, 49 images, 7,776 points; ../shared/extdata), served."""
-    from extdata import EXTDATA, require_extdata
+    from tests.extdata import EXTDATA, require_extdata
 
     from baarda.dashboard.app import create_app
 

@@ -101,7 +101,7 @@ def test_first_page_carries_the_summary_as_text(page, hostile_app):
 
 
 def test_hostile_ids_are_text_everywhere(page, hostile_app, tmp_path, screenshots):
-    from test_app import JS_FIGURE_PIXELS, real_errors
+    from tests.browser.test_app import JS_FIGURE_PIXELS, real_errors
 
     dialogs, errors = [], []
     page.on("dialog", lambda d: (dialogs.append(d.message), d.dismiss()))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from test_app import open_app, real_errors, wait_until
+from tests.browser.test_app import open_app, real_errors, wait_until
 
 pytestmark = pytest.mark.browser
 

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import pytest
 
-from test_app import click_tab, open_app, real_errors, wait_for_title
-from test_maps import MAPS
+from tests.browser.test_app import click_tab, open_app, real_errors, wait_for_title
+from tests.browser.test_maps import MAPS
 
 pytestmark = pytest.mark.browser
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from test_app import click_tab, open_app, real_errors, wait_for_title
+from tests.browser.test_app import click_tab, open_app, real_errors, wait_for_title
 
 pytestmark = pytest.mark.browser
 

@@ -16,8 +16,8 @@ import re
 import pytest
 from playwright.sync_api import expect
 
-from conftest import ROOT
-from test_app import click_tab, open_app, real_errors, wait_until
+from tests.browser.conftest import ROOT
+from tests.browser.test_app import click_tab, open_app, real_errors, wait_until
 
 pytestmark = pytest.mark.browser
 

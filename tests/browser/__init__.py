@@ -1,0 +1,1 @@
+"""Browser tests of the served dashboard (``tests/browser/conftest.py``; marker ``browser``)."""
