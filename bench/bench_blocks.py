@@ -36,7 +36,8 @@ import numpy as np
 
 from baarda.adjust import Options, adjust
 from baarda.exclusion import exclude
-from baarda.model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem, project
+from baarda.model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem
+from baarda.observations.collinearity import project
 from baarda.stats.hypotheses import common_error
 from baarda.simulate import simulate_block
 from tests.oracle import redundancy          # the tests' dense oracle, F80 §5

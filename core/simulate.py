@@ -41,7 +41,8 @@ import numpy as np
 
 from .errors import OptionError
 from .io.native import write_native
-from .model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, project
+from .model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint
+from .observations.collinearity import project
 from .model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
 
 CAMERAS = {

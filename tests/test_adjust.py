@@ -112,7 +112,7 @@ def test_compiled_projection_equals_the_numpy_formulas():
     x = problem.params.x0.astype(float)
     rng = np.random.default_rng(1)
     for xx in (x, x + 1e-3 * rng.normal(size=x.size) * np.maximum(np.abs(x), 1e-3)):
-        ref, got = s._evaluate_numpy(xx), s.evaluate(xx)
+        ref, got = s.evaluate_numpy(xx), s.evaluate(xx)
         assert np.array_equal(ref[1], got[1]) and np.array_equal(ref[2], got[2])
         for a, b in ((ref[0], got[0]), (ref[3], got[3])):
             assert np.allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(a).max())

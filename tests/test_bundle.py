@@ -343,7 +343,7 @@ def test_compiled_collinearity_equals_the_numpy_formulas(cal):
 
     import scipy.sparse as sp
 
-    from baarda.model.bundle import CollinearitySet
+    from baarda.observations.collinearity import CollinearitySet
 
     pytest.importorskip("numba", reason="numba not installed: only the numpy path exists")
     block, _ = simulate_block(strips=2, images_per_strip=4, seed=5)
@@ -351,7 +351,7 @@ def test_compiled_collinearity_equals_the_numpy_formulas(cal):
     s = next(s for s in pr.sets if isinstance(s, CollinearitySet))
     s = dataclasses.replace(s, cal=cal, x0=0.01, y0=-0.02)
     x = pr.params.x0 + 1e-4 * np.random.default_rng(1).normal(size=pr.params.size)
-    a, b = s.evaluate(x), s._evaluate_numpy(x)
+    a, b = s.evaluate(x), s.evaluate_numpy(x)
     shape = (2 * s.ipt.shape[0], pr.params.size)
     Ja = sp.csr_matrix((a[3], (a[1], a[2])), shape=shape)
     Jb = sp.csr_matrix((b[3], (b[1], b[2])), shape=shape)

@@ -261,7 +261,8 @@ def test_cli_names_zero_baseline_points_and_strict_refuses(balbianello, tmp_path
 # --------------------------------------------------------------------------------------------
 def add_native(block, images=(), cameras=(), points=(), obs=()):
     """A native Block with extra cameras, images, points and error-free image points."""
-    from baarda.model.bundle import ImageObservations, project
+    from baarda.model.bundle import ImageObservations
+    from baarda.observations.collinearity import project
 
     cams = block.cameras + tuple(cameras)
     imgs = block.images + tuple(images)

@@ -167,7 +167,7 @@ def test_projection_pattern_is_int32_and_made_again_after_release(block):
     x = p.params.x0.astype(float)
     f, jr, jc, jv = s.evaluate(x)
     assert jr.dtype == np.int32 and jc.dtype == np.int32
-    f0, r0, c0, v0 = s._evaluate_numpy(x)
+    f0, r0, c0, v0 = s.evaluate_numpy(x)
     np.testing.assert_array_equal(jr, r0)
     np.testing.assert_array_equal(jc, c0)
     np.testing.assert_allclose(jv, v0, rtol=1e-10, atol=1e-9 * np.abs(v0).max())

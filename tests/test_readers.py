@@ -27,7 +27,8 @@ from baarda.io.colmap import read_colmap
 from baarda.io.control import add_control
 from baarda.io.native import read_native
 from baarda.model.bundle import build_block_problem
-from baarda.model.sfm import CAMERA_MODELS, ProjectionSet, SfmBlock, build_sfm_problem, initial_cost, to_block
+from baarda.model.sfm import CAMERA_MODELS, SfmBlock, build_sfm_problem, initial_cost, to_block
+from baarda.observations.projection import ProjectionSet
 from baarda.observations.rotation import R_from_rodrigues
 
 from tests.extdata import EXTDATA, require_extdata

@@ -10,7 +10,8 @@ import pytest
 
 from baarda import adjust
 from baarda.io.native import read_native
-from baarda.model.bundle import build_block_problem, project
+from baarda.model.bundle import build_block_problem
+from baarda.observations.collinearity import project
 from baarda.simulate import error_class, simulate_block, simulate_to_files
 
 ERRORS = [{"kind": "image", "size": 20}, {"kind": "transfer", "size": 10},

@@ -31,7 +31,8 @@ import scipy.linalg as la
 import scipy.sparse as sp
 
 from ..errors import HypothesisError, NotFoundError
-from ..model.bundle import AP_GROUPS, BASES, CollinearitySet, control_rows, image_rows, problem_of
+from ..model.bundle import control_rows, image_rows, problem_of
+from ..observations.collinearity import AP_GROUPS, BASES, CollinearitySet
 from ..solve.linalg import SPDFactor
 
 

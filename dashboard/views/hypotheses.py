@@ -11,7 +11,7 @@ import panel as pn
 import param
 from bokeh.models.widgets.tables import CheckboxEditor, HTMLTemplateFormatter
 
-from baarda.model.bundle import AP_GROUPS
+from baarda.observations.collinearity import AP_GROUPS
 from baarda.stats.ap_tests import APTest
 from baarda.stats.hypotheses import HypothesisTest
 
