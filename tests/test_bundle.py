@@ -375,3 +375,26 @@ def test_block_geometry_is_typed_and_its_dictionary_is_the_drawn_one():
     assert geo.images_of(cam.id) == {im.id for im in block.images if im.camera == cam.id}
     Zm = np.mean([p.Z for p in block.points])
     assert geo.terrain_height == pytest.approx(Zm) and d["flying_height"] == geo.flying_height
+
+
+def test_image_rows_come_from_the_one_image_point_index():
+    """image_rows looks image points up in model.problem.image_point_index (the index the
+    hypotheses and the dashboard use): x before y whatever the file order; a point measured by
+    several keypoints of one image (COLMAP) is not silently one of them but named."""
+    from types import SimpleNamespace
+
+    from baarda.errors import NotFoundError
+    from baarda.model.problem import image_point_index
+
+    ids = [{"image": "1", "point": "7", "component": "y"}, {"image": "1", "point": "7", "component": "x"},
+           {"image": "1", "point": "8", "keypoint": 3, "component": "x"},
+           {"image": "1", "point": "8", "keypoint": 3, "component": "y"},
+           {"image": "1", "point": "8", "keypoint": 5, "component": "x"},
+           {"image": "1", "point": "8", "keypoint": 5, "component": "y"}]
+    p = SimpleNamespace(info=SimpleNamespace(ids=ids))
+    assert image_point_index(p)[("1", "7", None)] == [0, 1]
+    assert image_rows(p, "1", "7").tolist() == [1, 0]
+    with pytest.raises(NotFoundError, match="keypoints 3, 5"):
+        image_rows(p, "1", "8")
+    with pytest.raises(NotFoundError, match="no measurement of point 9"):
+        image_rows(p, "1", "9")

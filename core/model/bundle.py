@@ -36,7 +36,7 @@ from ..observations.geodetic import LinearSet
 from ..observations.collinearity import AP_GROUPS, EO_NAMES, CollinearitySet
 from ..observations.rotation import R_opk
 from .geometry import BlockGeometry, CameraGeometry, ImageGeometry
-from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem
+from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem, image_point_index
 
 POINT_STATUS = ("tie", "control", "check")
 
@@ -322,16 +322,19 @@ def problem_of(obj):
 
 
 def image_rows(problem, image: str, point: str) -> np.ndarray:
-    """Rows (x, y) of the measurement of ``point`` in ``image``; NotFoundError if there is none."""
+    """Rows (x, y) of the measurement of ``point`` in ``image`` (looked up in
+    :func:`baarda.model.problem.image_point_index`); NotFoundError if there is none, or if the
+    image measures the point by several keypoints (COLMAP: each is an image point of its own)."""
     problem = problem_of(problem)
-    rows = [None, None]
-    for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids)):
-        if k.startswith("image-") and ids["image"] == image and ids["point"] == point:
-            rows["xy".index(ids["component"])] = i
-    if rows[0] is None or rows[1] is None:
-        raise NotFoundError("image point", {"image": image, "point": point},
-                            f"no measurement of point {point} in image {image}")
-    return np.array(rows, dtype=np.int64)
+    index = image_point_index(problem)
+    rows = index.get((str(image), str(point), None))
+    if rows is None or len(rows) != 2:
+        kps = sorted(str(kp) for (im, pt, kp) in index if im == str(image) and pt == str(point) and kp is not None)
+        why = (f"point {point} is measured by keypoints {', '.join(kps)} in image {image}" if kps
+               else f"no measurement of point {point} in image {image}")
+        raise NotFoundError("image point", {"image": image, "point": point}, why)
+    comp = [problem.info.ids[i].get("component") for i in rows]
+    return np.array(rows if comp != ["y", "x"] else rows[::-1], dtype=np.int64)
 
 
 def control_rows(problem, point: str) -> np.ndarray:

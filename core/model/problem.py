@@ -734,3 +734,16 @@ def without(problem: Problem, excluded) -> tuple[Problem, np.ndarray]:
     kept = np.setdiff1d(np.arange(n), excluded)
     return subset(problem, kept), kept
 
+
+def image_point_index(problem) -> dict:
+    """{(image, point, keypoint): [rows]} of every image observation, ids as text (keypoint None
+    unless the image observes the point by several keypoints, COLMAP), rows in file order —
+    one pass over the observations; the one place image points are found by their ids
+    (:func:`baarda.model.bundle.image_rows`, :func:`baarda.stats.hypotheses.hypothesis_rows`, the dashboard)."""
+    index: dict = {}
+    for i, ids in enumerate(problem.info.ids):
+        if "image" in ids and "point" in ids:
+            kp = ids.get("keypoint")
+            key = (str(ids["image"]), str(ids["point"]), None if kp is None else str(kp))
+            index.setdefault(key, []).append(i)
+    return index

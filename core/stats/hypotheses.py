@@ -32,6 +32,7 @@ import scipy.sparse as sp
 
 from ..errors import HypothesisError, NotFoundError
 from ..model.bundle import control_rows, image_rows, problem_of
+from ..model.problem import image_point_index
 from ..observations.collinearity import AP_GROUPS, BASES, CollinearitySet
 from ..solve.linalg import SPDFactor
 
@@ -377,19 +378,6 @@ def _id(problem, field: str, value):
         if v is not None and str(v) == want:
             return v
     raise NotFoundError(field, {field: value}, f"no {field} {value} in the observations")
-
-
-def image_point_index(problem) -> dict:
-    """{(image, point, keypoint): [rows]} of every image observation, ids as text (keypoint None
-    unless the image observes the point by several keypoints, COLMAP), rows in file order —
-    one pass over the observations; :func:`hypothesis_rows` looks image points up in it."""
-    index: dict = {}
-    for i, ids in enumerate(problem.info.ids):
-        if "image" in ids and "point" in ids:
-            kp = ids.get("keypoint")
-            key = (str(ids["image"]), str(ids["point"]), None if kp is None else str(kp))
-            index.setdefault(key, []).append(i)
-    return index
 
 
 def hypothesis_rows(problem, spec: dict, index: dict | None = None) -> list[np.ndarray]:
