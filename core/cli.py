@@ -432,8 +432,11 @@ def _analyze(args) -> int:
             reason = analyses.criterion_reason(adj)
             if reason:
                 raise BaardaError(f"--criterion: {reason}")
-            fit = analyses.criterion_fit(analyses.criterion_setup(adj, base, cov=cc), kind=args.criterion,
-                                         C0=args.criterion_c0)
+            try:
+                fit = analyses.criterion_fit(analyses.criterion_setup(adj, base, cov=cc), kind=args.criterion,
+                                             C0=args.criterion_c0)
+            except BaardaError as err:
+                raise BaardaError(f"--criterion: {err}") from None
             doc["criterion"] = fit
             u = analyses.criterion_units(fit["kind"])
             c2 = f", C2 = {fit['C2']:.4g} {u['C2']}" if fit["kind"] != "linear" else ""

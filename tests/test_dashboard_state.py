@@ -44,8 +44,8 @@ NETWORKS = ["gama-local.gkf", "krumm/1D/Niemeier_Height_free.gkf", "tetrahedron.
             "krumm/2D/Grossmann_Direction_fix.gkf"]
 
 
-from baarda.model.bundle import (Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem,
-                           project)
+from baarda.model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem
+from baarda.observations.collinearity import project
 
 
 def tiny_block_problem(seed: int = 1):

@@ -217,3 +217,38 @@ def test_c0_chosen_first_keeps_lambda_max_one():
     c = precision.compare(cc.cov, H, Gk, in_base)
     assert fit["C0"] == C0 and 0 < fit["C1"] < free["C1"]
     assert c.lam_max == pytest.approx(1.0, rel=1e-9)
+
+
+def test_compare_refuses_a_covariance_singular_on_the_compared_coordinates():
+    """A function of the coordinates without variance leaves λmax/λmin undefined: refused with a
+    reason (the ratio came out as −1e16), not returned."""
+    from baarda.errors import BaardaError
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6))
+    G = A @ A.T
+    G[:, 0] = G[0, :] = 0.0                  # coordinate 0 fixed: left out, the rest compared
+    H = np.eye(6)
+    cmp_ = precision.compare(G, H, np.zeros((6, 0)), np.zeros(6, dtype=bool))
+    assert cmp_.lam_min > 0 and np.isfinite(cmp_.lam_max / cmp_.lam_min)
+    v = rng.normal(size=6)
+    v[0] = 0.0
+    S = G - np.outer(G @ v, G @ v) / (v @ G @ v)     # now G v = 0 on the compared coordinates
+    with pytest.raises(BaardaError, match="singular on the coordinates compared"):
+        precision.compare(S, H, np.zeros((6, 0)), np.zeros(6, dtype=bool))
+
+
+def test_cli_criterion_on_fixed_points_and_on_a_singular_covariance(capsys):
+    """Gama's knin traverse (fixed points outside the S-base): a finite, positive ratio; a
+    network whose covariance is singular on its coordinates: exit 2 with one line saying why."""
+    from baarda.cli import main
+    from tests.extdata import GAMA, require_extdata
+
+    bug = require_extdata(GAMA / "bug")
+    assert main(["analyze", str(bug / "2019-08-13-traverse-knin_male.gkf"), "--criterion", "logarithmic"]) == 0
+    line = next(l for l in capsys.readouterr().out.splitlines() if "criterion matrix" in l)
+    ratio = float(line.split("λmax/λmin = ")[1].split()[0])
+    assert 1.0 <= ratio < 1e6
+    assert main(["analyze", str(bug / "test-linearization-angle.gkf"), "--criterion", "logarithmic"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("baarda: error: --criterion: the coordinate covariance is singular")

@@ -319,10 +319,19 @@ def compare(G: np.ndarray, H: np.ndarray, null: np.ndarray, in_base: np.ndarray)
         # S-base fix the datum (their coordinates have no variance of their own), and G is
         # singular on the complement. The datum is given; compare on the coordinates outside
         # the S-base, as the S-base coordinates carry no variance.
-        B = np.eye(G.shape[0])[:, ~flags]
+        # Coordinates without variance of their own (fixed points: data, not estimates) are left
+        # out too: on them G is zero and every λ would be 0 (a ratio of ±1e16 before).
+        var = np.diag(G)
+        B = np.eye(G.shape[0])[:, ~flags & (var > 1e-12 * max(float(var.max(initial=0.0)), 1e-300))]
         Gb = B.T @ G @ B
     Hb = B.T @ H @ B
     lam, V = la.eigh(0.5 * (Gb + Gb.T), 0.5 * (Hb + Hb.T))
+    if lam.size and not lam[0] > 1e-12 * abs(lam[-1]):
+        # a function of the compared coordinates without variance: no criterion can be fitted
+        # to it and λmax/λmin is meaningless (it came out as −1e16)
+        raise BaardaError(f"the coordinate covariance is singular on the coordinates compared (λmin = {lam[0]:.3g}, "
+                          f"λmax = {lam[-1]:.3g}): some function of them has no variance, so the ratio "
+                          "λmax/λmin is not defined")
     return Comparison(lam, B @ V, null, in_base)
 
 
