@@ -32,7 +32,8 @@ from bokeh.models import ColumnDataSource  # noqa: E402
 
 from baarda.stats import distributions
 from baarda.adjust import Options, adjust  # noqa: E402
-from baarda.dashboard.state import State, observation_points  # noqa: E402
+from baarda.dashboard.geometry import observation_points  # noqa: E402
+from baarda.dashboard.state import State  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
 from baarda.model.problem import subset, without  # noqa: E402
 from extdata import GAMA, require_extdata  # noqa: E402
@@ -550,7 +551,7 @@ def test_hypothesis_deformation_is_drawn_on_external_map():
 
 
 def display_xy_shifts(st, shifts):
-    from baarda.dashboard.state import display_matrix
+    from baarda.dashboard.geometry import display_matrix
 
     return (display_matrix(st.problem) @ shifts[:, :2].T).T
 

@@ -14,7 +14,8 @@ from pathlib import Path
 import panel as pn
 import param
 
-from ..state import ROBUST_METHODS, State, observation_label
+from ..geometry import observation_label
+from ..state import ROBUST_METHODS, State
 from ..tables import TABLES, table_csv
 from ..text import html_text, md_text, plain
 

@@ -20,7 +20,8 @@ import param
 
 from baarda.stats import analyses
 
-from ..state import State, display_matrix, display_xy
+from ..geometry import display_matrix, display_xy
+from ..state import State
 from ..text import labels, md_text, plain
 from .common import formatters, frame_size
 

@@ -15,7 +15,8 @@ from baarda.model.bundle import AP_GROUPS
 from baarda.stats.ap_tests import APTest
 from baarda.stats.hypotheses import HypothesisTest
 
-from ..state import State, observation_label
+from ..geometry import observation_label
+from ..state import State
 from ..text import labels, md_text, plain
 
 

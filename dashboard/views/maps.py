@@ -30,7 +30,8 @@ from baarda.stats import precision
 from baarda.stats.hypotheses import HypothesisTest
 
 from .. import sbase as sbase_lesson
-from ..state import State, display_matrix, object_unit
+from ..geometry import display_matrix, image_points, object_unit
+from ..state import State
 from ..text import html_text, labels, plain
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
                      round_scale, selection_data, selection_layer, suspects_layer)
@@ -754,13 +755,7 @@ class ImageResidualView(pn.viewable.Viewer):
     def image_points(self, image) -> list[tuple[str, int, int]]:
         """(point, row of x, row of y) of every image point of ``image`` (full indices)."""
         if self._by_image is None:
-            p = self.state.problem
-            by_image: dict = {}
-            for (im, pid, _kp), rows in self.state.problem_index()["image_rows"].items():
-                comp = {str(p.info.ids[i].get("component") or p.info.kind[i].rsplit("-", 1)[-1]): i for i in rows}
-                if "x" in comp and "y" in comp:
-                    by_image.setdefault(im, []).append((pid, comp["x"], comp["y"]))
-            self._by_image = by_image
+            self._by_image = image_points(self.state.problem, self.state.problem_index())
         return self._by_image.get(str(image), [])
 
     def data(self) -> pd.DataFrame:
