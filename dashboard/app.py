@@ -25,7 +25,8 @@ from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 from tornado.ioloop import IOLoop
 
-from .state import Cancelled, State
+from .jobs import TASKS, Cancelled
+from .state import State
 from .text import html_text
 from .views.controls import MAX_UPLOAD_MB
 from .views import (MAP_VIEWS, AnalysisPanel, Controls, CriterionView, FilePanel, HypothesisPanel, ImageResidualView,
@@ -360,7 +361,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
         content.objects = [main]
 
     def live() -> bool:
-        return not state._closed and _connected(doc)
+        return not state.jobs.closed and _connected(doc)
 
     def piece(fn):
         # one piece of the build on the event loop (HoloViews is not thread-safe); False once
@@ -407,7 +408,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
     def rebuild(*_):
         # a new problem gets new views (map extents, frame sizes and widgets depend on it)
         summary_shown()
-        if background and state._loop_call is not None:
+        if background and state.jobs.loop_call is not None:
             _BUILDER.submit(build_later)
         else:
             build()
@@ -444,7 +445,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
                     with set_curdoc(doc):
                         fn()
                 doc.add_next_tick_callback(run)
-            state._loop_call = loop_call
+            state.jobs.loop_call = loop_call
         if state.results is not None:
             # taken from the cache: the summary is in the page; the maps are built once the
             # page is up, one session at a time, after the summaries of sessions still loading
@@ -452,7 +453,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
             pn.state.onload(lambda: _BUILDER.submit(build_later))
 
         def destroyed(_context):
-            state._closed = True
+            state.jobs.closed = True
             summary_shown()
             state.cancel()
             files.cleanup()
@@ -534,7 +535,6 @@ def warm(path):
     (:func:`baarda.dashboard.state.State.load`): the sessions that open the page take it from
     there instead of waiting for the first one to adjust it. Prints ``baarda dashboard: FILE
     read and adjusted in S s`` (or why not) when done. Returns the Future."""
-    from .state import TASKS
 
     def run():
         t0 = time.perf_counter()

@@ -256,3 +256,20 @@ def auto_exaggeration(problem, index: dict, v: np.ndarray) -> float:
     raw = min(0.5 * sref / vref, 0.3 * span / float(lengths.max()))
     k = math.floor(math.log10(raw))
     return float(next(m * 10 ** k for m in (5, 2, 1) if m * 10 ** k <= raw))
+
+
+def reduced_index(kept, n: int, full) -> np.ndarray:
+    """Reduced indices of full observation indices (−1 where excluded); ``kept``: the full index
+    of each observation of the reduced problem, ``n``: observations of the full problem."""
+    pos = np.full(n, -1, dtype=np.int64)
+    pos[kept] = np.arange(kept.size)
+    return pos[np.asarray(full, dtype=np.int64)]
+
+
+def expand(values, kept, n: int, fill=np.nan) -> np.ndarray:
+    """A per-observation array of the reduced problem spread to the full problem (``fill``
+    where excluded)."""
+    values = np.asarray(values)
+    out = np.full(n, fill, dtype=np.result_type(values.dtype, type(fill)))
+    out[kept] = values
+    return out

@@ -8,21 +8,7 @@ Observation indices are always those of the *full* problem as read (``problem``)
 adjustment ``results`` is computed on the problem without the excluded observations
 (:func:`baarda.model.problem.without`), and ``kept[k]`` maps its index k back.
 
-Hypothesis specifications are plain dicts, ``{"kind": ..., "active": bool, ...}``:
-
-- ``{"kind": "observation", "index": i}`` — one observation (q = 1, T = w²);
-- ``{"kind": "group", "group": g}`` — a test group of the problem (GNSS vector, image point);
-- ``{"kind": "image-point", "image": j, "point": p[, "keypoint": k]}`` — both coordinates of one
-  image point (``keypoint`` tells apart several keypoints of one image on one COLMAP point);
-- ``{"kind": "control", "point": p}`` — every observation of a control (weighted) point;
-- ``{"kind": "transfer", "point": p, "images": [j1, j2, ...]}`` — one 2D point-transfer error
-  common to the image coordinates of point p in the images listed (F80 §2.2, H = (0 … I₂ … I₂ … 0)ᵀ);
-- ``{"kind": "ap-group", "camera": c, "group": g}`` — a group of additional parameters of a
-  block's camera: tested by :func:`baarda.stats.ap_tests.ap_test` when the group is estimated
-  (``extra["ap_groups"]``), otherwise as the hypothesis H = ∂f/∂s of
-  :func:`baarda.stats.hypotheses.h_ap_group` (F80 §7.2).
-
-Besides the adjustment the state keeps the results of the core's other analyses, each run on the
+Hypotheses are plain dicts (:mod:`baarda.dashboard.specs`). Besides the adjustment the state keeps the results of the core's other analyses, each run on the
 current (reduced) problem: the coordinate covariance in a chosen S-base
 (:func:`baarda.stats.precision.covariance`), robust reweighting (:func:`baarda.stats.robust.estimate`),
 iterative data snooping with the leave-one-out view (:mod:`baarda.stats.snooping`), variance components
@@ -33,12 +19,8 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -48,15 +30,15 @@ from baarda.adjust import Options, adjust
 from baarda.datum import Datum
 from baarda.errors import BaardaError
 from baarda.stats import analyses, precision, risk, robust, snooping, variance
-from baarda.stats.ap_tests import ap_test
-from baarda.stats.hypotheses import (HypothesisTest, common_error, deformation, external_reliability, h_ap_group,
-                                     hypothesis_rows, selection)
+from baarda.stats.hypotheses import HypothesisTest, deformation
 from baarda.stats.policy import TestPolicy
 from baarda.model.problem import without
 from baarda.stats.reliability import Reliability
 
-from . import geometry
-from .geometry import display_xy, observation_label
+from . import frames as tables
+from . import geometry, specs
+from .geometry import observation_label
+from .jobs import Cancelled, Jobs, cached, file_key, file_lock, on_worker_thread, store
 from .text import plain
 
 #: Robust methods of the controls ("none": plain least squares).
@@ -65,54 +47,6 @@ ROBUST_METHODS = ("none", *robust.METHODS)
 VARIANCE_MODELS = ("families", "radial", "radial-isotropic")
 #: How many of the largest |w| the leave-one-out ("find the error") view tries.
 LOO_SUSPECTS = 5
-
-#: Redundancy numbers below these are flagged: uncontrolled, weak (the dashboard's colour scale).
-R_UNCONTROLLED = 0.1
-R_WEAK = 0.3
-
-#: Long computations (reading and adjusting a file, snooping, robust reweighting, variance
-#: components) of every session run on these threads, off the server's event loop; the numerical
-#: work releases the GIL, so other sessions keep answering.
-TASKS = ThreadPoolExecutor(max_workers=4, thread_name_prefix="baarda-task")
-
-
-class Cancelled(Exception):
-    """Raised inside a background computation whose session asked to stop it."""
-
-
-#: Files already read and adjusted, shared by the sessions of a server: key (resolved path,
-#: mtime, size, α0, β0, B-method) → (problem, adjustment, kept, index, frames). A second
-#: session opens the file without reading or adjusting it again. Bounded (oldest dropped).
-_LOADED: dict = {}
-_LOADED_LOCKS: dict = {}
-_LOADED_GUARD = threading.Lock()
-LOADED_MAX = 8
-
-
-def _file_key(path, options) -> tuple | None:
-    try:
-        st = os.stat(path)
-        return (str(Path(path).resolve()), st.st_mtime_ns, st.st_size,
-                options.alpha, options.beta, options.b_method)
-    except OSError:
-        return None
-
-
-def _lower_priority() -> None:
-    """Lower the scheduling priority of this worker thread (Linux: nice per thread), so that
-    the event loop thread answers clicks first when the CPUs are busy."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
-    except (AttributeError, OSError):
-        pass
-
-
-def clear_cache() -> None:
-    """Forget every cached file (tests; a server frees the memory)."""
-    with _LOADED_GUARD:
-        _LOADED.clear()
-        _LOADED_LOCKS.clear()
-
 
 class State(param.Parameterized):
     """Everything the dashboard shows (see the module docstring)."""
@@ -182,9 +116,9 @@ class State(param.Parameterized):
         self._frames = None
         self._index, self._index_for = None, None
         self._cov = None
-        self._cancel = threading.Event()
-        self._loop_call = None        # schedules a callable on the session's event loop (served)
-        self._closed = False
+        #: the session's background computations (:class:`~baarda.dashboard.jobs.Jobs`): the
+        #: served app sets its ``loop_call`` and ``closed``
+        self.jobs = Jobs()
         if problem is not None:
             self.set_problem(problem, source=str(path or problem.source))
         elif path is not None:
@@ -211,18 +145,16 @@ class State(param.Parameterized):
 
     # -- background computations ----------------------------------------------------------------
     def submit(self, label: str, fn, *args):
-        """Run ``fn(*args)`` on a worker thread (:data:`TASKS`) with ``task = label``; with
-        ``background`` off (scripts, tests) run it here. One computation per session at a time:
-        returns None (and does nothing) while another runs, else the Future (or the result)."""
+        """Run ``fn(*args)`` on a worker thread (:data:`~baarda.dashboard.jobs.TASKS`) with
+        ``task = label``; with ``background`` off (scripts, tests) run it here. One computation
+        per session at a time: returns None (and does nothing) while another runs, else the
+        Future (or the result)."""
         if not self.background:
             return fn(*args)
         if self.task:
             return None
-        self._cancel = threading.Event()
-        self.param.update(task=label, progress="")
 
         def run():
-            _lower_priority()
             try:
                 return fn(*args)
             except Cancelled:
@@ -230,43 +162,25 @@ class State(param.Parameterized):
                 return False
             finally:
                 self.task = ""
-        return TASKS.submit(run)
+        self.jobs.reset()
+        self.param.update(task=label, progress="")
+        return self.jobs.start(run)
 
     def on_loop(self, fn):
-        """``fn()`` where the session's document may be changed, and its result: on the
-        server's event loop when called from a worker thread of a served session (HoloViews
-        and Bokeh objects are not thread-safe; the worker waits), here otherwise."""
-        call = self._loop_call
-        if call is None or not threading.current_thread().name.startswith("baarda-"):
-            return fn()
-        done, out = threading.Event(), {}
-
-        def run():
-            try:
-                out["value"] = fn()
-            except BaseException as err:  # noqa: BLE001 - handed back to the worker
-                out["error"] = err
-            finally:
-                done.set()
-        call(run)
-        while not done.wait(1.0):
-            if self._closed:
-                raise Cancelled()
-        if "error" in out:
-            raise out["error"]
-        return out.get("value")
+        """``fn()`` on the session's event loop when called from a worker thread of a served
+        session, here otherwise (:meth:`baarda.dashboard.jobs.Jobs.on_loop`)."""
+        return self.jobs.on_loop(fn)
 
     def cancel(self) -> None:
         """Ask the running background computation to stop: snooping stops within its current
         step (at the readjustment's next iteration); the other computations finish on their thread but their result is dropped."""
         if self.task:
-            self._cancel.set()
+            self.jobs.cancel()
             self.progress = "cancelling…"
 
     def _check_cancel(self) -> None:
         """Raise :class:`Cancelled` in a background computation whose session cancelled it."""
-        if self._cancel.is_set() and threading.current_thread().name.startswith("baarda-task"):
-            raise Cancelled()
+        self.jobs.check()
 
     # -- loading --------------------------------------------------------------------------------
     def load(self, path, name: str | None = None) -> bool:
@@ -287,15 +201,12 @@ class State(param.Parameterized):
                     text = text.replace(p, shown)
             return plain(text)
 
-        key = _file_key(path, self.options()) if name is None else None
-        lock = None
-        if key is not None:
-            with _LOADED_GUARD:
-                lock = _LOADED_LOCKS.setdefault(key, threading.Lock())
+        key = file_key(path, self.options()) if name is None else None
+        lock = file_lock(key) if key is not None else None
         # the lock is held while the file is read and adjusted (other sessions opening the same
         # file wait for it), not while this session shows it
         with (lock or contextlib.nullcontext()):
-            hit = _LOADED.get(key) if key is not None else None
+            hit = cached(key)
             if hit is None:
                 try:
                     with self._busy():
@@ -320,10 +231,7 @@ class State(param.Parameterized):
                 fresh.frames()
                 hit = (fresh.problem, fresh.results, fresh.kept, fresh.problem_index(), fresh._frames)
                 if key is not None:
-                    with _LOADED_GUARD:
-                        while len(_LOADED) >= LOADED_MAX:
-                            _LOADED.pop(next(iter(_LOADED)))
-                        _LOADED[key] = hit
+                    store(key, hit)
         self._check_cancel()
         ok = self.on_loop(lambda: self._set_loaded(hit, source=str(name if name is not None else path)))
         if ok:
@@ -333,8 +241,7 @@ class State(param.Parameterized):
     def load_cached(self, path) -> bool:
         """Make ``path`` current if the server's cache holds it already (read and adjusted by
         another session or at the server's start), at once and without waiting; else False."""
-        key = _file_key(path, self.options())
-        hit = _LOADED.get(key) if key is not None else None
+        hit = cached(file_key(path, self.options()))
         if hit is None:
             return False
         self._set_loaded(hit, source=str(path))
@@ -394,7 +301,7 @@ class State(param.Parameterized):
             self.sigma0_mode = mode
             images = self.images
             self.selected_image = images[0]["id"] if images else None
-        if not self._readjust() or (self._cancel.is_set() and self.task):
+        if not self._readjust() or (self.jobs.cancel_event.is_set() and self.task):
             with param.parameterized.discard_events(self):
                 (self.problem, self.results, self.kept, self.excluded, self.hypotheses,
                  self.hyp_results) = old
@@ -461,7 +368,7 @@ class State(param.Parameterized):
             msg = f"Adjustment failed: {type(err).__name__}: {err}"
             self.on_loop(lambda: setattr(self, "error", msg))
             return False
-        if self._cancel.is_set() and threading.current_thread().name.startswith("baarda-task"):
+        if self.jobs.cancelled():
             return False                      # cancelled: the result is dropped
 
         def apply() -> bool:
@@ -518,7 +425,7 @@ class State(param.Parameterized):
         new = frozenset(int(i) for i in new)
         if new == self.excluded:
             return True
-        if self.background and not threading.current_thread().name.startswith("baarda-"):
+        if self.background and not on_worker_thread():
             return self.submit("excluding and adjusting again", self._set_excluded, new)
         old = self.excluded
         with param.parameterized.discard_events(self):
@@ -536,16 +443,11 @@ class State(param.Parameterized):
 
     def reduced_index(self, full) -> np.ndarray:
         """Reduced indices of full observation indices (−1 where excluded)."""
-        pos = np.full(self.problem.n, -1, dtype=np.int64)
-        pos[self.kept] = np.arange(self.kept.size)
-        return pos[np.asarray(full, dtype=np.int64)]
+        return geometry.reduced_index(self.kept, self.problem.n, full)
 
     def expand(self, values, fill=np.nan) -> np.ndarray:
         """A per-observation array of the reduced problem spread to the full problem."""
-        values = np.asarray(values)
-        out = np.full(self.problem.n, fill, dtype=np.result_type(values.dtype, type(fill)))
-        out[self.kept] = values
-        return out
+        return geometry.expand(values, self.kept, self.problem.n, fill)
 
     # -- hypotheses -----------------------------------------------------------------------------
     def add_hypothesis(self, spec: dict) -> int:
@@ -576,86 +478,31 @@ class State(param.Parameterized):
         import time
 
         t0 = time.perf_counter()
-        out = []
-        for spec in self.hypotheses:
-            if not spec.get("active", True) or self.results is None:
-                out.append(None)
-                continue
-            try:
-                if spec["kind"] == "ap-group" and self.ap_estimated(spec):
-                    out.append(ap_test(self.results, str(spec["camera"]), str(spec["group"]),
-                                       policy=self.reliability.policy))
-                    continue
-                H = self.hypothesis_matrix(spec)
-                h = self.reliability.test(H, label=spec.get("label", ""))
-                if h.q:      # δ̄0(s) at its maximum (F80 eq. 17), shown beside δ0′max
-                    h.extra["external"] = external_reliability(self.results, h)
-                out.append(h)
-            except (ValueError, KeyError, BaardaError, np.linalg.LinAlgError) as err:
-                out.append(f"{spec.get('label', '')}: {err}")
+        out = [specs.evaluate(self.problem, self.results, self.reliability, self.kept, spec,
+                              self.problem_index() if self.results is not None else None)
+               for spec in self.hypotheses]
         self.hyp_results = out
         self.timings = {**self.timings, "hypotheses": time.perf_counter() - t0}
 
     def hypothesis_rows(self, spec: dict) -> list[np.ndarray]:
-        """The full observation indices a hypothesis acts on, one array per component of ∇s
-        for a common error (point transfer), else one array of independently tested rows — the
-        core's :func:`baarda.stats.hypotheses.hypothesis_rows` (``baarda test`` uses the same)
-        over this state's image-point index."""
-        return hypothesis_rows(self.problem, spec, index=self.problem_index()["image_rows"])
+        """:func:`baarda.dashboard.specs.rows` of a hypothesis in the current problem."""
+        return specs.rows(self.problem, spec, self.problem_index())
 
     def ap_estimated(self, spec: dict) -> bool:
         """True if the AP group of an ``ap-group`` hypothesis is estimated in the model."""
-        return f"{spec['camera']}:{spec['group']}" in self.problem.extra.get("ap_groups", {})
+        return specs.ap_estimated(self.problem, spec)
 
     def hypothesis_matrix(self, spec: dict):
-        """H (reduced n × q) of a hypothesis; excluded observations drop out."""
-        rows = self.hypothesis_rows(spec)
-        n = self.results.n
-        red = [self.reduced_index(r) for r in rows]
-        red = [r[r >= 0] for r in red]
-        if not any(r.size for r in red):
-            raise ValueError("no (included) observations")
-        if spec["kind"] == "transfer":
-            return common_error(n, [r for r in red if r.size])
-        if spec["kind"] == "ap-group":
-            # ∂f/∂s of the full problem at the current solution, cut to the observations kept
-            # (the core's builder reads the collinearity sets, which exclusion wraps)
-            full = SimpleNamespace(problem=self.problem, x=self.results.x, n=self.problem.n)
-            return h_ap_group(full, str(spec["camera"]), str(spec["group"])).tocsr()[self.kept].tocsc()
-        return selection(n, red[0])
+        """H (reduced n × q) of a hypothesis; excluded observations drop out (:func:`baarda.dashboard.specs.matrix`)."""
+        return specs.matrix(self.problem, self.results, self.kept, spec, self.problem_index())
 
     def describe(self, spec: dict) -> str:
-        kind = spec["kind"]
-        if kind == "observation":
-            return "obs " + observation_label(self.problem, int(spec["index"]))
-        if kind == "group":
-            rows = self.hypothesis_rows(spec)[0]
-            first = observation_label(self.problem, int(rows[0])).split(" ", 2)[-1] if rows.size else ""
-            return f"group {spec['group']} ({first})"
-        if kind == "image-point":
-            kp = f" (keypoint {spec['keypoint']})" if spec.get("keypoint") is not None else ""
-            return f"image point {spec['point']} in image {spec['image']}{kp}"
-        if kind == "control":
-            return f"control point {spec['point']}"
-        if kind == "transfer":
-            return f"transfer of {spec['point']} in images {', '.join(map(str, spec['images']))}"
-        if kind == "ap-group":
-            how = "estimated" if self.ap_estimated(spec) else "not in the model"
-            return f"AP group {spec['group']} of camera {spec['camera']} ({how})"
-        return str(spec)
+        """A hypothesis' default label (:func:`baarda.dashboard.specs.describe`)."""
+        return specs.describe(self.problem, spec, self.problem_index())
 
     def hypothesis_point(self, spec: dict):
         """The point a hypothesis is about (for drawing its ellipse on the map), or None."""
-        pid = spec.get("point")
-        if spec["kind"] == "ap-group":
-            return None
-        if pid is None and spec["kind"] in ("observation", "group"):
-            rows = self.hypothesis_rows(spec)[0]
-            pts = self.obs_points[int(rows[0])] if rows.size else []
-            return pts[-1] if pts else None
-        if pid is None:
-            return None
-        return self.point_index.get(str(pid))
+        return specs.point(self.problem, spec, self.problem_index())
 
     # -- derived data for the views -------------------------------------------------------------
     @property
@@ -708,78 +555,22 @@ class State(param.Parameterized):
         return geometry.observations_of_point(self.problem_index(), k)
 
     def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """``(observations, points)`` tables of the current results (cached until they change).
-
-        observations: one row per observation of the full problem (index = full index) with the
-        core's v, w, τ, r, MDB, δ̄0 (v and MDB in the unit of the observation's σ in the file),
-        MDB/σ, the decision, the exclusion flag and the robust weight factor (NaN without robust
-        reweighting). points: one row per point with its map
-        position, status, σ and the extreme values over its observations (min r, max |w|,
-        max δ̄0, max MDB/σ).
-        """
+        """``(observations, points)`` tables of the current results (:func:`baarda.dashboard.frames.frames`),
+        cached until they change."""
         if self._frames is not None and self._frames[0] is self.reliability:
             return self._frames[1], self._frames[2]
-        p, adj, rel = self.problem, self.results, self.reliability
-        index = self.problem_index()
-        factor, units = self.display_factor()
-        sig_si = p.cov.sigma()
-        w = self.expand(adj.w)
-        tau = self.expand(adj.tau)
-        rejected = self.expand(rel.rejected, fill=False).astype(bool)
-        mdb = self.expand(rel.mdb)
-        excluded = np.zeros(p.n, dtype=bool)
-        excluded[sorted(self.excluded)] = True
-        obs = pd.DataFrame({
-            "kind": list(p.info.kind),
-            "ids": index["labels"],
-            "v": self.expand(adj.v) * factor,
-            "w": w,
-            "tau": tau,
-            "r": self.expand(adj.r),
-            "mdb": mdb * factor,
-            "mdb_sigma": mdb / np.where(sig_si > 0, sig_si, np.nan),
-            "ext": self.expand(rel.external),
-            "unit": list(units),
-            "rejected": rejected,
-            "excluded": excluded,
-            "robust_w": self.expand(self.robust.weights) if self.robust is not None else np.full(p.n, np.nan),
-        })
-        obs.index.name = "index"
-        coords = adj.coordinates
-        east, north, _, _ = display_xy(p, coords)
-        m = len(p.points.ids)
-        live = ~excluded[index["inc_obs"]]
-        io, ip = index["inc_obs"][live], index["inc_pt"][live]
-
-        def extreme(ufunc, values):
-            out = np.full(m, np.nan)
-            ufunc.at(out, ip, values[io])
-            return out
-
-        sig = adj.point_sigma * 1000.0
-        pts = pd.DataFrame({
-            "id": [plain(i) for i in p.points.ids], "status": list(p.points.status),
-            "x": east, "y": north,
-            "sx_mm": sig[:, 0], "sy_mm": sig[:, 1], "sz_mm": sig[:, 2],
-            "n_obs": np.bincount(ip, minlength=m),
-            "min_r": extreme(np.fmin, obs["r"].to_numpy()),
-            "max_w": extreme(np.fmax, np.abs(w)),
-            "max_ext": extreme(np.fmax, obs["ext"].to_numpy()),
-            "max_mdb_sigma": extreme(np.fmax, obs["mdb_sigma"].to_numpy()),
-        })
+        rel = self.reliability
+        obs, pts = tables.frames(self.problem, self.results, rel, self.kept, self.excluded, self.problem_index(),
+                                 self.robust)
         self._frames = (rel, obs, pts)
         return obs, pts
 
     def map_labels(self) -> tuple[str, str]:
-        return display_xy(self.problem, self.results.coordinates)[2:]
+        return geometry.display_xy(self.problem, self.results.coordinates)[2:]
 
     def segments(self) -> pd.DataFrame:
         """One line per (observation, other point) of the network observations: from → to."""
-        _, pts = self.frames()
-        index = self.problem_index()
-        x, y = pts["x"].to_numpy(), pts["y"].to_numpy()
-        a, b = index["line_from"], index["line_to"]
-        return pd.DataFrame({"obs": index["line_obs"], "x0": x[a], "y0": y[a], "x1": x[b], "y1": y[b]})
+        return tables.segments(self.frames()[1], self.problem_index())
 
     def deformation_field(self, index: int | None = None) -> np.ndarray:
         """∇0x of an error of MDB size in observation ``index`` (full; default the selected one)
@@ -933,27 +724,12 @@ class State(param.Parameterized):
         self._frames = None
 
     def robust_suspects(self) -> pd.DataFrame:
-        """The robust suspects (full indices) with R84 class, weight, size, and beside them the
-        data snooping of the least-squares adjustment (its w and decision)."""
-        cols = ["obs", "ids", "kind", "robust weight", "size [σ]", "class", "w (LS)", "LS rejects"]
-        rr = self.robust
-        if rr is None:
-            return pd.DataFrame(columns=cols)
-        obs, _ = self.frames()
-        rows = []
-        for d in rr.suspects:
-            i = int(self.kept[d["index"]])
-            rows.append({"obs": i, "ids": obs["ids"].iat[i], "kind": d["kind"],
-                         "robust weight": round(d["weight"], 4), "size [σ]": round(d["size_sigma"], 1),
-                         "class": d["class"], "w (LS)": round(float(obs["w"].iat[i]), 2),
-                         "LS rejects": bool(obs["rejected"].iat[i])})
-        return pd.DataFrame(rows, columns=cols)
+        """The robust suspects (:func:`baarda.dashboard.frames.robust_suspects`)."""
+        return tables.robust_suspects(self.robust, self.kept, self.frames()[0] if self.robust is not None else None)
 
     def suspect_observations(self) -> list[int]:
         """Full indices of every observation of the robust suspects (their clusters)."""
-        if self.robust is None:
-            return []
-        return sorted({int(self.kept[j]) for d in self.robust.suspects for j in d["members"]})
+        return tables.suspect_observations(self.robust, self.kept)
 
     def run_snooping(self) -> bool:
         """Iterative data snooping (:func:`baarda.stats.snooping.iterate`) of the current problem with
@@ -980,29 +756,14 @@ class State(param.Parameterized):
         return True
 
     def snoop_log(self) -> pd.DataFrame:
-        """One row per snooping step: full index, ids, |w| (or |τ|), critical value, ∇̂ (file
-        units), σ̂0 before → after."""
-        cols = ["step", "obs", "ids", "|w|", "critical", "∇̂", "σ̂0 before", "σ̂0 after"]
+        """One row per snooping step (:func:`baarda.dashboard.frames.snoop_log`)."""
         if self.snoop is None:
-            return pd.DataFrame(columns=cols)
-        obs, _ = self.frames()
-        factor, units = self.display_factor()
-        rows = []
-        for k, st in enumerate(self.snoop.steps, 1):
-            i = int(self.kept[st.removed])
-            rows.append({"step": k, "obs": i, "ids": f"{obs['kind'].iat[i]} {obs['ids'].iat[i]}",
-                         "|w|": round(st.statistic, 3), "critical": round(st.critical, 3),
-                         "∇̂": f"{st.nabla * factor[i]:.4g} {units[i]}",
-                         "σ̂0 before": round(st.sigma0_before, 4), "σ̂0 after": round(st.sigma0_after, 4)})
-        return pd.DataFrame(rows, columns=cols)
+            return tables.snoop_log(None, self.kept, None, None, None)
+        return tables.snoop_log(self.snoop, self.kept, self.frames()[0], *self.display_factor())
 
     def loo_table(self) -> pd.DataFrame:
-        cols = ["obs", "ids", "w", "σ̂0 without", "ratio"]
-        obs, _ = self.frames()
-        rows = [{"obs": int(self.kept[d["index"]]), "ids": obs["ids"].iat[int(self.kept[d["index"]])],
-                 "w": round(d["w"], 3), "σ̂0 without": round(d["sigma0_without"], 4),
-                 "ratio": round(d["ratio"], 4)} for d in self.snoop_loo]
-        return pd.DataFrame(rows, columns=cols)
+        """σ̂0 with each top suspect left out (:func:`baarda.dashboard.frames.loo_table`)."""
+        return tables.loo_table(self.snoop_loo, self.kept, self.frames()[0])
 
     def accept_snooping(self) -> bool:
         """Exclude the observations the snooping removed (a full rerun)."""
@@ -1039,19 +800,8 @@ class State(param.Parameterized):
         return True
 
     def variance_table(self) -> pd.DataFrame:
-        if self.components is not None:
-            return pd.DataFrame([{"component": d["component"], "θ": f"{d['theta']:.4g}",
-                                  "± s.e.": "held at 0" if d["std_error"] is None else f"{d['std_error']:.2g}", "√θ": f"{math.sqrt(max(d['theta'], 0.0)):.4g}",
-                                  "redundancy": round(d["redundancy"], 2)}
-                                 for d in self.components.as_dict()],
-                                columns=["component", "θ", "± s.e.", "√θ", "redundancy"])
-        cols = ["family", "σ̂0j²", "± s.e.", "σ̂0j", "redundancy"]
-        if self.variance is None:
-            return pd.DataFrame(columns=cols)
-        return pd.DataFrame([{"family": d["group"], "σ̂0j²": round(d["factor"], 4),
-                              "± s.e.": round(d["std_error"], 4), "σ̂0j": round(d["sigma_factor"], 4),
-                              "redundancy": round(d["redundancy"], 2)}
-                             for d in self.variance.as_dict()], columns=cols)
+        """The variance components (:func:`baarda.dashboard.frames.variance_table`)."""
+        return tables.variance_table(self.variance, self.components)
 
     # -- criterion matrices and risk (M84 §2, §3.3) ---------------------------------------------
     def criterion_reason(self) -> str:
@@ -1183,14 +933,5 @@ class State(param.Parameterized):
 
         s = core_summary(self.results, self.reliability)
         obs, pts = self.frames()
-        live = ~obs["excluded"]
-        s.update({
-            "n_excluded": int(len(self.excluded)),
-            "n_rejected": int((obs["rejected"] & live).sum()),
-            "n_uncontrolled": int(((obs["r"] < R_UNCONTROLLED) & live).sum()),
-            "n_weak": int(((obs["r"] >= R_UNCONTROLLED) & (obs["r"] < R_WEAK) & live).sum()),
-            "n_points": len(pts),
-            "n_images": len(self.images),
-            "n_strips": len({im.get("strip") for im in self.images}) if self.images else 0,
-        })
+        s.update(tables.summary_counts(obs, pts, self.excluded, self.images))
         return s

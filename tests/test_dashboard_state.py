@@ -1010,7 +1010,7 @@ def test_served_exclusion_adjusts_on_a_worker_and_applies_on_the_loop():
         t = threading.Thread(target=fn, name="event-loop")
         loop_threads.append(t)
         t.start()
-    st._loop_call = loop_call
+    st.jobs.loop_call = loop_call
     st.background = True
     st.param.watch(lambda e: tasks.append(e.new), "task")
     st.param.watch(lambda e: results_on.append(threading.current_thread().name), "results")
