@@ -1,24 +1,26 @@
-"""The dashboard's one state object: the problem, the test settings, the selections, the results.
+"""The dashboard's one state object: the user's choices, and the results of the core they give.
 
-:class:`State` owns everything the views show. It calls the core (:func:`baarda.adjust.adjust`,
-:meth:`baarda.result.Adjustment.test`, :meth:`~baarda.result.Adjustment.deformation`) and keeps
-the results; the views only read it and write selections back.
+:class:`State` holds the choices (the problem, α0, β0, the B-method, σ0, exclusions, hypotheses,
+selections, S-base, robust method, variance model) and the core's results for them; it calls the
+core (:func:`baarda.adjust.adjust`, :class:`~baarda.stats.reliability.Reliability`, …) when a
+choice changes. The views only read it and write choices back. The other jobs live in their own
+modules, called from here:
+
+- :mod:`baarda.dashboard.geometry` — display geometry, units and the problem's index;
+- :mod:`baarda.dashboard.frames` — the tables built from the results;
+- :mod:`baarda.dashboard.specs` — hypothesis specifications and their tests;
+- :mod:`baarda.dashboard.measures` — deformation fields, criterion, risk, injected errors, snooping;
+- :mod:`baarda.dashboard.sbase` — precision in an S-base;
+- :mod:`baarda.dashboard.jobs` — background computations and the server's file cache.
 
 Observation indices are always those of the *full* problem as read (``problem``); the
 adjustment ``results`` is computed on the problem without the excluded observations
 (:func:`baarda.model.problem.without`), and ``kept[k]`` maps its index k back.
-
-Hypotheses are plain dicts (:mod:`baarda.dashboard.specs`). Besides the adjustment the state keeps the results of the core's other analyses, each run on the
-current (reduced) problem: the coordinate covariance in a chosen S-base
-(:func:`baarda.stats.precision.covariance`), robust reweighting (:func:`baarda.stats.robust.estimate`),
-iterative data snooping with the leave-one-out view (:mod:`baarda.stats.snooping`), variance components
-(:func:`baarda.stats.variance.estimate`) and an adjustment with an injected error (teaching).
 """
 
 from __future__ import annotations
 
 import contextlib
-import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -27,17 +29,15 @@ import pandas as pd
 import param
 
 from baarda.adjust import Options, adjust
-from baarda.datum import Datum
 from baarda.errors import BaardaError
-from baarda.stats import analyses, precision, risk, robust, snooping, variance
-from baarda.stats.hypotheses import HypothesisTest, deformation
+from baarda.stats import analyses, precision, robust, variance
 from baarda.stats.policy import TestPolicy
 from baarda.model.problem import without
 from baarda.stats.reliability import Reliability
 
 from . import frames as tables
-from . import geometry, specs
-from .geometry import observation_label
+from . import geometry, measures, specs
+from . import sbase as sbase_lesson
 from .jobs import Cancelled, Jobs, cached, file_key, file_lock, on_worker_thread, store
 from .text import plain
 
@@ -45,8 +45,7 @@ from .text import plain
 ROBUST_METHODS = ("none", *robust.METHODS)
 #: variance models: per family, the radial model of F80 §2.1, its isotropic variant
 VARIANCE_MODELS = ("families", "radial", "radial-isotropic")
-#: How many of the largest |w| the leave-one-out ("find the error") view tries.
-LOO_SUSPECTS = 5
+
 
 class State(param.Parameterized):
     """Everything the dashboard shows (see the module docstring)."""
@@ -574,29 +573,18 @@ class State(param.Parameterized):
 
     def deformation_field(self, index: int | None = None) -> np.ndarray:
         """∇0x of an error of MDB size in observation ``index`` (full; default the selected one)
-        as point shifts (m × 3, metres), from the core's :meth:`Adjustment.deformation`."""
+        as point shifts (m × 3, metres): :func:`baarda.dashboard.measures.observation_field`."""
         index = self.selected_obs if index is None else index
-        adj, mdb = self.results, self.reliability.mdb
-        m = len(self.problem.points.ids)
-        if index is None:
-            return np.zeros((m, 3))
-        k = int(self.reduced_index([index])[0])
-        if k < 0 or not np.isfinite(mdb[k]):
-            return np.zeros((m, 3))
-        err = np.zeros(adj.n)
-        err[k] = mdb[k]
-        return adj.point_shifts(adj.deformation(err))
+        return measures.observation_field(self.results, self.reliability, self.kept, self.problem.n,
+                                          len(self.problem.points.ids), index)
 
     def hypothesis_deformation(self, k: int | None = None) -> np.ndarray:
         """∇0x of hypothesis ``k`` (default the selected one) as point shifts (m × 3, metres):
-        the core's :func:`baarda.stats.hypotheses.deformation` — the lower bound ∇0s in the direction
-        the test sees worst. Zero for an inactive hypothesis, a failed one or an AP-group test."""
+        :func:`baarda.dashboard.measures.hypothesis_field`; zero for an inactive hypothesis, a
+        failed one or an AP-group test."""
         k = self.selected_hypothesis if k is None else k
-        m = len(self.problem.points.ids)
         h = self.hyp_results[k] if k is not None and k < len(self.hyp_results) else None
-        if not isinstance(h, HypothesisTest) or not np.isfinite(h.delta0) or h.q == 0:
-            return np.zeros((m, 3))
-        return self.results.point_shifts(deformation(self.results, h))
+        return measures.hypothesis_field(self.results, h, len(self.problem.points.ids))
 
     def external_field(self) -> tuple[str, np.ndarray]:
         """The deformation field the external-reliability map shows: ``(label, shifts)`` of the
@@ -623,15 +611,8 @@ class State(param.Parameterized):
 
     # -- precision in an S-base -----------------------------------------------------------------
     def datum_points(self) -> list[str]:
-        """Point ids of the problem's own S-base (a free network's), else [] (fixed points)."""
-        d = self.problem.datum
-        if getattr(d, "kind", "") != "free":
-            return []
-        ids = self.problem.points.ids
-        if not d.sbase:
-            return list(ids)
-        named = {str(b).rsplit(".", 1)[0] if str(b) not in ids else str(b) for b in d.sbase}
-        return [pid for pid in ids if pid in named]
+        """Point ids of the problem's own S-base (:func:`baarda.dashboard.sbase.datum_points`)."""
+        return sbase_lesson.datum_points(self.problem)
 
     def coordinate_covariance(self):
         """The core's :class:`~baarda.stats.precision.CoordinateCovariance` in the chosen S-base
@@ -656,38 +637,11 @@ class State(param.Parameterized):
         cc = self.coordinate_covariance() if self.sbase else None
         if cc is None:
             return self.results.point_cov[:, :2, :2]
-        m = len(self.problem.points.ids)
-        out = np.zeros((m, 2, 2))
-        plan = (cc.axis < 2)
-        for p in np.unique(cc.point[plan]):
-            sel = np.flatnonzero((cc.point == p) & plan)
-            if sel.size == 2:
-                out[p] = cc.cov[np.ix_(sel, sel)]
-        return out
+        return sbase_lesson.planimetric(cc, len(self.problem.points.ids))
 
     def sbase_check(self) -> str:
-        """The note beside the S-base control: r and w do not depend on the S-base.
-
-        For a free network the problem is adjusted again with the chosen S-base as its datum
-        and the core's r and w compared; otherwise the S-transformation acts on the covariance
-        alone (Σ_S = S Σ Sᵀ, M84 §2) and the adjustment is not repeated.
-        """
-        if not self.sbase:
-            return "S-base: the problem's own datum."
-        if self.sbase_error:
-            return self.sbase_error
-        if getattr(self.problem.datum, "kind", "") != "free":
-            return ("r and w unchanged: the S-transformation acts on the covariance only "
-                    "(Σ_S = S Σ Sᵀ); the adjustment, its r and w are the same.")
-        try:
-            other = adjust(replace(self.results.problem, datum=Datum("free", tuple(self.sbase))),
-                           self.options())
-        except BaardaError as err:
-            return f"S-base {', '.join(self.sbase)}: {err}"
-        dr = float(np.nanmax(np.abs(other.r - self.results.r), initial=0.0))
-        dw = float(np.nanmax(np.abs(other.w - self.results.w), initial=0.0))
-        return (f"r and w unchanged (free network adjusted again in this S-base): "
-                f"max |Δr| = {dr:.1e}, max |Δw| = {dw:.1e}")
+        """The note beside the S-base control (:func:`baarda.dashboard.sbase.sbase_check`)."""
+        return sbase_lesson.sbase_check(self.problem, self.results, self.sbase, self.sbase_error, self.options())
 
     # -- robust estimation, data snooping, variance components ----------------------------------
     def _run_robust(self):
@@ -733,7 +687,7 @@ class State(param.Parameterized):
 
     def run_snooping(self) -> bool:
         """Iterative data snooping (:func:`baarda.stats.snooping.iterate`) of the current problem with
-        w (σ0 a priori) or τ (a posteriori), and σ̂0 with each of the ``LOO_SUSPECTS`` largest
+        w (σ0 a priori) or τ (a posteriori), and σ̂0 with each of the :data:`~baarda.dashboard.measures.LOO_SUSPECTS` largest
         |w| left out in turn (:func:`baarda.stats.snooping.leave_one_out`)."""
         adj = self.results
 
@@ -742,11 +696,8 @@ class State(param.Parameterized):
 
         try:
             with self._busy():
-                res = snooping.iterate(adj.problem, self.options(), use_tau=self.sigma0_mode == "aposteriori",
-                                       progress=step, check=self._check_cancel)
-                self._check_cancel()
-                top = np.argsort(-np.abs(np.nan_to_num(adj.w)), kind="stable")[:LOO_SUSPECTS]
-                loo = snooping.leave_one_out(adj, [int(i) for i in top], check=self._check_cancel)
+                res, loo = measures.snoop(adj, self.options(), self.sigma0_mode == "aposteriori",
+                                          progress=step, check=self._check_cancel)
         except (BaardaError, np.linalg.LinAlgError) as err:
             self.analysis_error = plain(f"Data snooping failed: {err}")
             return False
@@ -806,8 +757,7 @@ class State(param.Parameterized):
     # -- criterion matrices and risk (M84 §2, §3.3) ---------------------------------------------
     def criterion_reason(self) -> str:
         """Why the criterion comparison does not apply to this problem ("" if it does)."""
-        reason = analyses.criterion_reason(self.results)
-        return f"{reason[0].upper()}{reason[1:]}." if reason else ""
+        return measures.criterion_reason(self.results)
 
     def criterion_base(self) -> list[str]:
         """The S-base of the comparison: the precision view's (``sbase``), else the first two points."""
@@ -824,28 +774,12 @@ class State(param.Parameterized):
         (m × 2, x, y, largest component 1) in ``criterion``; None and ``criterion_error`` if the
         core refuses.
         """
-        reason = self.criterion_reason()
         base = list(sbase) if sbase else self.criterion_base()
         try:
-            if reason:
-                raise BaardaError(reason)
-            setup = analyses.criterion_setup(self.results, base)      # as ``baarda analyze --criterion``
-            fitted = C1 is None
-            if fitted:
-                fit = analyses.criterion_fit(setup, kind)
-                C1, C2 = fit["C1"], fit["C2"]
-            cmp_ = analyses.criterion_compare(setup, kind, C1, C2)
-            cc = setup.cov
+            out = measures.criterion(self.results, len(self.problem.points.ids), base, kind, C1, C2)
         except (BaardaError, ValueError, np.linalg.LinAlgError) as err:
             self.param.update(criterion=None, criterion_error=f"Criterion: {err}")
             return None
-        pattern = np.zeros((len(self.problem.points.ids), 2))
-        plan = cc.axis < 2                       # the map shows x, y (heights and Z are not drawn)
-        pattern[cc.point[plan], cc.axis[plan]] = cmp_.worst_pattern()[plan]
-        out = {"kind": kind, "sbase": base, "fitted": fitted, "C1": float(C1), "C2": float(C2),
-               "units": analyses.criterion_units(kind), "C2_at_bound": bool(fitted and fit["C2_at_bound"]),
-               "lam_max": cmp_.lam_max, "lam_min": cmp_.lam_min, "ratio": cmp_.lam_max / cmp_.lam_min,
-               "satisfied": cmp_.satisfied, "pattern": pattern}
         self.param.update(criterion=out, criterion_error="")
         return out
 
@@ -855,25 +789,12 @@ class State(param.Parameterized):
         and r_C (:func:`baarda.stats.risk.risk`) over C for the plot. λtol defaults to δ0² of the
         adjustment. Raises ValueError for p ∉ (0, 1) or non-positive L1, L2, λtol."""
         lam = float(self.reliability.delta0 ** 2 if lam_tol is None else lam_tol)
-        out = analyses.risk_analysis(p, L1, L2, lam)
-        C, s = out["C"], math.sqrt(lam)
-        grid = np.linspace(min(C, 0.0) - 2.0, max(C, s) + 3.0, n)
-        r = np.array([risk.risk(c, p, L1, L2, lam) for c in grid])
-        return {**out, "grid": grid, "r": r}
+        return measures.risk_curve(p, L1, L2, lam, n)
 
     # -- teaching: inject an error --------------------------------------------------------------
     def injected_error(self, index: int, size: float, unit: str = "sigma") -> np.ndarray:
         """The error vector (reduced problem, SI) of ``size`` σ or MDB in observation ``index``."""
-        adj = self.results
-        k = int(self.reduced_index([index])[0])
-        if k < 0:
-            raise ValueError(f"observation {index} is excluded")
-        scale = adj.problem.cov.sigma()[k] if unit == "sigma" else self.reliability.mdb[k]
-        if not np.isfinite(scale):
-            raise ValueError(f"observation {index} has no finite MDB (r = {adj.r[k]:.3g})")
-        e = np.zeros(adj.n)
-        e[k] = float(size) * float(scale)
-        return e
+        return measures.injected_error(self.results, self.reliability, self.kept, self.problem.n, index, size, unit)
 
     def inject(self, index: int, size: float, unit: str = "sigma") -> dict | None:
         """Adjust a copy of the problem with an error added to observation ``index`` and keep
@@ -882,29 +803,11 @@ class State(param.Parameterized):
         try:
             e = self.injected_error(index, size, unit)
             with self._busy():
-                new = adjust(replace(adj.problem, l=adj.problem.l + e), self.options())
+                new = measures.adjust_with_error(adj, e, self.options())
         except (ValueError, BaardaError, np.linalg.LinAlgError) as err:
             self.param.update(injection=None, analysis_error=f"Cannot inject: {err}")
             return None
-        k = int(self.reduced_index([index])[0])
-        new_rel = Reliability(new, rel.policy)
-        stat = np.abs(np.nan_to_num(new_rel.statistic))
-        crit = new_rel.critical
-        top = int(np.argmax(stat))
-        group = next((g for g in new_rel.groups if k in g["members"]), None)
-        factor, units = self.display_factor()
-        out = {"index": int(index), "size": float(size), "unit": unit,
-               "error": float(e[k] * factor[index]), "error_unit": units[index],
-               "statistic": rel.policy.statistic_name,
-               "w_before": float(rel.statistic[k]),
-               "w_after": float(new_rel.statistic[k]),
-               "critical": float(crit), "rejected": bool(stat[k] > crit),
-               "largest": float(stat[top]), "largest_index": int(self.kept[top]),
-               "largest_label": observation_label(self.problem, int(self.kept[top])),
-               "group_T": None if group is None else float(group["T"]),
-               "group_critical": None if group is None else float(group["critical"]),
-               "global_passed": new.global_test.get("passed"),
-               "sigma0_post": float(new.sigma0_post), "error_vector": e}
+        out = measures.injection(self.problem, adj, rel, self.kept, new, e, index, size, unit, self.display_factor())
         self.param.update(injection=out, analysis_error="")
         return out
 
