@@ -252,7 +252,8 @@ _PENDING_CV = threading.Condition()
 SUMMARY_FIRST = 15.0
 
 
-def _pending(delta: int) -> None:
+def pending(delta: int) -> None:
+    """Count sessions still reading and adjusting their file (+1 / −1): map builds wait while any is (:func:`_summaries_first`)."""
     with _PENDING_CV:
         _PENDING[0] += delta
         _PENDING_CV.notify_all()
@@ -350,12 +351,12 @@ def create_app(path=None, problem=None, background: bool | None = None):
         if waits["summary"]:
             waits["summary"] = False
             _timing(sid, "summary")
-            _pending(-1)
+            pending(-1)
 
     def build():
         # not served in the background (scripts, tests): the whole view at once, here
         try:
-            main = _attach(state, *_main(state))
+            main = _attach(state, *main_views(state))
         except Exception as err:  # noqa: BLE001 - a message in the page, never a silent blank
             main = _build_error(err)
         content.objects = [main]
@@ -385,7 +386,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
 
         def make():
             _timing(sid, "build-start")
-            parts["maps"], parts["right"] = _main(state)
+            parts["maps"], parts["right"] = main_views(state)
 
         def attach():
             content.objects = [_attach(state, parts["maps"], parts["right"])]
@@ -432,7 +433,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
         if path is not None and state.results is None and not state.error:
             shown = Path(str(path)).name
             waits["summary"] = True
-            _pending(+1)
+            pending(+1)
             state.param.watch(summary_shown, ["results", "error"])
             def onload():
                 _timing(sid, "onload")
@@ -473,7 +474,7 @@ WRAP_TAB_HEADERS = ".bk-headers-wrapper { flex-wrap: wrap; overflow: visible; } 
 RIGHT_MIN_WIDTH = 420
 
 
-def _main(state):
+def main_views(state):
     """The maps in tabs (left) and the tests table / hypotheses / teaching in tabs (right), made
     but not yet rendered (the summary is above them, built once per session)."""
     maps = []

@@ -386,7 +386,7 @@ def test_controls_drive_state():
     c = Controls(state=st)
     c.alpha.value = 0.05
     assert st.alpha0 == 0.05 and st.reliability.delta0 == pytest.approx(distributions.delta0(0.05, 0.8, 1))
-    assert "δ0 = " in c._delta_text(st.results)
+    assert "δ0 = " in c.delta_text(st.results)
     st.beta0 = 0.9
     assert c.beta.value == 0.9
 
@@ -578,7 +578,7 @@ def test_ap_group_hypotheses_match_bundle(ap_block):
     panel.camera.value = "RC30"
     assert list(panel.ap_group.options.values())[0] == "brown"     # the estimated one first
     panel.ap_group.value = "brown"
-    panel._add()
+    panel.add_current()
     est = st.hyp_results[-1]
     ref = ap_tests.ap_test(adj, "RC30", "brown")
     assert isinstance(est, ap_tests.APTest)

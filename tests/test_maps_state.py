@@ -71,7 +71,7 @@ def test_demo_maps_keep_every_point_and_metres():
     view = ResidualMap(state=st)
     assert view.far_count() == 0 and not view.far_note.visible
     hv.render(view.dmap)
-    fig_levels = view._levels()
+    fig_levels = view.levels()
     assert fig_levels[2] == round(st.reliability.critical, 2)
     assert fig_levels[-1] >= np.nanmax(np.abs(st.results.w))
     # the largest image residual drawn at most 30 % of the image (the 20σ error), a round factor
@@ -138,7 +138,7 @@ def test_criterion_map_holds_the_network_and_its_arrows():
     view = CriterionView(state=st)
     c = st.criterion
     assert c is not None
-    opts = view._map().opts.get().kwargs
+    opts = view.pattern_map().opts.get().kwargs
     (x0, x1), (y0, y1) = opts["xlim"], opts["ylim"]
     e, n, _, _ = display_xy(st.problem, st.results.coordinates)
     d = (display_matrix(st.problem) @ c["pattern"].T).T

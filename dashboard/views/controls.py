@@ -58,11 +58,12 @@ class Controls(pn.viewable.Viewer):
                         (self.sigma, "sigma0_mode"), (self.global_test, "global_test"),
                         (self.robust, "robust_method")):
             _two_way(w, s, name)
-        self.delta = pn.pane.Markdown(pn.bind(self._delta_text, s.param.reliability),
+        self.delta = pn.pane.Markdown(pn.bind(self.delta_text, s.param.reliability),
                                       css_classes=["delta0"], sizing_mode="stretch_width")
 
     @staticmethod
-    def _delta_text(rel):
+    def delta_text(rel):
+        """The δ0 line under the test controls for a Reliability ``rel`` ("" without one)."""
         if rel is None:
             return ""
         return (f"**δ0 = {rel.delta0:.3f}** (λ0 = {rel.delta0 ** 2:.2f}); critical |w| = "
@@ -193,7 +194,7 @@ class FilePanel(pn.viewable.Viewer):
         self.alert = pn.pane.Alert("", alert_type="danger", visible=False, sizing_mode="stretch_width",
                                    css_classes=["error-alert"])
         s.param.watch(self._show_error, "error")
-        self.download = pn.widgets.FileDownload(callback=self._report, filename="baarda-report.html",
+        self.download = pn.widgets.FileDownload(callback=self.report, filename="baarda-report.html",
                                                 label="Download HTML report", color="success",
                                                 sizing_mode="stretch_width",
                                                 description="The client report: verdict, maps and suspects on "
@@ -268,7 +269,8 @@ class FilePanel(pn.viewable.Viewer):
         self.alert.object = md_text(self.state.error)
         self.alert.visible = bool(self.state.error)
 
-    def _report(self):
+    def report(self):
+        """The HTML report of the current result as a file object (the download button's callback)."""
         from ..report import report_html
 
         return io.StringIO(report_html(self.state.results, state=self.state))
