@@ -194,7 +194,7 @@ class FilePanel(pn.viewable.Viewer):
         self.alert = pn.pane.Alert("", alert_type="danger", visible=False, sizing_mode="stretch_width",
                                    css_classes=["error-alert"])
         s.param.watch(self._show_error, "error")
-        self.download = pn.widgets.FileDownload(callback=self.report, filename="baarda-report.html",
+        self.download = pn.widgets.FileDownload(callback=self._report, filename="baarda-report.html",
                                                 label="Download HTML report", color="success",
                                                 sizing_mode="stretch_width",
                                                 description="The client report: verdict, maps and suspects on "
@@ -270,7 +270,10 @@ class FilePanel(pn.viewable.Viewer):
         self.alert.visible = bool(self.state.error)
 
     def report(self):
-        """The HTML report of the current result as a file object (the download button's callback)."""
+        """The HTML report of the current result as a file object (what the download button gives)."""
+        return self._report()
+
+    def _report(self):
         from ..report import report_html
 
         return io.StringIO(report_html(self.state.results, state=self.state))

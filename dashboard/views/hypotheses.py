@@ -108,18 +108,18 @@ class HypothesisPanel(pn.viewable.Viewer):
         self.results = pn.widgets.Tabulator(
             pd.DataFrame(), disabled=False, selectable=1, show_index=False, sizing_mode="stretch_width",
             height=220, editors={}, css_classes=["hyp-table"], layout="fit_data_stretch")
-        self.add.on_click(self.add_current)
+        self.add.on_click(self._add)
         self.remove.on_click(self._remove)
         self.kind.param.watch(self._kind_changed, "value")
         self.point.param.watch(self._point_changed, "value")
         self.camera.param.watch(lambda e: with_selection(self.ap_group, self._ap_options()), "value")
-        self.results.on_edit(self.edited)
+        self.results.on_edit(self._edited)
         self.results.param.watch(self._selected, "selection")
         s.param.watch(self._refresh_options, ["problem"])
         s.param.watch(self._refresh_table, ["hyp_results", "hypotheses"])
         s.param.watch(self._sync_selection, ["selected_hypothesis"])
         s.param.watch(self._follow_selection, ["selected_obs", "selected_point"])
-        self.plot = hv.DynamicMap(self.ellipse_plot, streams=[hv.streams.Params(
+        self.plot = hv.DynamicMap(self._ellipse_plot, streams=[hv.streams.Params(
             s, ["hyp_results", "selected_hypothesis"])])
         self._refresh_options()
         self._refresh_table()
@@ -245,8 +245,11 @@ class HypothesisPanel(pn.viewable.Viewer):
         return {"kind": kind, "point": self.point.value, "images": list(self.images.value)}
 
     # -- actions --------------------------------------------------------------------------------
-    def add_current(self, *_):
-        """Add the hypothesis the widgets describe (the "Add" button's callback)."""
+    def add_current(self) -> None:
+        """Add the hypothesis the widgets describe (what the "Add" button does)."""
+        self._add()
+
+    def _add(self, *_):
         try:
             spec = self.spec()
             if spec["kind"] == "transfer" and len(spec["images"]) < 1:
@@ -264,8 +267,12 @@ class HypothesisPanel(pn.viewable.Viewer):
         if k is not None and k < len(self.state.hypotheses):
             self.state.remove_hypothesis(k)
 
-    def edited(self, event):
-        """A cell of the hypotheses table edited (``event``: column, row, value): the "active" box toggles the hypothesis."""
+    def edited(self, event) -> None:
+        """A cell of the hypotheses table edited (``event``: column, row, value): the "active" box
+        toggles the hypothesis (what the table's edit does)."""
+        self._edited(event)
+
+    def _edited(self, event):
         if event.column == "active":
             value = event.value
             if isinstance(value, str):          # never bool("false") == True
@@ -331,8 +338,12 @@ class HypothesisPanel(pn.viewable.Viewer):
         if list(self.results.selection) != sel:
             self.results.selection = sel
 
-    def ellipse_plot(self, **_):
-        """The selected hypothesis' lower-bound ellipse (or why it is not testable) as a HoloViews element."""
+    def ellipse_plot(self):
+        """The selected hypothesis' lower-bound ellipse (or why it is not testable) as the
+        HoloViews element the panel shows."""
+        return self._ellipse_plot()
+
+    def _ellipse_plot(self, **_):
         s = self.state
         k = s.selected_hypothesis
         h = s.hyp_results[k] if k is not None and k < len(s.hyp_results) else None
