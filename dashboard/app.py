@@ -26,7 +26,8 @@ from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 from tornado.ioloop import IOLoop
 
-from .state import Cancelled, State
+from .jobs import TASKS, Cancelled
+from .state import State
 from .text import html_text
 from .views.controls import MAX_UPLOAD_MB
 from .views import (MAP_VIEWS, AnalysisPanel, Controls, CriterionView, FilePanel, HypothesisPanel, ImageResidualView,
@@ -277,7 +278,8 @@ _PENDING_CV = threading.Condition()
 SUMMARY_FIRST = 15.0
 
 
-def _pending(delta: int) -> None:
+def pending(delta: int) -> None:
+    """Count sessions still reading and adjusting their file (+1 / −1): map builds wait while any is (:func:`_summaries_first`)."""
     with _PENDING_CV:
         _PENDING[0] += delta
         _PENDING_CV.notify_all()
@@ -375,18 +377,18 @@ def create_app(path=None, problem=None, background: bool | None = None):
         if waits["summary"]:
             waits["summary"] = False
             _timing(sid, "summary")
-            _pending(-1)
+            pending(-1)
 
     def build():
         # not served in the background (scripts, tests): the whole view at once, here
         try:
-            main = _attach(state, *_main(state))
+            main = _attach(state, *main_views(state))
         except Exception as err:  # noqa: BLE001 - a message in the page, never a silent blank
             main = _build_error(err)
         content.objects = [main]
 
     def live() -> bool:
-        return not state._closed and _connected(doc)
+        return not state.jobs.closed and _connected(doc)
 
     def piece(fn):
         # one piece of the build on the event loop (HoloViews is not thread-safe); False once
@@ -410,7 +412,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
 
         def make():
             _timing(sid, "build-start")
-            parts["maps"], parts["right"] = _main(state)
+            parts["maps"], parts["right"] = main_views(state)
 
         def attach():
             content.objects = [_attach(state, parts["maps"], parts["right"])]
@@ -433,7 +435,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
     def rebuild(*_):
         # a new problem gets new views (map extents, frame sizes and widgets depend on it)
         summary_shown()
-        if background and state._loop_call is not None:
+        if background and state.jobs.loop_call is not None:
             _BUILDER.submit(build_later)
         else:
             build()
@@ -457,7 +459,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
         if path is not None and state.results is None and not state.error:
             shown = Path(str(path)).name
             waits["summary"] = True
-            _pending(+1)
+            pending(+1)
             state.param.watch(summary_shown, ["results", "error"])
             def onload():
                 _timing(sid, "onload")
@@ -470,7 +472,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
                     with set_curdoc(doc):
                         fn()
                 doc.add_next_tick_callback(run)
-            state._loop_call = loop_call
+            state.jobs.loop_call = loop_call
         if state.results is not None:
             # taken from the cache: the summary is in the page; the maps are built once the
             # page is up, one session at a time, after the summaries of sessions still loading
@@ -478,7 +480,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
             pn.state.onload(lambda: _BUILDER.submit(build_later))
 
         def destroyed(_context):
-            state._closed = True
+            state.jobs.closed = True
             summary_shown()
             state.cancel()
             files.cleanup()
@@ -498,7 +500,7 @@ WRAP_TAB_HEADERS = ".bk-headers-wrapper { flex-wrap: wrap; overflow: visible; } 
 RIGHT_MIN_WIDTH = 420
 
 
-def _main(state):
+def main_views(state):
     """The maps in tabs (left) and the tests table / hypotheses / teaching in tabs (right), made
     but not yet rendered (the summary is above them, built once per session)."""
     maps = []
@@ -560,7 +562,6 @@ def warm(path):
     (:func:`baarda.dashboard.state.State.load`): the sessions that open the page take it from
     there instead of waiting for the first one to adjust it. Prints ``baarda dashboard: FILE
     read and adjusted in S s`` (or why not) when done. Returns the Future."""
-    from .state import TASKS
 
     def run():
         t0 = time.perf_counter()

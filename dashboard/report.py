@@ -29,7 +29,8 @@ import numpy as np
 from bokeh.embed import components
 from bokeh.resources import Resources
 
-from .state import R_UNCONTROLLED, State
+from .frames import R_UNCONTROLLED
+from .state import State
 from .suspects import suspects
 from .text import html_text
 from .views.common import frame_size

@@ -19,6 +19,7 @@ import numpy as np
 
 from baarda.adjust import adjust
 from baarda.datum import Datum
+from baarda.errors import BaardaError
 from baarda.model.problem import without
 from baarda.stats import precision
 
@@ -68,7 +69,12 @@ def free_point_cov2(state, sbase) -> np.ndarray:
     ``sbase`` (point ids; empty: the inner constraints over every point)."""
     free = free_block(state)
     cc = precision.covariance(free, list(sbase) or None)
-    m = len(state.problem.points.ids)
+    return planimetric(cc, len(state.problem.points.ids))
+
+
+def planimetric(cc, m: int) -> np.ndarray:
+    """The planimetric 2 × 2 blocks (m × 2 × 2) of the core's CoordinateCovariance ``cc``; zero
+    for a point without both x and y."""
     out = np.zeros((m, 2, 2))
     plan = cc.axis < 2
     for p in np.unique(cc.point[plan]):
@@ -76,3 +82,39 @@ def free_point_cov2(state, sbase) -> np.ndarray:
         if sel.size == 2:
             out[p] = cc.cov[np.ix_(sel, sel)]
     return out
+
+
+def datum_points(problem) -> list[str]:
+    """Point ids of the problem's own S-base (a free network's), else [] (fixed points)."""
+    d = problem.datum
+    if getattr(d, "kind", "") != "free":
+        return []
+    ids = problem.points.ids
+    if not d.sbase:
+        return list(ids)
+    named = {str(b).rsplit(".", 1)[0] if str(b) not in ids else str(b) for b in d.sbase}
+    return [pid for pid in ids if pid in named]
+
+
+def sbase_check(problem, adj, sbase, sbase_error: str, options) -> str:
+    """The note beside the S-base control: r and w do not depend on the S-base.
+
+    For a free network the problem is adjusted again with the chosen S-base as its datum
+    and the core's r and w compared; otherwise the S-transformation acts on the covariance
+    alone (Σ_S = S Σ Sᵀ, M84 §2) and the adjustment is not repeated.
+    """
+    if not sbase:
+        return "S-base: the problem's own datum."
+    if sbase_error:
+        return sbase_error
+    if getattr(problem.datum, "kind", "") != "free":
+        return ("r and w unchanged: the S-transformation acts on the covariance only "
+                "(Σ_S = S Σ Sᵀ); the adjustment, its r and w are the same.")
+    try:
+        other = adjust(replace(adj.problem, datum=Datum("free", tuple(sbase))), options)
+    except BaardaError as err:
+        return f"S-base {', '.join(sbase)}: {err}"
+    dr = float(np.nanmax(np.abs(other.r - adj.r), initial=0.0))
+    dw = float(np.nanmax(np.abs(other.w - adj.w), initial=0.0))
+    return (f"r and w unchanged (free network adjusted again in this S-base): "
+            f"max |Δr| = {dr:.1e}, max |Δw| = {dw:.1e}")

@@ -1,253 +1,50 @@
-"""The dashboard's one state object: the problem, the test settings, the selections, the results.
+"""The dashboard's one state object: the user's choices, and the results of the core they give.
 
-:class:`State` owns everything the views show. It calls the core (:func:`baarda.adjust.adjust`,
-:meth:`baarda.result.Adjustment.test`, :meth:`~baarda.result.Adjustment.deformation`) and keeps
-the results; the views only read it and write selections back.
+:class:`State` holds the choices (the problem, α0, β0, the B-method, σ0, exclusions, hypotheses,
+selections, S-base, robust method, variance model) and the core's results for them; it calls the
+core (:func:`baarda.adjust.adjust`, :class:`~baarda.stats.reliability.Reliability`, …) when a
+choice changes. The views only read it and write choices back. The other jobs live in their own
+modules, called from here:
+
+- :mod:`baarda.dashboard.geometry` — display geometry, units and the problem's index;
+- :mod:`baarda.dashboard.frames` — the tables built from the results;
+- :mod:`baarda.dashboard.specs` — hypothesis specifications and their tests;
+- :mod:`baarda.dashboard.measures` — deformation fields, criterion, risk, injected errors, snooping;
+- :mod:`baarda.dashboard.sbase` — precision in an S-base;
+- :mod:`baarda.dashboard.jobs` — background computations and the server's file cache.
 
 Observation indices are always those of the *full* problem as read (``problem``); the
 adjustment ``results`` is computed on the problem without the excluded observations
 (:func:`baarda.model.problem.without`), and ``kept[k]`` maps its index k back.
-
-Hypothesis specifications are plain dicts, ``{"kind": ..., "active": bool, ...}``:
-
-- ``{"kind": "observation", "index": i}`` — one observation (q = 1, T = w²);
-- ``{"kind": "group", "group": g}`` — a test group of the problem (GNSS vector, image point);
-- ``{"kind": "image-point", "image": j, "point": p[, "keypoint": k]}`` — both coordinates of one
-  image point (``keypoint`` tells apart several keypoints of one image on one COLMAP point);
-- ``{"kind": "control", "point": p}`` — every observation of a control (weighted) point;
-- ``{"kind": "transfer", "point": p, "images": [j1, j2, ...]}`` — one 2D point-transfer error
-  common to the image coordinates of point p in the images listed (F80 §2.2, H = (0 … I₂ … I₂ … 0)ᵀ);
-- ``{"kind": "ap-group", "camera": c, "group": g}`` — a group of additional parameters of a
-  block's camera: tested by :func:`baarda.stats.ap_tests.ap_test` when the group is estimated
-  (``extra["ap_groups"]``), otherwise as the hypothesis H = ∂f/∂s of
-  :func:`baarda.stats.hypotheses.h_ap_group` (F80 §7.2).
-
-Besides the adjustment the state keeps the results of the core's other analyses, each run on the
-current (reduced) problem: the coordinate covariance in a chosen S-base
-(:func:`baarda.stats.precision.covariance`), robust reweighting (:func:`baarda.stats.robust.estimate`),
-iterative data snooping with the leave-one-out view (:mod:`baarda.stats.snooping`), variance components
-(:func:`baarda.stats.variance.estimate`) and an adjustment with an injected error (teaching).
 """
 
 from __future__ import annotations
 
 import contextlib
-import math
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import param
-import scipy.sparse as sp
-from scipy.sparse.csgraph import shortest_path
-from scipy.spatial import cKDTree
 
 from baarda.adjust import Options, adjust
-from baarda.datum import Datum
 from baarda.errors import BaardaError
-from baarda.stats import analyses, precision, risk, robust, snooping, variance
-from baarda.stats.ap_tests import ap_test
-from baarda.stats.hypotheses import (HypothesisTest, common_error, deformation, external_reliability, h_ap_group,
-                                     hypothesis_rows, image_point_index, selection)
+from baarda.stats import analyses, precision, robust, variance
 from baarda.stats.policy import TestPolicy
 from baarda.model.problem import without
 from baarda.stats.reliability import Reliability
 
+from . import frames as tables
+from . import geometry, measures, specs
+from . import sbase as sbase_lesson
+from .jobs import Cancelled, Jobs, cached, file_key, file_lock, on_worker_thread, store
 from .text import plain
-
-#: Keys of ``ObservationInfo.ids`` that name something other than a point.
-#: (A COLMAP keypoint index is a number too: without "keypoint" here keypoint 7 would be
-#: taken for the point whose id is 7.)
-NOT_POINT_KEYS = ("image", "keypoint", "component", "group", "set")
 
 #: Robust methods of the controls ("none": plain least squares).
 ROBUST_METHODS = ("none", *robust.METHODS)
 #: variance models: per family, the radial model of F80 §2.1, its isotropic variant
 VARIANCE_MODELS = ("families", "radial", "radial-isotropic")
-#: How many of the largest |w| the leave-one-out ("find the error") view tries.
-LOO_SUSPECTS = 5
-
-#: Redundancy numbers below these are flagged: uncontrolled, weak (the dashboard's colour scale).
-R_UNCONTROLLED = 0.1
-R_WEAK = 0.3
-
-#: Long computations (reading and adjusting a file, snooping, robust reweighting, variance
-#: components) of every session run on these threads, off the server's event loop; the numerical
-#: work releases the GIL, so other sessions keep answering.
-TASKS = ThreadPoolExecutor(max_workers=4, thread_name_prefix="baarda-task")
-
-
-class Cancelled(Exception):
-    """Raised inside a background computation whose session asked to stop it."""
-
-
-#: Files already read and adjusted, shared by the sessions of a server: key (resolved path,
-#: mtime, size, α0, β0, B-method) → (problem, adjustment, kept, index, frames). A second
-#: session opens the file without reading or adjusting it again. Bounded (oldest dropped).
-_LOADED: dict = {}
-_LOADED_LOCKS: dict = {}
-_LOADED_GUARD = threading.Lock()
-LOADED_MAX = 8
-
-
-def _file_key(path, options) -> tuple | None:
-    try:
-        st = os.stat(path)
-        return (str(Path(path).resolve()), st.st_mtime_ns, st.st_size,
-                options.alpha0, options.beta0, options.b_method)
-    except OSError:
-        return None
-
-
-def _lower_priority() -> None:
-    """Lower the scheduling priority of this worker thread (Linux: nice per thread), so that
-    the event loop thread answers clicks first when the CPUs are busy."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
-    except (AttributeError, OSError):
-        pass
-
-
-def clear_cache() -> None:
-    """Forget every cached file (tests; a server frees the memory)."""
-    with _LOADED_GUARD:
-        _LOADED.clear()
-        _LOADED_LOCKS.clear()
-
-
-def display_matrix(problem) -> np.ndarray:
-    """M (2 × 2) with (east, north) = M (x, y) for the problem's planimetric axes.
-
-    A Gama network's x, y axes point as its ``axes-xy`` says (``"ne"``: x north, y east); a
-    block's X, Y are plotted as they are (M = I).
-    """
-    axes = problem.extra.get("axes_xy")
-    if not axes or problem.geometry is not None:
-        return np.eye(2)
-    unit = {"n": (1.0, 0.0), "e": (0.0, 1.0), "s": (-1.0, 0.0), "w": (0.0, -1.0)}
-    ax, ay = unit[axes[0]], unit[axes[1]]  # (north, east) components of +x and +y
-    return np.array([[ax[1], ay[1]], [ax[0], ay[0]]])
-
-
-def display_xy(problem, coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, str, str]:
-    """Map coordinates (east, north) of the points and the axis labels.
-
-    Planimetric coordinates go through :func:`display_matrix`. A levelling network has no
-    planimetric coordinates: its points are placed schematically by classical scaling of the
-    graph distances of its observations.
-    """
-    X, Y = coords[:, 0], coords[:, 1]
-    if np.isfinite(X).any() and np.isfinite(Y).any():
-        e, n = display_matrix(problem) @ np.vstack([np.nan_to_num(X), np.nan_to_num(Y)])
-        if problem.geometry is not None or not problem.extra.get("axes_xy"):
-            unit = f" [{object_unit(problem)}]" if object_unit(problem) else ""
-            return e, n, f"X{unit}", f"Y{unit}"
-        return e, n, "east [m]", "north [m]"
-    e, n = schematic_layout(problem)
-    return e, n, "schematic position", "schematic position"
-
-
-def object_unit(problem) -> str:
-    """The unit of the object coordinates: "m", or "" for a structure-from-motion block (BAL,
-    Bundler, COLMAP) without control, whose scale is arbitrary."""
-    if problem.extra.get("convention") and getattr(problem.datum, "kind", "") == "free":
-        return ""
-    return "m"
-
-
-def schematic_layout(problem) -> tuple[np.ndarray, np.ndarray]:
-    """2D positions of the points from the graph of their observations (classical scaling)."""
-    m = len(problem.points.ids)
-    if m == 1:
-        return np.zeros(1), np.zeros(1)
-    pairs = observation_points(problem)
-    rows, cols = [], []
-    for pts in pairs:
-        for a in pts:
-            for b in pts:
-                if a != b:
-                    rows.append(a)
-                    cols.append(b)
-    G = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(m, m))
-    D = shortest_path(G, unweighted=True, directed=False)
-    finite = np.isfinite(D)
-    D[~finite] = (D[finite].max() if finite.any() else 1.0) + 1.0
-    J = np.eye(m) - 1.0 / m
-    B = -0.5 * J @ (D ** 2) @ J
-    lam, V = np.linalg.eigh(B)
-    top = np.argsort(lam)[::-1][:2]
-    xy = V[:, top] * np.sqrt(np.maximum(lam[top], 1e-12))
-    if m <= SCHEMATIC_STRESS_MAX:
-        xy = stress_layout(D, xy)
-    return xy[:, 0], xy[:, 1]
-
-
-#: Up to this many points the schematic layout is refined by stress majorization.
-SCHEMATIC_STRESS_MAX = 400
-
-
-def stress_layout(D: np.ndarray, xy: np.ndarray, iterations: int = 300) -> np.ndarray:
-    """Positions whose distances fit the graph distances D (SMACOF stress majorization, de Leeuw
-    1977; unit weights), started from ``xy`` spread by a small circle: classical scaling of a
-    symmetric graph puts several points on one position (the levelling demo's 8 benchmarks on
-    4), which stress majorization from distinct points does not."""
-    m = len(D)
-    span = max(float(np.ptp(xy)), 1.0)
-    t = 2 * np.pi * np.arange(m) / m
-    X = xy + 0.1 * span * np.column_stack([np.cos(t), np.sin(t)])
-    for _ in range(iterations):
-        d = np.sqrt(((X[:, None, :] - X[None, :, :]) ** 2).sum(-1))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            Bm = np.where(d > 0, -D / d, 0.0)
-        np.fill_diagonal(Bm, 0.0)
-        np.fill_diagonal(Bm, -Bm.sum(axis=1))
-        X = Bm @ X / m
-    return X
-
-
-def observation_points(problem) -> list[list[int]]:
-    """Per observation, the indices of the points it names (``from`` first)."""
-    index = {pid: k for k, pid in enumerate(problem.points.ids)}
-    out = []
-    for ids in problem.info.ids:
-        pts = []
-        for key, val in ids.items():
-            if key in NOT_POINT_KEYS:
-                continue
-            k = index.get(str(val))
-            if k is not None and k not in pts:
-                pts.append(k)
-        out.append(pts)
-    return out
-
-
-def display_factor(problem) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Factor from SI to the unit of each observation's σ in the file (mm, cc, px...), and the unit."""
-    sig_si = problem.cov.sigma()
-    sig_file = np.asarray(problem.info.sigma_file, dtype=float)
-    ok = np.isfinite(sig_file) & (sig_file > 0) & (sig_si > 0)
-    factor = np.where(ok, sig_file / np.where(sig_si > 0, sig_si, 1.0), 1.0)
-    units = tuple(u if o else "SI" for u, o in zip(problem.info.sigma_unit, ok))
-    return factor, units
-
-
-def observation_label(problem, i: int) -> str:
-    """A short readable name of observation i: ``12 direction A→B``, ``40 image-x 101:P7``."""
-    kind = problem.info.kind[i]
-    ids = problem.info.ids[i]
-    if "from" in ids:
-        rest = [str(v) for k, v in ids.items() if k != "from"]
-        name = f"{ids['from']}→{','.join(rest)}"
-    elif "image" in ids:
-        name = f"{ids['image']}:{ids.get('point', '?')}"
-    else:
-        name = " ".join(str(v) for v in ids.values())
-    return f"{i} {kind} {name}"
 
 
 class State(param.Parameterized):
@@ -316,10 +113,11 @@ class State(param.Parameterized):
         super().__init__(**params)
         self._progress_to = progress_to
         self._frames = None
+        self._index, self._index_for = None, None
         self._cov = None
-        self._cancel = threading.Event()
-        self._loop_call = None        # schedules a callable on the session's event loop (served)
-        self._closed = False
+        #: the session's background computations (:class:`~baarda.dashboard.jobs.Jobs`): the
+        #: served app sets its ``loop_call`` and ``closed``
+        self.jobs = Jobs()
         if problem is not None:
             self.set_problem(problem, source=str(path or problem.source))
         elif path is not None:
@@ -346,18 +144,16 @@ class State(param.Parameterized):
 
     # -- background computations ----------------------------------------------------------------
     def submit(self, label: str, fn, *args):
-        """Run ``fn(*args)`` on a worker thread (:data:`TASKS`) with ``task = label``; with
-        ``background`` off (scripts, tests) run it here. One computation per session at a time:
-        returns None (and does nothing) while another runs, else the Future (or the result)."""
+        """Run ``fn(*args)`` on a worker thread (:data:`~baarda.dashboard.jobs.TASKS`) with
+        ``task = label``; with ``background`` off (scripts, tests) run it here. One computation
+        per session at a time: returns None (and does nothing) while another runs, else the
+        Future (or the result)."""
         if not self.background:
             return fn(*args)
         if self.task:
             return None
-        self._cancel = threading.Event()
-        self.param.update(task=label, progress="")
 
         def run():
-            _lower_priority()
             try:
                 return fn(*args)
             except Cancelled:
@@ -365,43 +161,25 @@ class State(param.Parameterized):
                 return False
             finally:
                 self.task = ""
-        return TASKS.submit(run)
+        self.jobs.reset()
+        self.param.update(task=label, progress="")
+        return self.jobs.start(run)
 
     def on_loop(self, fn):
-        """``fn()`` where the session's document may be changed, and its result: on the
-        server's event loop when called from a worker thread of a served session (HoloViews
-        and Bokeh objects are not thread-safe; the worker waits), here otherwise."""
-        call = self._loop_call
-        if call is None or not threading.current_thread().name.startswith("baarda-"):
-            return fn()
-        done, out = threading.Event(), {}
-
-        def run():
-            try:
-                out["value"] = fn()
-            except BaseException as err:  # noqa: BLE001 - handed back to the worker
-                out["error"] = err
-            finally:
-                done.set()
-        call(run)
-        while not done.wait(1.0):
-            if self._closed:
-                raise Cancelled()
-        if "error" in out:
-            raise out["error"]
-        return out.get("value")
+        """``fn()`` on the session's event loop when called from a worker thread of a served
+        session, here otherwise (:meth:`baarda.dashboard.jobs.Jobs.on_loop`)."""
+        return self.jobs.on_loop(fn)
 
     def cancel(self) -> None:
         """Ask the running background computation to stop: snooping stops within its current
         step (at the readjustment's next iteration); the other computations finish on their thread but their result is dropped."""
         if self.task:
-            self._cancel.set()
+            self.jobs.cancel()
             self.progress = "cancelling…"
 
     def _check_cancel(self) -> None:
         """Raise :class:`Cancelled` in a background computation whose session cancelled it."""
-        if self._cancel.is_set() and threading.current_thread().name.startswith("baarda-task"):
-            raise Cancelled()
+        self.jobs.check()
 
     # -- loading --------------------------------------------------------------------------------
     def load(self, path, name: str | None = None) -> bool:
@@ -422,15 +200,12 @@ class State(param.Parameterized):
                     text = text.replace(p, shown)
             return plain(text)
 
-        key = _file_key(path, self.options()) if name is None else None
-        lock = None
-        if key is not None:
-            with _LOADED_GUARD:
-                lock = _LOADED_LOCKS.setdefault(key, threading.Lock())
+        key = file_key(path, self.options()) if name is None else None
+        lock = file_lock(key) if key is not None else None
         # the lock is held while the file is read and adjusted (other sessions opening the same
         # file wait for it), not while this session shows it
         with (lock or contextlib.nullcontext()):
-            hit = _LOADED.get(key) if key is not None else None
+            hit = cached(key)
             if hit is None:
                 try:
                     with self._busy():
@@ -455,10 +230,7 @@ class State(param.Parameterized):
                 fresh.frames()
                 hit = (fresh.problem, fresh.results, fresh.kept, fresh.problem_index(), fresh._frames)
                 if key is not None:
-                    with _LOADED_GUARD:
-                        while len(_LOADED) >= LOADED_MAX:
-                            _LOADED.pop(next(iter(_LOADED)))
-                        _LOADED[key] = hit
+                    store(key, hit)
         self._check_cancel()
         ok = self.on_loop(lambda: self._set_loaded(hit, source=str(name if name is not None else path)))
         if ok:
@@ -468,8 +240,7 @@ class State(param.Parameterized):
     def load_cached(self, path) -> bool:
         """Make ``path`` current if the server's cache holds it already (read and adjusted by
         another session or at the server's start), at once and without waiting; else False."""
-        key = _file_key(path, self.options())
-        hit = _LOADED.get(key) if key is not None else None
+        hit = cached(file_key(path, self.options()))
         if hit is None:
             return False
         self._set_loaded(hit, source=str(path))
@@ -529,7 +300,7 @@ class State(param.Parameterized):
             self.sigma0_mode = mode
             images = self.images
             self.selected_image = images[0]["id"] if images else None
-        if not self._readjust() or (self._cancel.is_set() and self.task):
+        if not self._readjust() or (self.jobs.cancel_event.is_set() and self.task):
             with param.parameterized.discard_events(self):
                 (self.problem, self.results, self.kept, self.excluded, self.hypotheses,
                  self.hyp_results) = old
@@ -596,7 +367,7 @@ class State(param.Parameterized):
             msg = f"Adjustment failed: {type(err).__name__}: {err}"
             self.on_loop(lambda: setattr(self, "error", msg))
             return False
-        if self._cancel.is_set() and threading.current_thread().name.startswith("baarda-task"):
+        if self.jobs.cancelled():
             return False                      # cancelled: the result is dropped
 
         def apply() -> bool:
@@ -653,7 +424,7 @@ class State(param.Parameterized):
         new = frozenset(int(i) for i in new)
         if new == self.excluded:
             return True
-        if self.background and not threading.current_thread().name.startswith("baarda-"):
+        if self.background and not on_worker_thread():
             return self.submit("excluding and adjusting again", self._set_excluded, new)
         old = self.excluded
         with param.parameterized.discard_events(self):
@@ -671,16 +442,11 @@ class State(param.Parameterized):
 
     def reduced_index(self, full) -> np.ndarray:
         """Reduced indices of full observation indices (−1 where excluded)."""
-        pos = np.full(self.problem.n, -1, dtype=np.int64)
-        pos[self.kept] = np.arange(self.kept.size)
-        return pos[np.asarray(full, dtype=np.int64)]
+        return geometry.reduced_index(self.kept, self.problem.n, full)
 
     def expand(self, values, fill=np.nan) -> np.ndarray:
         """A per-observation array of the reduced problem spread to the full problem."""
-        values = np.asarray(values)
-        out = np.full(self.problem.n, fill, dtype=np.result_type(values.dtype, type(fill)))
-        out[self.kept] = values
-        return out
+        return geometry.expand(values, self.kept, self.problem.n, fill)
 
     # -- hypotheses -----------------------------------------------------------------------------
     def add_hypothesis(self, spec: dict) -> int:
@@ -711,86 +477,31 @@ class State(param.Parameterized):
         import time
 
         t0 = time.perf_counter()
-        out = []
-        for spec in self.hypotheses:
-            if not spec.get("active", True) or self.results is None:
-                out.append(None)
-                continue
-            try:
-                if spec["kind"] == "ap-group" and self.ap_estimated(spec):
-                    out.append(ap_test(self.results, str(spec["camera"]), str(spec["group"]),
-                                       policy=self.reliability.policy))
-                    continue
-                H = self.hypothesis_matrix(spec)
-                h = self.reliability.test(H, label=spec.get("label", ""))
-                if h.q:      # δ̄0(s) at its maximum (F80 eq. 17), shown beside δ0′max
-                    h.extra["external"] = external_reliability(self.results, h)
-                out.append(h)
-            except (ValueError, KeyError, BaardaError, np.linalg.LinAlgError) as err:
-                out.append(f"{spec.get('label', '')}: {err}")
+        out = [specs.evaluate(self.problem, self.results, self.reliability, self.kept, spec,
+                              self.problem_index() if self.results is not None else None)
+               for spec in self.hypotheses]
         self.hyp_results = out
         self.timings = {**self.timings, "hypotheses": time.perf_counter() - t0}
 
     def hypothesis_rows(self, spec: dict) -> list[np.ndarray]:
-        """The full observation indices a hypothesis acts on, one array per component of ∇s
-        for a common error (point transfer), else one array of independently tested rows — the
-        core's :func:`baarda.stats.hypotheses.hypothesis_rows` (``baarda test`` uses the same)
-        over this state's image-point index."""
-        return hypothesis_rows(self.problem, spec, index=self.problem_index()["image_rows"])
+        """:func:`baarda.dashboard.specs.rows` of a hypothesis in the current problem."""
+        return specs.rows(self.problem, spec, self.problem_index())
 
     def ap_estimated(self, spec: dict) -> bool:
         """True if the AP group of an ``ap-group`` hypothesis is estimated in the model."""
-        return f"{spec['camera']}:{spec['group']}" in self.problem.extra.get("ap_groups", {})
+        return specs.ap_estimated(self.problem, spec)
 
     def hypothesis_matrix(self, spec: dict):
-        """H (reduced n × q) of a hypothesis; excluded observations drop out."""
-        rows = self.hypothesis_rows(spec)
-        n = self.results.n
-        red = [self.reduced_index(r) for r in rows]
-        red = [r[r >= 0] for r in red]
-        if not any(r.size for r in red):
-            raise ValueError("no (included) observations")
-        if spec["kind"] == "transfer":
-            return common_error(n, [r for r in red if r.size])
-        if spec["kind"] == "ap-group":
-            # ∂f/∂s of the full problem at the current solution, cut to the observations kept
-            # (the core's builder reads the collinearity sets, which exclusion wraps)
-            full = SimpleNamespace(problem=self.problem, x=self.results.x, n=self.problem.n)
-            return h_ap_group(full, str(spec["camera"]), str(spec["group"])).tocsr()[self.kept].tocsc()
-        return selection(n, red[0])
+        """H (reduced n × q) of a hypothesis; excluded observations drop out (:func:`baarda.dashboard.specs.matrix`)."""
+        return specs.matrix(self.problem, self.results, self.kept, spec, self.problem_index())
 
     def describe(self, spec: dict) -> str:
-        kind = spec["kind"]
-        if kind == "observation":
-            return "obs " + observation_label(self.problem, int(spec["index"]))
-        if kind == "group":
-            rows = self.hypothesis_rows(spec)[0]
-            first = observation_label(self.problem, int(rows[0])).split(" ", 2)[-1] if rows.size else ""
-            return f"group {spec['group']} ({first})"
-        if kind == "image-point":
-            kp = f" (keypoint {spec['keypoint']})" if spec.get("keypoint") is not None else ""
-            return f"image point {spec['point']} in image {spec['image']}{kp}"
-        if kind == "control":
-            return f"control point {spec['point']}"
-        if kind == "transfer":
-            return f"transfer of {spec['point']} in images {', '.join(map(str, spec['images']))}"
-        if kind == "ap-group":
-            how = "estimated" if self.ap_estimated(spec) else "not in the model"
-            return f"AP group {spec['group']} of camera {spec['camera']} ({how})"
-        return str(spec)
+        """A hypothesis' default label (:func:`baarda.dashboard.specs.describe`)."""
+        return specs.describe(self.problem, spec, self.problem_index())
 
     def hypothesis_point(self, spec: dict):
         """The point a hypothesis is about (for drawing its ellipse on the map), or None."""
-        pid = spec.get("point")
-        if spec["kind"] == "ap-group":
-            return None
-        if pid is None and spec["kind"] in ("observation", "group"):
-            rows = self.hypothesis_rows(spec)[0]
-            pts = self.obs_points[int(rows[0])] if rows.size else []
-            return pts[-1] if pts else None
-        if pid is None:
-            return None
-        return self.point_index.get(str(pid))
+        return specs.point(self.problem, spec, self.problem_index())
 
     # -- derived data for the views -------------------------------------------------------------
     @property
@@ -812,162 +523,68 @@ class State(param.Parameterized):
         return self.problem_index()["obs_points"]
 
     def problem_index(self) -> dict:
-        """Index arrays of the current problem, built once per problem (the problem is
-        immutable): the observation-point incidence (``inc_obs``, ``inc_pt``: observation i
-        names point k), the network lines (``line_obs``, ``line_from``, ``line_to``), the short
-        observation labels, and the rows of each (image, point) of a block."""
-        if getattr(self, "_index_for", None) is self.problem:
-            return self._index
-        p = self.problem
-        obs_points = observation_points(p)
-        inc_obs = np.repeat(np.arange(p.n), [len(pp) for pp in obs_points])
-        inc_pt = np.fromiter((k for pp in obs_points for k in pp), dtype=np.int64, count=inc_obs.size)
-        lines = [(i, pp[0], k) for i, pp in enumerate(obs_points)
-                 if len(pp) >= 2 and not p.info.kind[i].startswith("image") for k in pp[1:]]
-        lines = np.array(lines, dtype=np.int64).reshape(-1, 3)
-        # one image point = (image, point, keypoint): COLMAP may observe a point by several
-        # keypoints of one image, each an image point of its own
-        image_rows = image_point_index(p)
-        self._index = {"obs_points": obs_points, "inc_obs": inc_obs, "inc_pt": inc_pt,
-                       "line_obs": lines[:, 0], "line_from": lines[:, 1], "line_to": lines[:, 2],
-                       "labels": [plain(observation_label(p, i).split(" ", 2)[-1]) for i in range(p.n)],
-                       "image_rows": image_rows, "factor": display_factor(p)}
-        self._index_for = p
+        """:func:`~baarda.dashboard.geometry.problem_index` of the current problem, built once
+        per problem (the problem is immutable)."""
+        if self._index is None or self._index_for is not self.problem:
+            self._index, self._index_for = geometry.problem_index(self.problem), self.problem
         return self._index
 
     def display_factor(self) -> tuple[np.ndarray, tuple[str, ...]]:
-        """:func:`display_factor` of the current problem (computed once)."""
+        """:func:`~baarda.dashboard.geometry.display_factor` of the current problem (computed once)."""
         return self.problem_index()["factor"]
 
     def keypoints_of(self, image, point) -> list[str | None]:
-        """The keypoints by which ``image`` observes ``point``: ``[None]`` for an ordinary image
-        point, the keypoint indices (sorted) where a COLMAP image has several on the point."""
-        im, pid = str(image), str(point)
-        return sorted((kp for (j, q, kp) in self.problem_index()["image_rows"] if j == im and q == pid),
-                      key=lambda k: (k is not None, len(k or ""), k or ""))
+        """:func:`~baarda.dashboard.geometry.keypoints_of` in the current problem."""
+        return geometry.keypoints_of(self.problem_index(), image, point)
 
     def image_point_rows(self, image, point, keypoint=None) -> list[int]:
-        """Full indices of the observations of one image point: ``point`` in ``image``, measured
-        by ``keypoint`` where the image has several keypoints on the point (COLMAP); without
-        ``keypoint`` such an image point is ambiguous (ValueError)."""
-        rows = self.problem_index()["image_rows"]
-        if keypoint is not None:
-            return rows.get((str(image), str(point), str(keypoint)), [])
-        kps = self.keypoints_of(image, point)
-        if len(kps) > 1:
-            raise ValueError(f"image {plain(image)} observes point {plain(point)} by keypoints "
-                             f"{', '.join(map(str, kps))}: choose one")
-        return rows.get((str(image), str(point), kps[0]), []) if kps else []
+        """:func:`~baarda.dashboard.geometry.image_point_rows` in the current problem."""
+        return geometry.image_point_rows(self.problem_index(), image, point, keypoint)
 
     def point_rows_in_image(self, image, point) -> list[int]:
-        """Full indices of every observation of ``point`` in ``image`` (all its keypoints)."""
-        im, pid = str(image), str(point)
-        return sorted(i for (j, q, _), rows in self.problem_index()["image_rows"].items()
-                      if j == im and q == pid for i in rows)
+        """:func:`~baarda.dashboard.geometry.point_rows_in_image` in the current problem."""
+        return geometry.point_rows_in_image(self.problem_index(), image, point)
 
     def images_of_point(self, point) -> list[str]:
-        """The images in which ``point`` is measured (sorted ids)."""
-        return sorted({im for im, pid, _ in self.problem_index()["image_rows"] if pid == str(point)})
+        """:func:`~baarda.dashboard.geometry.images_of_point` in the current problem."""
+        return geometry.images_of_point(self.problem_index(), point)
+
+    def observations_of_point(self, k: int) -> list[int]:
+        """:func:`~baarda.dashboard.geometry.observations_of_point` in the current problem."""
+        return geometry.observations_of_point(self.problem_index(), k)
 
     def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """``(observations, points)`` tables of the current results (cached until they change).
-
-        observations: one row per observation of the full problem (index = full index) with the
-        core's v, w, τ, r, MDB, δ̄0 (v and MDB in the unit of the observation's σ in the file),
-        MDB/σ, the decision, the exclusion flag and the robust weight factor (NaN without robust
-        reweighting). points: one row per point with its map
-        position, status, σ and the extreme values over its observations (min r, max |w|,
-        max δ̄0, max MDB/σ).
-        """
+        """``(observations, points)`` tables of the current results (:func:`baarda.dashboard.frames.frames`),
+        cached until they change."""
         if self._frames is not None and self._frames[0] is self.reliability:
             return self._frames[1], self._frames[2]
-        p, adj, rel = self.problem, self.results, self.reliability
-        index = self.problem_index()
-        factor, units = self.display_factor()
-        sig_si = p.cov.sigma()
-        w = self.expand(adj.w)
-        tau = self.expand(adj.tau)
-        rejected = self.expand(rel.rejected, fill=False).astype(bool)
-        mdb = self.expand(rel.mdb)
-        excluded = np.zeros(p.n, dtype=bool)
-        excluded[sorted(self.excluded)] = True
-        obs = pd.DataFrame({
-            "kind": list(p.info.kind),
-            "ids": index["labels"],
-            "v": self.expand(adj.v) * factor,
-            "w": w,
-            "tau": tau,
-            "r": self.expand(adj.r),
-            "mdb": mdb * factor,
-            "mdb_sigma": mdb / np.where(sig_si > 0, sig_si, np.nan),
-            "ext": self.expand(rel.external),
-            "unit": list(units),
-            "rejected": rejected,
-            "excluded": excluded,
-            "robust_w": self.expand(self.robust.weights) if self.robust is not None else np.full(p.n, np.nan),
-        })
-        obs.index.name = "index"
-        coords = adj.coordinates
-        east, north, _, _ = display_xy(p, coords)
-        m = len(p.points.ids)
-        live = ~excluded[index["inc_obs"]]
-        io, ip = index["inc_obs"][live], index["inc_pt"][live]
-
-        def extreme(ufunc, values):
-            out = np.full(m, np.nan)
-            ufunc.at(out, ip, values[io])
-            return out
-
-        sig = adj.point_sigma * 1000.0
-        pts = pd.DataFrame({
-            "id": [plain(i) for i in p.points.ids], "status": list(p.points.status),
-            "x": east, "y": north,
-            "sx_mm": sig[:, 0], "sy_mm": sig[:, 1], "sz_mm": sig[:, 2],
-            "n_obs": np.bincount(ip, minlength=m),
-            "min_r": extreme(np.fmin, obs["r"].to_numpy()),
-            "max_w": extreme(np.fmax, np.abs(w)),
-            "max_ext": extreme(np.fmax, obs["ext"].to_numpy()),
-            "max_mdb_sigma": extreme(np.fmax, obs["mdb_sigma"].to_numpy()),
-        })
+        rel = self.reliability
+        obs, pts = tables.frames(self.problem, self.results, rel, self.kept, self.excluded, self.problem_index(),
+                                 self.robust)
         self._frames = (rel, obs, pts)
         return obs, pts
 
     def map_labels(self) -> tuple[str, str]:
-        return display_xy(self.problem, self.results.coordinates)[2:]
+        return geometry.display_xy(self.problem, self.results.coordinates)[2:]
 
     def segments(self) -> pd.DataFrame:
         """One line per (observation, other point) of the network observations: from → to."""
-        _, pts = self.frames()
-        index = self.problem_index()
-        x, y = pts["x"].to_numpy(), pts["y"].to_numpy()
-        a, b = index["line_from"], index["line_to"]
-        return pd.DataFrame({"obs": index["line_obs"], "x0": x[a], "y0": y[a], "x1": x[b], "y1": y[b]})
+        return tables.segments(self.frames()[1], self.problem_index())
 
     def deformation_field(self, index: int | None = None) -> np.ndarray:
         """∇0x of an error of MDB size in observation ``index`` (full; default the selected one)
-        as point shifts (m × 3, metres), from the core's :meth:`Adjustment.deformation`."""
+        as point shifts (m × 3, metres): :func:`baarda.dashboard.measures.observation_field`."""
         index = self.selected_obs if index is None else index
-        adj, mdb = self.results, self.reliability.mdb
-        m = len(self.problem.points.ids)
-        if index is None:
-            return np.zeros((m, 3))
-        k = int(self.reduced_index([index])[0])
-        if k < 0 or not np.isfinite(mdb[k]):
-            return np.zeros((m, 3))
-        err = np.zeros(adj.n)
-        err[k] = mdb[k]
-        return adj.point_shifts(adj.deformation(err))
+        return measures.observation_field(self.results, self.reliability, self.kept, self.problem.n,
+                                          len(self.problem.points.ids), index)
 
     def hypothesis_deformation(self, k: int | None = None) -> np.ndarray:
         """∇0x of hypothesis ``k`` (default the selected one) as point shifts (m × 3, metres):
-        the core's :func:`baarda.stats.hypotheses.deformation` — the lower bound ∇0s in the direction
-        the test sees worst. Zero for an inactive hypothesis, a failed one or an AP-group test."""
+        :func:`baarda.dashboard.measures.hypothesis_field`; zero for an inactive hypothesis, a
+        failed one or an AP-group test."""
         k = self.selected_hypothesis if k is None else k
-        m = len(self.problem.points.ids)
         h = self.hyp_results[k] if k is not None and k < len(self.hyp_results) else None
-        if not isinstance(h, HypothesisTest) or not np.isfinite(h.delta0) or h.q == 0:
-            return np.zeros((m, 3))
-        return self.results.point_shifts(deformation(self.results, h))
+        return measures.hypothesis_field(self.results, h, len(self.problem.points.ids))
 
     def external_field(self) -> tuple[str, np.ndarray]:
         """The deformation field the external-reliability map shows: ``(label, shifts)`` of the
@@ -994,15 +611,8 @@ class State(param.Parameterized):
 
     # -- precision in an S-base -----------------------------------------------------------------
     def datum_points(self) -> list[str]:
-        """Point ids of the problem's own S-base (a free network's), else [] (fixed points)."""
-        d = self.problem.datum
-        if getattr(d, "kind", "") != "free":
-            return []
-        ids = self.problem.points.ids
-        if not d.sbase:
-            return list(ids)
-        named = {str(b).rsplit(".", 1)[0] if str(b) not in ids else str(b) for b in d.sbase}
-        return [pid for pid in ids if pid in named]
+        """Point ids of the problem's own S-base (:func:`baarda.dashboard.sbase.datum_points`)."""
+        return sbase_lesson.datum_points(self.problem)
 
     def coordinate_covariance(self):
         """The core's :class:`~baarda.stats.precision.CoordinateCovariance` in the chosen S-base
@@ -1027,38 +637,11 @@ class State(param.Parameterized):
         cc = self.coordinate_covariance() if self.sbase else None
         if cc is None:
             return self.results.point_cov[:, :2, :2]
-        m = len(self.problem.points.ids)
-        out = np.zeros((m, 2, 2))
-        plan = (cc.axis < 2)
-        for p in np.unique(cc.point[plan]):
-            sel = np.flatnonzero((cc.point == p) & plan)
-            if sel.size == 2:
-                out[p] = cc.cov[np.ix_(sel, sel)]
-        return out
+        return sbase_lesson.planimetric(cc, len(self.problem.points.ids))
 
     def sbase_check(self) -> str:
-        """The note beside the S-base control: r and w do not depend on the S-base.
-
-        For a free network the problem is adjusted again with the chosen S-base as its datum
-        and the core's r and w compared; otherwise the S-transformation acts on the covariance
-        alone (Σ_S = S Σ Sᵀ, M84 §2) and the adjustment is not repeated.
-        """
-        if not self.sbase:
-            return "S-base: the problem's own datum."
-        if self.sbase_error:
-            return self.sbase_error
-        if getattr(self.problem.datum, "kind", "") != "free":
-            return ("r and w unchanged: the S-transformation acts on the covariance only "
-                    "(Σ_S = S Σ Sᵀ); the adjustment, its r and w are the same.")
-        try:
-            other = adjust(replace(self.results.problem, datum=Datum("free", tuple(self.sbase))),
-                           self.options())
-        except BaardaError as err:
-            return f"S-base {', '.join(self.sbase)}: {err}"
-        dr = float(np.nanmax(np.abs(other.r - self.results.r), initial=0.0))
-        dw = float(np.nanmax(np.abs(other.w - self.results.w), initial=0.0))
-        return (f"r and w unchanged (free network adjusted again in this S-base): "
-                f"max |Δr| = {dr:.1e}, max |Δw| = {dw:.1e}")
+        """The note beside the S-base control (:func:`baarda.dashboard.sbase.sbase_check`)."""
+        return sbase_lesson.sbase_check(self.problem, self.results, self.sbase, self.sbase_error, self.options())
 
     # -- robust estimation, data snooping, variance components ----------------------------------
     def _run_robust(self):
@@ -1095,31 +678,16 @@ class State(param.Parameterized):
         self._frames = None
 
     def robust_suspects(self) -> pd.DataFrame:
-        """The robust suspects (full indices) with R84 class, weight, size, and beside them the
-        data snooping of the least-squares adjustment (its w and decision)."""
-        cols = ["obs", "ids", "kind", "robust weight", "size [σ]", "class", "w (LS)", "LS rejects"]
-        rr = self.robust
-        if rr is None:
-            return pd.DataFrame(columns=cols)
-        obs, _ = self.frames()
-        rows = []
-        for d in rr.suspects:
-            i = int(self.kept[d["index"]])
-            rows.append({"obs": i, "ids": obs["ids"].iat[i], "kind": d["kind"],
-                         "robust weight": round(d["weight"], 4), "size [σ]": round(d["size_sigma"], 1),
-                         "class": d["class"], "w (LS)": round(float(obs["w"].iat[i]), 2),
-                         "LS rejects": bool(obs["rejected"].iat[i])})
-        return pd.DataFrame(rows, columns=cols)
+        """The robust suspects (:func:`baarda.dashboard.frames.robust_suspects`)."""
+        return tables.robust_suspects(self.robust, self.kept, self.frames()[0] if self.robust is not None else None)
 
     def suspect_observations(self) -> list[int]:
         """Full indices of every observation of the robust suspects (their clusters)."""
-        if self.robust is None:
-            return []
-        return sorted({int(self.kept[j]) for d in self.robust.suspects for j in d["members"]})
+        return tables.suspect_observations(self.robust, self.kept)
 
     def run_snooping(self) -> bool:
         """Iterative data snooping (:func:`baarda.stats.snooping.iterate`) of the current problem with
-        w (σ0 a priori) or τ (a posteriori), and σ̂0 with each of the ``LOO_SUSPECTS`` largest
+        w (σ0 a priori) or τ (a posteriori), and σ̂0 with each of the :data:`~baarda.dashboard.measures.LOO_SUSPECTS` largest
         |w| left out in turn (:func:`baarda.stats.snooping.leave_one_out`)."""
         adj = self.results
 
@@ -1128,11 +696,8 @@ class State(param.Parameterized):
 
         try:
             with self._busy():
-                res = snooping.iterate(adj.problem, self.options(), use_tau=self.sigma0_mode == "aposteriori",
-                                       progress=step, check=self._check_cancel)
-                self._check_cancel()
-                top = np.argsort(-np.abs(np.nan_to_num(adj.w)), kind="stable")[:LOO_SUSPECTS]
-                loo = snooping.leave_one_out(adj, [int(i) for i in top], check=self._check_cancel)
+                res, loo = measures.snoop(adj, self.options(), self.sigma0_mode == "aposteriori",
+                                          progress=step, check=self._check_cancel)
         except (BaardaError, np.linalg.LinAlgError) as err:
             self.analysis_error = plain(f"Data snooping failed: {err}")
             return False
@@ -1142,29 +707,14 @@ class State(param.Parameterized):
         return True
 
     def snoop_log(self) -> pd.DataFrame:
-        """One row per snooping step: full index, ids, |w| (or |τ|), critical value, ∇̂ (file
-        units), σ̂0 before → after."""
-        cols = ["step", "obs", "ids", "|w|", "critical", "∇̂", "σ̂0 before", "σ̂0 after"]
+        """One row per snooping step (:func:`baarda.dashboard.frames.snoop_log`)."""
         if self.snoop is None:
-            return pd.DataFrame(columns=cols)
-        obs, _ = self.frames()
-        factor, units = self.display_factor()
-        rows = []
-        for k, st in enumerate(self.snoop.steps, 1):
-            i = int(self.kept[st.removed])
-            rows.append({"step": k, "obs": i, "ids": f"{obs['kind'].iat[i]} {obs['ids'].iat[i]}",
-                         "|w|": round(st.statistic, 3), "critical": round(st.critical, 3),
-                         "∇̂": f"{st.nabla * factor[i]:.4g} {units[i]}",
-                         "σ̂0 before": round(st.sigma0_before, 4), "σ̂0 after": round(st.sigma0_after, 4)})
-        return pd.DataFrame(rows, columns=cols)
+            return tables.snoop_log(None, self.kept, None, None, None)
+        return tables.snoop_log(self.snoop, self.kept, self.frames()[0], *self.display_factor())
 
     def loo_table(self) -> pd.DataFrame:
-        cols = ["obs", "ids", "w", "σ̂0 without", "ratio"]
-        obs, _ = self.frames()
-        rows = [{"obs": int(self.kept[d["index"]]), "ids": obs["ids"].iat[int(self.kept[d["index"]])],
-                 "w": round(d["w"], 3), "σ̂0 without": round(d["sigma0_without"], 4),
-                 "ratio": round(d["ratio"], 4)} for d in self.snoop_loo]
-        return pd.DataFrame(rows, columns=cols)
+        """σ̂0 with each top suspect left out (:func:`baarda.dashboard.frames.loo_table`)."""
+        return tables.loo_table(self.snoop_loo, self.kept, self.frames()[0])
 
     def accept_snooping(self) -> bool:
         """Exclude the observations the snooping removed (a full rerun)."""
@@ -1201,25 +751,13 @@ class State(param.Parameterized):
         return True
 
     def variance_table(self) -> pd.DataFrame:
-        if self.components is not None:
-            return pd.DataFrame([{"component": d["component"], "θ": f"{d['theta']:.4g}",
-                                  "± s.e.": "held at 0" if d["std_error"] is None else f"{d['std_error']:.2g}", "√θ": f"{math.sqrt(max(d['theta'], 0.0)):.4g}",
-                                  "redundancy": round(d["redundancy"], 2)}
-                                 for d in self.components.as_dict()],
-                                columns=["component", "θ", "± s.e.", "√θ", "redundancy"])
-        cols = ["family", "σ̂0j²", "± s.e.", "σ̂0j", "redundancy"]
-        if self.variance is None:
-            return pd.DataFrame(columns=cols)
-        return pd.DataFrame([{"family": d["group"], "σ̂0j²": round(d["factor"], 4),
-                              "± s.e.": round(d["std_error"], 4), "σ̂0j": round(d["sigma_factor"], 4),
-                              "redundancy": round(d["redundancy"], 2)}
-                             for d in self.variance.as_dict()], columns=cols)
+        """The variance components (:func:`baarda.dashboard.frames.variance_table`)."""
+        return tables.variance_table(self.variance, self.components)
 
     # -- criterion matrices and risk (M84 §2, §3.3) ---------------------------------------------
     def criterion_reason(self) -> str:
         """Why the criterion comparison does not apply to this problem ("" if it does)."""
-        reason = analyses.criterion_reason(self.results)
-        return f"{reason[0].upper()}{reason[1:]}." if reason else ""
+        return measures.criterion_reason(self.results)
 
     def criterion_base(self) -> list[str]:
         """The S-base of the comparison: the precision view's (``sbase``), else the first two points."""
@@ -1236,28 +774,12 @@ class State(param.Parameterized):
         (m × 2, x, y, largest component 1) in ``criterion``; None and ``criterion_error`` if the
         core refuses.
         """
-        reason = self.criterion_reason()
         base = list(sbase) if sbase else self.criterion_base()
         try:
-            if reason:
-                raise BaardaError(reason)
-            setup = analyses.criterion_setup(self.results, base)      # as ``baarda analyze --criterion``
-            fitted = C1 is None
-            if fitted:
-                fit = analyses.criterion_fit(setup, kind)
-                C1, C2 = fit["C1"], fit["C2"]
-            cmp_ = analyses.criterion_compare(setup, kind, C1, C2)
-            cc = setup.cov
+            out = measures.criterion(self.results, len(self.problem.points.ids), base, kind, C1, C2)
         except (BaardaError, ValueError, np.linalg.LinAlgError) as err:
             self.param.update(criterion=None, criterion_error=f"Criterion: {err}")
             return None
-        pattern = np.zeros((len(self.problem.points.ids), 2))
-        plan = cc.axis < 2                       # the map shows x, y (heights and Z are not drawn)
-        pattern[cc.point[plan], cc.axis[plan]] = cmp_.worst_pattern()[plan]
-        out = {"kind": kind, "sbase": base, "fitted": fitted, "C1": float(C1), "C2": float(C2),
-               "units": analyses.criterion_units(kind), "C2_at_bound": bool(fitted and fit["C2_at_bound"]),
-               "lam_max": cmp_.lam_max, "lam_min": cmp_.lam_min, "ratio": cmp_.lam_max / cmp_.lam_min,
-               "satisfied": cmp_.satisfied, "pattern": pattern}
         self.param.update(criterion=out, criterion_error="")
         return out
 
@@ -1267,25 +789,12 @@ class State(param.Parameterized):
         and r_C (:func:`baarda.stats.risk.risk`) over C for the plot. λtol defaults to δ0² of the
         adjustment. Raises ValueError for p ∉ (0, 1) or non-positive L1, L2, λtol."""
         lam = float(self.reliability.delta0 ** 2 if lam_tol is None else lam_tol)
-        out = analyses.risk_analysis(p, L1, L2, lam)
-        C, s = out["C"], math.sqrt(lam)
-        grid = np.linspace(min(C, 0.0) - 2.0, max(C, s) + 3.0, n)
-        r = np.array([risk.risk(c, p, L1, L2, lam) for c in grid])
-        return {**out, "grid": grid, "r": r}
+        return measures.risk_curve(p, L1, L2, lam, n)
 
     # -- teaching: inject an error --------------------------------------------------------------
     def injected_error(self, index: int, size: float, unit: str = "sigma") -> np.ndarray:
         """The error vector (reduced problem, SI) of ``size`` σ or MDB in observation ``index``."""
-        adj = self.results
-        k = int(self.reduced_index([index])[0])
-        if k < 0:
-            raise ValueError(f"observation {index} is excluded")
-        scale = adj.problem.cov.sigma()[k] if unit == "sigma" else self.reliability.mdb[k]
-        if not np.isfinite(scale):
-            raise ValueError(f"observation {index} has no finite MDB (r = {adj.r[k]:.3g})")
-        e = np.zeros(adj.n)
-        e[k] = float(size) * float(scale)
-        return e
+        return measures.injected_error(self.results, self.reliability, self.kept, self.problem.n, index, size, unit)
 
     def inject(self, index: int, size: float, unit: str = "sigma") -> dict | None:
         """Adjust a copy of the problem with an error added to observation ``index`` and keep
@@ -1294,29 +803,11 @@ class State(param.Parameterized):
         try:
             e = self.injected_error(index, size, unit)
             with self._busy():
-                new = adjust(replace(adj.problem, l=adj.problem.l + e), self.options())
+                new = measures.adjust_with_error(adj, e, self.options())
         except (ValueError, BaardaError, np.linalg.LinAlgError) as err:
             self.param.update(injection=None, analysis_error=f"Cannot inject: {err}")
             return None
-        k = int(self.reduced_index([index])[0])
-        new_rel = Reliability(new, rel.policy)
-        stat = np.abs(np.nan_to_num(new_rel.statistic))
-        crit = new_rel.critical
-        top = int(np.argmax(stat))
-        group = next((g for g in new_rel.groups if k in g["members"]), None)
-        factor, units = self.display_factor()
-        out = {"index": int(index), "size": float(size), "unit": unit,
-               "error": float(e[k] * factor[index]), "error_unit": units[index],
-               "statistic": rel.policy.statistic_name,
-               "w_before": float(rel.statistic[k]),
-               "w_after": float(new_rel.statistic[k]),
-               "critical": float(crit), "rejected": bool(stat[k] > crit),
-               "largest": float(stat[top]), "largest_index": int(self.kept[top]),
-               "largest_label": observation_label(self.problem, int(self.kept[top])),
-               "group_T": None if group is None else float(group["T"]),
-               "group_critical": None if group is None else float(group["critical"]),
-               "global_passed": new.global_test.get("passed"),
-               "sigma0_post": float(new.sigma0_post), "error_vector": e}
+        out = measures.injection(self.problem, adj, rel, self.kept, new, e, index, size, unit, self.display_factor())
         self.param.update(injection=out, analysis_error="")
         return out
 
@@ -1331,41 +822,12 @@ class State(param.Parameterized):
             self.problem = replace(self.problem, l=l)
         return self._readjust()
 
-    def observations_of_point(self, k: int) -> list[int]:
-        index = self.problem_index()
-        return sorted(set(index["inc_obs"][index["inc_pt"] == k].tolist()))
-
     def _auto_exaggeration(self) -> float:
-        """Image residual vectors at the block's own scale (BAL and Bundler files have no image
-        size): the median residual vector drawn half the median spacing of the image points
-        (nearest neighbours in their images, up to 30 images), the largest at most 30 % of the
-        span of the image coordinates (1st to 99th percentile); a round factor (1, 2 or 5 × 10^k)."""
-        adj = self.results
-        if adj is None or not self.images:
+        """:func:`~baarda.dashboard.geometry.auto_exaggeration` of the current results (1 without images)."""
+        if self.results is None or not self.images:
             return 1.0
-        value = np.asarray(self.problem.info.value_file, dtype=float)
-        v = self.expand(adj.v) * self.display_factor()[0]
-        spacing, lengths, by_image = [], [], {}
-        for (im, _pid, _kp), rows in self.problem_index()["image_rows"].items():
-            if len(rows) == 2:
-                lengths.append(math.hypot(v[rows[0]], v[rows[1]]))
-                by_image.setdefault(im, []).append((value[rows[0]], value[rows[1]]))
-        for im in list(by_image)[:30]:
-            xy = np.asarray(by_image[im], dtype=float)
-            if len(xy) >= 2:
-                d, _ = cKDTree(xy).query(xy, k=2)
-                spacing.append(np.median(d[:, 1]))
-        lengths = np.asarray(lengths, dtype=float)
-        lengths = lengths[np.isfinite(lengths)]
-        vref = float(np.median(lengths)) if lengths.size else 0.0
-        sref = float(np.median(spacing)) if spacing else 0.0
-        if vref <= 0 or sref <= 0:
-            return 1.0
-        xy = np.concatenate([np.asarray(v, dtype=float) for v in by_image.values()])
-        span = float(np.ptp(np.percentile(xy, [1, 99], axis=0), axis=0).max())
-        raw = min(0.5 * sref / vref, 0.3 * span / float(lengths.max()))
-        k = math.floor(math.log10(raw))
-        return float(next(m * 10 ** k for m in (5, 2, 1) if m * 10 ** k <= raw))
+        v = self.expand(self.results.v) * self.display_factor()[0]
+        return geometry.auto_exaggeration(self.problem, self.problem_index(), v)
 
     # -- summary --------------------------------------------------------------------------------
     def summary(self) -> dict:
@@ -1374,14 +836,5 @@ class State(param.Parameterized):
 
         s = core_summary(self.results, self.reliability)
         obs, pts = self.frames()
-        live = ~obs["excluded"]
-        s.update({
-            "n_excluded": int(len(self.excluded)),
-            "n_rejected": int((obs["rejected"] & live).sum()),
-            "n_uncontrolled": int(((obs["r"] < R_UNCONTROLLED) & live).sum()),
-            "n_weak": int(((obs["r"] >= R_UNCONTROLLED) & (obs["r"] < R_WEAK) & live).sum()),
-            "n_points": len(pts),
-            "n_images": len(self.images),
-            "n_strips": len({im.get("strip") for im in self.images}) if self.images else 0,
-        })
+        s.update(tables.summary_counts(obs, pts, self.excluded, self.images))
         return s

@@ -119,5 +119,5 @@ def test_file_panel_offers_the_report_and_every_table(demo):
         assert widget.filename == f"baarda-{name}.csv"
         raw = widget.callback().getvalue()
         assert raw == table_csv(st, name).getvalue()
-    html = panel._report().getvalue()
+    html = panel.report().getvalue()
     assert html.count('<section class="page') == 3

@@ -53,9 +53,9 @@ def test_active_is_a_checkbox_and_false_deactivates(demo):
     assert isinstance(panel.results.editors["active"], CheckboxEditor)
     # the new hypothesis is the highlighted row, not the previous one
     assert panel.results.selection == [1] and st.selected_hypothesis == 1
-    panel._edited(SimpleNamespace(column="active", row=0, value="false"))
+    panel.edited(SimpleNamespace(column="active", row=0, value="false"))
     assert st.hypotheses[0]["active"] is False and st.hyp_results[0] is None
-    panel._edited(SimpleNamespace(column="active", row=0, value=True))
+    panel.edited(SimpleNamespace(column="active", row=0, value=True))
     assert st.hypotheses[0]["active"] is True
     df = panel.frame()
     assert df["decision"].tolist() == ["rejected", "rejected"]
@@ -71,7 +71,7 @@ def test_partly_testable_image_point_names_the_absorbing_point(demo):
     row = panel.frame().iloc[0]
     assert row["decision"].startswith("rejected") and "tests 1 of 2 dimensions" in row["decision"]
     assert "absorbed by the coordinates of P00001" in row["decision"]
-    el = panel._ellipse_plot()
+    el = panel.ellipse_plot()
     assert "q = 1 of 2" in el.opts.get().kwargs["title"]
     assert "inf" not in el.opts.get().kwargs["title"]
 
@@ -88,7 +88,7 @@ def test_untestable_hypothesis_says_why():
     assert row["decision"].startswith("not testable: rank-deficient (W = 0)")
     assert "absorbed by" in row["decision"]
     assert row["∇ŝ"] == "" and row["T"] is None or np.isnan(row["T"])
-    assert panel._ellipse_plot().opts.get().kwargs["title"].startswith("Not testable")
+    assert panel.ellipse_plot().opts.get().kwargs["title"].startswith("Not testable")
 
 
 def test_critical_ellipse_is_drawn_over_the_lower_bound(demo):
@@ -97,7 +97,7 @@ def test_critical_ellipse_is_drawn_over_the_lower_bound(demo):
     st.add_hypothesis({"kind": "image-point", "image": "302", "point": "P05003"})
     h = st.hyp_results[0]
     assert h.q == 2
-    el = panel._ellipse_plot()
+    el = panel.ellipse_plot()
     lower, crit = el.get(0), el.get(1)
     assert lower.label.startswith("∇0s") and crit.label.startswith("critical")
     f = st.display_factor()[0][st.image_point_rows("302", "P05003")[0]]
@@ -125,7 +125,7 @@ def test_sbase_lesson_on_a_controlled_block(demo):
     st.sbase = ["P00001", "P06008", "P00008"]
     np.testing.assert_array_equal(view.point_cov2(), own)      # controlled: the S-base changes nothing
     view.free.value = True
-    assert "free block" in view.title() and "Free-block view" in view._note()
+    assert "free block" in view.title() and "Free-block view" in view.note_html()
     free = view.point_cov2()
     assert not np.allclose(free, own)
     # the S-transformed free block equals the free block adjusted with that S-base as its datum (to

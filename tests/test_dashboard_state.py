@@ -32,7 +32,8 @@ from bokeh.models import ColumnDataSource  # noqa: E402
 
 from baarda.stats import distributions
 from baarda.adjust import Options, adjust  # noqa: E402
-from baarda.dashboard.state import State, observation_points  # noqa: E402
+from baarda.dashboard.geometry import observation_points  # noqa: E402
+from baarda.dashboard.state import State  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
 from baarda.model.problem import subset, without  # noqa: E402
 from tests.extdata import GAMA, require_extdata  # noqa: E402
@@ -385,7 +386,7 @@ def test_controls_drive_state():
     c = Controls(state=st)
     c.alpha.value = 0.05
     assert st.alpha0 == 0.05 and st.reliability.delta0 == pytest.approx(distributions.delta0(0.05, 0.8, 1))
-    assert "δ0 = " in c._delta_text(st.results)
+    assert "δ0 = " in c.delta_text(st.results)
     st.beta0 = 0.9
     assert c.beta.value == 0.9
 
@@ -550,7 +551,7 @@ def test_hypothesis_deformation_is_drawn_on_external_map():
 
 
 def display_xy_shifts(st, shifts):
-    from baarda.dashboard.state import display_matrix
+    from baarda.dashboard.geometry import display_matrix
 
     return (display_matrix(st.problem) @ shifts[:, :2].T).T
 
@@ -1009,7 +1010,7 @@ def test_served_exclusion_adjusts_on_a_worker_and_applies_on_the_loop():
         t = threading.Thread(target=fn, name="event-loop")
         loop_threads.append(t)
         t.start()
-    st._loop_call = loop_call
+    st.jobs.loop_call = loop_call
     st.background = True
     st.param.watch(lambda e: tasks.append(e.new), "task")
     st.param.watch(lambda e: results_on.append(threading.current_thread().name), "results")

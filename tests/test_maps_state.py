@@ -119,7 +119,7 @@ def test_levelling_schematic_gives_every_benchmark_its_own_place():
     path = Path(__file__).resolve().parents[1] / "data" / "demo-levelling.gkf"
     if not path.exists():
         pytest.skip("data/demo-levelling.gkf not generated")
-    from baarda.dashboard.state import schematic_layout
+    from baarda.dashboard.geometry import schematic_layout
 
     st = State(path)
     x, y = schematic_layout(st.problem)
@@ -132,7 +132,7 @@ def test_levelling_schematic_gives_every_benchmark_its_own_place():
 def test_criterion_map_holds_the_network_and_its_arrows():
     from tests.extdata import GAMA
 
-    from baarda.dashboard.state import display_matrix, display_xy
+    from baarda.dashboard.geometry import display_matrix, display_xy
     from baarda.dashboard.views.criterion import ARROW_SHARE, CriterionView
 
     path = require_extdata(GAMA / "gama-local.gkf")
@@ -140,7 +140,7 @@ def test_criterion_map_holds_the_network_and_its_arrows():
     view = CriterionView(state=st)
     c = st.criterion
     assert c is not None
-    opts = view._map().opts.get().kwargs
+    opts = view.pattern_map().opts.get().kwargs
     (x0, x1), (y0, y1) = opts["xlim"], opts["ylim"]
     e, n, _, _ = display_xy(st.problem, st.results.coordinates)
     d = (display_matrix(st.problem) @ c["pattern"].T).T

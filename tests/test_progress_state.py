@@ -24,9 +24,9 @@ def test_iterations_reach_the_sessions_progress():
     assert len(its) == fresh.results.iterations, seen
     assert its[0].startswith("adjusting: iteration 1,")
     # shown under the summary while there is no result, as text
-    assert SummaryHeader._progress(None, session.task, its[-1]) == f"<small>{its[-1]}</small>"
-    assert SummaryHeader._progress(fresh.results, session.task, its[-1]) == ""
-    assert SummaryHeader._progress(None, "x", "<b>") == "<small>&lt;b&gt;</small>"
+    assert SummaryHeader.progress_html(None, session.task, its[-1]) == f"<small>{its[-1]}</small>"
+    assert SummaryHeader.progress_html(fresh.results, session.task, its[-1]) == ""
+    assert SummaryHeader.progress_html(None, "x", "<b>") == "<small>&lt;b&gt;</small>"
 
 
 def test_no_progress_without_a_task():

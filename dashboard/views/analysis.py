@@ -12,7 +12,8 @@ import pandas as pd
 import panel as pn
 import param
 
-from ..state import VARIANCE_MODELS, State, observation_label
+from ..geometry import observation_label
+from ..state import VARIANCE_MODELS, State
 from ..text import md_text
 
 TABLE = dict(show_index=False, disabled=True, sizing_mode="stretch_width", layout="fit_data_stretch",

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 from bokeh.models import NumeralTickFormatter
 
-from ..state import R_UNCONTROLLED, R_WEAK
+from ..frames import R_UNCONTROLLED, R_WEAK
 from ..text import plain
 
 STATUS_COLORS = {

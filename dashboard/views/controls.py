@@ -14,7 +14,8 @@ from pathlib import Path
 import panel as pn
 import param
 
-from ..state import ROBUST_METHODS, State, observation_label
+from ..geometry import observation_label
+from ..state import ROBUST_METHODS, State
 from ..tables import TABLES, table_csv
 from ..text import html_text, md_text, plain
 
@@ -57,11 +58,12 @@ class Controls(pn.viewable.Viewer):
                         (self.sigma, "sigma0_mode"), (self.global_test, "global_test"),
                         (self.robust, "robust_method")):
             _two_way(w, s, name)
-        self.delta = pn.pane.Markdown(pn.bind(self._delta_text, s.param.reliability),
+        self.delta = pn.pane.Markdown(pn.bind(self.delta_text, s.param.reliability),
                                       css_classes=["delta0"], sizing_mode="stretch_width")
 
     @staticmethod
-    def _delta_text(rel):
+    def delta_text(rel):
+        """The δ0 line under the test controls for a Reliability ``rel`` ("" without one)."""
         if rel is None:
             return ""
         return (f"**δ0 = {rel.delta0:.3f}** (λ0 = {rel.delta0 ** 2:.2f}); critical |w| = "
@@ -266,6 +268,10 @@ class FilePanel(pn.viewable.Viewer):
     def _show_error(self, *_):
         self.alert.object = md_text(self.state.error)
         self.alert.visible = bool(self.state.error)
+
+    def report(self):
+        """The HTML report of the current result as a file object (what the download button gives)."""
+        return self._report()
 
     def _report(self):
         from ..report import report_html

@@ -20,7 +20,8 @@ import param
 
 from baarda.stats import analyses
 
-from ..state import State, display_matrix, display_xy
+from ..geometry import display_matrix, display_xy
+from ..state import State
 from ..text import fit_title, labels, md_text, plain
 from .common import NARROW_TITLE, formatters, frame_size
 
@@ -57,7 +58,7 @@ class CriterionView(pn.viewable.Viewer):
         self.info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["criterion-info"])
         self.message = pn.pane.Alert("", alert_type="warning", visible=False, sizing_mode="stretch_width",
                                      css_classes=["criterion-alert"])
-        self.plot = pn.pane.HoloViews(self._map(), sizing_mode="stretch_width", css_classes=["criterion-map"],
+        self.plot = pn.pane.HoloViews(self.pattern_map(), sizing_mode="stretch_width", css_classes=["criterion-map"],
                                       linked_axes=False)
         self.kind.param.watch(self._units, "value")
         self._units()
@@ -102,9 +103,10 @@ class CriterionView(pn.viewable.Viewer):
                 f"λmax = {c['lam_max']:.4g}, λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}: {verdict}  \n"
                 "The map: the S-base points as squares, the eigenvector of λmax as arrows (the direction "
                 "in which the network is weakest relative to the criterion).")
-        self.plot.object = self._map()
+        self.plot.object = self.pattern_map()
 
-    def _map(self):
+    def pattern_map(self):
+        """The map of the worst displacement pattern of the last criterion comparison."""
         s = self.state
         e, n, xl, yl = display_xy(s.problem, s.results.coordinates)
         pts = hv.Points((e, n, [plain(i) for i in s.problem.points.ids]), [xl, yl], ["id"]).opts(

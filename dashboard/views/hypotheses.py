@@ -15,7 +15,8 @@ from baarda.observations.collinearity import AP_GROUPS
 from baarda.stats.ap_tests import APTest
 from baarda.stats.hypotheses import HypothesisTest
 
-from ..state import State, observation_label
+from ..geometry import observation_label
+from ..state import State
 from ..text import fit_title, labels, md_text, plain
 
 
@@ -244,6 +245,10 @@ class HypothesisPanel(pn.viewable.Viewer):
         return {"kind": kind, "point": self.point.value, "images": list(self.images.value)}
 
     # -- actions --------------------------------------------------------------------------------
+    def add_current(self) -> None:
+        """Add the hypothesis the widgets describe (what the "Add" button does)."""
+        self._add()
+
     def _add(self, *_):
         try:
             spec = self.spec()
@@ -261,6 +266,11 @@ class HypothesisPanel(pn.viewable.Viewer):
         k = self.state.selected_hypothesis
         if k is not None and k < len(self.state.hypotheses):
             self.state.remove_hypothesis(k)
+
+    def edited(self, event) -> None:
+        """A cell of the hypotheses table edited (``event``: column, row, value): the "active" box
+        toggles the hypothesis (what the table's edit does)."""
+        self._edited(event)
 
     def _edited(self, event):
         if event.column == "active":
@@ -327,6 +337,11 @@ class HypothesisPanel(pn.viewable.Viewer):
         sel = [k] if k is not None and k < n else []
         if list(self.results.selection) != sel:
             self.results.selection = sel
+
+    def ellipse_plot(self):
+        """The selected hypothesis' lower-bound ellipse (or why it is not testable) as the
+        HoloViews element the panel shows."""
+        return self._ellipse_plot()
 
     def _ellipse_plot(self, **_):
         s = self.state

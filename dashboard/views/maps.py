@@ -30,7 +30,8 @@ from baarda.stats import precision
 from baarda.stats.hypotheses import HypothesisTest
 
 from .. import sbase as sbase_lesson
-from ..state import State, display_matrix, object_unit
+from ..geometry import display_matrix, image_points, object_unit
+from ..state import State
 from ..text import fit_title, html_text, labels, plain
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
                      round_scale, selection_data, selection_layer, suspects_layer)
@@ -443,7 +444,7 @@ class ResidualMap(MapView):
         seg = self.segments(["w", "v", "unit", "rejected"])
         return seg.assign(abs_w=np.abs(seg["w"].astype(float))) if len(seg) else seg.assign(abs_w=[])
 
-    def _levels(self) -> list[float]:
+    def levels(self) -> list[float]:
         """The |w| scale (:func:`w_levels`) up to the largest |w| of the lines and points."""
         seg = self._segments()
         top = float(np.nanmax(seg["abs_w"], initial=0.0)) if len(seg) else 0.0
@@ -451,7 +452,7 @@ class ResidualMap(MapView):
         return w_levels(self.state.reliability.critical, top)
 
     def _scale_opts(self) -> dict:
-        levels = self._levels()
+        levels = self.levels()
         return dict(cmap=W_COLORS, color_levels=levels, clim=(0, levels[-1]),
                     colorbar_opts={"ticker": FixedTicker(ticks=levels)})
 
@@ -601,11 +602,11 @@ class PrecisionMap(MapView):
         s.param.watch(lambda e: setattr(self.sbase, "value", list(e.new)), "sbase")
         self.free_reason = sbase_lesson.free_block_reason(s) if s.problem.points.dim > 1 else "not planimetric"
         self.free_box().visible = not self.free_reason
-        self.note = pn.pane.HTML(pn.bind(lambda *_: self._note(), s.param.solution, s.param.sbase,
+        self.note = pn.pane.HTML(pn.bind(lambda *_: self.note_html(), s.param.solution, s.param.sbase,
                                          self.free.param.value),
                                  css_classes=["sbase-note"], sizing_mode="stretch_width",
                                  visible=s.problem.points.dim > 1)
-        self.compare = pn.pane.HoloViews(pn.bind(lambda *_: self._comparison(), s.param.solution, s.param.sbase,
+        self.compare = pn.pane.HoloViews(pn.bind(lambda *_: self.comparison(), s.param.solution, s.param.sbase,
                                                  self.free.param.value),
                                          css_classes=["sbase-compare"], linked_axes=False,
                                          visible=s.problem.points.dim > 1)
@@ -630,7 +631,8 @@ class PrecisionMap(MapView):
         free = getattr(self, "free", None)      # the title is asked for while the map is made
         return free is not None and bool(free.value) and not getattr(self, "free_reason", "not yet known")
 
-    def _note(self) -> str:
+    def note_html(self) -> str:
+        """The note beside the S-base control (HTML): the free-block view, why the S-base changes nothing, or the r and w check."""
         s = self.state
         if self.free_view():
             base = ", ".join(s.sbase) if s.sbase else "every point (inner constraints)"
@@ -657,7 +659,7 @@ class PrecisionMap(MapView):
                 return sbase_lesson.free_point_cov2(s, [])
         return s.point_cov2()
 
-    def _comparison(self):
+    def comparison(self):
         """The same ellipses at the same scale in the reference base (the problem's own datum; in
         the free-block view the inner constraints over every point) beside the chosen S-base."""
         s = self.state
@@ -761,13 +763,7 @@ class ImageResidualView(pn.viewable.Viewer):
     def image_points(self, image) -> list[tuple[str, int, int]]:
         """(point, row of x, row of y) of every image point of ``image`` (full indices)."""
         if self._by_image is None:
-            p = self.state.problem
-            by_image: dict = {}
-            for (im, pid, _kp), rows in self.state.problem_index()["image_rows"].items():
-                comp = {str(p.info.ids[i].get("component") or p.info.kind[i].rsplit("-", 1)[-1]): i for i in rows}
-                if "x" in comp and "y" in comp:
-                    by_image.setdefault(im, []).append((pid, comp["x"], comp["y"]))
-            self._by_image = by_image
+            self._by_image = image_points(self.state.problem, self.state.problem_index())
         return self._by_image.get(str(image), [])
 
     def data(self) -> pd.DataFrame:

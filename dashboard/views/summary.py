@@ -61,7 +61,7 @@ class SummaryHeader(pn.viewable.Viewer):
         self.pane = pn.pane.HTML(pn.bind(self._html, self.state.param.results, self.state.param.task),
                                  sizing_mode="stretch_width", css_classes=["summary"])
         s = self.state
-        self.progress = pn.pane.HTML(pn.bind(self._progress, s.param.results, s.param.task, s.param.progress),
+        self.progress = pn.pane.HTML(pn.bind(self.progress_html, s.param.results, s.param.task, s.param.progress),
                                      sizing_mode="stretch_width", css_classes=["load-progress"])
 
     @staticmethod
@@ -73,7 +73,7 @@ class SummaryHeader(pn.viewable.Viewer):
         return f"<div style='font-size:15px;margin-bottom:4px'><b>{title}</b></div>" + summary_html(s)
 
     @staticmethod
-    def _progress(adj, task="", progress=""):
+    def progress_html(adj, task="", progress=""):
         """While a file is read and adjusted (no result yet): how far it is, in words."""
         return f"<small>{html_text(progress)}</small>" if adj is None and task and progress else ""
 

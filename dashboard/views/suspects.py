@@ -16,7 +16,8 @@ from bokeh.models.widgets.tables import HTMLTemplateFormatter, NumberFormatter
 
 from baarda.errors import BaardaError
 
-from ..state import TASKS, State
+from ..jobs import TASKS
+from ..state import State
 from ..suspects import COLUMNS, suspects
 from ..text import html_text
 
@@ -118,7 +119,7 @@ class SuspectsView(pn.viewable.Viewer):
                 message = f"<b>The suspects could not be tested:</b> {html_text(err)}"
                 s.on_loop(lambda: setattr(self.note, "object", message))
                 return
-            if s.results is key[0] and s.reliability is key[1] and not s._closed:
+            if s.results is key[0] and s.reliability is key[1] and not s.jobs.closed:
                 def apply():
                     self._frame, self._for = df, key
                     self._show(df)

@@ -335,7 +335,7 @@ def test_block_robust_suspects_and_injection(page, block_app, screenshots):
 def test_criterion_tab_fits_and_shows_lambda(page, network_app, screenshots):
     """The Criterion tab renders with the fit made when it opened; a new fit (linear) runs in
     the core and its λmax, λmin and the arrows of the worst pattern reach the page (issue 4)."""
-    from baarda.dashboard.state import display_matrix, display_xy
+    from baarda.dashboard.geometry import display_matrix, display_xy
     from baarda.dashboard.views.criterion import ARROW_SHARE
 
     state, errors = open_app(page, network_app)

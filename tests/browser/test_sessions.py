@@ -32,15 +32,15 @@ def test_no_map_build_for_a_closed_page(page, serve_app, monkeypatch):
         pytest.skip(f"{DEMO} not found")
     assert State().load(DEMO)                    # in the server's cache: the build follows onload
     made, docs = [], []
-    main = app._main
-    monkeypatch.setattr(app, "_main", lambda state: made.append(state) or main(state))
+    main = app.main_views
+    monkeypatch.setattr(app, "main_views", lambda state: made.append(state) or main(state))
 
     def factory():
         docs.append(pn.state.curdoc)
         return app.create_app(DEMO)
 
     served = serve_app(factory)
-    app._pending(+1)                             # a session still loading: the builds wait for it
+    app.pending(+1)                             # a session still loading: the builds wait for it
     try:
         page.goto(served.url)
         page.locator(".alpha-slider").first.wait_for()        # the sidebar, made on onload
@@ -52,6 +52,6 @@ def test_no_map_build_for_a_closed_page(page, serve_app, monkeypatch):
             return all(s.connection_count == 0 for s in ctx.server_context.sessions if s.id == ctx.id)
         _wait(gone, 30, "the server to see the page closed")
     finally:
-        app._pending(-1)
+        app.pending(-1)
     app._BUILDER.submit(lambda: None).result(timeout=120)    # the builder has done what it was given
     assert made == []

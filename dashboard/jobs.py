@@ -1,0 +1,151 @@
+"""Long computations of the dashboard's sessions: the worker threads, cancelling, the event-loop
+hand-over, and the server's cache of files already read and adjusted.
+
+A served session runs its long computations (reading and adjusting a file, excluding, snooping,
+robust reweighting, variance components) on :data:`TASKS`, off the server's event loop; its
+:class:`Jobs` holds what they share with the session: the cancel flag, the call that schedules a
+function on the session's event loop (``loop_call``, set by the app) and whether the session has
+ended (``closed``). Scripts and tests compute in place (no loop, no worker).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+#: Long computations (reading and adjusting a file, snooping, robust reweighting, variance
+#: components) of every session run on these threads, off the server's event loop; the numerical
+#: work releases the GIL, so other sessions keep answering.
+TASKS = ThreadPoolExecutor(max_workers=4, thread_name_prefix="baarda-task")
+
+
+class Cancelled(Exception):
+    """Raised inside a background computation whose session asked to stop it."""
+
+
+def lower_priority() -> None:
+    """Lower the scheduling priority of this worker thread (Linux: nice per thread), so that
+    the event loop thread answers clicks first when the CPUs are busy."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+    except (AttributeError, OSError):
+        pass
+
+
+def on_task_thread() -> bool:
+    """True on a worker thread of :data:`TASKS`."""
+    return threading.current_thread().name.startswith("baarda-task")
+
+
+def on_worker_thread() -> bool:
+    """True on any of baarda's worker threads (:data:`TASKS`, the app's builder)."""
+    return threading.current_thread().name.startswith("baarda-")
+
+
+class Jobs:
+    """The background computations of one session (see the module docstring).
+
+    ``loop_call``: schedules a callable on the session's event loop (set by the served app;
+    None in scripts and tests, where everything runs in place). ``closed``: the session has
+    ended (set by the app); a worker waiting for the loop then stops (:class:`Cancelled`).
+    """
+
+    def __init__(self):
+        self.cancel_event = threading.Event()
+        self.loop_call = None
+        self.closed = False
+
+    def reset(self) -> None:
+        """A fresh cancel flag, for the next computation."""
+        self.cancel_event = threading.Event()
+
+    def start(self, run):
+        """Run ``run()`` on a worker thread at a lower priority; its Future."""
+        def task():
+            lower_priority()
+            return run()
+        return TASKS.submit(task)
+
+    def cancel(self) -> None:
+        """Ask the running computation to stop (:meth:`check` raises on its thread)."""
+        self.cancel_event.set()
+
+    def cancelled(self) -> bool:
+        """True on a worker thread whose session cancelled its computation."""
+        return self.cancel_event.is_set() and on_task_thread()
+
+    def check(self) -> None:
+        """Raise :class:`Cancelled` in a background computation whose session cancelled it."""
+        if self.cancelled():
+            raise Cancelled()
+
+    def on_loop(self, fn):
+        """``fn()`` where the session's document may be changed, and its result: on the
+        server's event loop when called from a worker thread of a served session (HoloViews
+        and Bokeh objects are not thread-safe; the worker waits), here otherwise."""
+        call = self.loop_call
+        if call is None or not on_worker_thread():
+            return fn()
+        done, out = threading.Event(), {}
+
+        def run():
+            try:
+                out["value"] = fn()
+            except BaseException as err:  # noqa: BLE001 - handed back to the worker
+                out["error"] = err
+            finally:
+                done.set()
+        call(run)
+        while not done.wait(1.0):
+            if self.closed:
+                raise Cancelled()
+        if "error" in out:
+            raise out["error"]
+        return out.get("value")
+
+
+#: Files already read and adjusted, shared by the sessions of a server: key (resolved path,
+#: mtime, size, α0, β0, B-method) → (problem, adjustment, kept, index, frames). A second
+#: session opens the file without reading or adjusting it again. Bounded (oldest dropped).
+_LOADED: dict = {}
+_LOADED_LOCKS: dict = {}
+_LOADED_GUARD = threading.Lock()
+LOADED_MAX = 8
+
+
+def file_key(path, options) -> tuple | None:
+    """The cache key of a file read with the core's ``options`` (None if it cannot be stat'ed)."""
+    try:
+        st = os.stat(path)
+        return (str(Path(path).resolve()), st.st_mtime_ns, st.st_size,
+                options.alpha0, options.beta0, options.b_method)
+    except OSError:
+        return None
+
+
+def file_lock(key) -> threading.Lock:
+    """The lock held while the file of ``key`` is read and adjusted (other sessions wait)."""
+    with _LOADED_GUARD:
+        return _LOADED_LOCKS.setdefault(key, threading.Lock())
+
+
+def cached(key):
+    """The cached (problem, adjustment, kept, index, frames) of ``key``, or None."""
+    return _LOADED.get(key) if key is not None else None
+
+
+def store(key, hit) -> None:
+    """Keep ``hit`` for ``key``, dropping the oldest entries beyond :data:`LOADED_MAX`."""
+    with _LOADED_GUARD:
+        while len(_LOADED) >= LOADED_MAX:
+            _LOADED.pop(next(iter(_LOADED)))
+        _LOADED[key] = hit
+
+
+def clear_cache() -> None:
+    """Forget every cached file (tests; a server frees the memory)."""
+    with _LOADED_GUARD:
+        _LOADED.clear()
+        _LOADED_LOCKS.clear()
