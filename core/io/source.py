@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, OptionError
+from ..solve.compiled import njit
 
 #: compression → (first bytes, file extension, name used in messages)
 COMPRESSIONS = {"gzip": (b"\x1f\x8b", ".gz"), "bzip2": (b"BZh", ".bz2"), "xz": (b"\xfd7zXZ\x00", ".xz")}
@@ -219,12 +220,8 @@ _KERNEL = {}
 def _compiled_scan():
     """:func:`_scan` compiled by numba (optional; None without it)."""
     if "scan" not in _KERNEL:
-        try:
-            import numba
-        except ImportError:          # pragma: no cover - numba is optional
-            _KERNEL["scan"] = None
-        else:
-            _KERNEL["scan"] = numba.njit(cache=True, nogil=True)(_scan)
+        jit = njit(cache=True, nogil=True)
+        _KERNEL["scan"] = None if jit is None else jit(_scan)
     return _KERNEL["scan"]
 
 

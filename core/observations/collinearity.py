@@ -54,6 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..solve.compiled import njit
 from .distortion import brown
 from .rotation import R_opk_derivatives
 
@@ -151,14 +152,14 @@ _brown = brown                   # compiled in place by _compiled_collinearity
 
 
 def _compiled_collinearity():
-    try:
-        import numba
-    except ImportError:          # pragma: no cover - numba is optional
-        return None
+    """:func:`_collinearity_kernel` compiled by numba (None without it)."""
     if "k" not in _KERNEL:
+        jit = njit(cache=True)
+        if jit is None:
+            return None
         global _brown                # the kernel calls the compiled distortion
-        _brown = numba.njit(cache=True, inline="always")(brown)
-        _KERNEL["k"] = numba.njit(cache=True)(_collinearity_kernel)
+        _brown = njit(cache=True, inline="always")(brown)
+        _KERNEL["k"] = jit(_collinearity_kernel)
     return _KERNEL["k"]
 
 

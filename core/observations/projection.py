@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..solve.compiled import njit
 from .distortion import brown
 from .rotation import R_from_rodrigues, skew
 
@@ -321,13 +322,13 @@ _brown = brown                   # compiled in place by _compiled_projection
 
 
 def _compiled_projection():
-    try:
-        import numba
-    except ImportError:          # pragma: no cover - numba is optional
-        return None
+    """:func:`_projection_kernel` compiled by numba (None without it)."""
     if "p" not in _KERNEL:
+        jit = njit(cache=True)
+        if jit is None:
+            return None
         global _mat3, _brown         # the kernel calls the compiled product and distortion
-        _mat3 = numba.njit(cache=True, inline="always")(_mat3)
-        _brown = numba.njit(cache=True, inline="always")(brown)
-        _KERNEL["p"] = numba.njit(cache=True)(_projection_kernel)
+        _mat3 = njit(cache=True, inline="always")(_mat3)
+        _brown = njit(cache=True, inline="always")(brown)
+        _KERNEL["p"] = jit(_projection_kernel)
     return _KERNEL["p"]
