@@ -285,7 +285,8 @@ def report_html(adj, state: State | None = None) -> str:
 <h2>Reliability</h2>
 <p>Redundancy numbers r (0: an error there is not seen, 1: fully controlled by the other observations),
 external reliability δ̄0 (how far an error the tests cannot find moves the coordinates, in their
-standard deviations) and the precision of the points.</p>
+standard deviations; the largest over the points is the δ̄0 of page 1) and the precision of the points
+(standard ellipses, or the standard deviation σ of heights in mm: a scale of its own, not δ̄0).</p>
 {''.join(figure(e, d) for e, d in zip(rel, divs[1:]))}
 </section>
 <section class="page last">
