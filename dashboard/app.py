@@ -278,6 +278,12 @@ _PENDING_CV = threading.Condition()
 SUMMARY_FIRST = 15.0
 
 
+def builds_done(timeout: float = 120.0) -> None:
+    """Wait until the view builder has done every build it was given (tests; a server shutting
+    down). TimeoutError if it has not within ``timeout`` seconds."""
+    _BUILDER.submit(lambda: None).result(timeout=timeout)
+
+
 def pending(delta: int) -> None:
     """Count sessions still reading and adjusting their file (+1 / −1): map builds wait while any is (:func:`_summaries_first`)."""
     with _PENDING_CV:

@@ -53,5 +53,5 @@ def test_no_map_build_for_a_closed_page(page, serve_app, monkeypatch):
         _wait(gone, 30, "the server to see the page closed")
     finally:
         app.pending(-1)
-    app._BUILDER.submit(lambda: None).result(timeout=120)    # the builder has done what it was given
+    app.builds_done(timeout=120)                             # the builder has done what it was given
     assert made == []
