@@ -10,6 +10,8 @@ are replaced on a click, so a click costs no overlay update (issue 12: a click a
 well under a second while other sessions compute). The title
 is set on the Bokeh figure after every update (:meth:`MapView._hook`). A click on the map goes
 through a ``Tap`` stream into the state (:func:`baarda.dashboard.views.common.on_tap`).
+The views only render: what they draw (the frame and its far points, the |w| scale, the
+exaggerated ellipses and vectors) is computed by :mod:`baarda.dashboard.mapgeometry`.
 """
 
 from __future__ import annotations
