@@ -53,14 +53,14 @@ def free_block_reason(state) -> str:
 def free_block(state):
     """The current (reduced) problem without its control observations, adjusted as a free network
     (the core's :func:`baarda.adjust.adjust` with ``Datum("free")``: inner constraints over every
-    point). Cached on the state per adjustment."""
+    point). Kept in the state's ``free_block_cache`` per adjustment."""
     adj = state.results
-    hit = getattr(state, "_free_block", None)
-    if hit is not None and hit[0] is adj:
-        return hit[1]
+    hit = state.free_block_cache
+    if "free" in hit and hit["results"] is adj:
+        return hit["free"]
     reduced, _ = without(adj.problem, control_rows(adj.problem))
     free = adjust(replace(reduced, datum=Datum("free", ())), state.options())
-    state._free_block = (adj, free)
+    state.free_block_cache = {"results": adj, "free": free}
     return free
 
 

@@ -118,6 +118,10 @@ class State(param.Parameterized):
         #: the session's background computations (:class:`~baarda.dashboard.jobs.Jobs`): the
         #: served app sets its ``loop_call`` and ``closed``
         self.jobs = Jobs()
+        #: the free-block view's adjustment (:func:`~baarda.dashboard.sbase.free_block`), kept
+        #: while the adjustment is current: ``{"results": the Adjustment it was made from,
+        #: "free": the free block's Adjustment}``, or ``{}``; replaced whole, never updated in place
+        self.free_block_cache: dict = {}
         if problem is not None:
             self.set_problem(problem, source=str(path or problem.source))
         elif path is not None:

@@ -128,6 +128,9 @@ def test_sbase_lesson_on_a_controlled_block(demo):
     assert "free block" in view.title() and "Free-block view" in view.note_html()
     free = view.point_cov2()
     assert not np.allclose(free, own)
+    # the free block is adjusted once per adjustment, kept in the state's public cache
+    assert st.free_block_cache["results"] is st.results
+    assert lesson.free_block(st) is st.free_block_cache["free"]
     # the S-transformed free block equals the free block adjusted with that S-base as its datum (to
     # the nonlinear refit's other linearisation point)
     reduced, _ = without(st.results.problem, lesson.control_rows(st.results.problem))

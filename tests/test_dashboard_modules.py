@@ -17,14 +17,16 @@ import pytest
 pytest.importorskip("panel")
 pytest.importorskip("holoviews")
 
-from baarda.dashboard import frames, geometry, jobs, measures, sbase, specs  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from baarda.dashboard import frames, geometry, jobs, mapgeometry, measures, sbase, specs  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
 from tests.extdata import GAMA, require_extdata  # noqa: E402
 
 DASHBOARD = Path(__file__).resolve().parent.parent / "dashboard"
 #: the modules below the state: they take the core's objects, never the state's module
-BELOW_STATE = ("geometry", "frames", "specs", "measures", "sbase", "jobs", "suspects", "text")
+BELOW_STATE = ("geometry", "mapgeometry", "frames", "specs", "measures", "sbase", "jobs", "suspects", "text")
 
 
 @pytest.fixture(scope="module")
@@ -44,6 +46,88 @@ def test_modules_below_the_state_do_not_import_it(name):
 def test_every_dashboard_module_is_small():
     sizes = {p.name: len(p.read_text(encoding="utf-8").splitlines()) for p in DASHBOARD.glob("*.py")}
     assert sizes["state.py"] < 900 and max(sizes.values()) < 900, sizes
+
+
+def grid_points(n: int = 10) -> pd.DataFrame:
+    """n × n points on the unit square's grid, ids g0, g1, ..."""
+    x, y = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
+    return pd.DataFrame({"id": [f"g{i}" for i in range(n * n)], "x": x.ravel(), "y": y.ravel()})
+
+
+def test_mapgeometry_frame_puts_far_points_at_the_edge_and_lists_them():
+    pts = grid_points()
+    far = pd.DataFrame({"id": ["east", "south"], "x": [1e6, 0.5], "y": [0.5, -5e3]})
+    f = mapgeometry.framed(pd.concat([pts, far], ignore_index=True))
+    x0, x1, y0, y1 = mapgeometry.robust_box(f["x_true"], f["y_true"])
+    # the grid sets the frame: the unit square inside it, widened by at most 0.75 of its side
+    assert -0.75 <= x0 <= 0 and 1 <= x1 <= 1.75 and -0.75 <= y0 <= 0 and 1 <= y1 <= 1.75
+    assert f["far"].tolist() == [False] * 100 + [True, True]
+    assert (f["x"].iat[100], f["y"].iat[100]) == (x1, 0.5) and (f["x"].iat[101], f["y"].iat[101]) == (0.5, y0)
+    assert f["x_true"].iat[100] == 1e6 and f["y_true"].iat[101] == -5e3
+    note = mapgeometry.far_note(f)
+    assert note.startswith("2 far point(s)") and note.index("east (1e+06, 0.5)") < note.index("south (0.5, -5000)")
+    assert mapgeometry.far_note(mapgeometry.framed(pts)) == ""
+    # a long list is cut: the farthest `limit` named, the rest counted
+    many = pd.DataFrame({"id": [f"f{i}" for i in range(5)], "x": 1e3 * (2.0 + np.arange(5)), "y": 0.5})
+    note = mapgeometry.far_note(mapgeometry.framed(pd.concat([pts, many], ignore_index=True)), limit=2)
+    assert note.startswith("5 far point(s)") and "f4 (" in note and "f3 (" in note and "f2 (" not in note
+    assert note.endswith("and 3 more.")
+    # the observation lines end at the frame
+    seg = pd.DataFrame({"x0": [0.2], "y0": [0.2], "x1": [1e6], "y1": [-7.0]})
+    assert mapgeometry.clamped_segments(seg, f)[["x0", "y0", "x1", "y1"]].iloc[0].tolist() == [0.2, 0.2, x1, y0]
+
+
+def test_mapgeometry_w_levels_reach_the_largest_w():
+    for crit, top in [(3.29, 13.42), (2.0, 250.0), (3.29, 3.3)]:
+        lv = mapgeometry.w_levels(crit, top)
+        assert len(lv) == 8 and lv[:3] == [0.0, round(crit / 2, 2), round(crit, 2)]
+        assert np.all(np.diff(lv) > 0) and lv[-1] >= max(top, 1.5 * crit)
+    assert mapgeometry.w_levels(2.0, np.inf)[-1] == 3.0         # no finite |w|: up to 1.5 × critical
+    seg = pd.DataFrame({"abs_w": [1.0, np.nan, 7.5]})
+    assert mapgeometry.largest_abs_w(seg, pd.DataFrame({"max_w": [2.0, np.nan]})) == 7.5
+    assert mapgeometry.largest_abs_w(seg.iloc[:0], pd.DataFrame({"max_w": [2.0, np.nan]})) == 2.0
+
+
+def test_mapgeometry_standard_ellipses_and_field_at_round_scales():
+    pts = mapgeometry.framed(grid_points())
+    sigma = np.full(100, 0.001)
+    sigma[7] = 1.0                                   # one point 1000 × worse: off-scale, not drawn
+    cov2 = sigma[:, None, None] ** 2 * np.eye(2)
+    paths, scale, big, off = mapgeometry.ellipse_paths(cov2, np.eye(2), pts)
+    # the ordinary circles' radius, 1 mm, is at most 5 % of the 1 m frame: 0.05 / 0.001 = 50
+    assert scale == 50.0 and big == pytest.approx(0.001) and off == 1
+    xy = paths[0][np.isfinite(paths[0][:, 0])]
+    centres = pts[["x", "y"]].to_numpy()
+    d = np.min(np.hypot(xy[:, None, 0] - centres[None, :, 0], xy[:, None, 1] - centres[None, :, 1]), axis=1)
+    np.testing.assert_allclose(d, 0.05, rtol=1e-9)  # every drawn point on a circle of 1 mm × 50
+    assert np.isnan(paths[0][:, 0]).sum() == 98      # 99 circles drawn, one glyph
+    assert mapgeometry.ellipse_paths(cov2, np.eye(2), pts, scale=3.0)[1] == 3.0
+    # the deformation field: its longest vector at most 12 % of the frame, a round factor
+    shifts = np.zeros((100, 3))
+    shifts[5] = [0.003, 0.004, 0.0]                  # 5 mm
+    d, size, scale = mapgeometry.deformation_field(shifts, np.array([[0.0, 1.0], [1.0, 0.0]]), 2, pts)
+    assert scale == 20.0 and size[5] == pytest.approx(0.005) and d[5].tolist() == [0.004, 0.003]
+    vec = mapgeometry.field_vectors(pts, d, size, scale)
+    assert len(vec) == 1 and vec["x1"].iat[0] == pytest.approx(pts["x"].iat[5] + 0.08)
+    assert vec["shift_mm"].iat[0] == pytest.approx(5.0)
+    shifts[5] = [0.0, 0.0, -0.002]                   # a levelling network: the height drawn northward
+    d, size, _ = mapgeometry.deformation_field(shifts, np.eye(2), 1, pts)
+    assert d[5].tolist() == [0.0, -0.002] and size[5] == 0.002
+
+
+def test_mapgeometry_image_residuals():
+    value = np.array([10.0, 20.0, 30.0, 40.0])
+    v = np.array([0.1, -0.2, 0.0, 0.5])
+    w = np.array([1.0, -4.0, 0.5, 0.2])
+    df = mapgeometry.image_residuals([("a", 0, 1), ("b", 2, 3)], value, v, w, 10.0)
+    assert df["x1"].tolist() == [11.0, 30.0] and df["y1"].tolist() == [18.0, 45.0]
+    assert df["abs_w"].tolist() == [4.0, 0.5] and df["obs"].tolist() == [0, 2]
+    assert mapgeometry.image_residuals([], value, v, w, 10.0).empty
+    (border,) = mapgeometry.image_border(df, (100, 50))
+    assert border[2].tolist() == [100.0, 50.0]
+    (border,) = mapgeometry.image_border(df.assign(x=[-30.0, 5.0]), (100, 50))     # centred image coordinates
+    assert border[0].tolist() == [-50.0, -25.0]
+    assert mapgeometry.image_border(df, None) == []
 
 
 def test_geometry_index_and_full_reduced_mapping(st):

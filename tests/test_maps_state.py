@@ -23,8 +23,8 @@ import holoviews as hv  # noqa: E402
 from bokeh.models import ColorBar  # noqa: E402
 
 from baarda.dashboard.state import State  # noqa: E402
-from baarda.dashboard.views.maps import (MAP_VIEWS, FRAME_MIN_POINTS, ResidualMap, far_note,  # noqa: E402
-                                         framed, robust_box, w_levels)
+from baarda.dashboard.mapgeometry import FRAME_MIN_POINTS, far_note, framed, robust_box, w_levels  # noqa: E402
+from baarda.dashboard.views.maps import MAP_VIEWS, ResidualMap  # noqa: E402
 from tests.extdata import EXTDATA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)

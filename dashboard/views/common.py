@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import math
-
 import holoviews as hv
 import numpy as np
 import pandas as pd
 from bokeh.models import NumeralTickFormatter
 
 from ..frames import R_UNCONTROLLED, R_WEAK
+from ..mapgeometry import extent
 from ..text import plain
 
 STATUS_COLORS = {
@@ -29,17 +28,6 @@ def formatters() -> dict:
     """Plain tick labels (no 1e+6 notation); new Bokeh models for every plot (one document each)."""
     return {"xformatter": NumeralTickFormatter(format="0.[00]"),
             "yformatter": NumeralTickFormatter(format="0.[00]")}
-
-
-def round_scale(raw: float) -> float:
-    """A round number (1, 2 or 5 × 10^k) not above ``raw``, for displayed exaggerations."""
-    if not np.isfinite(raw) or raw <= 0:
-        return 1.0
-    k = math.floor(math.log10(raw))
-    for m in (5, 2, 1):
-        if m * 10 ** k <= raw:
-            return float(m * 10 ** k)
-    return float(10 ** k)
 
 
 #: Pixels a responsive plot's title may take in the narrowest right panel (its least width, 420 px,
@@ -66,14 +54,6 @@ def frame_size(pts: pd.DataFrame, images=(), size: int = 420) -> dict:
     half_w, half_h = fw / scale / 2, fh / scale / 2
     return {"frame_width": fw, "frame_height": fh, "xlim": (cx - half_w, cx + half_w),
             "ylim": (cy - half_h, cy + half_h)}
-
-
-def extent(pts: pd.DataFrame) -> float:
-    """The larger side of the points' bounding box (map units), at least 1."""
-    if len(pts) == 0:
-        return 1.0
-    span = max(float(np.ptp(pts["x"])), float(np.ptp(pts["y"])))
-    return span if span > 0 else 1.0
 
 
 def block_context(state) -> hv.Overlay:

@@ -10,6 +10,8 @@ are replaced on a click, so a click costs no overlay update (issue 12: a click a
 well under a second while other sessions compute). The title
 is set on the Bokeh figure after every update (:meth:`MapView._hook`). A click on the map goes
 through a ``Tap`` stream into the state (:func:`baarda.dashboard.views.common.on_tap`).
+The views only render: what they draw (the frame and its far points, the |w| scale, the
+exaggerated ellipses and vectors) is computed by :mod:`baarda.dashboard.mapgeometry`.
 """
 
 from __future__ import annotations
@@ -26,15 +28,17 @@ from bokeh.events import Tap
 from bokeh.models import ColumnDataSource, FixedTicker
 
 from baarda.errors import BaardaError
-from baarda.stats import precision
 from baarda.stats.hypotheses import HypothesisTest
 
 from .. import sbase as sbase_lesson
 from ..geometry import display_matrix, image_points, object_unit
+from ..mapgeometry import (W_COLORS, clamped_segments, deformation_field, ellipse_paths, extent, far_note,
+                           field_vectors, framed, hypothesis_ellipse, image_border, image_residuals, largest_abs_w,
+                           length_text, log_clim, w_levels)
 from ..state import State
 from ..text import fit_title, html_text, labels, plain
-from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, extent, on_tap,
-                     round_scale, selection_data, selection_layer, suspects_layer)
+from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, on_tap,
+                     selection_data, selection_layer, suspects_layer)
 
 HOVER_OBS = ["obs", "kind", "ids"]
 
@@ -71,25 +75,6 @@ def tips(columns) -> list:
     return [(c, f"@{{{c}}}") for c in columns]
 
 
-def joined(paths: np.ndarray) -> list[np.ndarray]:
-    """m paths (m × n × 2) as one path broken by NaN rows: Bokeh draws one glyph instead of m."""
-    if len(paths) == 0:
-        return []
-    gap = np.full((len(paths), 1, 2), np.nan)
-    return [np.concatenate([paths, gap], axis=1).reshape(-1, 2)[:-1]]
-
-
-def log_clim(values, low: float | None = None) -> tuple[float, float]:
-    """Colour limits of a log scale: from ``low`` (default the smallest positive value, at
-    least 10⁻⁶ of the largest) to the largest finite value; infinite values (r = 0) take the
-    top colour."""
-    v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v) & (v > 0)]
-    hi = float(v.max()) if v.size else 1.0
-    lo = float(low) if low is not None else max(float(v.min()) if v.size else 0.1 * hi, 1e-6 * hi)
-    return (lo, hi) if hi > lo * 1.01 else (lo, 10 * lo)
-
-
 def _same(a, b) -> bool:
     """The same object, or equal numbers / strings (a cache key compares results by identity)."""
     return a is b or (isinstance(a, (int, float, str)) and type(a) is type(b) and a == b)
@@ -98,88 +83,6 @@ def _same(a, b) -> bool:
 def point_size(pts: pd.DataFrame) -> int:
     """Marker size of the data points: smaller on large blocks, so that they do not merge."""
     return 12 if len(pts) <= 500 else 6
-
-
-#: The map frame of a block or network of at least FRAME_MIN_POINTS points: the box of the
-#: points' 5th to 95th percentiles, widened by FRAME_MARGIN of its size on every side (and never
-#: beyond the points). Points outside it are far points: drawn at the frame's edge with their own
-#: marker and listed, instead of setting the frame (Ladybug's few points drifting towards
-#: infinity shrank its 7,764 real points to one pixel). Smaller sets keep their full extent.
-FRAME_QUANTILES = (5.0, 95.0)
-FRAME_MARGIN = 0.75
-FRAME_MIN_POINTS = 50
-
-
-def robust_box(x, y) -> tuple[float, float, float, float]:
-    """(x0, x1, y0, y1) of the map frame of points at (x, y) (see :data:`FRAME_MARGIN`)."""
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    ok = np.isfinite(x) & np.isfinite(y)
-    if not ok.any():
-        return -1.0, 1.0, -1.0, 1.0
-    x, y = x[ok], y[ok]
-    if x.size < FRAME_MIN_POINTS:
-        return float(x.min()), float(x.max()), float(y.min()), float(y.max())
-    (ax, bx), (ay, by) = np.percentile(x, FRAME_QUANTILES), np.percentile(y, FRAME_QUANTILES)
-    m = FRAME_MARGIN * max(bx - ax, by - ay, 1e-9)
-    return (max(float(x.min()), ax - m), min(float(x.max()), bx + m),
-            max(float(y.min()), ay - m), min(float(y.max()), by + m))
-
-
-def framed(pts: pd.DataFrame) -> pd.DataFrame:
-    """The points with far points moved to the frame's edge: columns ``x``, ``y`` clamped to
-    :func:`robust_box`, ``far`` (bool) and the true coordinates ``x_true``, ``y_true``."""
-    x0, x1, y0, y1 = robust_box(pts["x"], pts["y"])
-    x = pts["x"].to_numpy(dtype=float)
-    y = pts["y"].to_numpy(dtype=float)
-    far = (x < x0) | (x > x1) | (y < y0) | (y > y1) | ~np.isfinite(x) | ~np.isfinite(y)
-    return pts.assign(x=np.clip(np.nan_to_num(x), x0, x1), y=np.clip(np.nan_to_num(y), y0, y1), far=far,
-                      x_true=x, y_true=y)
-
-
-def far_note(pts: pd.DataFrame, limit: int = 12) -> str:
-    """The far points of a map as text: how many, and the ``limit`` farthest from the frame's
-    centre with their coordinates."""
-    far = pts[pts["far"]]
-    if far.empty:
-        return ""
-    cx, cy = float(np.median(pts["x"])), float(np.median(pts["y"]))
-    dist = np.hypot(far["x_true"].to_numpy(dtype=float) - cx, far["y_true"].to_numpy(dtype=float) - cy)
-    far = far.iloc[np.argsort(-np.nan_to_num(dist, nan=np.inf), kind="stable")]
-    listed = ", ".join(f"{r.id} ({r.x_true:.4g}, {r.y_true:.4g})" for r in far.head(limit).itertuples())
-    more = f" and {len(far) - limit} more" if len(far) > limit else ""
-    return f"{len(far)} far point(s) drawn at the frame's edge (▽), farthest first: {listed}{more}."
-
-
-#: Standard ellipses larger than this many times the 90th percentile of the semi-major axes are
-#: off-scale: not drawn (a drifting SfM point's σ of 10⁹ would shrink every other ellipse to nothing).
-OFF_SCALE = 20.0
-
-
-def length_text(value: float, unit: str) -> str:
-    """A length in metres as millimetres where the block has units, else in the block's units."""
-    if not np.isfinite(value):
-        return "∞"
-    return f"{1000 * value:.3g} mm" if unit == "m" else f"{value:.3g} (block units)"
-
-
-#: Colours of a |w| scale: two bins below the critical value (accepted: grey, light blue), five
-#: above it (rejected: orange to dark red) on a geometric scale up to the largest |w|.
-W_COLORS = ["#d9d9d9", "#9ecae1", "#fee08b", "#fdae61", "#f46d43", "#d73027", "#7f0000"]
-
-
-def w_levels(critical: float, top: float) -> list[float]:
-    """Bin edges of the |w| colour scale: 0, critical/2, the critical value, then five geometric
-    steps to the largest |w| (at least 1.5 × critical), rounded to two significant digits: a 13.4
-    outlier is two bins above a 4.5 one, and the critical value is a tick of the colour bar."""
-    top = max(float(top) if np.isfinite(top) else 0.0, 1.5 * critical)
-    above = critical * np.geomspace(1.0, top / critical, 6)[1:]
-    rounded = [float(f"{v:.2g}") for v in above]
-    edges = [0.0, round(critical / 2, 2), round(critical, 2)]
-    for v in rounded:
-        edges.append(max(v, edges[-1] * 1.01))
-    edges[-1] = max(edges[-1], top)
-    return edges
 
 
 class MapView(pn.viewable.Viewer):
@@ -319,10 +222,7 @@ class MapView(pn.viewable.Viewer):
         cols = ["kind", "ids", *columns]
         seg = seg.join(obs[cols], on="obs") if len(seg) else pd.DataFrame(
             columns=["obs", "x0", "y0", "x1", "y1", *cols])
-        if len(seg):
-            x0, x1, y0, y1 = robust_box(self.state.frames()[1]["x"], self.state.frames()[1]["y"])
-            seg = seg.assign(x0=seg["x0"].clip(x0, x1), x1=seg["x1"].clip(x0, x1),
-                             y0=seg["y0"].clip(y0, y1), y1=seg["y1"].clip(y0, y1))
+        seg = clamped_segments(seg, self.state.frames()[1])
         return seg[~obs["excluded"].to_numpy()[seg["obs"].to_numpy(dtype=int)]] if len(seg) else seg
 
     def points(self) -> pd.DataFrame:
@@ -372,8 +272,7 @@ class LayoutMap(MapView):
         e = h.ellipse()
         if s.hypotheses[k]["kind"] == "control":
             e = (display_matrix(s.problem) @ e.T).T
-        scale = round_scale(0.08 * extent(pts) / max(np.abs(e).max(), 1e-300))
-        xy = e * scale + np.array([pts["x"].iat[pk], pts["y"].iat[pk]])
+        scale, xy = hypothesis_ellipse(e, pts, pk)
         return f"×{scale:g}: {h.label}", [xy]
 
     def layers(self):
@@ -446,10 +345,7 @@ class ResidualMap(MapView):
 
     def levels(self) -> list[float]:
         """The |w| scale (:func:`w_levels`) up to the largest |w| of the lines and points."""
-        seg = self._segments()
-        top = float(np.nanmax(seg["abs_w"], initial=0.0)) if len(seg) else 0.0
-        top = max(top, float(np.nanmax(self.points()["max_w"], initial=0.0)))
-        return w_levels(self.state.reliability.critical, top)
+        return w_levels(self.state.reliability.critical, largest_abs_w(self._segments(), self.points()))
 
     def _scale_opts(self) -> dict:
         levels = self.levels()
@@ -496,12 +392,7 @@ class ExternalMap(MapView):
         s = self.state
         pts = self.points()
         label, shifts = s.external_field()
-        d = (display_matrix(s.problem) @ shifts[:, :2].T).T
-        if s.problem.points.dim == 1:
-            d = np.column_stack([np.zeros(len(pts)), shifts[:, 2]])
-        size = np.hypot(d[:, 0], d[:, 1])
-        big = size.max(initial=0.0)
-        scale = round_scale(0.12 * extent(pts) / big) if big > 0 else 1.0
+        d, size, scale = deformation_field(shifts, display_matrix(s.problem), s.problem.points.dim, pts)
         return label, d, size, scale
 
     def title(self):
@@ -533,11 +424,7 @@ class ExternalMap(MapView):
     def _vectors(self):
         pts = self.points()
         _, d, size, scale = self._field()
-        keep = size > 0
-        vec = pd.DataFrame({"x0": pts["x"][keep], "y0": pts["y"][keep],
-                            "x1": pts["x"][keep] + scale * d[keep, 0],
-                            "y1": pts["y"][keep] + scale * d[keep, 1],
-                            "id": pts["id"][keep], "shift_mm": 1000 * size[keep]})
+        vec = field_vectors(pts, d, size, scale)
         return (hv.Segments(vec, ["x0", "y0", "x1", "y1"], ["id", "shift_mm"], label="∇0x")
                 * hv.Points(vec, ["x1", "y1"], ["id", "shift_mm"]))
 
@@ -686,27 +573,8 @@ class PrecisionMap(MapView):
         return self.cached("ellipses", (s.solution, s.sbase, self.free_view()), self._ellipses_now)
 
     def _ellipse_paths(self, cov2: np.ndarray, scale: float | None = None):
-        """Ellipse paths of point covariances (m × 2 × 2), exaggerated so that the 90th
-        percentile of the semi-major axes of the points inside the frame is 5 % of the frame
-        (or by ``scale``); ellipses over :data:`OFF_SCALE` times that percentile, and those of
-        far points, are not drawn. Returns (paths, scale, largest drawn axis, off-scale count)."""
-        s = self.state
-        pts = self.points()
-        M = display_matrix(s.problem)
-        C = np.einsum("ij,mjk,lk->mil", M, cov2, M)
-        ell = precision.standard_ellipses(0.5 * (C + np.swapaxes(C, 1, 2)))     # the core's (a, b, bearing)
-        axis = ell[:, 0]
-        far = pts["far"].to_numpy(dtype=bool)
-        inside = axis[(axis > 0) & np.isfinite(axis) & ~far]
-        ref = float(np.percentile(inside, 90)) if inside.size else 0.0
-        drawn = (axis > 0) & np.isfinite(axis) & ~far & (axis <= OFF_SCALE * ref)
-        if scale is None:
-            scale = round_scale(0.05 * extent(pts) / ref) if ref > 0 else 1.0
-        centre = pts[["x", "y"]].to_numpy(dtype=float)[:, None, :]
-        paths = (precision.ellipse_points(ell[drawn]) * scale + centre[drawn])
-        big = float(axis[drawn].max(initial=0.0))
-        off = int(((axis > 0) & ~drawn).sum())
-        return joined(paths), scale, big, off
+        """The standard ellipses of ``cov2`` on this map (:func:`~baarda.dashboard.mapgeometry.ellipse_paths`)."""
+        return ellipse_paths(cov2, display_matrix(self.state.problem), self.points(), scale)
 
     def _ellipses_now(self):
         return self._ellipse_paths(self.point_cov2())
@@ -770,33 +638,17 @@ class ImageResidualView(pn.viewable.Viewer):
         """Observed image coordinates (file units) and residuals of the selected image's points."""
         s = self.state
         obs, _ = s.frames()
-        cols = ["point", "x", "y", "x1", "y1", "vx", "vy", "abs_w", "obs"]
-        pts = [t for t in self.image_points(s.selected_image)
+        pts = [(plain(t[0]), t[1], t[2]) for t in self.image_points(s.selected_image)
                if not (obs["excluded"].iat[t[1]] or obs["excluded"].iat[t[2]])]
-        if not pts:
-            return pd.DataFrame(columns=cols)
-        ix = np.array([t[1] for t in pts])
-        iy = np.array([t[2] for t in pts])
-        value = np.asarray(s.problem.info.value_file, dtype=float)
-        v, w = obs["v"].to_numpy(dtype=float), obs["w"].to_numpy(dtype=float)
-        ex = s.exaggeration
-        return pd.DataFrame({"point": [plain(t[0]) for t in pts], "x": value[ix], "y": value[iy],
-                             "x1": value[ix] + ex * v[ix], "y1": value[iy] + ex * v[iy],
-                             "vx": v[ix], "vy": v[iy], "abs_w": np.fmax(np.abs(w[ix]), np.abs(w[iy])),
-                             "obs": ix}, columns=cols)
+        return image_residuals(pts, np.asarray(s.problem.info.value_file, dtype=float), obs["v"].to_numpy(dtype=float),
+                               obs["w"].to_numpy(dtype=float), s.exaggeration)
 
     def _render(self, **_):
         s = self.state
         df = self.data()
         crit = s.reliability.critical
         top = max(crit, float(df["abs_w"].max()) if len(df) else 0.0)
-        size = (s.block or {}).get("image_size")
-        frame = []
-        if size:
-            w, h = float(size[0]), float(size[1])
-            x0, y0 = (0.0, 0.0) if (len(df) == 0 or df["x"].min() >= -1) else (-w / 2, -h / 2)
-            frame = [np.array([[x0, y0], [x0 + w, y0], [x0 + w, y0 + h], [x0, y0 + h], [x0, y0]])]
-        border = hv.Path(frame).opts(color="#888888", nonselection_alpha=1)
+        border = hv.Path(image_border(df, (s.block or {}).get("image_size"))).opts(color="#888888", nonselection_alpha=1)
         levels = w_levels(crit, top)
         vec = hv.Segments(df, ["x", "y", "x1", "y1"], ["point", "vx", "vy", "abs_w"]).opts(
             hover_tooltips=tips(["point", "vx", "vy", "abs_w"]),
