@@ -61,6 +61,10 @@ JS_TABLE_SELECTION = """() => {
   return null;
 }"""
 
+#: How long a page may take to show a file read and adjusted (ms): a condition waited for, bounded
+#: for a real block (Ladybug) on a loaded two-core machine, where it took over 90 s once.
+LOAD_TIMEOUT = 240_000
+
 JS_TITLES = """() => {  // a title broken into lines to fit its plot, as one line
   const out = [];
   for (const doc of Bokeh.documents) for (const m of doc.all_models)
@@ -81,10 +85,10 @@ def open_app(page, served):
     while len(served.templates) <= n and time.time() < deadline:
         time.sleep(0.1)
     try:
-        page.locator(".summary").get_by_text("Global test").first.wait_for(timeout=90_000)
+        page.locator(".summary").get_by_text("Global test").first.wait_for(timeout=LOAD_TIMEOUT)
         # the maps and tables are built after the summary: wait for the first map's figure
-        page.locator(".map-tabs").first.wait_for(timeout=90_000)
-        wait_for_title(page, "Layout", timeout=90_000)
+        page.locator(".map-tabs").first.wait_for(timeout=LOAD_TIMEOUT)
+        wait_for_title(page, "Layout", timeout=LOAD_TIMEOUT)
     except Exception:
         page.screenshot(path="screenshots/failed-load.png")
         raise

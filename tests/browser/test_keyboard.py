@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from tests.browser.test_app import open_app, real_errors, wait_until
+from tests.browser.test_app import LOAD_TIMEOUT, open_app, real_errors, wait_until
 
 pytestmark = pytest.mark.browser
 
@@ -33,7 +33,7 @@ def focused_tab(page, name):
 
 def test_tabs_by_keyboard(page, block_app, screenshots):
     state, errors = open_app(page, block_app)
-    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=60_000)
+    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=LOAD_TIMEOUT)
     tabs = page.get_by_role("tab")
     expect(tabs.first).to_be_visible()
     assert wait_until(lambda: page.get_by_role("tablist").count() >= 2)
@@ -98,7 +98,7 @@ def test_tab_key_reaches_every_bar_before_its_panel(page, block_app):
     """From the map's open tab, the Tab key alone goes through the map to the right panel's open
     tab, then into that tab's panel (the suspects table); Shift+Tab comes back to the tab."""
     state, errors = open_app(page, block_app)
-    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=60_000)
+    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=LOAD_TIMEOUT)
     page.get_by_role("tab", name="Layout", exact=True).focus()
     seen = []
     for _ in range(60):                                         # the map's tools come first

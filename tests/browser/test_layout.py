@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.browser.test_app import click_tab, open_app, real_errors, wait_for_title
+from tests.browser.test_app import LOAD_TIMEOUT, click_tab, open_app, real_errors, wait_for_title
 from tests.browser.test_maps import MAPS
 
 pytestmark = pytest.mark.browser
@@ -104,7 +104,7 @@ def walk_views(page, name: str, screenshots, maps: dict):
 
 def test_demo_block_at_every_size(page, block_app, screenshots):
     state, errors = open_app(page, block_app)
-    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=60_000)
+    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=LOAD_TIMEOUT)
     walk_views(page, "demo", screenshots, {**MAPS, "Image v": "Image "})
     page.set_viewport_size({"width": 1024, "height": 768})       # a projector
     click_tab(page, "Layout")

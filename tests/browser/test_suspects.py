@@ -17,7 +17,7 @@ import pytest
 from playwright.sync_api import expect
 
 from tests.browser.conftest import ROOT
-from tests.browser.test_app import click_tab, open_app, real_errors, wait_until
+from tests.browser.test_app import LOAD_TIMEOUT, click_tab, open_app, real_errors, wait_until
 
 pytestmark = pytest.mark.browser
 
@@ -72,7 +72,7 @@ def test_planted_error_in_three_clicks(page, block_app, screenshots, kind):
     if not page.locator(".suspects-table").first.is_visible():
         click_tab(page, "Suspects")
         clicks += 1
-    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=60_000)
+    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=LOAD_TIMEOUT)
     cell = suspect_row(page, ROWS[kind])
     cell.click()
     row = cell.locator("xpath=..")
