@@ -27,7 +27,6 @@ from pathlib import Path
 
 os.environ.setdefault("GLOG_minloglevel", "2")     # quiet pycolmap/Ceres
 
-import numpy as np
 
 from baarda.adjust import Options, adjust  # noqa: E402
 from baarda.model.sfm import build_sfm_problem, initial_cost  # noqa: E402

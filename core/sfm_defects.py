@@ -65,7 +65,6 @@ import math
 
 import numpy as np
 
-from .adjust import adjust
 from .defects import LocalDefect, adjust_setting_aside
 from .errors import InputError
 from .model.bundle import AP_GROUPS, ImageObservations, build_block_problem

@@ -242,7 +242,7 @@ def suspects(state) -> pd.DataFrame:
     s = state
     if s.results is None:
         return pd.DataFrame(columns=COLUMNS)
-    adj, rel = s.results, s.reliability
+    rel = s.reliability
     stat = np.abs(np.nan_to_num(np.asarray(rel.statistic, dtype=float), nan=-1.0))
     order = np.argsort(-stat, kind="stable")
     picked = order[:TOP_1D]

@@ -13,7 +13,7 @@ import pytest
 
 from baarda.cli import main
 
-from tests.extdata import GAMA, gama_cases, require_extdata
+from tests.extdata import GAMA, require_extdata
 
 SCHEMA = json.loads(resources.files("baarda").joinpath("schema/analysis.schema.json").read_text())
 ALL_GKF = sorted(GAMA.rglob("*.gkf")) if GAMA.exists() else []

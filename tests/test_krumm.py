@@ -7,7 +7,6 @@ each coordinate are Krumm's corrections and standard deviations, not compared he
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from baarda.adjust import adjust

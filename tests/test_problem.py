@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.linalg import block_diag
 
 from baarda.model.problem import Covariance, subset
 

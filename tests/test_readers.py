@@ -8,7 +8,6 @@ programs) and pycolmap (COLMAP's own reader and bundle adjuster) as a peer.
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baarda.adjust import Options, adjust
+from baarda.adjust import adjust
 from baarda.build import read_problem
 from baarda.io import read_truth
 from baarda.model.bundle import build_block_problem
