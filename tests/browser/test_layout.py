@@ -3,6 +3,8 @@
 tab of the right panel, on the demo block and on Ladybug (a real BAL block), nothing overlaps and
 nothing is cut:
 
+- the right panel's open tab has drawn its content (a table, a plot or a form), so that what is
+  checked and the screenshot are the view itself;
 - the map tabs and the right panel do not overlap (side by side where both fit, the tables below
   the maps where they do not);
 - every drawn map (its canvases) lies inside the map tabs, every tab header inside its tab bar
@@ -40,6 +42,10 @@ JS_PROBLEMS = """() => {
   if (!maps || !right) return ['the map tabs or the right panel are not in the page'];
   const M = box(maps), R = box(right), out = [];
   if (!(R.width > 0 && R.height > 0)) out.push('the right panel is not shown');
+  // the open tab's content drawn (Panel sends it after the click): a table, a plot or a form
+  if (!all(right, '.tabulator, canvas, input, select, button').some(e => {
+        const b = box(e); return b.width > 0 && b.height > 0 && e.closest('.bk-tab') === null; }))
+    out.push('the right panel shows nothing yet');
   if (!all(maps, 'canvas').some(c => { const b = box(c); return b.width > 0 && b.height > 0; }))
     out.push('no map drawn');
   const inside = (b, B) => b.left >= B.left - 1 && b.right <= B.right + 1;
