@@ -26,9 +26,9 @@ from pathlib import Path
 
 import holoviews as hv
 import numpy as np
-from bokeh.embed import components
 from bokeh.resources import Resources
 
+from . import render
 from .frames import R_UNCONTROLLED
 from .state import State
 from .suspects import suspects
@@ -58,7 +58,7 @@ def _render(view_class, state, width: int, height: int):
     obj = view.static().opts(hv.opts.Overlay(responsive=False, frame_width=int(fs["frame_width"] * k),
                                              frame_height=int(fs["frame_height"] * k), min_height=None,
                                              toolbar=None, fontscale=0.85))
-    fig = hv.render(obj, backend="bokeh")
+    fig = render.figure(obj)
     fig.toolbar_location = None
     fig.sizing_mode = None            # the frame's size sets the figure's (no "fixed" without width)
     fig.title.text = ""               # the caption above it says it (and wraps)
@@ -247,7 +247,7 @@ def report_html(adj, state: State | None = None) -> str:
     title = html_text(s["title"] or Path(str(s["source"])).name or "baarda report")
     first = _render(FIRST_MAP, clean, PAGE_PX, 430)
     rel = [_render(V, clean, PAGE_PX, 300) for V in RELIABILITY_MAPS]
-    script, divs = components([f for _, f, _ in (first, *rel)])
+    script, divs = render.components([f for _, f, _ in (first, *rel)])
 
     def figure(entry, div):
         name, _, far = entry

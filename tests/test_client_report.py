@@ -120,3 +120,23 @@ def test_file_panel_offers_the_report_and_every_table(demo):
         assert raw == table_csv(st, name).getvalue()
     html = panel.report().getvalue()
     assert html.count('<section class="page') == 3
+
+
+def test_report_does_not_use_bokehs_current_document(demo):
+    """A served session's document left on Bokeh's process-wide ``curdoc()`` stack and destroyed
+    by the server (as CI saw after the browser tests: "'Document' object has no attribute
+    '_theme'") is not the report's: it renders into documents of its own, with the same result."""
+    from bokeh.document import Document
+    from bokeh.io.doc import curdoc, patch_curdoc
+
+    expected = report_html(demo)
+    session = Document()
+    session.remove_on_change = lambda *_: None        # destroy() of a document never served
+    with patch_curdoc(session):
+        session.destroy(None)
+        assert curdoc() is session
+        with pytest.raises(AttributeError):
+            session.theme = "dark_minimal"              # what hv.render and components did
+        got = report_html(demo)
+    ids = re.compile(r'[0-9a-f]{8}-[0-9a-f-]{27}|"p\d+"|\bp\d{3,}\b|\d{4}-\d\d-\d\d[ T][\d:]+')
+    assert ids.sub("", got) == ids.sub("", expected)

@@ -16,6 +16,7 @@ pytest.importorskip("panel")
 import holoviews as hv  # noqa: E402
 from bokeh.models.widgets.tables import CheckboxEditor  # noqa: E402
 
+from baarda.dashboard import render  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.views.hypotheses import HypothesisPanel  # noqa: E402
 from tests.extdata import GAMA, require_extdata  # noqa: E402
@@ -141,5 +142,5 @@ def test_sbase_lesson_on_a_controlled_block(demo):
     # another S-base, other ellipses; r and w of the free block do not change
     other = lesson.free_point_cov2(st, ["P00004", "P06004", "P03001"])
     assert not np.allclose(other, free)
-    hv.render(view.dmap)
-    hv.render(view.compare.object)            # the comparison pane, after the last change
+    render.figure(view.dmap)
+    render.figure(view.compare.object)            # the comparison pane, after the last change

@@ -22,6 +22,7 @@ pytest.importorskip("panel")
 import holoviews as hv  # noqa: E402
 from bokeh.models import ColorBar  # noqa: E402
 
+from baarda.dashboard import render  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.mapgeometry import FRAME_MIN_POINTS, far_note, framed, robust_box, w_levels  # noqa: E402
 from baarda.dashboard.views.maps import MAP_VIEWS, ResidualMap  # noqa: E402
@@ -71,7 +72,7 @@ def test_demo_maps_keep_every_point_and_metres():
     assert st.map_labels() == ("X [m]", "Y [m]")
     view = ResidualMap(state=st)
     assert view.far_count() == 0 and not view.far_note.visible
-    fig = hv.render(view.dmap)
+    fig = render.figure(view.dmap)
     (bar,) = fig.select(type=ColorBar)          # the |w| scale drawn: its ticks are the levels
     fig_levels = list(bar.ticker.ticks)
     assert fig_levels[2] == round(st.reliability.critical, 2)
@@ -94,7 +95,7 @@ def test_ladybug_maps_spread_the_real_points_and_list_the_far_ones(ladybug):
     _, raw = st.frames()
     for V in MAP_VIEWS:
         view = V(state=st)
-        plot = hv.render(view.dmap)
+        plot = render.figure(view.dmap)
         pts = view.points()
         far = pts["far"].to_numpy()
         assert 0 < far.sum() < 0.05 * len(pts), V.key
