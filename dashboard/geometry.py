@@ -17,6 +17,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import shortest_path
 from scipy.spatial import cKDTree
 
+from baarda.model.network import east_north_matrix
 from baarda.stats.hypotheses import image_point_index
 
 from .text import plain
@@ -33,12 +34,7 @@ def display_matrix(problem) -> np.ndarray:
     A Gama network's x, y axes point as its ``axes-xy`` says (``"ne"``: x north, y east); a
     block's X, Y are plotted as they are (M = I).
     """
-    axes = problem.extra.get("axes_xy")
-    if not axes or problem.geometry is not None:
-        return np.eye(2)
-    unit = {"n": (1.0, 0.0), "e": (0.0, 1.0), "s": (-1.0, 0.0), "w": (0.0, -1.0)}
-    ax, ay = unit[axes[0]], unit[axes[1]]  # (north, east) components of +x and +y
-    return np.array([[ax[1], ay[1]], [ax[0], ay[0]]])
+    return east_north_matrix(problem.axes_xy)
 
 
 def display_xy(problem, coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, str, str]:
@@ -51,7 +47,7 @@ def display_xy(problem, coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, str
     X, Y = coords[:, 0], coords[:, 1]
     if np.isfinite(X).any() and np.isfinite(Y).any():
         e, n = display_matrix(problem) @ np.vstack([np.nan_to_num(X), np.nan_to_num(Y)])
-        if problem.geometry is not None or not problem.extra.get("axes_xy"):
+        if not problem.axes_xy:
             unit = f" [{object_unit(problem)}]" if object_unit(problem) else ""
             return e, n, f"X{unit}", f"Y{unit}"
         return e, n, "east [m]", "north [m]"

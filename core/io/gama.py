@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from baarda.errors import InputError, OptionError
-from baarda.model.network import Cluster, NetObservation, NetPoint, Network
+from baarda.model.network import AXIS_NORTH_EAST, Cluster, NetObservation, NetPoint, Network
 from baarda.validate import SIGMA0_MAX, SIGMA0_MIN, VALUE_LIMIT
 from .source import read_bytes
 
@@ -103,8 +103,7 @@ def bearing_convention(axes_xy: str, angles: str) -> tuple[float, float]:
     azimuths for ``sw`` and ``en`` (left-handed angles) and its adjusted directions and
     angles for every combination used in the test data.
     """
-    unit = {"n": (1.0, 0.0), "e": (0.0, 1.0), "s": (-1.0, 0.0), "w": (0.0, -1.0)}
-    ax, ay = unit[axes_xy[0]], unit[axes_xy[1]]  # (north, east) components of +x and +y
+    ax, ay = AXIS_NORTH_EAST[axes_xy[0]], AXIS_NORTH_EAST[axes_xy[1]]  # (north, east) of +x and +y
     cross = ax[0] * ay[1] - ax[1] * ay[0]  # +1 when x→y turns clockwise (left-handed axes)
     sign = 1.0 if cross > 0 else -1.0
     theta = math.atan2(ax[1], ax[0])  # clockwise bearing of +x from north

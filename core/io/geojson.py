@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from baarda.model.network import east_north_matrix
+
 
 def _num(x):
     x = float(x)
@@ -33,14 +35,10 @@ def _num(x):
 
 
 def _east_north(problem, xyz: np.ndarray) -> np.ndarray:
-    axes = problem.extra.get("axes_xy")
-    if not axes or problem.geometry is not None:
+    if not problem.axes_xy:
         return xyz
-    unit = {"n": (0.0, 1.0), "e": (1.0, 0.0), "s": (0.0, -1.0), "w": (-1.0, 0.0)}
-    ex, ey = unit[axes[0]], unit[axes[1]]       # (east, north) of +x and +y
     out = xyz.copy()
-    out[:, 0] = ex[0] * xyz[:, 0] + ey[0] * xyz[:, 1]
-    out[:, 1] = ex[1] * xyz[:, 0] + ey[1] * xyz[:, 1]
+    out[:, :2] = xyz[:, :2] @ east_north_matrix(problem.axes_xy).T
     return out
 
 

@@ -31,6 +31,21 @@ KINDS = (
 )
 
 
+
+#: (north, east) components of a unit vector along each of Gama's axis letters (``axes-xy``).
+AXIS_NORTH_EAST = {"n": (1.0, 0.0), "e": (0.0, 1.0), "s": (-1.0, 0.0), "w": (0.0, -1.0)}
+
+
+def east_north_matrix(axes_xy: str | None) -> np.ndarray:
+    """M (2 × 2) with (east, north) = M (x, y) for a network whose x and y axes point as Gama's
+    ``axes-xy`` says (``"ne"``: x north, y east; Gama manual §2.3); the identity for ``None``
+    (a block's X, Y, taken as east, north)."""
+    if not axes_xy:
+        return np.eye(2)
+    ax, ay = AXIS_NORTH_EAST[axes_xy[0]], AXIS_NORTH_EAST[axes_xy[1]]
+    return np.array([[ax[1], ay[1]], [ax[0], ay[0]]])
+
+
 @dataclass(frozen=True)
 class NetPoint:
     """A point of the network.

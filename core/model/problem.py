@@ -598,6 +598,7 @@ class Problem:
     title: str = ""
     extra: dict = field(default_factory=dict)
     geometry: BlockGeometry | None = None     # a photogrammetric block's images and cameras
+    axes_xy: str | None = None                # a geodetic network's axes (Gama's axes-xy, "ne": x north)
 
     @property
     def n(self) -> int:

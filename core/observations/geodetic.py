@@ -283,7 +283,8 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
     return Problem(params=params, sets=tuple(sets), l=l, cov=cov, info=info, points=pts,
                    datum=datum, sigma0=net.sigma0, sigma_act=net.sigma_act, conf_pr=net.conf_pr,
                    source=net.source, title=net.description.strip().splitlines()[0] if net.description.strip() else "",
-                   extra={"tol_abs": net.tol_abs, "axes_xy": net.axes_xy, "angles": net.angles,
+                   axes_xy=net.axes_xy,
+                   extra={"tol_abs": net.tol_abs, "angles": net.angles,
                           "dropped_observations": [dict(d) for d in net.extra.get("dropped", ())],
                           # the file's planimetric positions (NaN where none): the distances of a height
                           # criterion matrix (M84 §2.3) where x, y are not unknowns
