@@ -599,6 +599,9 @@ class Problem:
     extra: dict = field(default_factory=dict)
     geometry: BlockGeometry | None = None     # a photogrammetric block's images and cameras
     axes_xy: str | None = None                # a geodetic network's axes (Gama's axes-xy, "ne": x north)
+    #: a geodetic network's planimetric positions as the file gives them (points × 2, metres, NaN
+    #: where none): the distances of a height criterion matrix where x, y are not unknowns
+    positions: np.ndarray | None = None
 
     @property
     def n(self) -> int:

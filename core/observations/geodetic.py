@@ -285,11 +285,9 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
                    source=net.source, title=net.description.strip().splitlines()[0] if net.description.strip() else "",
                    axes_xy=net.axes_xy,
                    extra={"tol_abs": net.tol_abs, "angles": net.angles,
-                          "dropped_observations": [dict(d) for d in net.extra.get("dropped", ())],
-                          # the file's planimetric positions (NaN where none): the distances of a height
-                          # criterion matrix (M84 §2.3) where x, y are not unknowns
-                          "positions": np.array([[np.nan if p.x is None else p.x, np.nan if p.y is None else p.y]
-                                                 for p in net.points], dtype=float).reshape(-1, 2)})
+                          "dropped_observations": [dict(d) for d in net.extra.get("dropped", ())]},
+                   positions=np.array([[np.nan if p.x is None else p.x, np.nan if p.y is None else p.y]
+                                       for p in net.points], dtype=float).reshape(-1, 2))
 
 
 def _init_orientations(sets, params, l, ori_index):

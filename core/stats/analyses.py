@@ -77,9 +77,9 @@ def criterion_axes(adj) -> tuple[int, str]:
 
 def planimetric_positions(adj) -> np.ndarray:
     """x, y of every point (m × 2, metres): the adjusted ones, else those the file gives
-    (``problem.extra["positions"]``, a levelling network's benchmarks), NaN where neither."""
+    (``Problem.positions``, a levelling network's benchmarks), NaN where neither."""
     xy = adj.coordinates[:, :2].copy()
-    given = adj.problem.extra.get("positions")
+    given = adj.problem.positions
     if given is not None:
         xy = np.where(np.isnan(xy), given, xy)
     return xy
