@@ -589,7 +589,7 @@ def _defect_message(err, problem) -> str:
         kinds.setdefault(kind or "unknown", []).append(ident or e)
     summary = "; ".join(f"{k}s {', '.join(v[:12])}{' ...' if len(v) > 12 else ''}" if k != "unknown"
                         else ", ".join(v[:12]) for k, v in kinds.items())
-    gauge = " (7 of them fixed by the free-block datum)" if "convention" in problem.extra else ""
+    gauge = " (7 of them fixed by the free-block datum)" if problem.convention else ""
     lines = f"{n} observations for {u} unknowns{gauge}"
     return f"{lines}; {err.message}" + (f" [by entity: {summary}]" if summary and len(entities) > 1 else "")
 

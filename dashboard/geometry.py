@@ -58,7 +58,7 @@ def display_xy(problem, coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, str
 def object_unit(problem) -> str:
     """The unit of the object coordinates: "m", or "" for a structure-from-motion block (BAL,
     Bundler, COLMAP) without control, whose scale is arbitrary."""
-    if problem.extra.get("convention") and getattr(problem.datum, "kind", "") == "free":
+    if problem.convention and getattr(problem.datum, "kind", "") == "free":
         return ""
     return "m"
 

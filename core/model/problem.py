@@ -608,6 +608,12 @@ class Problem:
         return self.l.size
 
     @property
+    def convention(self) -> str | None:
+        """The structure-from-motion file convention (``"bal"``, ``"bundler"``, ``"colmap"``) of
+        a block read from such a file, else None."""
+        return self.geometry.convention if self.geometry is not None else None
+
+    @property
     def angular(self) -> np.ndarray:
         a = np.zeros(self.n, dtype=bool)
         for s in self.sets:

@@ -256,8 +256,7 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     datum = Datum("fixed") if block.control else Datum("free", ())
     return Problem(params=params, sets=tuple(sets), l=l, cov=cov, info=info, points=pts, datum=datum,
                    sigma0=1.0, sigma_act="apriori", source=block.source, title=block.title,
-                   geometry=sfm_geometry(block), extra={"convention": block.convention,
-                          "image_names": {im.id: im.name for im in block.images},
+                   geometry=sfm_geometry(block), extra={"image_names": {im.id: im.name for im in block.images},
                           "duplicate_keypoints": block.extra.get("duplicate_keypoints")})
 
 
