@@ -26,7 +26,7 @@ from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 from tornado.ioloop import IOLoop
 
-from .jobs import TASKS, Cancelled
+from .jobs import TASKS, Cancelled, next_tick
 from .state import State
 from .text import html_text
 from .views.controls import MAX_UPLOAD_MB
@@ -477,7 +477,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
                 def run():
                     with set_curdoc(doc):
                         fn()
-                doc.add_next_tick_callback(run)
+                next_tick(doc, run)
             state.jobs.loop_call = loop_call
         if state.results is not None:
             # taken from the cache: the summary is in the page; the maps are built once the

@@ -10,6 +10,7 @@ ended (``closed``). Scripts and tests compute in place (no loop, no worker).
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -19,6 +20,25 @@ from pathlib import Path
 #: components) of every session run on these threads, off the server's event loop; the numerical
 #: work releases the GIL, so other sessions keep answering.
 TASKS = ThreadPoolExecutor(max_workers=4, thread_name_prefix="baarda-task")
+
+
+_LOG = logging.getLogger("baarda.dashboard")
+
+
+def next_tick(doc, fn) -> None:
+    """Run ``fn()`` on the next tick of ``doc``'s event loop, where Bokeh holds its lock.
+
+    An exception in ``fn`` is logged, not raised to Bokeh: Bokeh runs the callback inside its
+    ``patch_curdoc``, which has no ``finally``, so a callback that raised would leave ``doc`` as
+    ``curdoc()`` of every thread of the server for good (and, once the session ends, a destroyed
+    document that every later render fails on).
+    """
+    def run():
+        try:
+            fn()
+        except Exception:
+            _LOG.exception("a callback of the session's page failed")
+    doc.add_next_tick_callback(run)
 
 
 class Cancelled(Exception):

@@ -84,3 +84,26 @@ def test_served_stylesheets_never_point_at_the_cdn():
     other = ImportedStyleSheet(url="https://example.org/a.css")
     _patch_stylesheet_locally(other, pn_resources.CDN_DIST)
     assert other.url == "https://example.org/a.css"
+
+
+def test_a_failing_page_callback_does_not_stay_bokehs_current_document(caplog):
+    """Bokeh runs a next-tick callback inside ``patch_curdoc``, which pops the document only if
+    the callback returns: one that raised left its session's document as ``curdoc()`` of every
+    thread, and once the session ended every later report failed on it (CI). The dashboard's
+    callbacks (:func:`baarda.dashboard.jobs.next_tick`) log their error instead."""
+    from bokeh.document import Document
+    from bokeh.document.callbacks import invoke_with_curdoc
+    from bokeh.io.doc import curdoc
+
+    from baarda.dashboard.jobs import next_tick
+
+    doc = Document()
+
+    def boom():
+        raise RuntimeError("the page's callback failed")
+    next_tick(doc, boom)
+    (cb,) = doc.session_callbacks
+    with caplog.at_level("ERROR", logger="baarda.dashboard"):
+        invoke_with_curdoc(doc, cb.callback)
+    assert curdoc() is not doc
+    assert "the page's callback failed" in caplog.text

@@ -32,6 +32,7 @@ from baarda.stats.hypotheses import HypothesisTest
 
 from .. import sbase as sbase_lesson
 from ..geometry import display_matrix, image_points, object_unit
+from ..jobs import next_tick
 from ..mapgeometry import (W_COLORS, clamped_segments, deformation_field, ellipse_paths, extent, far_note,
                            field_vectors, framed, hypothesis_ellipse, image_border, image_residuals, largest_abs_w,
                            length_text, log_clim, w_levels)
@@ -200,7 +201,7 @@ class MapView(pn.viewable.Viewer):
                 # (a Panel widget's callback, e.g. a table row selected, runs without it)
                 def patch(r=r, l=l):
                     r.data, l.data = rings, lines
-                doc.add_next_tick_callback(patch)
+                next_tick(doc, patch)
 
     def _suspects(self):
         return suspects_layer(self.state)
