@@ -69,3 +69,11 @@ def fit_title(text: str, width: float, font_px: float = 14.0) -> str:
     per_line = max(int(width / (TITLE_EM * font_px)), 12)
     lines = textwrap.wrap(text, per_line, break_long_words=True, break_on_hyphens=False)
     return "\n".join(lines) if lines else text
+
+
+def id_list(ids, most: int = 8) -> str:
+    """Ids from a file as one plain line, at most ``most`` of them: "A, B, C and 7,773 more"."""
+    ids = [plain(i) for i in ids]
+    if len(ids) <= most:
+        return ", ".join(ids)
+    return f"{', '.join(ids[:most])} and {len(ids) - most:,} more"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from hypothesis import given, strategies as st
 
-from baarda.dashboard.text import TITLE_EM, fit_title
+from baarda.dashboard.text import TITLE_EM, fit_title, id_list
 
 WORDS = st.lists(st.text(alphabet="abcdefghijklmnopqrstuvwxyz×σ0δ̄∇()[]=.,:", min_size=1, max_size=12),
                  min_size=1, max_size=20)
@@ -25,3 +25,18 @@ def test_short_title_is_unchanged_and_a_long_one_breaks_at_a_space():
     long = "Standard ellipses ×5000, largest drawn 131 mm (σ0 a priori, own datum)"
     out = fit_title(long, 420)
     assert out.count("\n") == 1 and out.replace("\n", " ") == long
+
+
+@given(st.lists(st.text(min_size=1, max_size=12), max_size=40), st.integers(1, 10))
+def test_id_list_names_at_most_most_ids_and_counts_the_rest(ids, most):
+    said = id_list(ids, most)
+    assert "\n" not in said and "\x1b" not in said
+    if len(ids) <= most:
+        assert " more" not in said or any("more" in i for i in ids)
+    else:
+        assert said.endswith(f" and {len(ids) - most:,} more")
+
+
+def test_id_list_of_a_large_datum():
+    assert id_list([str(k) for k in range(7776)]) == "0, 1, 2, 3, 4, 5, 6, 7 and 7,768 more"
+    assert id_list(["A", "B"]) == "A, B"

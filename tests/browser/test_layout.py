@@ -55,6 +55,14 @@ JS_PROBLEMS = """() => {
   for (const c of all(maps, 'canvas')) {
     const b = box(c);
     if (b.width > 0 && b.height > 0 && !inside(b, M)) out.push(`a map [${b.left}, ${b.right}] outside the map tabs [${M.left}, ${M.right}]`); }
+  // a widget's label (the S-base's lists the datum's points) wraps inside the map tabs
+  for (const l of all(maps, 'label')) {
+    const b = box(l);
+    if (!(b.width > 0 && b.height > 0)) continue;
+    const text = document.createRange(); text.selectNodeContents(l);
+    const t = text.getBoundingClientRect();
+    if (Math.max(b.right, t.right) > M.right + 1)
+      out.push(`label "${l.innerText.slice(0, 60)}" reaches beyond the map tabs (${Math.round(t.right)} > ${Math.round(M.right)} px)`); }
   for (const [t, B, name] of [[maps, M, 'map'], [right, R, 'right']])
     for (const h of all(t, '.bk-tab')) { const b = box(h);
       if (b.width > 0 && !inside(b, B)) out.push(`${name} tab header "${h.innerText}" cut`); }
