@@ -142,7 +142,7 @@ class State(param.Parameterized):
                             alpha0=adj.options.alpha0, beta0=adj.options.beta0,
                             b_method=adj.options.b_method, kept=np.arange(adj.n), results=adj)
             st.reliability = Reliability(adj, st.policy())
-            images = st.images
+            images = geometry.images(st.problem)
             st.selected_image = images[0]["id"] if images else None
         return st
 
@@ -263,7 +263,7 @@ class State(param.Parameterized):
             self.excluded = frozenset()
             self.sbase, self.sbase_error, self.hypotheses, self.hyp_results = [], "", [], []
             self.selected_point = self.selected_obs = self.selected_hypothesis = None
-            images = self.images
+            images = geometry.images(self.problem)
             self.selected_image = images[0]["id"] if images else None
             self.kept = kept
             self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
@@ -302,7 +302,7 @@ class State(param.Parameterized):
             self.selected_obs = None
             self.selected_hypothesis = None
             self.sigma0_mode = mode
-            images = self.images
+            images = geometry.images(self.problem)
             self.selected_image = images[0]["id"] if images else None
         if not self._readjust() or (self.jobs.cancel_event.is_set() and self.task):
             with param.parameterized.discard_events(self):
@@ -508,54 +508,12 @@ class State(param.Parameterized):
         return specs.point(self.problem, spec, self.problem_index())
 
     # -- derived data for the views -------------------------------------------------------------
-    @property
-    def block(self) -> dict | None:
-        geo = self.problem.geometry if self.problem is not None else None
-        return geo.as_dict() if geo is not None else None
-
-    @property
-    def images(self) -> list[dict]:
-        b = self.block
-        return list(b.get("images", [])) if isinstance(b, dict) else []
-
-    @property
-    def point_index(self) -> dict:
-        return {pid: k for k, pid in enumerate(self.problem.points.ids)}
-
-    @property
-    def obs_points(self) -> list[list[int]]:
-        return self.problem_index()["obs_points"]
-
     def problem_index(self) -> dict:
         """:func:`~baarda.dashboard.geometry.problem_index` of the current problem, built once
         per problem (the problem is immutable)."""
         if self._index is None or self._index_for is not self.problem:
             self._index, self._index_for = geometry.problem_index(self.problem), self.problem
         return self._index
-
-    def display_factor(self) -> tuple[np.ndarray, tuple[str, ...]]:
-        """:func:`~baarda.dashboard.geometry.display_factor` of the current problem (computed once)."""
-        return self.problem_index()["factor"]
-
-    def keypoints_of(self, image, point) -> list[str | None]:
-        """:func:`~baarda.dashboard.geometry.keypoints_of` in the current problem."""
-        return geometry.keypoints_of(self.problem_index(), image, point)
-
-    def image_point_rows(self, image, point, keypoint=None) -> list[int]:
-        """:func:`~baarda.dashboard.geometry.image_point_rows` in the current problem."""
-        return geometry.image_point_rows(self.problem_index(), image, point, keypoint)
-
-    def point_rows_in_image(self, image, point) -> list[int]:
-        """:func:`~baarda.dashboard.geometry.point_rows_in_image` in the current problem."""
-        return geometry.point_rows_in_image(self.problem_index(), image, point)
-
-    def images_of_point(self, point) -> list[str]:
-        """:func:`~baarda.dashboard.geometry.images_of_point` in the current problem."""
-        return geometry.images_of_point(self.problem_index(), point)
-
-    def observations_of_point(self, k: int) -> list[int]:
-        """:func:`~baarda.dashboard.geometry.observations_of_point` in the current problem."""
-        return geometry.observations_of_point(self.problem_index(), k)
 
     def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
         """``(observations, points)`` tables of the current results (:func:`baarda.dashboard.frames.frames`),
@@ -567,9 +525,6 @@ class State(param.Parameterized):
                                  self.robust)
         self._frames = (rel, obs, pts)
         return obs, pts
-
-    def map_labels(self) -> tuple[str, str]:
-        return geometry.display_xy(self.problem, self.results.coordinates)[2:]
 
     def segments(self) -> pd.DataFrame:
         """One line per (observation, other point) of the network observations: from → to."""
@@ -714,7 +669,7 @@ class State(param.Parameterized):
         """One row per snooping step (:func:`baarda.dashboard.frames.snoop_log`)."""
         if self.snoop is None:
             return tables.snoop_log(None, self.kept, None, None, None)
-        return tables.snoop_log(self.snoop, self.kept, self.frames()[0], *self.display_factor())
+        return tables.snoop_log(self.snoop, self.kept, self.frames()[0], *self.problem_index()["factor"])
 
     def loo_table(self) -> pd.DataFrame:
         """σ̂0 with each top suspect left out (:func:`baarda.dashboard.frames.loo_table`)."""
@@ -811,7 +766,7 @@ class State(param.Parameterized):
         except (ValueError, BaardaError, np.linalg.LinAlgError) as err:
             self.param.update(injection=None, analysis_error=f"Cannot inject: {err}")
             return None
-        out = measures.injection(self.problem, adj, rel, self.kept, new, e, index, size, unit, self.display_factor())
+        out = measures.injection(self.problem, adj, rel, self.kept, new, e, index, size, unit, self.problem_index()["factor"])
         self.param.update(injection=out, analysis_error="")
         return out
 
@@ -828,9 +783,9 @@ class State(param.Parameterized):
 
     def _auto_exaggeration(self) -> float:
         """:func:`~baarda.dashboard.geometry.auto_exaggeration` of the current results (1 without images)."""
-        if self.results is None or not self.images:
+        if self.results is None or not geometry.images(self.problem):
             return 1.0
-        v = self.expand(self.results.v) * self.display_factor()[0]
+        v = self.expand(self.results.v) * self.problem_index()["factor"][0]
         return geometry.auto_exaggeration(self.problem, self.problem_index(), v)
 
     # -- summary --------------------------------------------------------------------------------
@@ -840,5 +795,5 @@ class State(param.Parameterized):
 
         s = core_summary(self.results, self.reliability)
         obs, pts = self.frames()
-        s.update(tables.summary_counts(obs, pts, self.excluded, self.images))
+        s.update(tables.summary_counts(obs, pts, self.excluded, geometry.images(self.problem)))
         return s

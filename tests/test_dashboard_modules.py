@@ -133,10 +133,10 @@ def test_mapgeometry_image_residuals():
 def test_geometry_index_and_full_reduced_mapping(st):
     p = st.problem
     index = geometry.problem_index(p)
-    assert index["obs_points"] == geometry.observation_points(p) == st.obs_points
+    assert index["obs_points"] == geometry.observation_points(p) == st.problem_index()["obs_points"]
     assert len(index["labels"]) == p.n
     k = index["inc_pt"][0]
-    assert geometry.observations_of_point(index, k) == st.observations_of_point(k)
+    assert geometry.observations_of_point(index, k) == geometry.observations_of_point(st.problem_index(), k)
     kept = np.array([i for i in range(p.n) if i != 3])
     red = geometry.reduced_index(kept, p.n, [0, 3, 4])
     assert red.tolist() == [0, -1, 3]
@@ -152,7 +152,7 @@ def test_frames_are_the_states_tables(st):
     np.testing.assert_array_equal(obs["w"].to_numpy(), st.results.w)
     assert frames.segments(pts, st.problem_index()).equals(st.segments())
     assert frames.variance_table(None, None).empty and frames.robust_suspects(None, st.kept, None).empty
-    counts = frames.summary_counts(obs, pts, st.excluded, st.images)
+    counts = frames.summary_counts(obs, pts, st.excluded, geometry.images(st.problem))
     assert counts["n_points"] == len(pts) and counts["n_excluded"] == 0
 
 

@@ -32,6 +32,7 @@ from bokeh.models import ColumnDataSource  # noqa: E402
 
 from baarda.stats import distributions
 from baarda.adjust import Options, adjust  # noqa: E402
+from baarda.dashboard import geometry  # noqa: E402
 from baarda.dashboard.geometry import observation_points  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
@@ -232,7 +233,7 @@ def test_failed_exclusion_is_reverted_with_a_message():
     st = network_state("krumm/2D/Grossmann_Direction_fix.gkf")
     weakest = int(np.argmin(st.results.r))
     adj0 = st.results
-    rows = st.observations_of_point(st.obs_points[weakest][-1])
+    rows = geometry.observations_of_point(st.problem_index(), st.problem_index()["obs_points"][weakest][-1])
     ok = True
     for i in rows:
         ok = st.exclude(i)
@@ -303,7 +304,7 @@ def all_views(st):
             V.AnalysisPanel(state=st), V.InjectPanel(state=st),
             V.Controls(state=st), V.SelectionPanel(state=st), V.FilePanel(state=st),
             V.SummaryHeader(state=st)]
-    if st.images:
+    if geometry.images(st.problem):
         out.append(V.ImageResidualView(state=st))
     return out
 
@@ -343,7 +344,7 @@ def test_demo_block_app_builds():
     from baarda.dashboard.app import create_app
 
     tpl = create_app(DEMO_BLOCK)
-    assert tpl.state.error == "" and tpl.state.images
+    assert tpl.state.error == "" and geometry.images(tpl.state.problem)
     tpl.server_doc(Document())
 
 
@@ -373,7 +374,7 @@ def test_map_click_selects_table_rows_and_back():
     k = 5
     m.tap.event(x=float(pts["x"].iat[k]), y=float(pts["y"].iat[k]))
     assert st.selected_point == k
-    rows = st.observations_of_point(k)
+    rows = geometry.observations_of_point(st.problem_index(), k)
     assert sorted(table.table.value.index[table.table.selection]) == sorted(rows)
     table.table.selection = [12]
     assert st.selected_obs == int(table.table.value.index[12]) and st.selected_point is None
@@ -520,7 +521,7 @@ def test_sbase_of_fixed_network_transforms_the_covariance_only():
     free = [pid for pid, s in zip(st.problem.points.ids, st.problem.points.status) if s != "fixed"]
     st.sbase = free[:3]
     cc = precision.covariance(st.results, free[:3])
-    k = st.point_index[free[5]]
+    k = geometry.point_index(st.problem)[free[5]]
     np.testing.assert_allclose(st.point_cov2()[k], cc.block(k)[:2, :2], rtol=1e-12)
     assert not np.allclose(st.point_cov2()[k], st.results.point_cov[k, :2, :2])
     assert "covariance only" in st.sbase_check()
@@ -625,7 +626,7 @@ def test_robust_selector_runs_core_and_marks_suspects():
     np.testing.assert_allclose(table.table.value["robust_w"].to_numpy(), st.expand(ref.weights))
     assert "robust_w" not in table.table.hidden_columns
     assert len(panel.robust_table.value) == len(sus) and "suspects" in panel.robust_info.object
-    n_marked = len({k for i in st.suspect_observations() for k in st.obs_points[i]})
+    n_marked = len({k for i in st.suspect_observations() for k in st.problem_index()["obs_points"][i]})
     marks = [s for s in lay.select({"type": ColumnDataSource}) if set(s.data) == {"x", "y"}
              and len(s.data["x"]) == n_marked]
     lines = [s for s in lay.select({"type": ColumnDataSource}) if set(s.data) == {"xs", "ys"}
@@ -906,16 +907,16 @@ def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
     for pts, d in zip(observation_points(named), ids):
         if "image" in d:
             assert pts == [pid_index[str(d["point"])]]
-    assert st.obs_points == observation_points(p)
+    assert st.problem_index()["obs_points"] == observation_points(p)
     for iid, pid, kp in added:
         both = [i for i, d in enumerate(ids) if d.get("image") == str(iid) and d.get("point") == str(pid)]
         assert len(both) == 4
         mine = [i for i in both if ids[i].get("keypoint") == kp]
-        assert len(mine) == 2 and st.image_point_rows(iid, pid, kp) == mine
-        assert st.point_rows_in_image(iid, pid) == both
-        assert len(st.keypoints_of(iid, pid)) == 2
+        assert len(mine) == 2 and geometry.image_point_rows(st.problem_index(), iid, pid, kp) == mine
+        assert geometry.point_rows_in_image(st.problem_index(), iid, pid) == both
+        assert len(geometry.keypoints_of(st.problem_index(), iid, pid)) == 2
         with pytest.raises(ValueError, match="keypoints"):
-            st.image_point_rows(iid, pid)
+            geometry.image_point_rows(st.problem_index(), iid, pid)
         # the hypothesis of one keypoint's image point: q = 2, the core's test of those two rows
         k = st.add_hypothesis({"kind": "image-point", "image": str(iid), "point": str(pid), "keypoint": kp})
         h = st.hyp_results[k]
@@ -1047,10 +1048,10 @@ def test_a_selection_patches_only_the_selection_sources(block_problem):
     _, pts = st.frames()
     st.selected_point = 3
     assert rings.data["x"] == [pts["x"].iat[3]] and rings.data["y"] == [pts["y"].iat[3]]
-    i = next(i for i, k in enumerate(st.obs_points) if len(k) >= 2) if any(
-        len(k) >= 2 for k in st.obs_points) else 0
+    i = next(i for i, k in enumerate(st.problem_index()["obs_points"]) if len(k) >= 2) if any(
+        len(k) >= 2 for k in st.problem_index()["obs_points"]) else 0
     st.selected_obs = i
-    k = st.obs_points[i]
+    k = st.problem_index()["obs_points"][i]
     assert rings.data["x"] == [pts["x"].iat[j] for j in k]
     assert all(s.data is others[id(s)] for s in root.select({"type": ColumnDataSource})
                if id(s) in others)

@@ -22,6 +22,7 @@ pytest.importorskip("panel")
 import holoviews as hv  # noqa: E402
 from bokeh.models import ColorBar  # noqa: E402
 
+from baarda.dashboard import geometry  # noqa: E402
 from baarda.dashboard import render  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.mapgeometry import FRAME_MIN_POINTS, far_note, framed, robust_box, w_levels  # noqa: E402
@@ -69,7 +70,7 @@ def test_demo_maps_keep_every_point_and_metres():
     if not DEMO.exists():
         pytest.skip("data/demo-block.json not generated")
     st = State(DEMO)
-    assert st.map_labels() == ("X [m]", "Y [m]")
+    assert geometry.display_xy(st.problem, st.results.coordinates)[2:] == ("X [m]", "Y [m]")
     view = ResidualMap(state=st)
     assert view.far_count() == 0 and not view.far_note.visible
     fig = render.figure(view.dmap)
@@ -80,7 +81,7 @@ def test_demo_maps_keep_every_point_and_metres():
     # the largest image residual drawn at most 30 % of the image (the 20σ error), a round factor
     assert st.exaggeration in (100.0, 200.0, 500.0, 1000.0)
     v = np.abs(st.results.v[np.char.startswith(np.asarray(st.problem.info.kind, dtype=str), "image")])
-    assert st.exaggeration * v.max() * st.display_factor()[0].max() <= 0.3 * 230
+    assert st.exaggeration * v.max() * st.problem_index()["factor"][0].max() <= 0.3 * 230
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +92,7 @@ def ladybug():
 
 def test_ladybug_maps_spread_the_real_points_and_list_the_far_ones(ladybug):
     st = ladybug
-    assert st.map_labels() == ("X", "Y")          # BAL: no unit
+    assert geometry.display_xy(st.problem, st.results.coordinates)[2:] == ("X", "Y")          # BAL: no unit
     _, raw = st.frames()
     for V in MAP_VIEWS:
         view = V(state=st)

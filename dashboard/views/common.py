@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 from bokeh.models import NumeralTickFormatter
 
+from .. import geometry
 from ..frames import R_UNCONTROLLED, R_WEAK
 from ..mapgeometry import extent
 from ..text import plain
@@ -62,7 +63,7 @@ def block_context(state) -> hv.Overlay:
     The footprints are drawn as their edges (one columnar ``Segments`` element): a thousand
     polygons would make every update of the map recompute their ranges.
     """
-    images = state.images
+    images = geometry.images(state.problem)
     edges, centres, strips = [], [], {}
     for im in images:
         fp = im.get("footprint")
@@ -133,7 +134,7 @@ def selection_marks(state) -> tuple[pd.DataFrame, list[np.ndarray]]:
     if state.selected_point is not None and state.selected_point < len(pts):
         ring = pts.iloc[[state.selected_point]]
     if state.selected_obs is not None and state.selected_obs < len(obs):
-        k = state.obs_points[state.selected_obs]
+        k = state.problem_index()["obs_points"][state.selected_obs]
         ring = pts.iloc[k]
         if len(k) >= 2:
             line = [np.array([[pts["x"].iat[k[0]], pts["y"].iat[k[0]]], [pts["x"].iat[j], pts["y"].iat[j]]])
@@ -163,7 +164,7 @@ def suspects_layer(state) -> hv.Overlay:
     sus = state.suspect_observations()
     lines, marks = [], set()
     for i in sus:
-        k = state.obs_points[i]
+        k = state.problem_index()["obs_points"][i]
         marks.update(k[-1:] if state.problem.info.kind[i].startswith("image") else k)
         if len(k) >= 2 and not state.problem.info.kind[i].startswith("image"):
             lines += [np.array([[pts["x"].iat[k[0]], pts["y"].iat[k[0]]], [pts["x"].iat[j], pts["y"].iat[j]]])

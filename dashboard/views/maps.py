@@ -30,6 +30,7 @@ from bokeh.models import ColumnDataSource, FixedTicker
 from baarda.errors import BaardaError
 from baarda.stats.hypotheses import HypothesisTest
 
+from .. import geometry
 from .. import sbase as sbase_lesson
 from ..geometry import display_matrix, image_points, object_unit
 from ..mapgeometry import (W_COLORS, clamped_segments, deformation_field, ellipse_paths, extent, far_note,
@@ -131,8 +132,8 @@ class MapView(pn.viewable.Viewer):
         return int(self.points()["far"].sum())
 
     def _overlay_opts(self):
-        xl, yl = self.state.map_labels()
-        size = frame_size(self.points(), self.state.images)
+        xl, yl = geometry.display_xy(self.state.problem, self.state.results.coordinates)[2:]
+        size = frame_size(self.points(), geometry.images(self.state.problem))
         return hv.opts.Overlay(title=self.title_text(size["frame_width"]), xlabel=xl, ylabel=yl, legend_position="bottom",
                                legend_cols=4, show_legend=self.key == "layout", hooks=[self._hook],
                                **size, **formatters(), **MAP_OPTS)
@@ -173,7 +174,7 @@ class MapView(pn.viewable.Viewer):
 
     def _hook(self, plot, element):
         fig = plot.state
-        fig.title.text = self.title_text(fig.frame_width or frame_size(self.points(), self.state.images)["frame_width"])
+        fig.title.text = self.title_text(fig.frame_width or frame_size(self.points(), geometry.images(self.state.problem))["frame_width"])
         if fig.id in self._hooked:
             return
         self._hooked.add(fig.id)
@@ -557,7 +558,7 @@ class PrecisionMap(MapView):
         else:
             cov, name = s.results.point_cov[:, :2, :2], "the problem's own datum"
         paths, _, _, _ = self._ellipse_paths(cov, scale)
-        size = frame_size(pts, s.images, size=260)
+        size = frame_size(pts, geometry.images(s.problem), size=260)
         return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
                 * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=3)).opts(
             title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"], 12), xlabel="", ylabel="",
@@ -648,7 +649,7 @@ class ImageResidualView(pn.viewable.Viewer):
         df = self.data()
         crit = s.reliability.critical
         top = max(crit, float(df["abs_w"].max()) if len(df) else 0.0)
-        border = hv.Path(image_border(df, (s.block or {}).get("image_size"))).opts(color="#888888", nonselection_alpha=1)
+        border = hv.Path(image_border(df, (geometry.block(s.problem) or {}).get("image_size"))).opts(color="#888888", nonselection_alpha=1)
         levels = w_levels(crit, top)
         vec = hv.Segments(df, ["x", "y", "x1", "y1"], ["point", "vx", "vy", "abs_w"]).opts(
             hover_tooltips=tips(["point", "vx", "vy", "abs_w"]),
