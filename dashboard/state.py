@@ -456,7 +456,7 @@ class State(param.Parameterized):
     def add_hypothesis(self, spec: dict) -> int:
         """Add (and activate) a hypothesis; returns its position."""
         spec = {"active": True, **spec}
-        spec["label"] = spec.get("label") or self.describe(spec)
+        spec["label"] = spec.get("label") or specs.describe(self.problem, spec, self.problem_index())
         self.hypotheses = self.hypotheses + [spec]
         self.selected_hypothesis = len(self.hypotheses) - 1
         return len(self.hypotheses) - 1
@@ -487,26 +487,6 @@ class State(param.Parameterized):
         self.hyp_results = out
         self.timings = {**self.timings, "hypotheses": time.perf_counter() - t0}
 
-    def hypothesis_rows(self, spec: dict) -> list[np.ndarray]:
-        """:func:`baarda.dashboard.specs.rows` of a hypothesis in the current problem."""
-        return specs.rows(self.problem, spec, self.problem_index())
-
-    def ap_estimated(self, spec: dict) -> bool:
-        """True if the AP group of an ``ap-group`` hypothesis is estimated in the model."""
-        return specs.ap_estimated(self.problem, spec)
-
-    def hypothesis_matrix(self, spec: dict):
-        """H (reduced n × q) of a hypothesis; excluded observations drop out (:func:`baarda.dashboard.specs.matrix`)."""
-        return specs.matrix(self.problem, self.results, self.kept, spec, self.problem_index())
-
-    def describe(self, spec: dict) -> str:
-        """A hypothesis' default label (:func:`baarda.dashboard.specs.describe`)."""
-        return specs.describe(self.problem, spec, self.problem_index())
-
-    def hypothesis_point(self, spec: dict):
-        """The point a hypothesis is about (for drawing its ellipse on the map), or None."""
-        return specs.point(self.problem, spec, self.problem_index())
-
     # -- derived data for the views -------------------------------------------------------------
     def problem_index(self) -> dict:
         """:func:`~baarda.dashboard.geometry.problem_index` of the current problem, built once
@@ -526,36 +506,19 @@ class State(param.Parameterized):
         self._frames = (rel, obs, pts)
         return obs, pts
 
-    def segments(self) -> pd.DataFrame:
-        """One line per (observation, other point) of the network observations: from → to."""
-        return tables.segments(self.frames()[1], self.problem_index())
-
-    def deformation_field(self, index: int | None = None) -> np.ndarray:
-        """∇0x of an error of MDB size in observation ``index`` (full; default the selected one)
-        as point shifts (m × 3, metres): :func:`baarda.dashboard.measures.observation_field`."""
-        index = self.selected_obs if index is None else index
-        return measures.observation_field(self.results, self.reliability, self.kept, self.problem.n,
-                                          len(self.problem.points.ids), index)
-
-    def hypothesis_deformation(self, k: int | None = None) -> np.ndarray:
-        """∇0x of hypothesis ``k`` (default the selected one) as point shifts (m × 3, metres):
-        :func:`baarda.dashboard.measures.hypothesis_field`; zero for an inactive hypothesis, a
-        failed one or an AP-group test."""
-        k = self.selected_hypothesis if k is None else k
-        h = self.hyp_results[k] if k is not None and k < len(self.hyp_results) else None
-        return measures.hypothesis_field(self.results, h, len(self.problem.points.ids))
-
     def external_field(self) -> tuple[str, np.ndarray]:
         """The deformation field the external-reliability map shows: ``(label, shifts)`` of the
         last selected observation or hypothesis ("" and zeros if there is none)."""
         m = len(self.problem.points.ids)
         k = self.selected_hypothesis
         if self.field_source == "hypothesis" and k is not None and k < len(self.hypotheses):
-            shifts = self.hypothesis_deformation(k)
+            h = self.hyp_results[k] if k < len(self.hyp_results) else None
+            shifts = measures.hypothesis_field(self.results, h, m)
             if np.abs(shifts).max(initial=0.0) > 0:
                 return f"hypothesis {self.hypotheses[k].get('label', k)}", shifts
         if self.selected_obs is not None:
-            return f"obs {self.selected_obs}", self.deformation_field()
+            return f"obs {self.selected_obs}", measures.observation_field(
+                self.results, self.reliability, self.kept, self.problem.n, m, self.selected_obs)
         return "", np.zeros((m, 3))
 
     @param.depends("selected_hypothesis", watch=True)
@@ -569,10 +532,6 @@ class State(param.Parameterized):
             self.field_source = "observation"
 
     # -- precision in an S-base -----------------------------------------------------------------
-    def datum_points(self) -> list[str]:
-        """Point ids of the problem's own S-base (:func:`baarda.dashboard.sbase.datum_points`)."""
-        return sbase_lesson.datum_points(self.problem)
-
     def coordinate_covariance(self):
         """The core's :class:`~baarda.stats.precision.CoordinateCovariance` in the chosen S-base
         (``sbase``; [] = the problem's datum), or None if the core refuses that base
@@ -636,14 +595,6 @@ class State(param.Parameterized):
     def _robust_done(self):
         self._frames = None
 
-    def robust_suspects(self) -> pd.DataFrame:
-        """The robust suspects (:func:`baarda.dashboard.frames.robust_suspects`)."""
-        return tables.robust_suspects(self.robust, self.kept, self.frames()[0] if self.robust is not None else None)
-
-    def suspect_observations(self) -> list[int]:
-        """Full indices of every observation of the robust suspects (their clusters)."""
-        return tables.suspect_observations(self.robust, self.kept)
-
     def run_snooping(self) -> bool:
         """Iterative data snooping (:func:`baarda.stats.snooping.iterate`) of the current problem with
         w (σ0 a priori) or τ (a posteriori), and σ̂0 with each of the :data:`~baarda.dashboard.measures.LOO_SUSPECTS` largest
@@ -664,16 +615,6 @@ class State(param.Parameterized):
             return False
         self.on_loop(lambda: self.param.update(snoop=res, snoop_loo=loo, analysis_error=""))
         return True
-
-    def snoop_log(self) -> pd.DataFrame:
-        """One row per snooping step (:func:`baarda.dashboard.frames.snoop_log`)."""
-        if self.snoop is None:
-            return tables.snoop_log(None, self.kept, None, None, None)
-        return tables.snoop_log(self.snoop, self.kept, self.frames()[0], *self.problem_index()["factor"])
-
-    def loo_table(self) -> pd.DataFrame:
-        """σ̂0 with each top suspect left out (:func:`baarda.dashboard.frames.loo_table`)."""
-        return tables.loo_table(self.snoop_loo, self.kept, self.frames()[0])
 
     def accept_snooping(self) -> bool:
         """Exclude the observations the snooping removed (a full rerun)."""
@@ -709,15 +650,7 @@ class State(param.Parameterized):
         self.on_loop(lambda: self.param.update(variance=vc, components=None, analysis_error=""))
         return True
 
-    def variance_table(self) -> pd.DataFrame:
-        """The variance components (:func:`baarda.dashboard.frames.variance_table`)."""
-        return tables.variance_table(self.variance, self.components)
-
     # -- criterion matrices and risk (M84 §2, §3.3) ---------------------------------------------
-    def criterion_reason(self) -> str:
-        """Why the criterion comparison does not apply to this problem ("" if it does)."""
-        return measures.criterion_reason(self.results)
-
     def criterion_base(self) -> list[str]:
         """The S-base of the comparison: the precision view's (``sbase``), else the first two points."""
         return list(self.sbase) or list(self.problem.points.ids[:2])
@@ -742,25 +675,13 @@ class State(param.Parameterized):
         self.param.update(criterion=out, criterion_error="")
         return out
 
-    def risk_curve(self, p: float, L1: float, L2: float, lam_tol: float | None = None, n: int = 300) -> dict:
-        """The risk-minimising critical value C (:func:`baarda.stats.risk.critical_value`, M84 §3.3),
-        its α_C = 1 − Φ(C) and β_C = 1 − Φ(C − √λtol) (the definitions of :mod:`baarda.stats.risk`),
-        and r_C (:func:`baarda.stats.risk.risk`) over C for the plot. λtol defaults to δ0² of the
-        adjustment. Raises ValueError for p ∉ (0, 1) or non-positive L1, L2, λtol."""
-        lam = float(self.reliability.delta0 ** 2 if lam_tol is None else lam_tol)
-        return measures.risk_curve(p, L1, L2, lam, n)
-
     # -- teaching: inject an error --------------------------------------------------------------
-    def injected_error(self, index: int, size: float, unit: str = "sigma") -> np.ndarray:
-        """The error vector (reduced problem, SI) of ``size`` σ or MDB in observation ``index``."""
-        return measures.injected_error(self.results, self.reliability, self.kept, self.problem.n, index, size, unit)
-
     def inject(self, index: int, size: float, unit: str = "sigma") -> dict | None:
         """Adjust a copy of the problem with an error added to observation ``index`` and keep
         what the tests see in ``injection``; the loaded data stay as they are."""
         adj, rel = self.results, self.reliability
         try:
-            e = self.injected_error(index, size, unit)
+            e = measures.injected_error(adj, rel, self.kept, self.problem.n, index, size, unit)
             with self._busy():
                 new = measures.adjust_with_error(adj, e, self.options())
         except (ValueError, BaardaError, np.linalg.LinAlgError) as err:

@@ -32,7 +32,7 @@ from bokeh.models import ColumnDataSource  # noqa: E402
 
 from baarda.stats import distributions
 from baarda.adjust import Options, adjust  # noqa: E402
-from baarda.dashboard import geometry  # noqa: E402
+from baarda.dashboard import frames, geometry, measures, sbase, specs  # noqa: E402
 from baarda.dashboard.geometry import observation_points  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
@@ -492,7 +492,7 @@ def test_sbase_changes_ellipses_but_not_r_and_w():
                    for e in split_paths(x) if len(e) == 49]
     obs0 = st.frames()[0][["r", "w"]].to_numpy().copy()
     before = ell()
-    assert before and st.datum_points() == sorted(st.datum_points(), key=list(st.problem.points.ids).index)
+    assert before and sbase.datum_points(st.problem) == sorted(sbase.datum_points(st.problem), key=list(st.problem.points.ids).index)
     ids = list(st.problem.points.ids)
     for base in (ids[:2], ids[3:6]):
         view.sbase.value = base
@@ -620,17 +620,17 @@ def test_robust_selector_runs_core_and_marks_suspects():
     c.robust.value = "danish"
     ref = robust.estimate(st.results.problem, "danish", st.options())
     np.testing.assert_allclose(st.robust.weights, ref.weights, rtol=1e-12)
-    sus = st.robust_suspects()
+    sus = frames.robust_suspects(st.robust, st.kept, st.frames()[0])
     assert list(sus["obs"]) == [int(st.kept[d["index"]]) for d in ref.suspects] and len(sus) > 0
     assert set(sus["class"]) <= {"random", "small", "medium", "large"}
     np.testing.assert_allclose(table.table.value["robust_w"].to_numpy(), st.expand(ref.weights))
     assert "robust_w" not in table.table.hidden_columns
     assert len(panel.robust_table.value) == len(sus) and "suspects" in panel.robust_info.object
-    n_marked = len({k for i in st.suspect_observations() for k in st.problem_index()["obs_points"][i]})
+    n_marked = len({k for i in frames.suspect_observations(st.robust, st.kept) for k in st.problem_index()["obs_points"][i]})
     marks = [s for s in lay.select({"type": ColumnDataSource}) if set(s.data) == {"x", "y"}
              and len(s.data["x"]) == n_marked]
     lines = [s for s in lay.select({"type": ColumnDataSource}) if set(s.data) == {"xs", "ys"}
-             and len(s.data["xs"]) == len(st.suspect_observations())]
+             and len(s.data["xs"]) == len(frames.suspect_observations(st.robust, st.kept))]
     assert n_marked and marks and lines, "suspect points and lines drawn on the layout map"
     c.robust.value = "none"
     assert st.robust is None and np.isnan(st.frames()[0]["robust_w"]).all()
@@ -643,7 +643,7 @@ def test_snooping_log_leave_one_out_and_accept():
     st.sigma0_mode = "apriori"
     assert st.run_snooping()
     ref = snooping.iterate(st.results.problem, st.options())
-    log = st.snoop_log()
+    log = frames.snoop_log(st.snoop, st.kept, st.frames()[0], *st.problem_index()['factor'])
     assert list(log["obs"]) == [int(st.kept[i]) for i in ref.removed] and len(log) >= 2
     np.testing.assert_allclose(log["|w|"], [round(s.statistic, 3) for s in ref.steps])
     np.testing.assert_allclose(log["σ̂0 after"], [round(s.sigma0_after, 4) for s in ref.steps])
@@ -664,7 +664,7 @@ def test_variance_components_and_core_errors_as_messages():
     panel = AnalysisPanel(state=st)
     panel.variance_button.clicks += 1
     ref = variance.estimate(st.results.problem, options=st.options()).as_dict()
-    tab = st.variance_table()
+    tab = frames.variance_table(st.variance, st.components)
     assert list(tab["family"]) == [d["group"] for d in ref]
     np.testing.assert_allclose(tab["σ̂0j²"], [round(d["factor"], 4) for d in ref])
     np.testing.assert_allclose(tab["± s.e."], [round(d["std_error"], 4) for d in ref])
@@ -767,13 +767,13 @@ def test_criterion_for_blocks_and_heights_refused_without_positions(block_proble
     from baarda.dashboard.views import CriterionView
 
     for st in (State(problem=block_problem), network_state("krumm/1D/Niemeier_Height_free.gkf")):
-        assert st.criterion_reason() == ""
+        assert measures.criterion_reason(st.results) == ""
         view = CriterionView(state=st)
         pn.panel(view).get_root(Document())
         c = st.criterion_compare("logarithmic")
         assert c is not None and c["lam_max"] == pytest.approx(1.0, rel=1e-6), st.criterion_error
     st = State(Path(__file__).resolve().parents[1] / "data" / "demo-levelling.gkf")
-    assert "planimetric positions" in st.criterion_reason()
+    assert "planimetric positions" in measures.criterion_reason(st.results)
     assert st.criterion_compare("linear") is None and st.criterion_error.startswith("Criterion:")
 
 
@@ -825,7 +825,7 @@ def test_radial_variance_model_matches_core_and_refusal_is_a_message(block_probl
     image = np.char.startswith(np.asarray(prob.info.kind).astype(str), "image")
     sig2 = float(np.median(prob.cov.sigma()[image]) ** 2)
     ref = variance.estimate_components(prob, comps, theta0=[sig2 / 2, sig2 / 2, 1.0], options=st.options())
-    tab = st.variance_table()
+    tab = frames.variance_table(st.variance, st.components)
     assert list(tab["component"]) == list(ref.names) and st.analysis_error == ""
     assert [float(x) for x in tab["θ"]] == pytest.approx(ref.theta, rel=1e-3)
     assert len(panel.variance_table.value) == 3 and panel.variance_table.visible
@@ -922,7 +922,7 @@ def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
         h = st.hyp_results[k]
         ref = st.results.test(selection(st.results.n, mine))
         assert h.q == 2 and h.T == pytest.approx(ref.T, rel=1e-12)
-        assert f"keypoint {kp}" in st.describe(st.hypotheses[k])
+        assert f"keypoint {kp}" in specs.describe(st.problem, st.hypotheses[k], st.problem_index())
 
 
 # --------------------------------------------------------------------------------------------
@@ -965,7 +965,7 @@ def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
         warnings.simplefilter("error")
         k = st.add_hypothesis({"kind": "observation", "index": st.problem.n - 1})
         assert st.hyp_results[k].q == 0
-        assert not st.hypothesis_deformation(k).any()
+        assert not measures.hypothesis_field(st.results, st.hyp_results[k], len(st.problem.points.ids)).any()
 
 
 def test_cancelled_snooping_stops_within_its_step(monkeypatch):

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 from bokeh.models import NumeralTickFormatter
 
-from .. import geometry
+from .. import frames, geometry
 from ..frames import R_UNCONTROLLED, R_WEAK
 from ..mapgeometry import extent
 from ..text import plain
@@ -99,7 +99,7 @@ def nearest(state, x: float, y: float, tol_fraction: float = 0.04):
     d = np.hypot(pts["x"].to_numpy() - x, pts["y"].to_numpy() - y)
     if d.size and d.min() <= tol:
         return ("point", int(np.argmin(d)))
-    seg = state.segments()
+    seg = frames.segments(state.frames()[1], state.problem_index())
     if len(seg):
         p0 = seg[["x0", "y0"]].to_numpy()
         p1 = seg[["x1", "y1"]].to_numpy()
@@ -161,7 +161,7 @@ def suspects_layer(state) -> hv.Overlay:
     """The robust suspects: their lines (network observations) and points (the options, orange,
     are set by the map: ``suspect_opts``)."""
     _, pts = state.frames()
-    sus = state.suspect_observations()
+    sus = frames.suspect_observations(state.robust, state.kept)
     lines, marks = [], set()
     for i in sus:
         k = state.problem_index()["obs_points"][i]

@@ -15,7 +15,7 @@ from baarda.observations.collinearity import AP_GROUPS
 from baarda.stats.ap_tests import APTest
 from baarda.stats.hypotheses import HypothesisTest
 
-from .. import geometry
+from .. import geometry, specs
 from ..geometry import observation_label
 from ..state import State
 from ..text import fit_title, labels, md_text, plain
@@ -307,7 +307,7 @@ class HypothesisPanel(pn.viewable.Viewer):
                 row["q"] = 0
                 row["decision"] = plain(not_testable(s, h))
             elif h is not None:
-                first = s.hypothesis_rows(spec)[0]
+                first = specs.rows(s.problem, spec, s.problem_index())[0]
                 f = factor[int(first[0])] if len(first) else 1.0
                 u = units[int(first[0])] if len(first) else ""
                 row.update({"q": h.q, "T": round(h.T, 3), "critical T": round(h.critical_T, 3),
@@ -357,7 +357,7 @@ class HypothesisPanel(pn.viewable.Viewer):
         elif h is not None and not isinstance(h, str):
             spec = s.hypotheses[k]
             factor, units = s.problem_index()["factor"]
-            first = s.hypothesis_rows(spec)[0]
+            first = specs.rows(s.problem, spec, s.problem_index())[0]
             f = factor[int(first[0])] if len(first) else 1.0
             u = units[int(first[0])] if len(first) else ""
             finite = np.flatnonzero(np.isfinite(h.ellipse_axes))

@@ -30,7 +30,7 @@ from bokeh.models import ColumnDataSource, FixedTicker
 from baarda.errors import BaardaError
 from baarda.stats.hypotheses import HypothesisTest
 
-from .. import geometry
+from .. import frames, geometry, specs
 from .. import sbase as sbase_lesson
 from ..geometry import display_matrix, image_points, object_unit
 from ..mapgeometry import (W_COLORS, clamped_segments, deformation_field, ellipse_paths, extent, far_note,
@@ -219,7 +219,7 @@ class MapView(pn.viewable.Viewer):
     def segments(self, columns=()) -> pd.DataFrame:
         """The observation lines joined with the given columns of the observation table."""
         obs, _ = self.state.frames()
-        seg = self.state.segments()
+        seg = frames.segments(self.state.frames()[1], self.state.problem_index())
         cols = ["kind", "ids", *columns]
         seg = seg.join(obs[cols], on="obs") if len(seg) else pd.DataFrame(
             columns=["obs", "x0", "y0", "x1", "y1", *cols])
@@ -266,7 +266,7 @@ class LayoutMap(MapView):
         h = s.hyp_results[k]
         if not isinstance(h, HypothesisTest) or h.q != 2 or not np.isfinite(h.ellipse_axes).all():
             return None, []
-        pk = s.hypothesis_point(s.hypotheses[k])
+        pk = specs.point(s.problem, s.hypotheses[k], s.problem_index())
         if pk is None:
             return None, []
         pts = self.points()
@@ -480,7 +480,7 @@ class PrecisionMap(MapView):
     def __init__(self, **params):
         super().__init__(**params)
         s = self.state
-        datum = s.datum_points()
+        datum = sbase_lesson.datum_points(s.problem)
         self.sbase = pn.widgets.MultiChoice(
             label="S-base (empty: the problem's datum" + (f" — {plain(', '.join(datum))})" if datum else
                                                         ", its fixed / weighted points)"),
