@@ -3,13 +3,17 @@
 :class:`State` holds the choices (the problem, α0, β0, the B-method, σ0, exclusions, hypotheses,
 selections, S-base, robust method, variance model) and the core's results for them; it calls the
 core (:func:`baarda.adjust.adjust`, :class:`~baarda.stats.reliability.Reliability`, …) when a
-choice changes. The views only read it and write choices back. The other jobs live in their own
-modules, called from here:
+choice changes, and caches what several views read: the problem's index (:meth:`State.problem_index`),
+the tables (:meth:`State.frames`) and the covariance in the chosen S-base. The views only read it and
+write choices back. Everything else lives in its own module, which the state and the views call
+with the state's fields (e.g. ``geometry.images(state.problem)``,
+``frames.segments(state.frames()[1], state.problem_index())``):
 
-- :mod:`baarda.dashboard.geometry` — display geometry, units and the problem's index;
+- :mod:`baarda.dashboard.geometry` — display geometry, units, a block's images and the problem's index;
 - :mod:`baarda.dashboard.frames` — the tables built from the results;
 - :mod:`baarda.dashboard.specs` — hypothesis specifications and their tests;
-- :mod:`baarda.dashboard.measures` — deformation fields, criterion, risk, injected errors, snooping;
+- :mod:`baarda.dashboard.measures` — the adjustment without the excluded observations, deformation
+  fields, criterion, risk, injected errors, snooping, variance components;
 - :mod:`baarda.dashboard.sbase` — precision in an S-base;
 - :mod:`baarda.dashboard.jobs` — background computations and the server's file cache.
 
@@ -21,6 +25,7 @@ adjustment ``results`` is computed on the problem without the excluded observati
 from __future__ import annotations
 
 import contextlib
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -28,11 +33,10 @@ import numpy as np
 import pandas as pd
 import param
 
-from baarda.adjust import Options, adjust
+from baarda.adjust import Options
 from baarda.errors import BaardaError
-from baarda.stats import analyses, precision, robust, variance
+from baarda.stats import precision, robust
 from baarda.stats.policy import TestPolicy
-from baarda.model.problem import without
 from baarda.stats.reliability import Reliability
 
 from . import frames as tables
@@ -352,15 +356,11 @@ class State(param.Parameterized):
 
         On a worker thread (a background computation) the adjustment runs there and only its
         result is made current on the session's event loop (:meth:`on_loop`)."""
-        import time
-
         t0 = time.perf_counter()
         problem, excluded, mode, options = self.problem, self.excluded, self.sigma0_mode, self.options()
         try:
             with self._busy():
-                reduced, kept = without(problem, excluded)
-                reduced = replace(reduced, sigma_act=mode)
-                adj = adjust(reduced, options, progress=self._iteration)
+                adj, kept = measures.adjust_without(problem, excluded, mode, options, progress=self._iteration)
         except Cancelled:
             raise
         except BaardaError as err:
@@ -478,8 +478,6 @@ class State(param.Parameterized):
         self._run_hypotheses()
 
     def _run_hypotheses(self):
-        import time
-
         t0 = time.perf_counter()
         out = [specs.evaluate(self.problem, self.results, self.reliability, self.kept, spec,
                               self.problem_index() if self.results is not None else None)
@@ -567,8 +565,6 @@ class State(param.Parameterized):
         if self.results is None or self.robust_method == "none":
             self.robust = None
             return
-        import time
-
         t0 = time.perf_counter()
         adj, method = self.results, self.robust_method
         try:
@@ -631,15 +627,7 @@ class State(param.Parameterized):
         try:
             with self._busy():
                 problem = self.results.problem
-                if self.variance_model.startswith("radial"):
-                    structure = "isotropic" if self.variance_model == "radial-isotropic" else "radial"
-                    est = analyses.radial_variance(problem, self.options(), structure)
-                    self._check_cancel()
-                    if self.results.problem is not problem:
-                        return False
-                    self.on_loop(lambda: self.param.update(components=est, variance=None, analysis_error=""))
-                    return True
-                vc = variance.estimate(problem, options=self.options())
+                vc, est = measures.variance_components(problem, self.options(), self.variance_model)
                 self._check_cancel()
         except (BaardaError, np.linalg.LinAlgError) as err:
             self.param.update(variance=None, components=None,
@@ -647,7 +635,7 @@ class State(param.Parameterized):
             return False
         if self.results.problem is not problem:
             return False
-        self.on_loop(lambda: self.param.update(variance=vc, components=None, analysis_error=""))
+        self.on_loop(lambda: self.param.update(variance=vc, components=est, analysis_error=""))
         return True
 
     # -- criterion matrices and risk (M84 §2, §3.3) ---------------------------------------------
@@ -696,10 +684,8 @@ class State(param.Parameterized):
         inj = self.injection
         if inj is None:
             return False
-        l = np.array(self.problem.l, dtype=float)
-        l[self.kept] += inj["error_vector"]
         with param.parameterized.discard_events(self):
-            self.problem = replace(self.problem, l=l)
+            self.problem = measures.with_error(self.problem, self.kept, inj["error_vector"])
         return self._readjust()
 
     def _auto_exaggeration(self) -> float:

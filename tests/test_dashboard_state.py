@@ -1105,7 +1105,6 @@ def test_policy_change_rebuilds_only_the_reliability_over_the_same_result(monkey
     """α0, β0 and the B-method change only the Reliability over the same result: no new
     adjustment (``adjust`` must not be called), the same result object, and every decision, MDB,
     δ̄0 and group test equal to a fresh analysis at the new policy."""
-    import baarda.dashboard.state as state_module
     from baarda.stats.policy import TestPolicy
     from baarda.stats.reliability import Reliability
 
@@ -1117,7 +1116,7 @@ def test_policy_change_rebuilds_only_the_reliability_over_the_same_result(monkey
     def no_refit(*args, **kwargs):
         raise AssertionError("a policy change must not adjust again")
 
-    monkeypatch.setattr(state_module, "adjust", no_refit)
+    monkeypatch.setattr(measures, "adjust", no_refit)     # the state adjusts through measures
     with param.parameterized.batch_call_watchers(st):
         st.alpha0, st.beta0, st.b_method = 0.02, 0.9, True
     monkeypatch.undo()
