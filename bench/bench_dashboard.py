@@ -37,6 +37,7 @@ import panel as pn
 from bokeh.document import Document
 
 from baarda.build import read_problem
+from baarda.dashboard import geometry
 from baarda.dashboard import views as V
 from baarda.dashboard.state import State
 from baarda.model.bundle import build_block_problem
@@ -118,7 +119,7 @@ def bench(name: str, repeat: int) -> list[dict]:
     views = all_views(live)
     render(views)
     t_open = time.perf_counter() - t0
-    n_img = len(live.images)
+    n_img = len(geometry.images(live.problem))
     head = {"block": name, "images": n_img, "points": len(problem.points.ids), "n": problem.n,
             "build": t_build, "open": t_open}
     core_actions, live_actions = actions(bare), actions(live)

@@ -26,6 +26,7 @@ from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 from tornado.ioloop import IOLoop
 
+from . import geometry
 from .jobs import TASKS, Cancelled, next_tick
 from .state import State
 from .text import html_text
@@ -513,7 +514,7 @@ def main_views(state):
     for V in MAP_VIEWS:
         view = V(state=state)
         maps.append((TAB_NAMES[V.key], view))
-        if V.key == "residuals" and state.images:
+        if V.key == "residuals" and geometry.images(state.problem):
             maps.append(("Image v", ImageResidualView(state=state)))
     maps.append(("Criterion", CriterionView(state=state)))
     map_tabs = pn.Tabs(*maps, dynamic=True, sizing_mode="stretch_width", min_height=660,

@@ -4,7 +4,8 @@ observations, and the index of the problem's observations by point and image poi
 Plain functions of the core's :class:`~baarda.model.problem.Problem` (immutable, so that
 :func:`problem_index` is built once per problem): the map axes (:func:`display_matrix`,
 :func:`display_xy`, a schematic layout of a levelling network), the file's units
-(:func:`display_factor`), short observation labels, the observation-point incidence and the rows of
+(:func:`display_factor`), a block's images (:func:`block`, :func:`images`), the position of
+each point id (:func:`point_index`), short observation labels, the observation-point incidence and the rows of
 each image point of a block. Nothing here depends on the test settings or on the dashboard's state.
 """
 
@@ -111,6 +112,24 @@ def stress_layout(D: np.ndarray, xy: np.ndarray, iterations: int = 300) -> np.nd
         np.fill_diagonal(Bm, -Bm.sum(axis=1))
         X = Bm @ X / m
     return X
+
+
+def block(problem) -> dict | None:
+    """The block geometry of a problem as a dict (cameras, images, image size), or None
+    (a network, or no problem)."""
+    geo = problem.geometry if problem is not None else None
+    return geo.as_dict() if geo is not None else None
+
+
+def images(problem) -> list[dict]:
+    """The images of a block problem (:func:`block`), [] for a network or no problem."""
+    b = block(problem)
+    return list(b.get("images", [])) if isinstance(b, dict) else []
+
+
+def point_index(problem) -> dict:
+    """Position of each point id in ``problem.points.ids``."""
+    return {pid: k for k, pid in enumerate(problem.points.ids)}
 
 
 def observation_points(problem) -> list[list[int]]:

@@ -1,7 +1,8 @@
-"""The dashboard's computations beyond the tables, each a thin layer over the core: deformation
-fields of the external-reliability map, the criterion-matrix comparison and the risk curve
-(M84 §2, §3.3), the injected error of the teaching view, and iterative data snooping with its
-leave-one-out view.
+"""The dashboard's computations beyond the tables, each a thin layer over the core: the
+adjustment without the excluded observations, deformation fields of the external-reliability
+map, the criterion-matrix comparison and the risk curve (M84 §2, §3.3), the injected error of
+the teaching view, iterative data snooping with its leave-one-out view, and the variance
+components (per family or the radial model of a block).
 
 Plain functions of the core's objects (the problem, its :class:`~baarda.result.Adjustment`
 ``adj`` and :class:`~baarda.stats.reliability.Reliability` ``rel``, ``kept``: the full index of
@@ -18,7 +19,8 @@ import numpy as np
 
 from baarda.adjust import adjust
 from baarda.errors import BaardaError
-from baarda.stats import analyses, risk, snooping
+from baarda.model.problem import without
+from baarda.stats import analyses, risk, snooping, variance
 from baarda.stats.hypotheses import HypothesisTest, deformation
 from baarda.stats.reliability import Reliability
 
@@ -26,6 +28,15 @@ from .geometry import observation_label, reduced_index
 
 #: How many of the largest |w| the leave-one-out ("find the error") view tries.
 LOO_SUSPECTS = 5
+
+
+def adjust_without(problem, excluded, sigma_act: str, options, progress=None) -> tuple:
+    """The core's adjustment of ``problem`` without the ``excluded`` observations (full indices,
+    :func:`baarda.model.problem.without`) with σ0 ``sigma_act`` ("apriori" or "aposteriori"):
+    ``(Adjustment, kept)``, ``kept[k]`` the full index of the reduced observation k."""
+    reduced, kept = without(problem, excluded)
+    reduced = replace(reduced, sigma_act=sigma_act)
+    return adjust(reduced, options, progress=progress), kept
 
 
 # -- deformation fields (external reliability) -----------------------------------------------------
@@ -117,6 +128,14 @@ def injected_error(adj, rel, kept, n_full: int, index: int, size: float, unit: s
     return e
 
 
+def with_error(problem, kept, e: np.ndarray):
+    """``problem`` (full) with the error ``e`` (reduced problem, :func:`injected_error`) added to
+    its kept observations: an injected error made part of the data."""
+    l = np.array(problem.l, dtype=float)
+    l[kept] += e
+    return replace(problem, l=l)
+
+
 def adjust_with_error(adj, e: np.ndarray, options):
     """The core's adjustment of ``adj``'s problem with the error ``e`` added to its observations."""
     return adjust(replace(adj.problem, l=adj.problem.l + e), options)
@@ -160,3 +179,15 @@ def snoop(adj, options, use_tau: bool, progress=None, check=None) -> tuple:
     top = np.argsort(-np.abs(np.nan_to_num(adj.w)), kind="stable")[:LOO_SUSPECTS]
     loo = snooping.leave_one_out(adj, [int(i) for i in top], check=check)
     return res, loo
+
+
+# -- variance components ----------------------------------------------------------------------------
+def variance_components(problem, options, model: str) -> tuple:
+    """Variance components of ``problem``: ``(VarianceComponents, None)`` per observation family
+    (:func:`baarda.stats.variance.estimate`) for ``model`` "families", ``(None, ComponentEstimate)``
+    of the radial model σ² = a² + b²c²/cos⁴α of a block for "radial" (or its isotropic variant
+    for "radial-isotropic"; :func:`baarda.stats.analyses.radial_variance`, F80 §2.1)."""
+    if model.startswith("radial"):
+        structure = "isotropic" if model == "radial-isotropic" else "radial"
+        return None, analyses.radial_variance(problem, options, structure)
+    return variance.estimate(problem, options=options), None

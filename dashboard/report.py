@@ -28,7 +28,7 @@ import holoviews as hv
 import numpy as np
 from bokeh.resources import Resources
 
-from . import render
+from . import geometry, render
 from .frames import R_UNCONTROLLED
 from .state import State
 from .suspects import suspects
@@ -51,7 +51,7 @@ PAGE_PX = 680
 def _render(view_class, state, width: int, height: int):
     """The map ``view_class`` of ``state`` as a Bokeh figure of ``width`` × ``height`` px, no toolbar."""
     view = view_class(state=state)
-    fs = frame_size(view.points(), state.images)
+    fs = frame_size(view.points(), geometry.images(state.problem))
     # equal scales on both axes (as in the app), the frame fitted into the box left by the axes,
     # the legend and the colour bar
     k = min((width - 150) / fs["frame_width"], (height - 90) / fs["frame_height"])

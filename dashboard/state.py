@@ -3,13 +3,17 @@
 :class:`State` holds the choices (the problem, α0, β0, the B-method, σ0, exclusions, hypotheses,
 selections, S-base, robust method, variance model) and the core's results for them; it calls the
 core (:func:`baarda.adjust.adjust`, :class:`~baarda.stats.reliability.Reliability`, …) when a
-choice changes. The views only read it and write choices back. The other jobs live in their own
-modules, called from here:
+choice changes, and caches what several views read: the problem's index (:meth:`State.problem_index`),
+the tables (:meth:`State.frames`) and the covariance in the chosen S-base. The views only read it and
+write choices back. Everything else lives in its own module, which the state and the views call
+with the state's fields (e.g. ``geometry.images(state.problem)``,
+``frames.segments(state.frames()[1], state.problem_index())``):
 
-- :mod:`baarda.dashboard.geometry` — display geometry, units and the problem's index;
+- :mod:`baarda.dashboard.geometry` — display geometry, units, a block's images and the problem's index;
 - :mod:`baarda.dashboard.frames` — the tables built from the results;
 - :mod:`baarda.dashboard.specs` — hypothesis specifications and their tests;
-- :mod:`baarda.dashboard.measures` — deformation fields, criterion, risk, injected errors, snooping;
+- :mod:`baarda.dashboard.measures` — the adjustment without the excluded observations, deformation
+  fields, criterion, risk, injected errors, snooping, variance components;
 - :mod:`baarda.dashboard.sbase` — precision in an S-base;
 - :mod:`baarda.dashboard.jobs` — background computations and the server's file cache.
 
@@ -21,6 +25,7 @@ adjustment ``results`` is computed on the problem without the excluded observati
 from __future__ import annotations
 
 import contextlib
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -28,11 +33,10 @@ import numpy as np
 import pandas as pd
 import param
 
-from baarda.adjust import Options, adjust
+from baarda.adjust import Options
 from baarda.errors import BaardaError
-from baarda.stats import analyses, precision, robust, variance
+from baarda.stats import precision, robust
 from baarda.stats.policy import TestPolicy
-from baarda.model.problem import without
 from baarda.stats.reliability import Reliability
 
 from . import frames as tables
@@ -142,7 +146,7 @@ class State(param.Parameterized):
                             alpha0=adj.options.alpha0, beta0=adj.options.beta0,
                             b_method=adj.options.b_method, kept=np.arange(adj.n), results=adj)
             st.reliability = Reliability(adj, st.policy())
-            images = st.images
+            images = geometry.images(st.problem)
             st.selected_image = images[0]["id"] if images else None
         return st
 
@@ -263,7 +267,7 @@ class State(param.Parameterized):
             self.excluded = frozenset()
             self.sbase, self.sbase_error, self.hypotheses, self.hyp_results = [], "", [], []
             self.selected_point = self.selected_obs = self.selected_hypothesis = None
-            images = self.images
+            images = geometry.images(self.problem)
             self.selected_image = images[0]["id"] if images else None
             self.kept = kept
             self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
@@ -302,7 +306,7 @@ class State(param.Parameterized):
             self.selected_obs = None
             self.selected_hypothesis = None
             self.sigma0_mode = mode
-            images = self.images
+            images = geometry.images(self.problem)
             self.selected_image = images[0]["id"] if images else None
         if not self._readjust() or (self.jobs.cancel_event.is_set() and self.task):
             with param.parameterized.discard_events(self):
@@ -352,15 +356,11 @@ class State(param.Parameterized):
 
         On a worker thread (a background computation) the adjustment runs there and only its
         result is made current on the session's event loop (:meth:`on_loop`)."""
-        import time
-
         t0 = time.perf_counter()
         problem, excluded, mode, options = self.problem, self.excluded, self.sigma0_mode, self.options()
         try:
             with self._busy():
-                reduced, kept = without(problem, excluded)
-                reduced = replace(reduced, sigma_act=mode)
-                adj = adjust(reduced, options, progress=self._iteration)
+                adj, kept = measures.adjust_without(problem, excluded, mode, options, progress=self._iteration)
         except Cancelled:
             raise
         except BaardaError as err:
@@ -456,7 +456,7 @@ class State(param.Parameterized):
     def add_hypothesis(self, spec: dict) -> int:
         """Add (and activate) a hypothesis; returns its position."""
         spec = {"active": True, **spec}
-        spec["label"] = spec.get("label") or self.describe(spec)
+        spec["label"] = spec.get("label") or specs.describe(self.problem, spec, self.problem_index())
         self.hypotheses = self.hypotheses + [spec]
         self.selected_hypothesis = len(self.hypotheses) - 1
         return len(self.hypotheses) - 1
@@ -478,8 +478,6 @@ class State(param.Parameterized):
         self._run_hypotheses()
 
     def _run_hypotheses(self):
-        import time
-
         t0 = time.perf_counter()
         out = [specs.evaluate(self.problem, self.results, self.reliability, self.kept, spec,
                               self.problem_index() if self.results is not None else None)
@@ -487,75 +485,13 @@ class State(param.Parameterized):
         self.hyp_results = out
         self.timings = {**self.timings, "hypotheses": time.perf_counter() - t0}
 
-    def hypothesis_rows(self, spec: dict) -> list[np.ndarray]:
-        """:func:`baarda.dashboard.specs.rows` of a hypothesis in the current problem."""
-        return specs.rows(self.problem, spec, self.problem_index())
-
-    def ap_estimated(self, spec: dict) -> bool:
-        """True if the AP group of an ``ap-group`` hypothesis is estimated in the model."""
-        return specs.ap_estimated(self.problem, spec)
-
-    def hypothesis_matrix(self, spec: dict):
-        """H (reduced n × q) of a hypothesis; excluded observations drop out (:func:`baarda.dashboard.specs.matrix`)."""
-        return specs.matrix(self.problem, self.results, self.kept, spec, self.problem_index())
-
-    def describe(self, spec: dict) -> str:
-        """A hypothesis' default label (:func:`baarda.dashboard.specs.describe`)."""
-        return specs.describe(self.problem, spec, self.problem_index())
-
-    def hypothesis_point(self, spec: dict):
-        """The point a hypothesis is about (for drawing its ellipse on the map), or None."""
-        return specs.point(self.problem, spec, self.problem_index())
-
     # -- derived data for the views -------------------------------------------------------------
-    @property
-    def block(self) -> dict | None:
-        geo = self.problem.geometry if self.problem is not None else None
-        return geo.as_dict() if geo is not None else None
-
-    @property
-    def images(self) -> list[dict]:
-        b = self.block
-        return list(b.get("images", [])) if isinstance(b, dict) else []
-
-    @property
-    def point_index(self) -> dict:
-        return {pid: k for k, pid in enumerate(self.problem.points.ids)}
-
-    @property
-    def obs_points(self) -> list[list[int]]:
-        return self.problem_index()["obs_points"]
-
     def problem_index(self) -> dict:
         """:func:`~baarda.dashboard.geometry.problem_index` of the current problem, built once
         per problem (the problem is immutable)."""
         if self._index is None or self._index_for is not self.problem:
             self._index, self._index_for = geometry.problem_index(self.problem), self.problem
         return self._index
-
-    def display_factor(self) -> tuple[np.ndarray, tuple[str, ...]]:
-        """:func:`~baarda.dashboard.geometry.display_factor` of the current problem (computed once)."""
-        return self.problem_index()["factor"]
-
-    def keypoints_of(self, image, point) -> list[str | None]:
-        """:func:`~baarda.dashboard.geometry.keypoints_of` in the current problem."""
-        return geometry.keypoints_of(self.problem_index(), image, point)
-
-    def image_point_rows(self, image, point, keypoint=None) -> list[int]:
-        """:func:`~baarda.dashboard.geometry.image_point_rows` in the current problem."""
-        return geometry.image_point_rows(self.problem_index(), image, point, keypoint)
-
-    def point_rows_in_image(self, image, point) -> list[int]:
-        """:func:`~baarda.dashboard.geometry.point_rows_in_image` in the current problem."""
-        return geometry.point_rows_in_image(self.problem_index(), image, point)
-
-    def images_of_point(self, point) -> list[str]:
-        """:func:`~baarda.dashboard.geometry.images_of_point` in the current problem."""
-        return geometry.images_of_point(self.problem_index(), point)
-
-    def observations_of_point(self, k: int) -> list[int]:
-        """:func:`~baarda.dashboard.geometry.observations_of_point` in the current problem."""
-        return geometry.observations_of_point(self.problem_index(), k)
 
     def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
         """``(observations, points)`` tables of the current results (:func:`baarda.dashboard.frames.frames`),
@@ -568,39 +504,19 @@ class State(param.Parameterized):
         self._frames = (rel, obs, pts)
         return obs, pts
 
-    def map_labels(self) -> tuple[str, str]:
-        return geometry.display_xy(self.problem, self.results.coordinates)[2:]
-
-    def segments(self) -> pd.DataFrame:
-        """One line per (observation, other point) of the network observations: from → to."""
-        return tables.segments(self.frames()[1], self.problem_index())
-
-    def deformation_field(self, index: int | None = None) -> np.ndarray:
-        """∇0x of an error of MDB size in observation ``index`` (full; default the selected one)
-        as point shifts (m × 3, metres): :func:`baarda.dashboard.measures.observation_field`."""
-        index = self.selected_obs if index is None else index
-        return measures.observation_field(self.results, self.reliability, self.kept, self.problem.n,
-                                          len(self.problem.points.ids), index)
-
-    def hypothesis_deformation(self, k: int | None = None) -> np.ndarray:
-        """∇0x of hypothesis ``k`` (default the selected one) as point shifts (m × 3, metres):
-        :func:`baarda.dashboard.measures.hypothesis_field`; zero for an inactive hypothesis, a
-        failed one or an AP-group test."""
-        k = self.selected_hypothesis if k is None else k
-        h = self.hyp_results[k] if k is not None and k < len(self.hyp_results) else None
-        return measures.hypothesis_field(self.results, h, len(self.problem.points.ids))
-
     def external_field(self) -> tuple[str, np.ndarray]:
         """The deformation field the external-reliability map shows: ``(label, shifts)`` of the
         last selected observation or hypothesis ("" and zeros if there is none)."""
         m = len(self.problem.points.ids)
         k = self.selected_hypothesis
         if self.field_source == "hypothesis" and k is not None and k < len(self.hypotheses):
-            shifts = self.hypothesis_deformation(k)
+            h = self.hyp_results[k] if k < len(self.hyp_results) else None
+            shifts = measures.hypothesis_field(self.results, h, m)
             if np.abs(shifts).max(initial=0.0) > 0:
                 return f"hypothesis {self.hypotheses[k].get('label', k)}", shifts
         if self.selected_obs is not None:
-            return f"obs {self.selected_obs}", self.deformation_field()
+            return f"obs {self.selected_obs}", measures.observation_field(
+                self.results, self.reliability, self.kept, self.problem.n, m, self.selected_obs)
         return "", np.zeros((m, 3))
 
     @param.depends("selected_hypothesis", watch=True)
@@ -614,10 +530,6 @@ class State(param.Parameterized):
             self.field_source = "observation"
 
     # -- precision in an S-base -----------------------------------------------------------------
-    def datum_points(self) -> list[str]:
-        """Point ids of the problem's own S-base (:func:`baarda.dashboard.sbase.datum_points`)."""
-        return sbase_lesson.datum_points(self.problem)
-
     def coordinate_covariance(self):
         """The core's :class:`~baarda.stats.precision.CoordinateCovariance` in the chosen S-base
         (``sbase``; [] = the problem's datum), or None if the core refuses that base
@@ -653,8 +565,6 @@ class State(param.Parameterized):
         if self.results is None or self.robust_method == "none":
             self.robust = None
             return
-        import time
-
         t0 = time.perf_counter()
         adj, method = self.results, self.robust_method
         try:
@@ -681,14 +591,6 @@ class State(param.Parameterized):
     def _robust_done(self):
         self._frames = None
 
-    def robust_suspects(self) -> pd.DataFrame:
-        """The robust suspects (:func:`baarda.dashboard.frames.robust_suspects`)."""
-        return tables.robust_suspects(self.robust, self.kept, self.frames()[0] if self.robust is not None else None)
-
-    def suspect_observations(self) -> list[int]:
-        """Full indices of every observation of the robust suspects (their clusters)."""
-        return tables.suspect_observations(self.robust, self.kept)
-
     def run_snooping(self) -> bool:
         """Iterative data snooping (:func:`baarda.stats.snooping.iterate`) of the current problem with
         w (σ0 a priori) or τ (a posteriori), and σ̂0 with each of the :data:`~baarda.dashboard.measures.LOO_SUSPECTS` largest
@@ -710,16 +612,6 @@ class State(param.Parameterized):
         self.on_loop(lambda: self.param.update(snoop=res, snoop_loo=loo, analysis_error=""))
         return True
 
-    def snoop_log(self) -> pd.DataFrame:
-        """One row per snooping step (:func:`baarda.dashboard.frames.snoop_log`)."""
-        if self.snoop is None:
-            return tables.snoop_log(None, self.kept, None, None, None)
-        return tables.snoop_log(self.snoop, self.kept, self.frames()[0], *self.display_factor())
-
-    def loo_table(self) -> pd.DataFrame:
-        """σ̂0 with each top suspect left out (:func:`baarda.dashboard.frames.loo_table`)."""
-        return tables.loo_table(self.snoop_loo, self.kept, self.frames()[0])
-
     def accept_snooping(self) -> bool:
         """Exclude the observations the snooping removed (a full rerun)."""
         if self.snoop is None or not self.snoop.steps:
@@ -735,15 +627,7 @@ class State(param.Parameterized):
         try:
             with self._busy():
                 problem = self.results.problem
-                if self.variance_model.startswith("radial"):
-                    structure = "isotropic" if self.variance_model == "radial-isotropic" else "radial"
-                    est = analyses.radial_variance(problem, self.options(), structure)
-                    self._check_cancel()
-                    if self.results.problem is not problem:
-                        return False
-                    self.on_loop(lambda: self.param.update(components=est, variance=None, analysis_error=""))
-                    return True
-                vc = variance.estimate(problem, options=self.options())
+                vc, est = measures.variance_components(problem, self.options(), self.variance_model)
                 self._check_cancel()
         except (BaardaError, np.linalg.LinAlgError) as err:
             self.param.update(variance=None, components=None,
@@ -751,18 +635,10 @@ class State(param.Parameterized):
             return False
         if self.results.problem is not problem:
             return False
-        self.on_loop(lambda: self.param.update(variance=vc, components=None, analysis_error=""))
+        self.on_loop(lambda: self.param.update(variance=vc, components=est, analysis_error=""))
         return True
 
-    def variance_table(self) -> pd.DataFrame:
-        """The variance components (:func:`baarda.dashboard.frames.variance_table`)."""
-        return tables.variance_table(self.variance, self.components)
-
     # -- criterion matrices and risk (M84 §2, §3.3) ---------------------------------------------
-    def criterion_reason(self) -> str:
-        """Why the criterion comparison does not apply to this problem ("" if it does)."""
-        return measures.criterion_reason(self.results)
-
     def criterion_base(self) -> list[str]:
         """The S-base of the comparison: the precision view's (``sbase``), else the first two points."""
         return list(self.sbase) or list(self.problem.points.ids[:2])
@@ -787,31 +663,19 @@ class State(param.Parameterized):
         self.param.update(criterion=out, criterion_error="")
         return out
 
-    def risk_curve(self, p: float, L1: float, L2: float, lam_tol: float | None = None, n: int = 300) -> dict:
-        """The risk-minimising critical value C (:func:`baarda.stats.risk.critical_value`, M84 §3.3),
-        its α_C = 1 − Φ(C) and β_C = 1 − Φ(C − √λtol) (the definitions of :mod:`baarda.stats.risk`),
-        and r_C (:func:`baarda.stats.risk.risk`) over C for the plot. λtol defaults to δ0² of the
-        adjustment. Raises ValueError for p ∉ (0, 1) or non-positive L1, L2, λtol."""
-        lam = float(self.reliability.delta0 ** 2 if lam_tol is None else lam_tol)
-        return measures.risk_curve(p, L1, L2, lam, n)
-
     # -- teaching: inject an error --------------------------------------------------------------
-    def injected_error(self, index: int, size: float, unit: str = "sigma") -> np.ndarray:
-        """The error vector (reduced problem, SI) of ``size`` σ or MDB in observation ``index``."""
-        return measures.injected_error(self.results, self.reliability, self.kept, self.problem.n, index, size, unit)
-
     def inject(self, index: int, size: float, unit: str = "sigma") -> dict | None:
         """Adjust a copy of the problem with an error added to observation ``index`` and keep
         what the tests see in ``injection``; the loaded data stay as they are."""
         adj, rel = self.results, self.reliability
         try:
-            e = self.injected_error(index, size, unit)
+            e = measures.injected_error(adj, rel, self.kept, self.problem.n, index, size, unit)
             with self._busy():
                 new = measures.adjust_with_error(adj, e, self.options())
         except (ValueError, BaardaError, np.linalg.LinAlgError) as err:
             self.param.update(injection=None, analysis_error=f"Cannot inject: {err}")
             return None
-        out = measures.injection(self.problem, adj, rel, self.kept, new, e, index, size, unit, self.display_factor())
+        out = measures.injection(self.problem, adj, rel, self.kept, new, e, index, size, unit, self.problem_index()["factor"])
         self.param.update(injection=out, analysis_error="")
         return out
 
@@ -820,17 +684,15 @@ class State(param.Parameterized):
         inj = self.injection
         if inj is None:
             return False
-        l = np.array(self.problem.l, dtype=float)
-        l[self.kept] += inj["error_vector"]
         with param.parameterized.discard_events(self):
-            self.problem = replace(self.problem, l=l)
+            self.problem = measures.with_error(self.problem, self.kept, inj["error_vector"])
         return self._readjust()
 
     def _auto_exaggeration(self) -> float:
         """:func:`~baarda.dashboard.geometry.auto_exaggeration` of the current results (1 without images)."""
-        if self.results is None or not self.images:
+        if self.results is None or not geometry.images(self.problem):
             return 1.0
-        v = self.expand(self.results.v) * self.display_factor()[0]
+        v = self.expand(self.results.v) * self.problem_index()["factor"][0]
         return geometry.auto_exaggeration(self.problem, self.problem_index(), v)
 
     # -- summary --------------------------------------------------------------------------------
@@ -840,5 +702,5 @@ class State(param.Parameterized):
 
         s = core_summary(self.results, self.reliability)
         obs, pts = self.frames()
-        s.update(tables.summary_counts(obs, pts, self.excluded, self.images))
+        s.update(tables.summary_counts(obs, pts, self.excluded, geometry.images(self.problem)))
         return s

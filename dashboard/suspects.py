@@ -33,6 +33,7 @@ from baarda.errors import BaardaError
 from baarda.stats import separability
 from baarda.stats.hypotheses import common_error, selection
 
+from . import geometry
 from .text import plain
 
 #: Observations listed: the largest |w| (the rejected ones first, as they have the largest).
@@ -60,7 +61,7 @@ def _estimate_text(nabla, factor: float, unit: str) -> str:
 
 def _point_of(state, rows) -> int | None:
     """The point an observation set is about (the last point named by its first row)."""
-    pts = state.obs_points[int(rows[0])] if len(rows) else []
+    pts = state.problem_index()["obs_points"][int(rows[0])] if len(rows) else []
     return int(pts[-1]) if pts else None
 
 
@@ -88,7 +89,7 @@ def _one_dimensional(state, picked: np.ndarray) -> list[dict]:
     as :mod:`baarda.stats.snooping` reports it), from the core's arrays (no solve per row)."""
     s = state
     adj, rel = s.results, s.reliability
-    factor, units = s.display_factor()
+    factor, units = s.problem_index()["factor"]
     obs, _ = s.frames()
     d0 = rel.delta0
     stat = np.asarray(rel.statistic, dtype=float)
@@ -115,7 +116,7 @@ def _groups(state) -> list[dict]:
     g = rel.groups
     if len(g) == 0:
         return []
-    factor, units = s.display_factor()
+    factor, units = s.problem_index()["factor"]
     ratio = np.where(g.critical > 0, g.T / np.where(g.critical > 0, g.critical, 1.0), 0.0)
     ratio = np.where(g.dimension > 0, ratio, -np.inf)
     order = np.argsort(-ratio, kind="stable")
@@ -145,9 +146,9 @@ def transfer_candidates(state, point: str) -> list[list[str]]:
     consecutive images (in the order of the block's images) of one strip in which the point is
     measured, leaving at least one of its images outside (else the error is absorbed by the
     point's coordinates and cannot be tested)."""
-    order = {str(im["id"]): k for k, im in enumerate(state.images)}
-    strip = {str(im["id"]): str(im.get("strip", "")) for im in state.images}
-    seen = [im for im in state.images_of_point(point) if im in order]
+    order = {str(im["id"]): k for k, im in enumerate(geometry.images(state.problem))}
+    strip = {str(im["id"]): str(im.get("strip", "")) for im in geometry.images(state.problem)}
+    seen = [im for im in geometry.images_of_point(state.problem_index(), point) if im in order]
     if len(seen) < 3:
         return []
     by_strip: dict = {}
@@ -166,10 +167,10 @@ def transfer_candidates(state, point: str) -> list[list[str]]:
 def _transfers(state, seeds: list[dict]) -> list[dict]:
     """Point-transfer scans of the points of the largest image suspects (``seeds`` sorted)."""
     s = state
-    if not s.images or not any(str(k).startswith("image") for k in set(s.problem.info.kind)):
+    if not geometry.images(s.problem) or not any(str(k).startswith("image") for k in set(s.problem.info.kind)):
         return []
     adj, rel = s.results, s.reliability
-    factor, units = s.display_factor()
+    factor, units = s.problem_index()["factor"]
     points = []
     for row in seeds:
         ids = s.problem.info.ids[int(row["obs"])]
@@ -182,7 +183,7 @@ def _transfers(state, seeds: list[dict]) -> list[dict]:
     for pid in points:
         found = []
         for ims in transfer_candidates(s, pid):
-            rows = [s.reduced_index(s.point_rows_in_image(j, pid)) for j in ims]
+            rows = [s.reduced_index(geometry.point_rows_in_image(s.problem_index(), j, pid)) for j in ims]
             rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
             rows = rows[rows >= 0]
             comps: dict = {}
@@ -205,7 +206,7 @@ def _transfers(state, seeds: list[dict]) -> list[dict]:
                           "T": float(h.T), "k": float(h.critical_T), "rejected": bool(h.rejected_T),
                           "∇ŝ": _estimate_text(h.nabla, factor[i0], units[i0]),
                           "MDB ratio": float(np.sqrt(max(h.T, 0.0)) / h.delta0),
-                          "obs": i0, "point": s.point_index.get(pid), "image": ims[0],
+                          "obs": i0, "point": geometry.point_index(s.problem).get(pid), "image": ims[0],
                           "_H": H, "_key": ("transfer", pid, tuple(ims))})
         found.sort(key=lambda r: -r["T"] / r["k"])
         out += found[:TRANSFER_PER_POINT]

@@ -16,6 +16,7 @@ pytest.importorskip("panel")
 import holoviews as hv  # noqa: E402
 from bokeh.models.widgets.tables import CheckboxEditor  # noqa: E402
 
+from baarda.dashboard import geometry  # noqa: E402
 from baarda.dashboard import render  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.views.hypotheses import HypothesisPanel  # noqa: E402
@@ -101,7 +102,7 @@ def test_critical_ellipse_is_drawn_over_the_lower_bound(demo):
     el = panel.ellipse_plot()
     lower, crit = el.get(0), el.get(1)
     assert lower.label.startswith("∇0s") and crit.label.startswith("critical")
-    f = st.display_factor()[0][st.image_point_rows("302", "P05003")[0]]
+    f = st.problem_index()["factor"][0][geometry.image_point_rows(st.problem_index(), "302", "P05003")[0]]
     for path, level in ((lower, h.delta0 ** 2), (crit, h.critical_T)):
         xy = path.split()[0].array([0, 1]) / f
         # on the ellipse sᵀ W s = level (F80 eq. 12-13), W the core's

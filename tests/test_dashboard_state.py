@@ -32,6 +32,7 @@ from bokeh.models import ColumnDataSource  # noqa: E402
 
 from baarda.stats import distributions
 from baarda.adjust import Options, adjust  # noqa: E402
+from baarda.dashboard import frames, geometry, measures, sbase, specs  # noqa: E402
 from baarda.dashboard.geometry import observation_points  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
@@ -232,7 +233,7 @@ def test_failed_exclusion_is_reverted_with_a_message():
     st = network_state("krumm/2D/Grossmann_Direction_fix.gkf")
     weakest = int(np.argmin(st.results.r))
     adj0 = st.results
-    rows = st.observations_of_point(st.obs_points[weakest][-1])
+    rows = geometry.observations_of_point(st.problem_index(), st.problem_index()["obs_points"][weakest][-1])
     ok = True
     for i in rows:
         ok = st.exclude(i)
@@ -303,7 +304,7 @@ def all_views(st):
             V.AnalysisPanel(state=st), V.InjectPanel(state=st),
             V.Controls(state=st), V.SelectionPanel(state=st), V.FilePanel(state=st),
             V.SummaryHeader(state=st)]
-    if st.images:
+    if geometry.images(st.problem):
         out.append(V.ImageResidualView(state=st))
     return out
 
@@ -343,7 +344,7 @@ def test_demo_block_app_builds():
     from baarda.dashboard.app import create_app
 
     tpl = create_app(DEMO_BLOCK)
-    assert tpl.state.error == "" and tpl.state.images
+    assert tpl.state.error == "" and geometry.images(tpl.state.problem)
     tpl.server_doc(Document())
 
 
@@ -373,7 +374,7 @@ def test_map_click_selects_table_rows_and_back():
     k = 5
     m.tap.event(x=float(pts["x"].iat[k]), y=float(pts["y"].iat[k]))
     assert st.selected_point == k
-    rows = st.observations_of_point(k)
+    rows = geometry.observations_of_point(st.problem_index(), k)
     assert sorted(table.table.value.index[table.table.selection]) == sorted(rows)
     table.table.selection = [12]
     assert st.selected_obs == int(table.table.value.index[12]) and st.selected_point is None
@@ -491,7 +492,7 @@ def test_sbase_changes_ellipses_but_not_r_and_w():
                    for e in split_paths(x) if len(e) == 49]
     obs0 = st.frames()[0][["r", "w"]].to_numpy().copy()
     before = ell()
-    assert before and st.datum_points() == sorted(st.datum_points(), key=list(st.problem.points.ids).index)
+    assert before and sbase.datum_points(st.problem) == sorted(sbase.datum_points(st.problem), key=list(st.problem.points.ids).index)
     ids = list(st.problem.points.ids)
     for base in (ids[:2], ids[3:6]):
         view.sbase.value = base
@@ -520,7 +521,7 @@ def test_sbase_of_fixed_network_transforms_the_covariance_only():
     free = [pid for pid, s in zip(st.problem.points.ids, st.problem.points.status) if s != "fixed"]
     st.sbase = free[:3]
     cc = precision.covariance(st.results, free[:3])
-    k = st.point_index[free[5]]
+    k = geometry.point_index(st.problem)[free[5]]
     np.testing.assert_allclose(st.point_cov2()[k], cc.block(k)[:2, :2], rtol=1e-12)
     assert not np.allclose(st.point_cov2()[k], st.results.point_cov[k, :2, :2])
     assert "covariance only" in st.sbase_check()
@@ -619,17 +620,17 @@ def test_robust_selector_runs_core_and_marks_suspects():
     c.robust.value = "danish"
     ref = robust.estimate(st.results.problem, "danish", st.options())
     np.testing.assert_allclose(st.robust.weights, ref.weights, rtol=1e-12)
-    sus = st.robust_suspects()
+    sus = frames.robust_suspects(st.robust, st.kept, st.frames()[0])
     assert list(sus["obs"]) == [int(st.kept[d["index"]]) for d in ref.suspects] and len(sus) > 0
     assert set(sus["class"]) <= {"random", "small", "medium", "large"}
     np.testing.assert_allclose(table.table.value["robust_w"].to_numpy(), st.expand(ref.weights))
     assert "robust_w" not in table.table.hidden_columns
     assert len(panel.robust_table.value) == len(sus) and "suspects" in panel.robust_info.object
-    n_marked = len({k for i in st.suspect_observations() for k in st.obs_points[i]})
+    n_marked = len({k for i in frames.suspect_observations(st.robust, st.kept) for k in st.problem_index()["obs_points"][i]})
     marks = [s for s in lay.select({"type": ColumnDataSource}) if set(s.data) == {"x", "y"}
              and len(s.data["x"]) == n_marked]
     lines = [s for s in lay.select({"type": ColumnDataSource}) if set(s.data) == {"xs", "ys"}
-             and len(s.data["xs"]) == len(st.suspect_observations())]
+             and len(s.data["xs"]) == len(frames.suspect_observations(st.robust, st.kept))]
     assert n_marked and marks and lines, "suspect points and lines drawn on the layout map"
     c.robust.value = "none"
     assert st.robust is None and np.isnan(st.frames()[0]["robust_w"]).all()
@@ -642,7 +643,7 @@ def test_snooping_log_leave_one_out_and_accept():
     st.sigma0_mode = "apriori"
     assert st.run_snooping()
     ref = snooping.iterate(st.results.problem, st.options())
-    log = st.snoop_log()
+    log = frames.snoop_log(st.snoop, st.kept, st.frames()[0], *st.problem_index()['factor'])
     assert list(log["obs"]) == [int(st.kept[i]) for i in ref.removed] and len(log) >= 2
     np.testing.assert_allclose(log["|w|"], [round(s.statistic, 3) for s in ref.steps])
     np.testing.assert_allclose(log["σ̂0 after"], [round(s.sigma0_after, 4) for s in ref.steps])
@@ -663,7 +664,7 @@ def test_variance_components_and_core_errors_as_messages():
     panel = AnalysisPanel(state=st)
     panel.variance_button.clicks += 1
     ref = variance.estimate(st.results.problem, options=st.options()).as_dict()
-    tab = st.variance_table()
+    tab = frames.variance_table(st.variance, st.components)
     assert list(tab["family"]) == [d["group"] for d in ref]
     np.testing.assert_allclose(tab["σ̂0j²"], [round(d["factor"], 4) for d in ref])
     np.testing.assert_allclose(tab["± s.e."], [round(d["std_error"], 4) for d in ref])
@@ -766,13 +767,13 @@ def test_criterion_for_blocks_and_heights_refused_without_positions(block_proble
     from baarda.dashboard.views import CriterionView
 
     for st in (State(problem=block_problem), network_state("krumm/1D/Niemeier_Height_free.gkf")):
-        assert st.criterion_reason() == ""
+        assert measures.criterion_reason(st.results) == ""
         view = CriterionView(state=st)
         pn.panel(view).get_root(Document())
         c = st.criterion_compare("logarithmic")
         assert c is not None and c["lam_max"] == pytest.approx(1.0, rel=1e-6), st.criterion_error
     st = State(Path(__file__).resolve().parents[1] / "data" / "demo-levelling.gkf")
-    assert "planimetric positions" in st.criterion_reason()
+    assert "planimetric positions" in measures.criterion_reason(st.results)
     assert st.criterion_compare("linear") is None and st.criterion_error.startswith("Criterion:")
 
 
@@ -824,7 +825,7 @@ def test_radial_variance_model_matches_core_and_refusal_is_a_message(block_probl
     image = np.char.startswith(np.asarray(prob.info.kind).astype(str), "image")
     sig2 = float(np.median(prob.cov.sigma()[image]) ** 2)
     ref = variance.estimate_components(prob, comps, theta0=[sig2 / 2, sig2 / 2, 1.0], options=st.options())
-    tab = st.variance_table()
+    tab = frames.variance_table(st.variance, st.components)
     assert list(tab["component"]) == list(ref.names) and st.analysis_error == ""
     assert [float(x) for x in tab["θ"]] == pytest.approx(ref.theta, rel=1e-3)
     assert len(panel.variance_table.value) == 3 and panel.variance_table.visible
@@ -906,22 +907,22 @@ def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
     for pts, d in zip(observation_points(named), ids):
         if "image" in d:
             assert pts == [pid_index[str(d["point"])]]
-    assert st.obs_points == observation_points(p)
+    assert st.problem_index()["obs_points"] == observation_points(p)
     for iid, pid, kp in added:
         both = [i for i, d in enumerate(ids) if d.get("image") == str(iid) and d.get("point") == str(pid)]
         assert len(both) == 4
         mine = [i for i in both if ids[i].get("keypoint") == kp]
-        assert len(mine) == 2 and st.image_point_rows(iid, pid, kp) == mine
-        assert st.point_rows_in_image(iid, pid) == both
-        assert len(st.keypoints_of(iid, pid)) == 2
+        assert len(mine) == 2 and geometry.image_point_rows(st.problem_index(), iid, pid, kp) == mine
+        assert geometry.point_rows_in_image(st.problem_index(), iid, pid) == both
+        assert len(geometry.keypoints_of(st.problem_index(), iid, pid)) == 2
         with pytest.raises(ValueError, match="keypoints"):
-            st.image_point_rows(iid, pid)
+            geometry.image_point_rows(st.problem_index(), iid, pid)
         # the hypothesis of one keypoint's image point: q = 2, the core's test of those two rows
         k = st.add_hypothesis({"kind": "image-point", "image": str(iid), "point": str(pid), "keypoint": kp})
         h = st.hyp_results[k]
         ref = st.results.test(selection(st.results.n, mine))
         assert h.q == 2 and h.T == pytest.approx(ref.T, rel=1e-12)
-        assert f"keypoint {kp}" in st.describe(st.hypotheses[k])
+        assert f"keypoint {kp}" in specs.describe(st.problem, st.hypotheses[k], st.problem_index())
 
 
 # --------------------------------------------------------------------------------------------
@@ -964,7 +965,7 @@ def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
         warnings.simplefilter("error")
         k = st.add_hypothesis({"kind": "observation", "index": st.problem.n - 1})
         assert st.hyp_results[k].q == 0
-        assert not st.hypothesis_deformation(k).any()
+        assert not measures.hypothesis_field(st.results, st.hyp_results[k], len(st.problem.points.ids)).any()
 
 
 def test_cancelled_snooping_stops_within_its_step(monkeypatch):
@@ -1047,10 +1048,10 @@ def test_a_selection_patches_only_the_selection_sources(block_problem):
     _, pts = st.frames()
     st.selected_point = 3
     assert rings.data["x"] == [pts["x"].iat[3]] and rings.data["y"] == [pts["y"].iat[3]]
-    i = next(i for i, k in enumerate(st.obs_points) if len(k) >= 2) if any(
-        len(k) >= 2 for k in st.obs_points) else 0
+    i = next(i for i, k in enumerate(st.problem_index()["obs_points"]) if len(k) >= 2) if any(
+        len(k) >= 2 for k in st.problem_index()["obs_points"]) else 0
     st.selected_obs = i
-    k = st.obs_points[i]
+    k = st.problem_index()["obs_points"][i]
     assert rings.data["x"] == [pts["x"].iat[j] for j in k]
     assert all(s.data is others[id(s)] for s in root.select({"type": ColumnDataSource})
                if id(s) in others)
@@ -1104,7 +1105,6 @@ def test_policy_change_rebuilds_only_the_reliability_over_the_same_result(monkey
     """α0, β0 and the B-method change only the Reliability over the same result: no new
     adjustment (``adjust`` must not be called), the same result object, and every decision, MDB,
     δ̄0 and group test equal to a fresh analysis at the new policy."""
-    import baarda.dashboard.state as state_module
     from baarda.stats.policy import TestPolicy
     from baarda.stats.reliability import Reliability
 
@@ -1116,7 +1116,7 @@ def test_policy_change_rebuilds_only_the_reliability_over_the_same_result(monkey
     def no_refit(*args, **kwargs):
         raise AssertionError("a policy change must not adjust again")
 
-    monkeypatch.setattr(state_module, "adjust", no_refit)
+    monkeypatch.setattr(measures, "adjust", no_refit)     # the state adjusts through measures
     with param.parameterized.batch_call_watchers(st):
         st.alpha0, st.beta0, st.b_method = 0.02, 0.9, True
     monkeypatch.undo()

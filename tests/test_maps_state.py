@@ -22,10 +22,11 @@ pytest.importorskip("panel")
 import holoviews as hv  # noqa: E402
 from bokeh.models import ColorBar  # noqa: E402
 
+from baarda.dashboard import geometry  # noqa: E402
 from baarda.dashboard import render  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.mapgeometry import FRAME_MIN_POINTS, far_note, framed, robust_box, w_levels  # noqa: E402
-from baarda.dashboard.views.maps import MAP_VIEWS, ResidualMap  # noqa: E402
+from baarda.dashboard.views.maps import MAP_VIEWS, PrecisionMap, ResidualMap  # noqa: E402
 from tests.extdata import EXTDATA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
@@ -69,7 +70,7 @@ def test_demo_maps_keep_every_point_and_metres():
     if not DEMO.exists():
         pytest.skip("data/demo-block.json not generated")
     st = State(DEMO)
-    assert st.map_labels() == ("X [m]", "Y [m]")
+    assert geometry.display_xy(st.problem, st.results.coordinates)[2:] == ("X [m]", "Y [m]")
     view = ResidualMap(state=st)
     assert view.far_count() == 0 and not view.far_note.visible
     fig = render.figure(view.dmap)
@@ -80,7 +81,7 @@ def test_demo_maps_keep_every_point_and_metres():
     # the largest image residual drawn at most 30 % of the image (the 20σ error), a round factor
     assert st.exaggeration in (100.0, 200.0, 500.0, 1000.0)
     v = np.abs(st.results.v[np.char.startswith(np.asarray(st.problem.info.kind, dtype=str), "image")])
-    assert st.exaggeration * v.max() * st.display_factor()[0].max() <= 0.3 * 230
+    assert st.exaggeration * v.max() * st.problem_index()["factor"][0].max() <= 0.3 * 230
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +92,7 @@ def ladybug():
 
 def test_ladybug_maps_spread_the_real_points_and_list_the_far_ones(ladybug):
     st = ladybug
-    assert st.map_labels() == ("X", "Y")          # BAL: no unit
+    assert geometry.display_xy(st.problem, st.results.coordinates)[2:] == ("X", "Y")          # BAL: no unit
     _, raw = st.frames()
     for V in MAP_VIEWS:
         view = V(state=st)
@@ -152,3 +153,13 @@ def test_criterion_map_holds_the_network_and_its_arrows():
     assert (x1 - x0) / opts["frame_width"] == pytest.approx((y1 - y0) / opts["frame_height"], rel=1e-9)
     assert opts["xticks"] <= 4
     assert view.C1.format and view.C1.value == c["C1"]
+
+
+def test_sbase_label_names_a_large_datum_briefly(ladybug):
+    """Ladybug's free datum is every one of its 7,776 points: the S-base label says so in a few
+    words (it listed every id on one line, across the right panel)."""
+    label = PrecisionMap(state=ladybug).sbase.label
+    n = len(ladybug.problem.points.ids)
+    assert f"all {n:,} points" in label and len(label) < 80
+    if DEMO.exists():                                   # a controlled block: its control
+        assert "its fixed / weighted points" in PrecisionMap(state=State(DEMO)).sbase.label

@@ -20,6 +20,7 @@ import pytest
 
 pytest.importorskip("panel")
 
+from baarda.dashboard import geometry  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.suspects import suspects, transfer_candidates  # noqa: E402
 from baarda.dashboard.views.suspects import SuspectsView  # noqa: E402
@@ -45,12 +46,12 @@ def rows_of(st, df):
     for _, r in df.iterrows():
         if r["what"] == "transfer":
             pid, ims = r["hypothesis"].split(" in images ")
-            out.append({i for im in ims.split(", ") for i in st.point_rows_in_image(im, pid)})
+            out.append({i for im in ims.split(", ") for i in geometry.point_rows_in_image(st.problem_index(), im, pid)})
         elif r["what"] == "control point":
             out.append({i for i, ids in enumerate(st.problem.info.ids) if str(ids.get("id")) == r["hypothesis"]})
         elif r["what"] == "image point":
             pid, im = r["hypothesis"].split(" in image ")
-            out.append(set(st.image_point_rows(im, pid)))
+            out.append(set(geometry.image_point_rows(st.problem_index(), im, pid)))
         else:
             out.append({int(r["obs"])})
     return out
@@ -90,7 +91,7 @@ def test_sorted_by_abs_w_with_core_numbers(demo):
         # ∇ŝ = −(Pv)_i / (P C_vv P)_ii (F80 eq. 10, H = e_i) from the oracle, in the file's unit
         i = int(r["obs"])
         M = oracle.P @ oracle.Cvv @ oracle.P
-        ref = -(oracle.P @ oracle.v)[i] / M[i, i] * st.display_factor()[0][i]
+        ref = -(oracle.P @ oracle.v)[i] / M[i, i] * st.problem_index()["factor"][0][i]
         assert float(r["∇ŝ"].split()[0]) == pytest.approx(ref, rel=6e-3)    # shown to 3 digits
         assert (r["decision"] == "rejected") == (abs(wi) > st.reliability.critical)
     assert set(df["decision"]) <= {"rejected", "accepted"}
@@ -103,7 +104,7 @@ def test_two_ray_twins_are_marked(demo):
     rho = M / np.sqrt(np.outer(np.diag(M), np.diag(M)))
     # P00001 is seen in images 101 and 102 only: its four image coordinates have |ρ| = 1 (to the
     # oracle's conditioning)
-    rows = st.image_point_rows("101", "P00001") + st.image_point_rows("102", "P00001")
+    rows = geometry.image_point_rows(st.problem_index(), "101", "P00001") + geometry.image_point_rows(st.problem_index(), "102", "P00001")
     assert np.abs(rho[np.ix_(rows, rows)]).min() > 0.999
     for i in rows:
         r = df[(df["what"] == "observation") & (df["obs"] == i)]
@@ -124,8 +125,8 @@ def test_transfer_candidates_are_runs_of_one_strip(demo):
     st, _, _ = demo
     runs = transfer_candidates(st, "P04004")
     assert ["203", "204", "205"] in runs
-    strip = {str(im["id"]): im.get("strip") for im in st.images}
-    seen = st.images_of_point("P04004")
+    strip = {str(im["id"]): im.get("strip") for im in geometry.images(st.problem)}
+    seen = geometry.images_of_point(st.problem_index(), "P04004")
     for run in runs:
         assert 2 <= len(run) < len(seen) and len({strip[i] for i in run}) == 1
 
@@ -142,7 +143,7 @@ def test_click_selects_observation_point_and_image():
     assert st.selected_obs == int(df["obs"].iat[k]) and st.selected_image == "101"
     k = int(df.index[df["what"] == "transfer"][0])
     view.table.selection = [k]
-    assert st.selected_obs is None and st.selected_point == st.point_index[df["hypothesis"].iat[k].split(" in ")[0]]
+    assert st.selected_obs is None and st.selected_point == geometry.point_index(st.problem)[df["hypothesis"].iat[k].split(" in ")[0]]
     assert "rejected" in view.note.object and "suspects" in view.note.object
 
 

@@ -1,9 +1,9 @@
 """Finding errors: robust reweighting beside data snooping, iterative data snooping with the
 leave-one-out view, variance components (issue 7), and the "inject an error here" teaching tool.
 
-Every number comes from the core through the state (:meth:`State.robust_suspects`,
-:meth:`State.run_snooping`, :meth:`State.run_variance`, :meth:`State.inject`); these views only
-show them and forward button clicks.
+Every number comes from the core through the state (its ``robust`` result, :meth:`State.run_snooping`,
+:meth:`State.run_variance`, :meth:`State.inject`), tabulated by :mod:`baarda.dashboard.frames`;
+these views only show them and forward button clicks.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import pandas as pd
 import panel as pn
 import param
 
+from .. import frames
 from ..geometry import observation_label
 from ..state import VARIANCE_MODELS, State
 from ..text import md_text
@@ -69,7 +70,7 @@ class AnalysisPanel(pn.viewable.Viewer):
     def _robust(self, *_):
         s = self.state
         rr = s.robust
-        self.robust_table.value = s.robust_suspects()
+        self.robust_table.value = frames.robust_suspects(rr, s.kept, s.frames()[0] if rr is not None else None)
         self.robust_table.visible = rr is not None and bool(rr.suspects)
         if s.robust_method == "none":
             self.robust_info.object = "*Robust reweighting is off (choose a method in the sidebar).*"
@@ -94,8 +95,9 @@ class AnalysisPanel(pn.viewable.Viewer):
     def _snoop(self, *_):
         s = self.state
         res = s.snoop
-        self.snoop_table.value = s.snoop_log()
-        self.loo_table.value = s.loo_table()
+        self.snoop_table.value = frames.snoop_log(res, s.kept, s.frames()[0] if res is not None else None,
+                                                  *s.problem_index()["factor"])
+        self.loo_table.value = frames.loo_table(s.snoop_loo, s.kept, s.frames()[0])
         self.snoop_table.visible = res is not None and bool(res.steps)
         self.loo_table.visible = bool(s.snoop_loo)
         self.accept.disabled = res is None or not res.steps
@@ -108,7 +110,7 @@ class AnalysisPanel(pn.viewable.Viewer):
                                   f"|w| left out in turn (the likeliest error lowers it most).")
 
     def _variance(self, *_):
-        self.variance_table.value = self.state.variance_table()
+        self.variance_table.value = frames.variance_table(self.state.variance, self.state.components)
         self.variance_table.visible = self.state.variance is not None or self.state.components is not None
 
     def __panel__(self):

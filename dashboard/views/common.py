@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 from bokeh.models import NumeralTickFormatter
 
+from .. import frames, geometry
 from ..frames import R_UNCONTROLLED, R_WEAK
 from ..mapgeometry import extent
 from ..text import plain
@@ -62,7 +63,7 @@ def block_context(state) -> hv.Overlay:
     The footprints are drawn as their edges (one columnar ``Segments`` element): a thousand
     polygons would make every update of the map recompute their ranges.
     """
-    images = state.images
+    images = geometry.images(state.problem)
     edges, centres, strips = [], [], {}
     for im in images:
         fp = im.get("footprint")
@@ -98,7 +99,7 @@ def nearest(state, x: float, y: float, tol_fraction: float = 0.04):
     d = np.hypot(pts["x"].to_numpy() - x, pts["y"].to_numpy() - y)
     if d.size and d.min() <= tol:
         return ("point", int(np.argmin(d)))
-    seg = state.segments()
+    seg = frames.segments(state.frames()[1], state.problem_index())
     if len(seg):
         p0 = seg[["x0", "y0"]].to_numpy()
         p1 = seg[["x1", "y1"]].to_numpy()
@@ -133,7 +134,7 @@ def selection_marks(state) -> tuple[pd.DataFrame, list[np.ndarray]]:
     if state.selected_point is not None and state.selected_point < len(pts):
         ring = pts.iloc[[state.selected_point]]
     if state.selected_obs is not None and state.selected_obs < len(obs):
-        k = state.obs_points[state.selected_obs]
+        k = state.problem_index()["obs_points"][state.selected_obs]
         ring = pts.iloc[k]
         if len(k) >= 2:
             line = [np.array([[pts["x"].iat[k[0]], pts["y"].iat[k[0]]], [pts["x"].iat[j], pts["y"].iat[j]]])
@@ -160,10 +161,10 @@ def suspects_layer(state) -> hv.Overlay:
     """The robust suspects: their lines (network observations) and points (the options, orange,
     are set by the map: ``suspect_opts``)."""
     _, pts = state.frames()
-    sus = state.suspect_observations()
+    sus = frames.suspect_observations(state.robust, state.kept)
     lines, marks = [], set()
     for i in sus:
-        k = state.obs_points[i]
+        k = state.problem_index()["obs_points"][i]
         marks.update(k[-1:] if state.problem.info.kind[i].startswith("image") else k)
         if len(k) >= 2 and not state.problem.info.kind[i].startswith("image"):
             lines += [np.array([[pts["x"].iat[k[0]], pts["y"].iat[k[0]]], [pts["x"].iat[j], pts["y"].iat[j]]])

@@ -14,6 +14,7 @@ from pathlib import Path
 import panel as pn
 import param
 
+from .. import geometry
 from ..geometry import observation_label
 from ..state import ROBUST_METHODS, State
 from ..tables import TABLES, table_csv
@@ -121,7 +122,7 @@ class SelectionPanel(pn.viewable.Viewer):
         self.info.object = text
         self.excluded.object = ("Excluded: " + ", ".join(str(i) for i in sorted(s.excluded))
                                 if s.excluded else "")
-        images = [str(im.get("id")) for im in s.images]
+        images = [str(im.get("id")) for im in geometry.images(s.problem)]
         if list(self.image.options.values() if isinstance(self.image.options, dict) else self.image.options) \
                 != images:                     # a thousand options are not sent again on every click
             self.image.options = {plain(i): i for i in images}

@@ -7,7 +7,7 @@ direction in which the network is weakest relative to the criterion. :class:`Ris
 critical value C that minimises the risk r_C = (1 − p) α_C L1 + p (1 − β_C) L2 and r_C over C.
 
 Every number comes from the core through :meth:`State.criterion_compare` and
-:meth:`State.risk_curve`; these views only render them.
+:func:`baarda.dashboard.measures.risk_curve`; these views only render them.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import param
 
 from baarda.stats import analyses
 
+from .. import measures
 from ..geometry import display_matrix, display_xy
 from ..state import State
 from ..text import fit_title, labels, md_text, plain
@@ -42,7 +43,7 @@ class CriterionView(pn.viewable.Viewer):
     def __init__(self, **params):
         super().__init__(**params)
         s = self.state
-        self.reason = s.criterion_reason()
+        self.reason = measures.criterion_reason(s.results)
         self.kind = pn.widgets.Select(label="structure", options=KINDS, value="logarithmic", width=150,
                                       css_classes=["criterion-kind"])
         self.sbase = pn.widgets.MultiChoice(label="S-base", options=labels(s.problem.points.ids),
@@ -171,8 +172,8 @@ class RiskView(pn.viewable.Viewer):
 
     def _update(self, *_):
         try:
-            rc = self.state.risk_curve(float(self.p.value), float(self.L1.value), float(self.L2.value),
-                                       float(self.lam.value))
+            rc = measures.risk_curve(float(self.p.value), float(self.L1.value), float(self.L2.value),
+                                     float(self.lam.value))
         except (TypeError, ValueError) as err:
             self.info.object = f"**Risk:** {err}"     # the core's message about p, L1, L2, λtol
             return

@@ -15,6 +15,7 @@ from baarda.observations.collinearity import AP_GROUPS
 from baarda.stats.ap_tests import APTest
 from baarda.stats.hypotheses import HypothesisTest
 
+from .. import geometry, specs
 from ..geometry import observation_label
 from ..state import State
 from ..text import fit_title, labels, md_text, plain
@@ -141,7 +142,7 @@ class HypothesisPanel(pn.viewable.Viewer):
         return out
 
     def _cameras(self) -> list[str]:
-        block = self.state.block
+        block = geometry.block(self.state.problem)
         return [str(c["id"]) for c in block.get("cameras", [])] if isinstance(block, dict) else []
 
     def _group_firsts(self) -> dict:
@@ -203,7 +204,7 @@ class HypothesisPanel(pn.viewable.Viewer):
         # its value (image, keypoint)
         opts: dict = {}
         for im in ims:
-            kps = self.state.keypoints_of(im, self.point.value) if self.point.value is not None else [None]
+            kps = geometry.keypoints_of(self.state.problem_index(), im, self.point.value) if self.point.value is not None else [None]
             if len(kps) > 1:
                 for kp in kps:
                     label = f"{plain(im)} (keypoint {kp})"
@@ -287,7 +288,7 @@ class HypothesisPanel(pn.viewable.Viewer):
     def frame(self) -> pd.DataFrame:
         """One row per hypothesis with the core's test results (∇ŝ in the file's σ units)."""
         s = self.state
-        factor, units = s.display_factor()
+        factor, units = s.problem_index()["factor"]
         rows = []
         for spec, h in zip(s.hypotheses, s.hyp_results + [None] * (len(s.hypotheses) - len(s.hyp_results))):
             row = {"active": bool(spec.get("active", True)), "hypothesis": plain(spec.get("label", "")),
@@ -306,7 +307,7 @@ class HypothesisPanel(pn.viewable.Viewer):
                 row["q"] = 0
                 row["decision"] = plain(not_testable(s, h))
             elif h is not None:
-                first = s.hypothesis_rows(spec)[0]
+                first = specs.rows(s.problem, spec, s.problem_index())[0]
                 f = factor[int(first[0])] if len(first) else 1.0
                 u = units[int(first[0])] if len(first) else ""
                 row.update({"q": h.q, "T": round(h.T, 3), "critical T": round(h.critical_T, 3),
@@ -355,8 +356,8 @@ class HypothesisPanel(pn.viewable.Viewer):
             title = "Not testable: rank-deficient (see the table)"
         elif h is not None and not isinstance(h, str):
             spec = s.hypotheses[k]
-            factor, units = s.display_factor()
-            first = s.hypothesis_rows(spec)[0]
+            factor, units = s.problem_index()["factor"]
+            first = specs.rows(s.problem, spec, s.problem_index())[0]
             f = factor[int(first[0])] if len(first) else 1.0
             u = units[int(first[0])] if len(first) else ""
             finite = np.flatnonzero(np.isfinite(h.ellipse_axes))

@@ -30,6 +30,7 @@ from bokeh.models import ColumnDataSource, FixedTicker
 from baarda.errors import BaardaError
 from baarda.stats.hypotheses import HypothesisTest
 
+from .. import frames, geometry, specs
 from .. import sbase as sbase_lesson
 from ..geometry import display_matrix, image_points, object_unit
 from ..jobs import next_tick
@@ -37,7 +38,7 @@ from ..mapgeometry import (W_COLORS, clamped_segments, deformation_field, ellips
                            field_vectors, framed, hypothesis_ellipse, image_border, image_residuals, largest_abs_w,
                            length_text, log_clim, w_levels)
 from ..state import State
-from ..text import fit_title, html_text, labels, plain
+from ..text import fit_title, html_text, id_list, labels, plain
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, on_tap,
                      selection_data, selection_layer, suspects_layer)
 
@@ -132,8 +133,8 @@ class MapView(pn.viewable.Viewer):
         return int(self.points()["far"].sum())
 
     def _overlay_opts(self):
-        xl, yl = self.state.map_labels()
-        size = frame_size(self.points(), self.state.images)
+        xl, yl = geometry.display_xy(self.state.problem, self.state.results.coordinates)[2:]
+        size = frame_size(self.points(), geometry.images(self.state.problem))
         return hv.opts.Overlay(title=self.title_text(size["frame_width"]), xlabel=xl, ylabel=yl, legend_position="bottom",
                                legend_cols=4, show_legend=self.key == "layout", hooks=[self._hook],
                                **size, **formatters(), **MAP_OPTS)
@@ -174,7 +175,7 @@ class MapView(pn.viewable.Viewer):
 
     def _hook(self, plot, element):
         fig = plot.state
-        fig.title.text = self.title_text(fig.frame_width or frame_size(self.points(), self.state.images)["frame_width"])
+        fig.title.text = self.title_text(fig.frame_width or frame_size(self.points(), geometry.images(self.state.problem))["frame_width"])
         if fig.id in self._hooked:
             return
         self._hooked.add(fig.id)
@@ -219,7 +220,7 @@ class MapView(pn.viewable.Viewer):
     def segments(self, columns=()) -> pd.DataFrame:
         """The observation lines joined with the given columns of the observation table."""
         obs, _ = self.state.frames()
-        seg = self.state.segments()
+        seg = frames.segments(self.state.frames()[1], self.state.problem_index())
         cols = ["kind", "ids", *columns]
         seg = seg.join(obs[cols], on="obs") if len(seg) else pd.DataFrame(
             columns=["obs", "x0", "y0", "x1", "y1", *cols])
@@ -266,7 +267,7 @@ class LayoutMap(MapView):
         h = s.hyp_results[k]
         if not isinstance(h, HypothesisTest) or h.q != 2 or not np.isfinite(h.ellipse_axes).all():
             return None, []
-        pk = s.hypothesis_point(s.hypotheses[k])
+        pk = specs.point(s.problem, s.hypotheses[k], s.problem_index())
         if pk is None:
             return None, []
         pts = self.points()
@@ -480,9 +481,11 @@ class PrecisionMap(MapView):
     def __init__(self, **params):
         super().__init__(**params)
         s = self.state
-        datum = s.datum_points()
+        datum = sbase_lesson.datum_points(s.problem)
+        n_points = len(s.problem.points.ids)
+        named = (f"all {n_points:,} points" if len(datum) == n_points > 8 else id_list(datum))
         self.sbase = pn.widgets.MultiChoice(
-            label="S-base (empty: the problem's datum" + (f" — {plain(', '.join(datum))})" if datum else
+            label="S-base (empty: the problem's datum" + (f" — {named})" if datum else
                                                         ", its fixed / weighted points)"),
             options=labels(s.problem.points.ids), value=list(s.sbase), css_classes=["sbase-choice"],
             sizing_mode="stretch_width", visible=s.problem.points.dim > 1, stylesheets=[INLINE_DROPDOWN])
@@ -558,7 +561,7 @@ class PrecisionMap(MapView):
         else:
             cov, name = s.results.point_cov[:, :2, :2], "the problem's own datum"
         paths, _, _, _ = self._ellipse_paths(cov, scale)
-        size = frame_size(pts, s.images, size=260)
+        size = frame_size(pts, geometry.images(s.problem), size=260)
         return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
                 * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=3)).opts(
             title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"], 12), xlabel="", ylabel="",
@@ -649,7 +652,7 @@ class ImageResidualView(pn.viewable.Viewer):
         df = self.data()
         crit = s.reliability.critical
         top = max(crit, float(df["abs_w"].max()) if len(df) else 0.0)
-        border = hv.Path(image_border(df, (s.block or {}).get("image_size"))).opts(color="#888888", nonselection_alpha=1)
+        border = hv.Path(image_border(df, (geometry.block(s.problem) or {}).get("image_size"))).opts(color="#888888", nonselection_alpha=1)
         levels = w_levels(crit, top)
         vec = hv.Segments(df, ["x", "y", "x1", "y1"], ["point", "vx", "vy", "abs_w"]).opts(
             hover_tooltips=tips(["point", "vx", "vy", "abs_w"]),

@@ -14,6 +14,7 @@ import panel as pn
 from bokeh.models.widgets.tables import HTMLTemplateFormatter, NumberFormatter
 import param
 
+from .. import geometry
 from ..state import State
 
 COLUMNS = {"kind": "kind [unit]", "ids": "ids", "v": "v", "w": "w", "abs_w": "|w|", "tau": "τ", "abs_tau": "|τ|",
@@ -84,7 +85,7 @@ class TestsTable(pn.viewable.Viewer):
     def _state_rows(self):
         s = self.state
         if s.selected_point is not None:
-            return s.observations_of_point(s.selected_point)
+            return geometry.observations_of_point(s.problem_index(), s.selected_point)
         if s.selected_obs is not None:
             return [s.selected_obs]
         return None

@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 from playwright.sync_api import expect
 
+from baarda.dashboard import geometry
+
 pytestmark = pytest.mark.browser
 
 MAP_TABS = {"Layout": "Layout", "Redundancy": "Redundancy", "w": "|w|", "External": "External",
@@ -173,7 +175,7 @@ def test_click_point_selects_table_rows(page, network_app, screenshots):
     assert xy, "layout figure not found"
     page.mouse.click(*xy[0])
     assert wait_until(lambda: state.selected_point == k), state.selected_point
-    rows = state.observations_of_point(k)
+    rows = geometry.observations_of_point(state.problem_index(), k)
     page.wait_for_function(f"() => {{ const s = ({JS_TABLE_SELECTION})(); return s && s.length === {len(rows)}; }}",
                            timeout=30_000)
     selected = page.evaluate(JS_TABLE_SELECTION)

@@ -14,6 +14,7 @@ import pytest
 from playwright.sync_api import expect
 
 from baarda.cli import main
+from baarda.dashboard import geometry
 from baarda.text import printable
 
 pytestmark = pytest.mark.browser
@@ -137,7 +138,7 @@ def test_hostile_ids_are_text_everywhere(page, hostile_app, tmp_path, screenshot
     # (the Suspects view is the first tab on the right now: open the tests table)
     page.get_by_text("Tests table", exact=True).first.click()
     expect(page.locator(".tests-table")).to_contain_text(printable(HOSTILE[4]), timeout=30_000)
-    image = next(im["id"] for im in state.images if im["id"].startswith(IFRAME))
+    image = next(im["id"] for im in geometry.images(state.problem) if im["id"].startswith(IFRAME))
     point = next(str(ids["point"]) for ids in state.problem.info.ids if ids.get("image") == image)
     state.add_hypothesis({"kind": "image-point", "image": image, "point": point})
     page.get_by_text("Hypotheses", exact=True).first.click()

@@ -16,6 +16,7 @@ import re
 import pytest
 from playwright.sync_api import expect
 
+from baarda.dashboard import geometry
 from tests.browser.conftest import ROOT
 from tests.browser.test_app import LOAD_TIMEOUT, click_tab, open_app, real_errors, wait_until
 
@@ -80,7 +81,7 @@ def test_planted_error_in_three_clicks(page, block_app, screenshots, kind):
     rows = {int(i) for i in error["rows"]}
     ids = error["ids"]
     if kind == "transfer":
-        assert wait_until(lambda: state.selected_point == state.point_index[ids["point"]]), state.selected_point
+        assert wait_until(lambda: state.selected_point == geometry.point_index(state.problem)[ids["point"]]), state.selected_point
         assert state.selected_image == ids["images"][0]
     else:
         assert wait_until(lambda: state.selected_obs is not None and state.selected_obs in rows), state.selected_obs
