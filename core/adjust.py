@@ -432,7 +432,8 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             if far.any():
                 if plan.defect:
                     # the datum analysed again here: the S-base leaves the far points out
-                    plan = _replan(problem, x, full(), P, free, plan)
+                    held, plan = plan.eliminate, None      # (the old plan's G goes first)
+                    plan = _replan(problem, x, full(), P, free, held)
                     new = np.setdiff1d(np.arange(free.size), plan.eliminate)
                     if not np.array_equal(new, keep_all):
                         keep_all = new
@@ -591,10 +592,10 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     if back:
         Ar = lin.reduced(A, keep_all)
     if plan.defect:
-        old = plan.eliminate
+        old, plan = plan.eliminate, None       # (the iterations' plan and its G go first)
         # the datum at the solution; a block keeps its held coordinates where they still fix
         # the gauge (the reduced system, and so the structure, stay as they are)
-        plan = _replan(problem, x, A, P, free, plan) if use_schur else datum_mod.plan(problem, x, A, P, free)
+        plan = _replan(problem, x, A, P, free, old) if use_schur else datum_mod.plan(problem, x, A, P, free)
         if use_schur and not np.array_equal(old, plan.eliminate):
             keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
             Ar = lin.reduced(A, keep)
@@ -627,17 +628,17 @@ def check_termination(step: float, previous: float | None, tol: float) -> int:
     return 0
 
 
-def _replan(problem, x, A, P, free, plan):
-    """The datum plan at ``x`` (:func:`baarda.datum.plan`), holding the same coordinates as
-    ``plan`` when they still fix the gauge (so the reduced system keeps its structure); else
-    the new plan with its own choice."""
+def _replan(problem, x, A, P, free, eliminate):
+    """The datum plan at ``x`` (:func:`baarda.datum.plan`), holding the coordinates
+    ``eliminate`` (the previous plan's) when they still fix the gauge (so the reduced system
+    keeps its structure); else the new plan with its own choice."""
     new = datum_mod.plan(problem, x, A, P, free)
-    if np.array_equal(new.eliminate, plan.eliminate):
+    if np.array_equal(new.eliminate, eliminate):
         return new
-    g = new.G[plan.eliminate]
+    g = new.G[eliminate]
     g = g / np.maximum(np.linalg.norm(g, axis=0), 1e-300)
     if g.shape[0] == new.defect and np.linalg.svd(g, compute_uv=False).min() > 1e-6:
-        return dataclasses.replace(new, eliminate=plan.eliminate)
+        return dataclasses.replace(new, eliminate=eliminate)
     return new
 
 

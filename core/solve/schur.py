@@ -1145,6 +1145,8 @@ class SchurFactor:
             p = self.st.cl_pos[clusters]
             out_h.append(H[p, :m, :m].reshape(-1))
             out_t.append(Ht[p, :m, :m].reshape(-1))
+        if len(out_h) == 1:            # (one cluster size: its stacks are new arrays already)
+            return out_h[0], out_t[0]
         return np.concatenate(out_h), np.concatenate(out_t)
 
     def entries(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
