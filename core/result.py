@@ -382,17 +382,23 @@ class Adjustment:
         H, Ht = self.hat_blocks
         n = self.n
         r, pcp, php, phkp, uk = (np.empty(n) for _ in range(5))
-        for (m, members, C, Hc), (_, _, _, Htc), Pc in zip(_cluster_blocks(cov, H), _cluster_blocks(cov, Ht),
-                                                         size_weights(cov)):
-            diag = lambda X: np.diagonal(X, axis1=1, axis2=2)  # noqa: E731
-            HP = _mm(Hc, Pc)
-            HkP = HP - _mm(Htc, Pc)
-            r[members] = 1.0 - diag(HP)                   # (C_vv P)_ii = 1 − (H P)_ii
-            PHP = _mm(Pc, HP)
-            php[members] = diag(PHP)
-            pcp[members] = diag(Pc) - diag(PHP)           # P C_vv P = P − P H P
-            phkp[members] = diag(_mm(Pc, HkP))
-            uk[members] = diag(HkP)
+        diag = lambda X: np.diagonal(X, axis1=1, axis2=2)  # noqa: E731
+        for (m, members_all, C, Hc_all), (_, _, _, Htc_all), Pc_all in zip(
+                _cluster_blocks(cov, H), _cluster_blocks(cov, Ht), size_weights(cov)):
+            # in chunks of clusters (each cluster's products are its own: the same numbers), so
+            # that the stacks of H P, H_k P and P H P are not made for every image point at once
+            for s in range(0, members_all.shape[0], GROUP_CHUNK):
+                sl = slice(s, s + GROUP_CHUNK)
+                members, Hc, Htc, Pc = members_all[sl], Hc_all[sl], Htc_all[sl], Pc_all[sl]
+                HP = _mm(Hc, Pc)
+                HkP = HP - _mm(Htc, Pc)
+                r[members] = 1.0 - diag(HP)                   # (C_vv P)_ii = 1 − (H P)_ii
+                PHP = _mm(Pc, HP)
+                php[members] = diag(PHP)
+                pcp[members] = diag(Pc) - diag(PHP)           # P C_vv P = P − P H P
+                phkp[members] = diag(_mm(Pc, HkP))
+                uk[members] = diag(HkP)
+                del HP, HkP, PHP
         self.timings.setdefault("reliability", time.perf_counter() - t0)
         return r, pcp, php, phkp, uk
 
