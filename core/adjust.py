@@ -66,7 +66,7 @@ import scipy.sparse as sp
 from . import datum as datum_mod
 from .errors import DatumDefectError, OptionError, SingularError
 from .model.problem import take, weight_matrix
-from .result import Adjustment
+from .result import Adjustment, HeldColumns
 from .solve import schur
 from .solve.linalg import SPDFactor, keep_columns
 from .solve.schur import schur_structure
@@ -179,7 +179,7 @@ class Linearisation:
         self.u = free.size
         self.col = np.full(problem.params.size, -1, dtype=np.int64)
         self.col[free] = np.arange(free.size)
-        self._key = self._take = self._first = self._dest = None
+        self._key = self._take = self._first = self._dest = self._fixed = None
 
     @property
     def direct(self) -> bool:
@@ -202,19 +202,30 @@ class Linearisation:
         no array of the raw entries besides it."""
         sets = self.problem.sets
         s = sets[0] if len(sets) == 1 else None
-        if (s is not None and hasattr(s, "evaluate_into") and self._key is not None and self._first is None
-                and (self._take is not None or self._dest is not None) and self._same([(*s.pattern(), None)])):
-            if self._dest is None:         # the inverse of _take (which it replaces)
-                nnz = self._indices.size
-                dest = np.full(self._key[0][0].size, nnz, dtype=self._take.dtype)   # left out: a spare slot
-                dest[self._take] = np.arange(nnz, dtype=self._take.dtype)
-                self._dest, self._take = dest, None
+        if s is not None and (self._fixed is s or (
+                hasattr(s, "evaluate_into") and self._key is not None and self._first is None
+                and (self._take is not None or self._dest is not None) and self._same([(*s.pattern(), None)]))):
+            self._direct(s)
             data = np.empty(self._indices.size + 1)
             f = np.empty(self.problem.n)
             f[s.rows] = s.evaluate_into(x, self._dest, data)
             return f, self._matrix(data[:-1])
         f, parts = self.evaluate(x)
         return f, self.design(parts)
+
+    def _direct(self, s) -> None:
+        """Make the place in A's data of every entry of the set ``s`` (the inverse of the gather
+        order, which it replaces). A set whose pattern is fixed (``pattern_fixed``: a function of
+        its own index arrays) is not compared with its entries again: their rows and columns are
+        dropped here, by the set too (``release_entries``)."""
+        if self._dest is None:
+            nnz = self._indices.size
+            dest = np.full(self._key[0][0].size, nnz, dtype=self._take.dtype)   # left out: a spare slot
+            dest[self._take] = np.arange(nnz, dtype=self._take.dtype)
+            self._dest, self._take = dest, None
+        if getattr(s, "pattern_fixed", False) and self._fixed is not s:
+            self._fixed, self._key = s, None
+            getattr(s, "release_entries", lambda: None)()
 
     def evaluate(self, x: np.ndarray):
         """f(x) (n,) and the raw entries of the Jacobian (pass them to :meth:`design`)."""
@@ -253,11 +264,11 @@ class Linearisation:
         small = uniq.size < 2 ** 31 - 1 and self.u < 2 ** 31 - 1       # int32 indices where they fit
         self._indptr = indptr.astype(np.int32 if small else np.int64)
         self._indices = (uniq % max(self.u, 1)).astype(np.int32 if small else np.int64)
-        self._reduced = self._dest = None
+        self._reduced = self._dest = self._fixed = None
 
     def release(self) -> None:
         """Forget the layout of A (kept for the next :meth:`design`); :meth:`reduced` still works."""
-        self._key = self._take = self._first = self._dest = None
+        self._key = self._take = self._first = self._dest = self._fixed = None
 
     def _same(self, parts) -> bool:
         if self._key is None or len(self._key) != len(parts):
@@ -273,6 +284,11 @@ class Linearisation:
         data = jv[self._take]
         if self._first is not None:
             data = np.add.reduceat(data, self._first)
+        sets = self.problem.sets
+        if (len(sets) == 1 and self._first is None and getattr(sets[0], "pattern_fixed", False)
+                and hasattr(sets[0], "evaluate_into")):
+            del jv, parts
+            self._direct(sets[0])      # the next linearise writes into A: the entries' pattern goes now
         return self._matrix(data)
 
     def _matrix(self, data: np.ndarray) -> sp.csr_matrix:
@@ -358,6 +374,8 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     keep_all = np.setdiff1d(np.arange(free.size), plan.eliminate)
     keep = keep_all                # the unknowns solved for (far points held in the end game)
     Ar = lin.reduced(A, keep)
+    if Ar is not A:
+        A = None                   # (made again at x when needed: full() below)
     st = schur_structure(problem, Ar, keep, options.solver)
     use_schur = st is not None     # points eliminated (the decision is kept for every later Ar)
     # Levenberg-Marquardt from the start for blocks whose points are eliminated (as Ceres);
@@ -375,6 +393,23 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     status = 0
     v = problem.misclosure(f)
     cost = float(v @ (P @ v))
+
+    def full():
+        """A at x: while a reduced copy Ar is what the steps use, A's values are not held (the
+        next linearisation at x writes the same values again when A is needed: a switch of
+        gauge, the datum)."""
+        nonlocal A
+        if A is None:
+            A = lin.linearise(x)[1]
+        return A
+
+    def reduce():
+        """Ar = A[:, keep]; A's values are let go when Ar is a copy (:func:`full`)."""
+        nonlocal A, Ar
+        Ar = None
+        Ar = lin.reduced(full(), keep)
+        if Ar is not A:
+            A = None
 
     def structure():
         """The elimination layout of the current Ar. One is held at a time: the previous one
@@ -397,19 +432,20 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             if far.any():
                 if plan.defect:
                     # the datum analysed again here: the S-base leaves the far points out
-                    plan = _replan(problem, x, A, P, free, plan)
+                    held, plan = plan.eliminate, None      # (the old plan's G goes first)
+                    plan = _replan(problem, x, full(), P, free, held)
                     new = np.setdiff1d(np.arange(free.size), plan.eliminate)
                     if not np.array_equal(new, keep_all):
                         keep_all = new
                     far = _far_columns(problem, x, free[keep_all])
                 keep = keep_all[~far]
-                Ar = lin.reduced(A, keep)
+                reduce()
                 structure()
                 n_far = int(np.unique(params.point[free[keep_all][far]]).size)
                 return
         if n_far:
             keep, n_far = keep_all, 0
-            Ar = lin.reduced(A, keep)
+            reduce()
             structure()
         endgame = False
 
@@ -430,11 +466,11 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                 if free_gauge is None:
                     free_gauge = np.arange(free.size)
                 keep = free_gauge
-                Ar = lin.reduced(A, keep)
+                reduce()
                 structure()
             elif lam == 0.0 and free_gauge is not None and keep is free_gauge:
                 keep = keep_all
-                Ar = lin.reduced(A, keep)
+                reduce()
                 structure()
         if st is not None and not st.matches(Ar):
             st = schur_structure(problem, Ar, keep, "schur")
@@ -524,7 +560,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         x, f, v, cost = x_new, f_new, v_new, cost_new
         A = Ar = None              # the old matrices are freed before the new ones are made
         A = lin.linearise(x)[1]    # (f as the trial point's: the same kernel)
-        Ar = lin.reduced(A, keep)
+        reduce()
         if progress is not None:
             progress(it, step)
         if lam == 0.0:
@@ -545,6 +581,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         else:
             quiet = 0
     # what only the iterations needed is freed before the datum at the solution is analysed
+    full()                         # (A at the solution: the datum and the result need it)
     back = keep is not keep_all
     keep, free_gauge = keep_all, None
     if back:
@@ -555,10 +592,10 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     if back:
         Ar = lin.reduced(A, keep_all)
     if plan.defect:
-        old = plan.eliminate
+        old, plan = plan.eliminate, None       # (the iterations' plan and its G go first)
         # the datum at the solution; a block keeps its held coordinates where they still fix
         # the gauge (the reduced system, and so the structure, stay as they are)
-        plan = _replan(problem, x, A, P, free, plan) if use_schur else datum_mod.plan(problem, x, A, P, free)
+        plan = _replan(problem, x, A, P, free, old) if use_schur else datum_mod.plan(problem, x, A, P, free)
         if use_schur and not np.array_equal(old, plan.eliminate):
             keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
             Ar = lin.reduced(A, keep)
@@ -566,6 +603,8 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     if use_schur and st is None:
         structure()
     t_solve = time.perf_counter() - t0
+    if Ar is not None and Ar is not A and np.array_equal(np.setdiff1d(np.arange(free.size), plan.eliminate), keep):
+        A = HeldColumns(A, Ar, keep)   # the result holds Ar and the held columns, not A besides
     adj = Adjustment(problem=problem, options=options, x=x, f=f, A=A, P=P, plan=plan,
                      converged=status > 0, iterations=it, history=tuple(history),
                      timings={"solve": t_solve}, solver="schur" if st is not None else "generic",
@@ -573,7 +612,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                      trace=tuple(trace), far_held=n_far)
     if st is not None:
         adj.seed(schur_structure=st)
-    if np.array_equal(adj.keep, keep):
+    if "Ar" not in adj.__dict__ and np.array_equal(adj.keep, keep):
         adj.seed(Ar=Ar)            # (its pattern is the structure's: not made a second time)
     return adj
 
@@ -589,17 +628,17 @@ def check_termination(step: float, previous: float | None, tol: float) -> int:
     return 0
 
 
-def _replan(problem, x, A, P, free, plan):
-    """The datum plan at ``x`` (:func:`baarda.datum.plan`), holding the same coordinates as
-    ``plan`` when they still fix the gauge (so the reduced system keeps its structure); else
-    the new plan with its own choice."""
+def _replan(problem, x, A, P, free, eliminate):
+    """The datum plan at ``x`` (:func:`baarda.datum.plan`), holding the coordinates
+    ``eliminate`` (the previous plan's) when they still fix the gauge (so the reduced system
+    keeps its structure); else the new plan with its own choice."""
     new = datum_mod.plan(problem, x, A, P, free)
-    if np.array_equal(new.eliminate, plan.eliminate):
+    if np.array_equal(new.eliminate, eliminate):
         return new
-    g = new.G[plan.eliminate]
+    g = new.G[eliminate]
     g = g / np.maximum(np.linalg.norm(g, axis=0), 1e-300)
     if g.shape[0] == new.defect and np.linalg.svd(g, compute_uv=False).min() > 1e-6:
-        return dataclasses.replace(new, eliminate=plan.eliminate)
+        return dataclasses.replace(new, eliminate=eliminate)
     return new
 
 

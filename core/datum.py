@@ -315,7 +315,8 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
     Returns (G, names) over the free parameters; G spans {g : A g = 0} ∩ span(similarities).
     """
     Gall, names = similarity_candidates(problem, x)
-    G = Gall[free]
+    G = Gall[free]                 # (a copy: the candidates of every parameter go at once)
+    del Gall
     kind = problem.params.kind[free]
     t = np.flatnonzero(kind == "t")
     k = np.flatnonzero(kind != "t")
@@ -337,8 +338,7 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
             Gt = -SPDFactor(Ntt).solve(AtPR)
         except Exception:
             Gt = -np.linalg.lstsq(Ntt.toarray(), AtPR, rcond=None)[0]
-        G = G.copy()
-        G[t] = Gt.reshape(t.size, -1)
+        G[t] = Gt.reshape(t.size, -1)  # (G is this function's own copy)
     diagN = normal_diagonal(A, P)
     num = np.zeros((G.shape[1], G.shape[1]))
     for s, e in blocks:
@@ -347,6 +347,7 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
     del R
     Gk = G[k]
     den = Gk.T @ (Gk * diagN[k, None])      # size of each combination by the point motion alone
+    del Gk, diagN
     # equilibrate: each candidate's own size must not decide whether it counts (far points)
     dd = np.sqrt(np.maximum(np.diag(den), 0.0))
     on = dd > 1e-150

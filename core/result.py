@@ -108,6 +108,28 @@ def _cluster_blocks(cov, values):
         yield m, members, C, block
 
 
+class HeldColumns:
+    """The design matrix A (n × u) kept as its reduced copy Ar = A[:, keep] and the few entries
+    of the held columns (the datum's d coordinates), so that a result does not hold A's values
+    and pattern besides Ar's; :meth:`matrix` makes A again, the same values in the same canonical
+    layout (:class:`Adjustment` does so when ``A`` is first asked for)."""
+
+    def __init__(self, A: sp.csr_matrix, Ar: sp.csr_matrix, keep: np.ndarray):
+        held = np.setdiff1d(np.arange(A.shape[1]), keep)
+        H = sp.csr_matrix(A[:, held]).tocoo()
+        self.rows, self.cols, self.vals = H.row.astype(np.int64), held[H.col], H.data.copy()
+        self.Ar, self.keep, self.shape = Ar, np.asarray(keep), A.shape
+
+    def matrix(self) -> sp.csr_matrix:
+        Ar = self.Ar
+        rows = np.concatenate([np.repeat(np.arange(Ar.shape[0], dtype=np.int64), np.diff(Ar.indptr)), self.rows])
+        cols = np.concatenate([self.keep[Ar.indices], self.cols])
+        data = np.concatenate([Ar.data, self.vals])
+        A = sp.csr_matrix((data, (rows, cols)), shape=self.shape)
+        A.sum_duplicates()         # (none: distinct columns) sorted, canonical
+        return A
+
+
 @dataclass(frozen=True, eq=False)
 class Adjustment:
     """Result of :func:`baarda.adjust.adjust`; every derived quantity is a cached property."""
@@ -131,6 +153,28 @@ class Adjustment:
     damped: bool = False
     trace: tuple = ()
     far_held: int = 0
+
+    def __post_init__(self):
+        if isinstance(self.__dict__.get("A"), HeldColumns):
+            # A is made from Ar and the held columns when first asked for (:class:`HeldColumns`)
+            lazy = self.__dict__.pop("A")
+            self.__dict__["_A_held"] = lazy
+            self.__dict__.setdefault("Ar", lazy.Ar)
+
+    def __getattr__(self, name):
+        if name == "A":
+            lazy = self.__dict__.get("_A_held")
+            if lazy is not None:
+                A = lazy.matrix()
+                self.__dict__["A"] = A
+                return A
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    @property
+    def _shape(self) -> tuple:
+        """A's shape (without making A: :class:`HeldColumns`)."""
+        A = self.__dict__.get("A")
+        return A.shape if A is not None else self.__dict__["_A_held"].shape
 
     def seed(self, **values) -> "Adjustment":
         """Hand over values of cached properties computed elsewhere — the solver's own ``Ar``
@@ -164,7 +208,7 @@ class Adjustment:
 
     @cached_property
     def keep(self) -> np.ndarray:
-        mask = np.ones(self.A.shape[1], dtype=bool)
+        mask = np.ones(self._shape[1], dtype=bool)
         mask[self.plan.eliminate] = False
         return np.flatnonzero(mask)
 
@@ -199,7 +243,7 @@ class Adjustment:
 
     @property
     def n_unknowns(self) -> int:
-        return int(self.A.shape[1])
+        return int(self._shape[1])
 
     @property
     def defect(self) -> int:
@@ -338,17 +382,23 @@ class Adjustment:
         H, Ht = self.hat_blocks
         n = self.n
         r, pcp, php, phkp, uk = (np.empty(n) for _ in range(5))
-        for (m, members, C, Hc), (_, _, _, Htc), Pc in zip(_cluster_blocks(cov, H), _cluster_blocks(cov, Ht),
-                                                         size_weights(cov)):
-            diag = lambda X: np.diagonal(X, axis1=1, axis2=2)  # noqa: E731
-            HP = _mm(Hc, Pc)
-            HkP = HP - _mm(Htc, Pc)
-            r[members] = 1.0 - diag(HP)                   # (C_vv P)_ii = 1 − (H P)_ii
-            PHP = _mm(Pc, HP)
-            php[members] = diag(PHP)
-            pcp[members] = diag(Pc) - diag(PHP)           # P C_vv P = P − P H P
-            phkp[members] = diag(_mm(Pc, HkP))
-            uk[members] = diag(HkP)
+        diag = lambda X: np.diagonal(X, axis1=1, axis2=2)  # noqa: E731
+        for (m, members_all, C, Hc_all), (_, _, _, Htc_all), Pc_all in zip(
+                _cluster_blocks(cov, H), _cluster_blocks(cov, Ht), size_weights(cov)):
+            # in chunks of clusters (each cluster's products are its own: the same numbers), so
+            # that the stacks of H P, H_k P and P H P are not made for every image point at once
+            for s in range(0, members_all.shape[0], GROUP_CHUNK):
+                sl = slice(s, s + GROUP_CHUNK)
+                members, Hc, Htc, Pc = members_all[sl], Hc_all[sl], Htc_all[sl], Pc_all[sl]
+                HP = _mm(Hc, Pc)
+                HkP = HP - _mm(Htc, Pc)
+                r[members] = 1.0 - diag(HP)                   # (C_vv P)_ii = 1 − (H P)_ii
+                PHP = _mm(Pc, HP)
+                php[members] = diag(PHP)
+                pcp[members] = diag(Pc) - diag(PHP)           # P C_vv P = P − P H P
+                phkp[members] = diag(_mm(Pc, HkP))
+                uk[members] = diag(HkP)
+                del HP, HkP, PHP
         self.timings.setdefault("reliability", time.perf_counter() - t0)
         return r, pcp, php, phkp, uk
 
@@ -585,7 +635,7 @@ class Adjustment:
     # -- covariance of the unknowns -----------------------------------------------------------
     def expand(self, vec_keep: np.ndarray) -> np.ndarray:
         """A vector (or columns) over the kept unknowns spread over all free ones (0 elsewhere)."""
-        out = np.zeros((self.A.shape[1],) + vec_keep.shape[1:])
+        out = np.zeros((self._shape[1],) + vec_keep.shape[1:])
         out[self.keep] = vec_keep
         return out
 
@@ -610,7 +660,7 @@ class Adjustment:
         """
         i = np.asarray(i, dtype=np.int64)
         j = np.asarray(j, dtype=np.int64)
-        pos = np.full(self.A.shape[1], -1)
+        pos = np.full(self._shape[1], -1)
         pos[self.keep] = np.arange(self.keep.size)
         pi, pj = pos[i], pos[j]
         ok = (pi >= 0) & (pj >= 0)

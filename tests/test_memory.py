@@ -281,3 +281,30 @@ def test_jacobian_written_into_the_design_matrix_equals_the_entries_path(block, 
     # the entries path still works after it (the layout made again)
     A3 = lin.design(lin.evaluate(x2)[1])
     np.testing.assert_array_equal(A3.data, A_ref.data)
+
+
+def test_result_design_matrix_made_from_the_reduced_one_equals_a(block):
+    """A free block's result holds Ar and the datum's held columns, not A besides
+    (:class:`baarda.result.HeldColumns`); A made from them when asked for equals the design
+    matrix at the solution bit for bit, and the quantities read before it are those of A."""
+    from baarda.adjust import Linearisation
+    from baarda.result import HeldColumns
+
+    p = build_sfm_problem(block)
+    adj = adjust(p, Options())
+    assert adj.plan.defect > 0
+    assert "A" not in adj.__dict__ and isinstance(adj.__dict__["_A_held"], HeldColumns)
+    u = p.params.free.size
+    assert adj.n_unknowns == u and adj.keep.size == u - adj.plan.defect
+    r = adj.r.copy()
+    lin = Linearisation(p, p.params.free)
+    f, parts = lin.evaluate(adj.x)
+    A = lin.design(parts)
+    B = adj.A
+    assert "A" in adj.__dict__ and adj.A is B
+    assert B.shape == A.shape and B.has_canonical_format
+    np.testing.assert_array_equal(B.indptr, A.indptr)
+    np.testing.assert_array_equal(B.indices, A.indices)
+    np.testing.assert_array_equal(B.data, A.data)
+    np.testing.assert_array_equal(adj.Ar.toarray(), A[:, adj.keep].toarray())
+    np.testing.assert_array_equal(adj.r, r)

@@ -103,7 +103,7 @@ class ProjectionSet:
         kernel = _compiled_projection()
         if kernel is None:
             return self.evaluate_numpy(x)[0]
-        start = self._pattern()[2]
+        start = self._starts()
         f = np.empty(2 * self.ipt.shape[0])
         kernel(np.ascontiguousarray(x, dtype=float), self.ipt, self.irot, self.itr, self.iint,
                float(self.sign), start, start[:0, 0], f, np.empty(0))
@@ -122,11 +122,16 @@ class ProjectionSet:
             f, _, _, jv = self.evaluate_numpy(x)
             out[dest] = jv
             return f
-        start = self._pattern()[2]
+        start = self._starts()
         f = np.empty(2 * self.ipt.shape[0])
         kernel(np.ascontiguousarray(x, dtype=float), self.ipt, self.irot, self.itr, self.iint,
                float(self.sign), start, dest, f, out)
         return f
+
+    #: the Jacobian pattern is a function of the (frozen) index arrays alone: once the design
+    #: matrix's layout is known, :class:`baarda.adjust.Linearisation` needs neither the rows and
+    #: columns of the entries nor a comparison with them (:meth:`release_entries`)
+    pattern_fixed = True
 
     @property
     def pattern_held(self) -> bool:
@@ -160,11 +165,25 @@ class ProjectionSet:
             start = (np.cumsum(counts, dtype=itype) - counts).reshape(2, m)
             pat = (jrows, jcols, start)
             self.__dict__["_pat"] = pat
+            self.__dict__["_start"] = start
         return pat
+
+    def _starts(self):
+        """The place of the first value of each row (:meth:`_pattern`'s third array), kept after
+        :meth:`release_entries`."""
+        start = self.__dict__.get("_start")
+        return self._pattern()[2] if start is None else start
+
+    def release_entries(self) -> None:
+        """Forget the rows and columns of the Jacobian entries (int32, two per entry), keep each
+        row's start (what :meth:`values` and :meth:`evaluate_into` need); :meth:`evaluate` and
+        :meth:`pattern` make them again (the same arrays)."""
+        self.__dict__.pop("_pat", None)
 
     def release(self) -> None:
         """Forget the cached Jacobian pattern (made again by the next :meth:`evaluate`)."""
         self.__dict__.pop("_pat", None)
+        self.__dict__.pop("_start", None)
 
     def evaluate_numpy(self, x):
         """The reference formulas (vectorised numpy); :meth:`evaluate` compiles the same."""

@@ -944,8 +944,7 @@ class SchurFactor:
             raise OptionError("backend", self.backend, BACKENDS, f"backend {self.backend!r} not available")
         self.st, self.m, self.labels = st, st.u, st.labels
         nc, M, K = st.cl_id.size, st.M, st.K
-        a, b = st.cluster_blocks(Ar)
-        self.a, self.b = a, b
+        self.a, self.b = st.cluster_blocks(Ar)
         # the cluster weights depend on P only: kept with the structure for the next factor of
         # the same P (every Gauss-Newton iteration, the reliability at the solution)
         cached = st.__dict__.get("_weights")
@@ -968,6 +967,7 @@ class SchurFactor:
         self.b = bmm(self.b, self.Ri[st.cl_ent])
         Pb = np.diagonal(Pc, axis1=1, axis2=2)[:, :, None] * self.b if diagonal else bmm(Pc, self.b)
         self.E = bmm(_T(self.a), Pb)           # E_c = a_cᵀ P_c b̃_c
+        del Pb
         self.Q = self.E                         # E_c C̃⁻¹ with C̃ = I
         nnz = int(st.bstart[-1])
         sn_size = np.diff(st.sn_ptr)
@@ -1145,6 +1145,8 @@ class SchurFactor:
             p = self.st.cl_pos[clusters]
             out_h.append(H[p, :m, :m].reshape(-1))
             out_t.append(Ht[p, :m, :m].reshape(-1))
+        if len(out_h) == 1:            # (one cluster size: its stacks are new arrays already)
+            return out_h[0], out_t[0]
         return np.concatenate(out_h), np.concatenate(out_t)
 
     def entries(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
