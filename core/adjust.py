@@ -424,7 +424,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         points are what drifts (along their rays towards infinity: vᵀPv falls towards an
         infimum, no finite optimum for them), hold them where they are and finish the rest
         undamped; otherwise back to the trust region."""
-        nonlocal keep, keep_all, Ar, plan, endgame, failed, n_far, last_undamped
+        nonlocal keep, keep_all, plan, endgame, failed, n_far, last_undamped
         failed += 1
         last_undamped = None
         if n_far == 0 and failed <= MAX_END_GAMES:

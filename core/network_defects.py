@@ -119,7 +119,6 @@ def _set_aside_local_defects(net: Network):
     reasons = dict(net.extra.get("approx_missing", {}))
     found: dict[str, dict] = {}   # id -> {"axes": set, "why": [..], "lines": [..]}
     while True:
-        pindex = net.point_index()
         touched = point_axes(net)
         bad: dict[str, set] = {}
         for p, used in zip(net.points, touched):

@@ -94,7 +94,7 @@ def test_not_found_names_the_missing_item():
     without KeyError's quotes (the dashboard shows it as it is)."""
     block, _ = simulate_block(strips=1, images_per_strip=3, seed=2)
     pr = build_block_problem(block)
-    image, point = block.images[0].id, block.points[0].id
+    image = block.images[0].id
     with pytest.raises(NotFoundError) as info:
         image_rows(pr, image, "no-such-point")
     err = info.value

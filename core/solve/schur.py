@@ -943,7 +943,7 @@ class SchurFactor:
         if self.backend not in BACKENDS or (self.backend == "numba" and numba is None):
             raise OptionError("backend", self.backend, BACKENDS, f"backend {self.backend!r} not available")
         self.st, self.m, self.labels = st, st.u, st.labels
-        nc, M, K = st.cl_id.size, st.M, st.K
+        M, K = st.M, st.K
         self.a, self.b = st.cluster_blocks(Ar)
         # the cluster weights depend on P only: kept with the structure for the next factor of
         # the same P (every Gauss-Newton iteration, the reliability at the solution)
@@ -1352,7 +1352,7 @@ class StepFactor:
         if not st.matches(Ar):
             raise ValueError("design matrix pattern differs from the analysed structure")
         self.st, self.m, self.labels = st, st.u, st.labels
-        nc, M, K = st.cl_id.size, st.M, st.K
+        nc, K = st.cl_id.size, st.K
         a, b = st.cluster_blocks(Ar)
         Pd = self.cluster_diagonal(st, P)
         nsn = st.sn_ptr.size - 1
