@@ -154,7 +154,6 @@ def _set_aside_local_defects(net: Network):
                             constrained="".join(a for a in p.constrained if a.lower() not in gone))
             points.append(p)
         net = _keep_observations(replace(net, points=tuple(points)), keep)
-        del pindex
     defects = []
     for p in net.points:
         if p.id not in found:
