@@ -34,7 +34,8 @@ from .state import State
 from .suspects import suspects
 from .text import html_text
 from .views.common import frame_size
-from .views.maps import ExternalMap, PrecisionMap, RedundancyMap, ResidualMap
+from .views.maps import ExternalMap, RedundancyMap, ResidualMap
+from .views.precision import PrecisionMap
 from .views.summary import summary_html
 
 #: Maps of the report: the tests on page 1, the reliability on page 2 (one per concept).

@@ -117,7 +117,7 @@ def test_sbase_lesson_on_a_controlled_block(demo):
     from baarda.adjust import adjust
     from baarda.dashboard import sbase as lesson
     from baarda.datum import Datum
-    from baarda.dashboard.views.maps import PrecisionMap
+    from baarda.dashboard.views.precision import PrecisionMap
     from baarda.model.problem import without
 
     st = State(demo)

@@ -26,7 +26,7 @@ from baarda.dashboard import geometry  # noqa: E402
 from baarda.dashboard import render  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.mapgeometry import FRAME_MIN_POINTS, far_note, framed, robust_box, w_levels  # noqa: E402
-from baarda.dashboard.views.maps import MAP_VIEWS, PrecisionMap, ResidualMap  # noqa: E402
+from baarda.dashboard.views import MAP_VIEWS, PrecisionMap, ResidualMap  # noqa: E402
 from tests.extdata import EXTDATA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)

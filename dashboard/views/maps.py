@@ -1,4 +1,5 @@
-"""The map views: layout, redundancy, residuals / w, external reliability, MDB, precision.
+"""The map views: layout, redundancy, residuals / w, external reliability, MDB (the precision map
+in :mod:`.precision`, the image view in :mod:`.image`).
 
 Each map is an overlay of layers, and each layer is its own HoloViews DynamicMap over only the
 state parameters it shows (``hv.streams.Params``): the block context (static), the view's data
@@ -27,18 +28,16 @@ import param
 from bokeh.events import Tap
 from bokeh.models import ColumnDataSource, FixedTicker
 
-from baarda.errors import BaardaError
 from baarda.stats.hypotheses import HypothesisTest
 
 from .. import frames, geometry, specs
-from .. import sbase as sbase_lesson
-from ..geometry import display_matrix, image_points, object_unit
+from ..geometry import display_matrix, object_unit
 from ..jobs import next_tick
-from ..mapgeometry import (W_COLORS, clamped_segments, deformation_field, ellipse_paths, extent, far_note,
-                           field_vectors, framed, hypothesis_ellipse, image_border, image_residuals, largest_abs_w,
-                           length_text, log_clim, w_levels)
+from ..mapgeometry import (W_COLORS, clamped_segments, deformation_field, extent, far_note,
+                           field_vectors, framed, hypothesis_ellipse, largest_abs_w, length_text,
+                           log_clim, w_levels)
 from ..state import State
-from ..text import fit_title, html_text, id_list, labels, plain
+from ..text import fit_title, plain
 from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATUS_COLORS, block_context, on_tap,
                      selection_data, selection_layer, suspects_layer)
 
@@ -463,215 +462,3 @@ class MDBMap(MapView):
         obs, _ = self.state.frames()
         d0 = self.state.reliability.delta0
         return log_clim(obs["mdb_sigma"].to_numpy(dtype=float), low=d0)
-
-
-#: The S-base list opens in the page flow (pushing the map down) instead of over the map.
-INLINE_DROPDOWN = (".choices__list--dropdown, .choices__list[aria-expanded] "
-                   "{ position: relative; max-height: 180px; }"
-                   ".choices__list--dropdown:not(.is-active), .choices__list[aria-expanded]:not(.is-active) "
-                   "{ display: none; }"
-                   ".choices__list--dropdown .choices__list { max-height: 170px; }")
-
-
-class PrecisionMap(MapView):
-    """Standard error ellipses from the core's point covariances (σ0 as chosen), exaggerated."""
-
-    key = "precision"
-
-    def __init__(self, **params):
-        super().__init__(**params)
-        s = self.state
-        datum = sbase_lesson.datum_points(s.problem)
-        n_points = len(s.problem.points.ids)
-        named = (f"all {n_points:,} points" if len(datum) == n_points > 8 else id_list(datum))
-        self.sbase = pn.widgets.MultiChoice(
-            label="S-base (empty: the problem's datum" + (f" — {named})" if datum else
-                                                        ", its fixed / weighted points)"),
-            options=labels(s.problem.points.ids), value=list(s.sbase), css_classes=["sbase-choice"],
-            sizing_mode="stretch_width", visible=s.problem.points.dim > 1, stylesheets=[INLINE_DROPDOWN])
-        self.sbase.param.watch(lambda e: setattr(s, "sbase", list(e.new)), "value")
-        s.param.watch(lambda e: setattr(self.sbase, "value", list(e.new)), "sbase")
-        self.free_reason = sbase_lesson.free_block_reason(s) if s.problem.points.dim > 1 else "not planimetric"
-        self.free_box().visible = not self.free_reason
-        self.note = pn.pane.HTML(pn.bind(lambda *_: self.note_html(), s.param.solution, s.param.sbase,
-                                         self.free.param.value),
-                                 css_classes=["sbase-note"], sizing_mode="stretch_width",
-                                 visible=s.problem.points.dim > 1)
-        self.compare = pn.pane.HoloViews(pn.bind(lambda *_: self.comparison(), s.param.solution, s.param.sbase,
-                                                 self.free.param.value),
-                                         css_classes=["sbase-compare"], linked_axes=False,
-                                         visible=s.problem.points.dim > 1)
-
-    def free_box(self) -> pn.widgets.Checkbox:
-        """The free-block view's checkbox (made with the map's layers, whose ellipses follow it)."""
-        if getattr(self, "free", None) is None:
-            self.free = pn.widgets.Checkbox(label="free-block view (control left out: the S-base matters)",
-                                            value=False, css_classes=["sbase-free"])
-        return self.free
-
-    def _stream(self, kind):
-        """The map's streams, and one over the free-block checkbox (a layer redrawn by a state
-        parameter triggered with an unchanged value would return its memoized element)."""
-        if kind == "free":
-            if kind not in self._streams:
-                self._streams[kind] = hv.streams.Params(self.free_box(), ["value"])
-            return self._streams[kind]
-        return super()._stream(kind)
-
-    def free_view(self) -> bool:
-        free = getattr(self, "free", None)      # the title is asked for while the map is made
-        return free is not None and bool(free.value) and not getattr(self, "free_reason", "not yet known")
-
-    def note_html(self) -> str:
-        """The note beside the S-base control (HTML): the free-block view, why the S-base changes nothing, or the r and w check."""
-        s = self.state
-        if self.free_view():
-            base = ", ".join(s.sbase) if s.sbase else "every point (inner constraints)"
-            self._ellipses()
-            return html_text(f"Free-block view: the control observations left out, the block adjusted as a "
-                             f"free network (M84 §2); S-base: {base}. Choose other S-base points: the "
-                             "ellipses change, r and w do not. " + getattr(self, "_free_error", ""))
-        if getattr(s.problem.datum, "kind", "") != "free" and s.problem.points.dim > 1:
-            text = sbase_lesson.WHY_NOT if not self.free_reason else (
-                sbase_lesson.WHY_NOT.split(" Tick")[0] + f" (No free-block view: {self.free_reason}.)")
-            return html_text(text + (" " + s.sbase_check() if s.sbase else ""))
-        return html_text(s.sbase_check())
-
-    def point_cov2(self) -> np.ndarray:
-        """The planimetric point covariances the map shows: the state's (its S-base) or, in the
-        free-block view, the free block's in the chosen S-base."""
-        s = self.state
-        self._free_error = ""
-        if self.free_view():
-            try:
-                return sbase_lesson.free_point_cov2(s, s.sbase)
-            except (BaardaError, np.linalg.LinAlgError) as err:   # a base that does not fix the datum
-                self._free_error = f"S-base {', '.join(s.sbase)}: {err}; shown with every point instead."
-                return sbase_lesson.free_point_cov2(s, [])
-        return s.point_cov2()
-
-    def comparison(self):
-        """The same ellipses at the same scale in the reference base (the problem's own datum; in
-        the free-block view the inner constraints over every point) beside the chosen S-base."""
-        s = self.state
-        pts = self.points()
-        _, scale, _, _ = self._ellipses()
-        if self.free_view():
-            cov, name = sbase_lesson.free_point_cov2(s, []), "free block, all points (inner constraints)"
-        else:
-            cov, name = s.results.point_cov[:, :2, :2], "the problem's own datum"
-        paths, _, _, _ = self._ellipse_paths(cov, scale)
-        size = frame_size(pts, geometry.images(s.problem), size=260)
-        return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
-                * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=3)).opts(
-            title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"], 12), xlabel="", ylabel="",
-            toolbar=None, fontsize={"title": "9pt"},
-            **size, **formatters())
-
-    def __panel__(self):
-        return pn.Column(self.sbase, self.free, self.note, self._pane, self.far_note, self.compare,
-                         sizing_mode="stretch_width")
-
-    def _ellipses(self):
-        s = self.state
-        return self.cached("ellipses", (s.solution, s.sbase, self.free_view()), self._ellipses_now)
-
-    def _ellipse_paths(self, cov2: np.ndarray, scale: float | None = None):
-        """The standard ellipses of ``cov2`` on this map (:func:`~baarda.dashboard.mapgeometry.ellipse_paths`)."""
-        return ellipse_paths(cov2, display_matrix(self.state.problem), self.points(), scale)
-
-    def _ellipses_now(self):
-        return self._ellipse_paths(self.point_cov2())
-
-    def title(self):
-        s = self.state
-        sig = "σ̂0" if s.sigma0_mode == "aposteriori" else "σ0 a priori"
-        unit = object_unit(s.problem)
-        if s.problem.points.dim == 1:
-            return f"Precision: σ of the heights [{'mm' if unit == 'm' else 'block units'}] ({sig})"
-        _, scale, big, off = self._ellipses()
-        base = f"S-base {plain(', '.join(s.sbase))}" if s.sbase and not s.sbase_error else "own datum"
-        if self.free_view():
-            base = "free block, " + (f"S-base {plain(', '.join(s.sbase))}" if s.sbase else "all points")
-        text = f"Standard ellipses ×{scale:g}, largest drawn {length_text(big, unit)}"
-        if off:
-            text += f"; {off} off-scale, not drawn"
-        return f"{text} ({sig}, {base})"
-
-    def layers(self):
-        return [self.layer(self._ellipse_layer, "solution", "sbase", "free"), self.layer(self._points, "solution"),
-                self.layer(self.labels, "solution")]
-
-    def _ellipse_layer(self):
-        paths = self._ellipses()[0] if self.state.problem.points.dim > 1 else []
-        return hv.Path(paths, label="ellipses").opts(color="#1f4e9c", line_width=2, nonselection_alpha=1)
-
-    def _points(self):
-        level = self.state.problem.points.dim == 1
-        pts = self.points()
-        return hv.Points(pts, ["x", "y"], ["id", "status", "sx_mm", "sy_mm", "sz_mm"]).opts(
-            color="sz_mm" if level else "status", cmap="viridis" if level else STATUS_COLORS,
-            colorbar=level, clabel="σ height [mm]", size=9 if len(pts) <= 500 else 4, tools=["hover", "tap"],
-            nonselection_alpha=1, show_legend=False)
-
-
-#: The image view's frame (px): with its axes and colour bar it fits the map tabs' narrowest
-#: width (``app.MAP_MIN_WIDTH``), so it is never cut beside the tables.
-IMAGE_FRAME = 400
-
-
-class ImageResidualView(pn.viewable.Viewer):
-    """Image-space residual vectors of one image of a block, exaggerated, coloured by |w|."""
-
-    state = param.ClassSelector(class_=State)
-
-    def __init__(self, **params):
-        super().__init__(**params)
-        self.dmap = hv.DynamicMap(self._render, streams=[hv.streams.Params(
-            self.state, ["results", "reliability", "selected_image", "exaggeration"])])
-        self._pane = pn.pane.HoloViews(self.dmap, css_classes=["map-image"], linked_axes=False)
-        self._by_image = None
-
-    def image_points(self, image) -> list[tuple[str, int, int]]:
-        """(point, row of x, row of y) of every image point of ``image`` (full indices)."""
-        if self._by_image is None:
-            self._by_image = image_points(self.state.problem, self.state.problem_index())
-        return self._by_image.get(str(image), [])
-
-    def data(self) -> pd.DataFrame:
-        """Observed image coordinates (file units) and residuals of the selected image's points."""
-        s = self.state
-        obs, _ = s.frames()
-        pts = [(plain(t[0]), t[1], t[2]) for t in self.image_points(s.selected_image)
-               if not (obs["excluded"].iat[t[1]] or obs["excluded"].iat[t[2]])]
-        return image_residuals(pts, np.asarray(s.problem.info.value_file, dtype=float), obs["v"].to_numpy(dtype=float),
-                               obs["w"].to_numpy(dtype=float), s.exaggeration)
-
-    def _render(self, **_):
-        s = self.state
-        df = self.data()
-        crit = s.reliability.critical
-        top = max(crit, float(df["abs_w"].max()) if len(df) else 0.0)
-        border = hv.Path(image_border(df, (geometry.block(s.problem) or {}).get("image_size"))).opts(color="#888888", nonselection_alpha=1)
-        levels = w_levels(crit, top)
-        vec = hv.Segments(df, ["x", "y", "x1", "y1"], ["point", "vx", "vy", "abs_w"]).opts(
-            hover_tooltips=tips(["point", "vx", "vy", "abs_w"]),
-            color="abs_w", cmap=W_COLORS, color_levels=levels, clim=(0, levels[-1]), line_width=3,
-            colorbar=True, colorbar_opts={"ticker": FixedTicker(ticks=levels)},
-            clabel=f"|w| (critical {crit:.2f}: rejected above)", tools=["hover"], nonselection_alpha=1)
-        pts = hv.Points(df, ["x", "y"], ["point", "vx", "vy", "abs_w"]).opts(
-            color="#333333", size=5, tools=["hover"], nonselection_alpha=1)
-        unit = ""
-        if len(df):
-            unit = s.frames()[0]["unit"].iat[int(df["obs"].iat[0])]
-        return (border * vec * pts).opts(
-            hv.opts.Overlay(title=fit_title(f"Image {plain(s.selected_image)}: residual vectors ×{s.exaggeration:g} "
-                                            f"(image units {plain(unit)}), colour |w|", IMAGE_FRAME),
-                            xlabel=f"x [{unit}]", ylabel=f"y [{unit}]", frame_width=IMAGE_FRAME, frame_height=IMAGE_FRAME,
-                            data_aspect=1, legend_position="top_left"))
-
-    def __panel__(self):
-        return self._pane
-
-
-MAP_VIEWS = (LayoutMap, RedundancyMap, ResidualMap, ExternalMap, MDBMap, PrecisionMap)
