@@ -134,7 +134,7 @@ def point_index(problem) -> dict:
 
 def observation_points(problem) -> list[list[int]]:
     """Per observation, the indices of the points it names (``from`` first)."""
-    index = {pid: k for k, pid in enumerate(problem.points.ids)}
+    index = point_index(problem)
     out = []
     for ids in problem.info.ids:
         pts = []
@@ -176,8 +176,9 @@ def problem_index(p) -> dict:
     """Index arrays of a problem (built once per problem by the state: the problem is
     immutable): the observation-point incidence (``inc_obs``, ``inc_pt``: observation i names
     point k), the network lines (``line_obs``, ``line_from``, ``line_to``), the short
-    observation labels, the rows of each (image, point, keypoint) of a block (``image_rows``)
-    and the file's units (``factor``: :func:`display_factor`)."""
+    observation labels, the rows of each (image, point, keypoint) of a block (``image_rows``),
+    the file's units (``factor``: :func:`display_factor`) and the position of each point id
+    (``point_index``)."""
     obs_points = observation_points(p)
     inc_obs = np.repeat(np.arange(p.n), [len(pp) for pp in obs_points])
     inc_pt = np.fromiter((k for pp in obs_points for k in pp), dtype=np.int64, count=inc_obs.size)
@@ -190,7 +191,7 @@ def problem_index(p) -> dict:
     return {"obs_points": obs_points, "inc_obs": inc_obs, "inc_pt": inc_pt,
             "line_obs": lines[:, 0], "line_from": lines[:, 1], "line_to": lines[:, 2],
             "labels": [plain(observation_label(p, i).split(" ", 2)[-1]) for i in range(p.n)],
-            "image_rows": image_rows, "factor": display_factor(p)}
+            "image_rows": image_rows, "factor": display_factor(p), "point_index": point_index(p)}
 
 
 def keypoints_of(index: dict, image, point) -> list[str | None]:

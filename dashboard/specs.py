@@ -116,4 +116,4 @@ def point(problem, spec: dict, index: dict):
         return pts[-1] if pts else None
     if pid is None:
         return None
-    return {p: k for k, p in enumerate(problem.points.ids)}.get(str(pid))
+    return index["point_index"].get(str(pid))

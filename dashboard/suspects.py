@@ -206,7 +206,7 @@ def _transfers(state, seeds: list[dict]) -> list[dict]:
                           "T": float(h.T), "k": float(h.critical_T), "rejected": bool(h.rejected_T),
                           "∇ŝ": _estimate_text(h.nabla, factor[i0], units[i0]),
                           "MDB ratio": float(np.sqrt(max(h.T, 0.0)) / h.delta0),
-                          "obs": i0, "point": geometry.point_index(s.problem).get(pid), "image": ims[0],
+                          "obs": i0, "point": s.problem_index()["point_index"].get(pid), "image": ims[0],
                           "_H": H, "_key": ("transfer", pid, tuple(ims))})
         found.sort(key=lambda r: -r["T"] / r["k"])
         out += found[:TRANSFER_PER_POINT]

@@ -31,7 +31,6 @@ KINDS = (
 )
 
 
-
 #: (north, east) components of a unit vector along each of Gama's axis letters (``axes-xy``).
 AXIS_NORTH_EAST = {"n": (1.0, 0.0), "e": (0.0, 1.0), "s": (-1.0, 0.0), "w": (0.0, -1.0)}
 
