@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -164,8 +165,41 @@ def store(key, hit) -> None:
         _LOADED[key] = hit
 
 
+#: What every session would derive alike from one shared object (the cached adjustment, its
+#: problem): owner → {key: [lock, value, done]}. Kept while the owner lives (weak keys), at most
+#: :data:`SHARED_MAX` keys per owner (oldest dropped).
+_SHARED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_SHARED_GUARD = threading.Lock()
+SHARED_MAX = 16
+
+
+def shared(owner, key, compute):
+    """``compute()`` for ``(owner, key)``, computed once for all the sessions of a server.
+
+    Sessions opened on a cached file share its problem and adjustment objects; what they derive
+    from them alike (the suspects of a test policy, the block's footprints) is computed by the
+    first session that needs it while the others wait for it (twenty sessions opened at once
+    compute it once, not twenty times). ``key`` names the product and everything besides
+    ``owner`` it depends on. The value is shared: callers must not change it. A ``compute`` that
+    raises leaves nothing behind (the next caller computes again)."""
+    with _SHARED_GUARD:
+        slots = _SHARED.setdefault(owner, {})
+        slot = slots.get(key)
+        if slot is None:
+            while len(slots) >= SHARED_MAX:
+                slots.pop(next(iter(slots)))
+            slot = slots[key] = [threading.Lock(), None, False]
+    with slot[0]:
+        if not slot[2]:
+            slot[1] = compute()
+            slot[2] = True
+        return slot[1]
+
+
 def clear_cache() -> None:
     """Forget every cached file (tests; a server frees the memory)."""
     with _LOADED_GUARD:
         _LOADED.clear()
         _LOADED_LOCKS.clear()
+    with _SHARED_GUARD:
+        _SHARED.clear()

@@ -34,6 +34,7 @@ from baarda.stats import separability
 from baarda.stats.hypotheses import common_error, selection
 
 from . import geometry
+from .jobs import shared
 from .text import plain
 
 #: Observations listed: the largest |w| (the rejected ones first, as they have the largest).
@@ -239,10 +240,18 @@ def suspects(state) -> pd.DataFrame:
     """The ranked list of suspects of ``state`` (module docstring): one row per hypothesis,
     sorted by |w| (largest first), with ``rank`` 1, 2, …; ``decision`` is "rejected" or
     "accepted"; ``obs``, ``point`` and ``image`` say what a click selects (full observation index,
-    point index, image id)."""
-    s = state
-    if s.results is None:
+    point index, image id).
+
+    Computed once per adjustment and test policy for all the sessions of a server
+    (:func:`baarda.dashboard.jobs.shared`: sessions opened on a cached file share its
+    adjustment, and its kept observations with it): the frame is shared, not to be changed."""
+    if state.results is None:
         return pd.DataFrame(columns=COLUMNS)
+    return shared(state.results, ("suspects", state.reliability.policy), lambda: _ranked(state))
+
+
+def _ranked(state) -> pd.DataFrame:
+    s = state
     rel = s.reliability
     stat = np.abs(np.nan_to_num(np.asarray(rel.statistic, dtype=float), nan=-1.0))
     order = np.argsort(-stat, kind="stable")

@@ -201,3 +201,72 @@ def test_jobs_run_in_place_without_a_loop_and_cancel_only_task_threads():
     name, cancelled = fut.result(timeout=30)
     assert name.startswith("baarda-task") and cancelled is False
     assert jobs.file_key("/no/such/file", None) is None and jobs.cached(None) is None
+
+
+def test_jobs_shared_computes_once_for_waiting_callers_and_retries_after_an_error():
+    class Owner:                     # any object that can be weakly referenced
+        pass
+
+    owner, calls, gate = Owner(), [], threading.Event()
+
+    def compute():
+        calls.append(threading.current_thread().name)
+        gate.wait(30)
+        return object()
+
+    out = []
+    threads = [threading.Thread(target=lambda: out.append(jobs.shared(owner, ("x", 1), compute)))
+               for _ in range(6)]
+    for t in threads:
+        t.start()
+    assert wait_for(lambda: len(calls) == 1)
+    gate.set()
+    for t in threads:
+        t.join(30)
+    assert len(calls) == 1 and len(out) == 6 and all(v is out[0] for v in out)
+    assert jobs.shared(owner, ("x", 2), compute) is not out[0] and len(calls) == 2   # another key
+
+    def fail():
+        raise ValueError("no")
+    with pytest.raises(ValueError):
+        jobs.shared(owner, ("y",), fail)
+    assert jobs.shared(owner, ("y",), lambda: 5) == 5          # nothing kept from the failure
+    for k in range(jobs.SHARED_MAX + 3):                        # bounded per owner
+        jobs.shared(owner, ("z", k), lambda: k)
+    assert len(jobs._SHARED[owner]) == jobs.SHARED_MAX
+
+
+def test_sessions_on_one_cached_file_share_its_suspects_per_test_policy(tmp_path):
+    """Sessions opened on a cached file compute its suspects once (issue 12: twenty sessions at
+    once); a session with another α0 gets its own list, equal to one computed afresh."""
+    from baarda.dashboard.suspects import _ranked, suspects
+
+    path = Path(__file__).resolve().parents[1] / "data" / "demo-block.json"
+    if not path.exists():
+        pytest.skip("data/demo-block.json not generated")
+    jobs.clear_cache()
+    try:
+        a, b = State(), State()
+        assert a.load(path) and b.load_cached(path)
+        assert b.results is a.results
+        first = suspects(a)
+        assert suspects(b) is first
+        pd.testing.assert_frame_equal(first, _ranked(b))
+        b.alpha0 = 0.01
+        other = suspects(b)
+        assert other is not first
+        pd.testing.assert_frame_equal(other, _ranked(b))
+        assert (other["decision"] == "rejected").sum() >= (first["decision"] == "rejected").sum()
+    finally:
+        jobs.clear_cache()
+
+
+def wait_for(cond, timeout=30.0):
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(0.01)
+    return cond()

@@ -9,6 +9,7 @@ from bokeh.models import NumeralTickFormatter
 
 from .. import frames, geometry
 from ..frames import R_UNCONTROLLED, R_WEAK
+from ..jobs import shared
 from ..mapgeometry import extent
 from ..text import plain
 
@@ -63,7 +64,21 @@ def block_context(state) -> hv.Overlay:
     The footprints are drawn as their edges (one columnar ``Segments`` element): a thousand
     polygons would make every update of the map recompute their ranges.
     """
-    images = geometry.images(state.problem)
+    edges, cdf, paths = shared(state.problem, ("block-context",), lambda: _block_data(state.problem))
+    footprints = hv.Segments(edges, ["x0", "y0", "x1", "y1"], label="footprints" if len(edges) else "").opts(
+        color="#555555", line_alpha=0.35, line_width=1, nonselection_alpha=0.35, tools=[])
+    proj = hv.Points(cdf, ["x", "y"], ["image", "strip"], label="projection centres" if len(cdf) else "").opts(
+        marker="triangle", size=9 if len(cdf) <= 100 else 4, color="#444444", nonselection_alpha=1,
+        tools=["hover"])
+    strip_path = hv.Path(paths, label="strips" if paths else "").opts(color="#999999", line_dash="dashed",
+                                                                      nonselection_alpha=1)
+    return footprints * strip_path * proj
+
+
+def _block_data(problem) -> tuple[np.ndarray, pd.DataFrame, list[np.ndarray]]:
+    """The footprints' edges (n × 4), the projection centres (x, y, image, strip) and the strips'
+    paths of a block: once per problem for every map and session (a loop over the images)."""
+    images = geometry.images(problem)
     edges, centres, strips = [], [], {}
     for im in images:
         fp = im.get("footprint")
@@ -74,16 +89,8 @@ def block_context(state) -> hv.Overlay:
             centres.append((float(im["X0"]), float(im["Y0"]), plain(im.get("id")), plain(im.get("strip", ""))))
             strips.setdefault(str(im.get("strip", "")), []).append((float(im["X0"]), float(im["Y0"])))
     edges = np.vstack(edges) if edges else np.zeros((0, 4))
-    footprints = hv.Segments(edges, ["x0", "y0", "x1", "y1"], label="footprints" if len(edges) else "").opts(
-        color="#555555", line_alpha=0.35, line_width=1, nonselection_alpha=0.35, tools=[])
     cdf = pd.DataFrame(centres, columns=["x", "y", "image", "strip"])
-    proj = hv.Points(cdf, ["x", "y"], ["image", "strip"], label="projection centres" if centres else "").opts(
-        marker="triangle", size=9 if len(centres) <= 100 else 4, color="#444444", nonselection_alpha=1,
-        tools=["hover"])
-    paths = [np.array(v) for v in strips.values() if len(v) > 1]
-    strip_path = hv.Path(paths, label="strips" if paths else "").opts(color="#999999", line_dash="dashed",
-                                                                      nonselection_alpha=1)
-    return footprints * strip_path * proj
+    return edges, cdf, [np.array(v) for v in strips.values() if len(v) > 1]
 
 
 def nearest(state, x: float, y: float, tol_fraction: float = 0.04):
