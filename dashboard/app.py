@@ -410,26 +410,31 @@ def create_app(path=None, problem=None, background: bool | None = None):
 
     def build_later():
         # on the builder thread, one session after another, after the summaries of waiting
-        # sessions: the views are made in one event-loop callback and attached in the next
-        # (both at once: the browser lays the page out once), so that the events of other
+        # sessions: each view is made in an event-loop callback of its own, and all are attached
+        # in one more (at once: the browser lays the page out once), so that the events of other
         # sessions run in between; a session whose page is gone (closed, or the session
         # destroyed) is not built, nor built further
         _summaries_first()
-        parts = {}
 
-        def make():
-            _timing(sid, "build-start")
-            parts["maps"], parts["right"] = main_views(state)
+        def make(fn):
+            box = {}
+            if not piece(lambda: box.setdefault("view", fn())):
+                raise _Gone()
+            return box["view"]
 
         def attach():
-            content.objects = [_attach(state, parts["maps"], parts["right"])]
+            content.objects = [_attach(state, *parts)]
             _timing(sid, "maps")
 
         try:
-            for fn in (make, attach):
-                if not piece(fn):
-                    _timing(sid, "build-skipped")
-                    return
+            if not piece(lambda: None):          # the page is gone already: nothing is made
+                raise _Gone()
+            _timing(sid, "build-start")
+            parts = main_views(state, make=make)
+            if not piece(attach):
+                raise _Gone()
+        except _Gone:
+            _timing(sid, "build-skipped")
         except Cancelled:        # the session ended while a piece waited for the loop
             pass
         except Exception as err:  # noqa: BLE001 - a message in the page, never a silent blank
@@ -507,29 +512,37 @@ WRAP_TAB_HEADERS = ".bk-headers-wrapper { flex-wrap: wrap; overflow: visible; } 
 RIGHT_MIN_WIDTH = 420
 
 
-def main_views(state):
+def main_views(state, make=None):
     """The maps in tabs (left) and the tests table / hypotheses / teaching in tabs (right), made
-    but not yet rendered (the summary is above them, built once per session)."""
+    but not yet rendered (the summary is above them, built once per session).
+
+    ``make(fn)`` makes each view (``fn()``, by default here): a served session's builder passes
+    one that runs it on the event loop, one view per callback, so that the events of other
+    sessions run between the views (a tenth of a second each, not the whole build at once).
+    """
+    make = make or (lambda fn: fn())
     maps = []
     for V in MAP_VIEWS:
-        view = V(state=state)
-        maps.append((TAB_NAMES[V.key], view))
+        maps.append((TAB_NAMES[V.key], make(lambda V=V: V(state=state))))
         if V.key == "residuals" and geometry.images(state.problem):
-            maps.append(("Image v", ImageResidualView(state=state)))
-    maps.append(("Criterion", CriterionView(state=state)))
-    map_tabs = pn.Tabs(*maps, dynamic=True, sizing_mode="stretch_width", min_height=660,
-                       min_width=MAP_MIN_WIDTH, styles={"flex": f"1 1 {MAP_MIN_WIDTH}px"},
-                       stylesheets=[WRAP_TAB_HEADERS],
-                       css_classes=["map-tabs"])
-    right = pn.Tabs(("Suspects", SuspectsView(state=state)), ("Tests table", TestsTable(state=state)), ("Hypotheses", HypothesisPanel(state=state)),
-                    ("Find errors", AnalysisPanel(state=state)),
-                    ("Teaching", pn.Column(InjectPanel(state=state), TeachingView(state=state),
-                                           RiskView(state=state), scroll=True, height=640,
-                                           sizing_mode="stretch_width")),
-                    dynamic=True, sizing_mode="stretch_width", min_width=RIGHT_MIN_WIDTH, height=660,
-                    styles={"flex": f"1 1 {RIGHT_MIN_WIDTH}px"}, stylesheets=[WRAP_TAB_HEADERS],
-                    css_classes=["right-tabs"])
-    return map_tabs, right
+            maps.append(("Image v", make(lambda: ImageResidualView(state=state))))
+    maps.append(("Criterion", make(lambda: CriterionView(state=state))))
+    suspects, table, hypotheses, analysis = (make(lambda V=V: V(state=state)) for V in (
+        SuspectsView, TestsTable, HypothesisPanel, AnalysisPanel))
+    teaching = make(lambda: pn.Column(InjectPanel(state=state), TeachingView(state=state), RiskView(state=state),
+                                      scroll=True, height=640, sizing_mode="stretch_width"))
+
+    def tabs():
+        map_tabs = pn.Tabs(*maps, dynamic=True, sizing_mode="stretch_width", min_height=660,
+                           min_width=MAP_MIN_WIDTH, styles={"flex": f"1 1 {MAP_MIN_WIDTH}px"},
+                           stylesheets=[WRAP_TAB_HEADERS], css_classes=["map-tabs"])
+        right = pn.Tabs(("Suspects", suspects), ("Tests table", table), ("Hypotheses", hypotheses),
+                        ("Find errors", analysis), ("Teaching", teaching),
+                        dynamic=True, sizing_mode="stretch_width", min_width=RIGHT_MIN_WIDTH, height=660,
+                        styles={"flex": f"1 1 {RIGHT_MIN_WIDTH}px"}, stylesheets=[WRAP_TAB_HEADERS],
+                        css_classes=["right-tabs"])
+        return map_tabs, right
+    return make(tabs)
 
 
 def _attach(state, map_tabs, right):
@@ -541,6 +554,10 @@ def _attach(state, map_tabs, right):
     row.loading = state.busy
     state.param.watch(lambda e: setattr(row, "loading", e.new), "busy")
     return row
+
+
+class _Gone(Exception):
+    """A session's page went away while its views were being made (they are not made further)."""
 
 
 def _build_error(err) -> pn.pane.HTML:

@@ -33,7 +33,7 @@ def test_no_map_build_for_a_closed_page(page, serve_app, monkeypatch):
     assert State().load(DEMO)                    # in the server's cache: the build follows onload
     made, docs = [], []
     main = app.main_views
-    monkeypatch.setattr(app, "main_views", lambda state: made.append(state) or main(state))
+    monkeypatch.setattr(app, "main_views", lambda state, **kw: made.append(state) or main(state, **kw))
 
     def factory():
         docs.append(pn.state.curdoc)
