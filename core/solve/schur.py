@@ -141,9 +141,8 @@ class Structure:
     col_S: np.ndarray          # (nc, K) S index of each local camera column, −1 padded
     cluster: np.ndarray        # cluster of each observation (n,)
     rpos: np.ndarray           # position of each observation within its cluster (n,)
-    in_a: np.ndarray           # per design-matrix entry: in a camera column (else a point column)
-    dest_a: np.ndarray         # place in a (nc·M·K) of the camera columns' entries, in order
-    dest_b: np.ndarray         # place in b (nc·M·3) of the point columns' entries, in order
+    src_a: np.ndarray          # (nc, M, K) place in the design matrix's data of each entry of a, −1 padded
+    src_b: np.ndarray          # (nc, M, 3) the same for b
     bptr: np.ndarray           # block pattern of S (CSR over supernodes)
     bcol: np.ndarray
     bstart: np.ndarray         # offset of each block in the flat value array (nblocks+1)
@@ -167,13 +166,17 @@ class Structure:
 
     def cluster_blocks(self, Ar) -> tuple[np.ndarray, np.ndarray]:
         """The entries of ``Ar`` (of this pattern) per cluster: a (clusters × M × K) on the
-        camera side, b (clusters × M × 3) on the point side, zero-padded."""
-        nc, M, K = self.cl_id.size, self.M, self.K
-        a = np.zeros(nc * M * K)
-        a[self.dest_a] = Ar.data[self.in_a]
-        b = np.zeros(nc * M * 3)
-        b[self.dest_b] = Ar.data[~self.in_a]
-        return a.reshape(nc, M, K), b.reshape(nc, M, 3)
+        camera side, b (clusters × M × 3) on the point side, zero-padded. (The compiled kernels
+        of the common case read Ar's data through :attr:`src_a`, :attr:`src_b` instead: these
+        padded copies are made only for the general kernels and the numpy fallback.)"""
+        return self.gather(Ar.data, self.src_a), self.gather(Ar.data, self.src_b)
+
+    @staticmethod
+    def gather(data: np.ndarray, src: np.ndarray) -> np.ndarray:
+        """data[src] with 0 where src is −1 (padding)."""
+        out = np.take(data, src, mode="wrap")
+        out[src < 0] = 0.0
+        return out
 
     def worthwhile(self) -> bool:
         """Whether elimination pays (the automatic choice of :func:`baarda.adjust.adjust`)."""
@@ -258,10 +261,11 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     cm = ~elig[col]
     colc, rowc = col[cm], row[cm]
     # the point side first (its destinations in b), so that the row of every entry goes early
-    in_a = _readonly(cm)
+    nnz = col.size
+    stype = _index_dtype(nnz + 1)
     cb = col[~cm]
     rowb = row[~cm]
-    del row, cm
+    del row
     coord_col = np.full(u, -1, dtype=np.int64)
     coord_col[ecols] = coord
     dest_b = cl_pos[cluster[rowb]]
@@ -270,7 +274,11 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     dest_b *= 3
     dest_b += coord_col[cb]
     del cb, rowb
-    dest_b = _narrow(dest_b, ncl * M * 3)
+    # the inverse: for each place in b the entry of the design matrix's data (−1: padding)
+    src_b = np.full(ncl * M * 3, -1, dtype=stype)
+    src_b[dest_b] = np.flatnonzero(~cm).astype(stype)
+    del dest_b
+    src_b = src_b.reshape(ncl, M, 3)
     rng = np.random.default_rng(12345)
     h1 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
     h2 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
@@ -332,6 +340,10 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     dest_a *= K
     dest_a += local
     del local
+    src_a = np.full(nc * M * K, -1, dtype=stype)
+    src_a[dest_a] = np.flatnonzero(cm).astype(stype)
+    del dest_a, cm
+    src_a = src_a.reshape(nc, M, K)
     col_S = np.full((nc, K), -1, dtype=_index_dtype(cam.size))
     for s_ in range(G):                          # a cluster sees every column of its supernodes
         g = cl_sn[:, s_]
@@ -370,7 +382,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
                      cam=cam, cam_pos=cam_pos, sn_ptr=sn_ptr, sn_t=sn_t, n_points=n_points,
                      ent_ptr=ent_ptr, ent_cols=ent_cols, ent_size=ent_size, cl_id=cl_id,
                      cl_pos=cl_pos, cl_ent=cl_ent, cl_sn=cl_sn, cl_off=cl_off.astype(np.int64), col_S=col_S,
-                     cluster=cluster, rpos=rpos, in_a=in_a, dest_a=dest_a, dest_b=dest_b, bptr=bptr,
+                     cluster=cluster, rpos=rpos, src_a=src_a, src_b=src_b, bptr=bptr,
                      bcol=bcol, bstart=bstart, flat_r=flat_r, flat_c=flat_c,
                      labels=None if labels is None or isinstance(labels, LazySequence) else np.asarray(labels))
 
@@ -1184,17 +1196,31 @@ class SchurFactor:
 # ------------------------------------------------------------------------------------------
 # the step of one iteration: a fused compiled pass (no selected inverse, no reliability blocks)
 # ------------------------------------------------------------------------------------------
-def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, a, b, Pd, lam, pivot_tol,
-                        S, E, Ci, dC, dU, bad):
+def _load_cluster(data, src_a, src_b, c, ac, bc):
+    """a_c and b_c of cluster position c from the design matrix's data (0 where padded)."""
+    for r in range(src_a.shape[1]):
+        for i in range(src_a.shape[2]):
+            k = src_a[c, r, i]
+            ac[r, i] = data[k] if k >= 0 else 0.0
+        for i in range(3):
+            k = src_b[c, r, i]
+            bc[r, i] = data[k] if k >= 0 else 0.0
+
+
+def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, data, src_a, src_b, Pd, lam,
+                        pivot_tol, S, E, Ci, dC, dU, bad):
     """One pass over the entities for N + λ diag(N) (the module docstring's formulas in normal-
     equation form, every cluster seeing one supernode of K unknowns, diagonal P_c):
     U = Σ a_cᵀP_c a_c into the diagonal blocks of S (its diagonal into dU), E_c = a_cᵀP_c b_c,
     C_j = Σ b_cᵀP_c b_c
     (+ λ diag), its inverse Ci_j (3 × 3, equilibrated Cholesky; a missing coordinate gets 1),
     and S −= E_c C_j⁻¹ E_c'ᵀ for every pair of clusters of point j. bad[e] = coordinate whose
-    pivot fails, else −1."""
-    M = a.shape[1]
-    K = a.shape[2]
+    pivot fails, else −1. a_c and b_c are read from the design matrix's data through ``src_a``,
+    ``src_b`` (no padded copy of them is made)."""
+    M = src_a.shape[1]
+    K = src_a.shape[2]
+    a = np.zeros((M, K))
+    b = np.zeros((M, 3))
     C = np.zeros((3, 3))
     L = np.zeros((3, 3))
     Li = np.zeros((3, 3))
@@ -1206,23 +1232,24 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, a
         for c in range(c0, c1):
             g = cl_sn[c, 0]
             d0 = bstart[sn_diag[g]]
+            _load_cluster(data, src_a, src_b, c, a, b)
             for r in range(M):
                 p = Pd[c, r]
                 if p == 0.0:
                     continue
                 for i in range(K):
-                    pa = p * a[c, r, i]
+                    pa = p * a[r, i]
                     if pa == 0.0:
                         continue
-                    dU[g, i] += pa * a[c, r, i]
+                    dU[g, i] += pa * a[r, i]
                     for j in range(K):
-                        S[d0 + i * K + j] += pa * a[c, r, j]
+                        S[d0 + i * K + j] += pa * a[r, j]
                     for q in range(3):
-                        E[c, i, q] += pa * b[c, r, q]
+                        E[c, i, q] += pa * b[r, q]
                 for i in range(3):
-                    pb = p * b[c, r, i]
+                    pb = p * b[r, i]
                     for j in range(3):
-                        C[i, j] += pb * b[c, r, j]
+                        C[i, j] += pb * b[r, j]
         if ent_cols[e, 0] < 0 and ent_cols[e, 1] < 0 and ent_cols[e, 2] < 0:
             continue
         for k in range(3):
@@ -1327,6 +1354,10 @@ def _step_back_kernel(ent_ptr, col_S, E, Ci, bp, xc):
     return xp
 
 
+if numba is not None:
+    _load_cluster = numba.njit(cache=True)(_load_cluster)
+
+
 def _step_kernels():
     if "step" not in _KERNELS:
         _KERNELS["step"] = numba.njit(cache=True)(_step_factor_kernel)
@@ -1353,7 +1384,6 @@ class StepFactor:
             raise ValueError("design matrix pattern differs from the analysed structure")
         self.st, self.m, self.labels = st, st.u, st.labels
         nc, K = st.cl_id.size, st.K
-        a, b = st.cluster_blocks(Ar)
         Pd = self.cluster_diagonal(st, P)
         nsn = st.sn_ptr.size - 1
         sn_diag = st.__dict__.get("_sn_diag")
@@ -1368,9 +1398,8 @@ class StepFactor:
         dU = np.zeros((nsn, K))
         bad = np.full(ne, -1, dtype=np.int64)
         _step_kernels()["step"](st.ent_ptr, st.ent_cols, st.cl_sn, st.bptr, st.bcol, st.bstart, sn_diag,
-                                a, b, Pd, float(damping),
+                                Ar.data, st.src_a, st.src_b, Pd, float(damping),
                                 min(pivot_tol, POINT_PIVOT_TOL), S, E, Ci, dC, dU, bad)
-        del a, b                   # (not alive while S is factored)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
