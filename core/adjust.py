@@ -595,18 +595,19 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     lin.release()
     for s in problem.sets:
         getattr(s, "release", lambda: None)()
-    if back:
-        Ar = lin.reduced(A, keep_all)
     if plan.defect:
         old, plan = plan.eliminate, None       # (the iterations' plan and its G go first)
+        # Ar's values go while the datum is analysed on A (made again from A below: the same
+        # values at the same x, on the pattern the layout and the structure keep)
+        Ar = None
         # the datum at the solution; a block keeps its held coordinates where they still fix
         # the gauge (the reduced system, and so the structure, stay as they are)
         plan = _replan(problem, x, A, P, free, old) if use_schur else datum_mod.plan(problem, x, A, P, free)
         if use_schur and not np.array_equal(old, plan.eliminate):
             keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
-            st = Ar = None         # (the old layout and Ar go before the new ones are made)
-            Ar = lin.reduced(A, keep)
-            structure()
+            st = None              # (the old layout goes before the new one is made)
+    if Ar is None:
+        Ar = lin.reduced(A, keep)
     if use_schur and st is None:
         structure()
     t_solve = time.perf_counter() - t0

@@ -280,8 +280,8 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     del dest_b
     src_b = src_b.reshape(ncl, M, 3)
     rng = np.random.default_rng(12345)
-    h1 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
-    h2 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
+    h1 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
+    h2 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
     cnt = np.bincount(colc, minlength=u)[camcols]
     tk = (kind[camcols] == "t").astype(float)
     del rng
@@ -385,6 +385,22 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
                      cluster=cluster, rpos=rpos, src_a=src_a, src_b=src_b, bptr=bptr,
                      bcol=bcol, bstart=bstart, flat_r=flat_r, flat_c=flat_c,
                      labels=None if labels is None or isinstance(labels, LazySequence) else np.asarray(labels))
+
+
+def _row_hash(col: np.ndarray, row: np.ndarray, w: np.ndarray, u: int, chunk: int = 1 << 21) -> np.ndarray:
+    """Σ w[row] over the entries of each column (``row`` non-decreasing), summed in chunks of
+    whole rows: the weights of all entries are not gathered at once (8 bytes per entry). Columns
+    touched by the same rows get the same chunk sums and so the same totals — all the supernodes
+    are found by."""
+    out = np.zeros(u)
+    s, N = 0, col.size
+    while s < N:
+        e = N if s + chunk >= N else int(np.searchsorted(row, row[s + chunk], side="left"))
+        if e <= s:                 # (a row longer than a chunk)
+            e = int(np.searchsorted(row, row[s], side="right"))
+        out += np.bincount(col[s:e], weights=w[row[s:e]], minlength=u)
+        s = e
+    return out
 
 
 def _index_dtype(top: int):
@@ -516,18 +532,65 @@ def _gather_kernel(ent_ptr, ent_size, cl_sn, cl_off, sn_size, sn_t, bptr, bcol, 
 SCATTER_CHUNKS = 2
 
 
-def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, Q, a, Pc, S_parts, U_parts):
+def _entity_blocks(data, src_a, src_b, Ri, Pc, diagonal, e, c0, c1, A_, B_, Q_, bc, pb):
+    """For the clusters c0:c1 of entity e, from the design matrix's data (``src_a``, ``src_b``;
+    0 where padded): A_[c − c0] = a_c, B_[c − c0] = b̃_c = b_c R_e⁻¹ and Q_[c − c0] = E_c =
+    a_cᵀ P_c b̃_c — the products summed in the order of :func:`bmm`, so the numbers are those of
+    the stacked arrays :class:`SchurFactor` makes on the other paths. bc, pb: (M, 3) scratch."""
+    M = src_a.shape[1]
+    K = src_a.shape[2]
+    for c in range(c0, c1):
+        m = c - c0
+        for r in range(M):
+            for i in range(K):
+                k = src_a[c, r, i]
+                A_[m, r, i] = data[k] if k >= 0 else 0.0
+            for i in range(3):
+                k = src_b[c, r, i]
+                bc[r, i] = data[k] if k >= 0 else 0.0
+        for r in range(M):
+            for q in range(3):
+                acc = 0.0
+                for j in range(3):
+                    acc += bc[r, j] * Ri[e, j, q]
+                B_[m, r, q] = acc
+        for r in range(M):
+            for q in range(3):
+                if diagonal:
+                    pb[r, q] = Pc[c, r, r] * B_[m, r, q]
+                else:
+                    acc = 0.0
+                    for j in range(M):
+                        acc += Pc[c, r, j] * B_[m, j, q]
+                    pb[r, q] = acc
+        for i in range(K):
+            for q in range(3):
+                acc = 0.0
+                for r in range(M):
+                    acc += A_[m, r, i] * pb[r, q]
+                Q_[m, i, q] = acc
+
+
+def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, data, src_a, src_b, Ri, Pc, diagonal,
+                     maxent, S_parts, U_parts):
     """S_parts[k] −= Σ_{c ≤ c' ∈ j} Q_c Q_c'ᵀ (and its transpose) and U_parts[k, g] +=
     a_cᵀ P_c a_c (the diagonal blocks of U = A_cᵀPA_c, per supernode g) for the entities of
-    chunk k."""
+    chunk k. a_c and Q_c = E_c are made per entity (:func:`_entity_blocks`): no stack of them
+    over all clusters is held."""
     nchunk = S_parts.shape[0]
     ne = ent_ptr.size - 1
-    M = a.shape[1]
-    n = a.shape[2]
+    M = src_a.shape[1]
+    n = src_a.shape[2]
     for k in numba.prange(nchunk):
         S = S_parts[k]
+        A_ = np.empty((maxent, M, n))
+        B_ = np.empty((maxent, M, 3))
+        Q = np.empty((maxent, n, 3))
+        bc = np.empty((M, 3))
+        pb = np.empty((M, 3))
         for e in range(k * ne // nchunk, (k + 1) * ne // nchunk):
             c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+            _entity_blocks(data, src_a, src_b, Ri, Pc, diagonal, e, c0, c1, A_, B_, Q, bc, pb)
             for c in range(c0, c1):
                 g = cl_sn[c, 0]
                 for r in range(M):
@@ -536,9 +599,9 @@ def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, Q, a, Pc, S_p
                         if p == 0.0:
                             continue
                         for i in range(n):
-                            pa = p * a[c, r, i]
+                            pa = p * A_[c - c0, r, i]
                             for j in range(n):
-                                U_parts[k, g, i * n + j] += pa * a[c, r2, j]
+                                U_parts[k, g, i * n + j] += pa * A_[c - c0, r2, j]
             if ent_size[e] == 0:
                 continue
             for c in range(c0, c1):
@@ -548,24 +611,32 @@ def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, Q, a, Pc, S_p
                     b1 = bstart[_find_block(bptr, bcol, g, h)]
                     b2 = bstart[_find_block(bptr, bcol, h, g)]
                     for i in range(n):
-                        q0, q1, q2 = Q[c, i, 0], Q[c, i, 1], Q[c, i, 2]
+                        q0, q1, q2 = Q[c - c0, i, 0], Q[c - c0, i, 1], Q[c - c0, i, 2]
                         for j in range(n):
-                            y = q0 * Q[c2, j, 0] + q1 * Q[c2, j, 1] + q2 * Q[c2, j, 2]
+                            y = q0 * Q[c2 - c0, j, 0] + q1 * Q[c2 - c0, j, 1] + q2 * Q[c2 - c0, j, 2]
                             S[b1 + i * n + j] -= y
                             if c2 != c:
                                 S[b2 + j * n + i] -= y
 
 
-def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Sig, Sigt, H, Ht, Spp):
+def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, data, src_a, src_b, Ri, Pc, diagonal,
+                 out, Sig, Sigt, H, Ht, Spp):
     """_gather_kernel for one supernode of n unknowns per cluster, fused with what follows it,
     per entity (in parallel): G_c = −Σ_c' Σ_{k_c k_c'} Q_c', Σ̃_pp = I − Σ_c Q_cᵀ G_c and the
     cluster blocks H_c = a Σ_kk aᵀ + a G b̃ᵀ + b̃ Gᵀ aᵀ + b̃ Σ̃_pp b̃ᵀ, Ht_c = a Σt_kk aᵀ (the formulas
-    of :meth:`SchurFactor._selected`). G of an entity lives in scratch memory of its own."""
-    M = a.shape[1]
-    n = a.shape[2]
+    of :meth:`SchurFactor._selected`), written to H[out[c]], Ht[out[c]] (by cluster id). a_c, b̃_c,
+    Q_c and G of an entity live in scratch memory of its own (:func:`_entity_blocks`)."""
+    M = src_a.shape[1]
+    n = src_a.shape[2]
     for e in numba.prange(ent_ptr.size - 1):
         c0, c1 = ent_ptr[e], ent_ptr[e + 1]
         schur = ent_size[e] > 0
+        a = np.empty((c1 - c0, M, n))
+        b = np.empty((c1 - c0, M, 3))
+        Q = np.empty((c1 - c0, n, 3))
+        bc = np.empty((M, 3))
+        pb = np.empty((M, 3))
+        _entity_blocks(data, src_a, src_b, Ri, Pc, diagonal, e, c0, c1, a, b, Q, bc, pb)
         Gc = np.zeros((c1 - c0, n, 3))
         if schur:
             for c in range(c0, c1):
@@ -579,9 +650,9 @@ def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Si
                         s2 = 0.0
                         for j in range(n):
                             sg = Sig[base + i * n + j]
-                            s0 += sg * Q[c2, j, 0]
-                            s1 += sg * Q[c2, j, 1]
-                            s2 += sg * Q[c2, j, 2]
+                            s0 += sg * Q[c2 - c0, j, 0]
+                            s1 += sg * Q[c2 - c0, j, 1]
+                            s2 += sg * Q[c2 - c0, j, 2]
                         Gc[c - c0, i, 0] -= s0
                         Gc[c - c0, i, 1] -= s1
                         Gc[c - c0, i, 2] -= s2
@@ -591,12 +662,14 @@ def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Si
                 if schur:
                     for c in range(c0, c1):
                         for i in range(n):
-                            acc -= Q[c, i, q] * Gc[c - c0, i, q2]
+                            acc -= Q[c - c0, i, q] * Gc[c - c0, i, q2]
                 Spp[e, q, q2] = acc
         for c in range(c0, c1):
+            m = c - c0
             g = cl_sn[c, 0]
             base = bstart[_find_block(bptr, bcol, g, g)]
             tt = sn_t[g]
+            o = out[c]
             for r in range(M):
                 for r2 in range(M):
                     # a Σ_kk aᵀ and a Σt_kk aᵀ
@@ -606,25 +679,38 @@ def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Si
                         sa = 0.0
                         st = 0.0
                         for j in range(n):
-                            sa += Sig[base + i * n + j] * a[c, r2, j]
-                            st += Sigt[base + i * n + j] * a[c, r2, j]
-                        hv += a[c, r, i] * sa
+                            sa += Sig[base + i * n + j] * a[m, r2, j]
+                            st += Sigt[base + i * n + j] * a[m, r2, j]
+                        hv += a[m, r, i] * sa
                         if tt:
-                            ht += a[c, r, i] * st
+                            ht += a[m, r, i] * st
                     if schur:
                         for q in range(3):
                             f1 = 0.0
                             f2 = 0.0
                             for i in range(n):
-                                f1 += a[c, r, i] * Gc[c - c0, i, q]
-                                f2 += a[c, r2, i] * Gc[c - c0, i, q]
-                            hv += f1 * b[c, r2, q] + f2 * b[c, r, q]
+                                f1 += a[m, r, i] * Gc[m, i, q]
+                                f2 += a[m, r2, i] * Gc[m, i, q]
+                            hv += f1 * b[m, r2, q] + f2 * b[m, r, q]
                             sb = 0.0
                             for q2 in range(3):
-                                sb += Spp[e, q, q2] * b[c, r2, q2]
-                            hv += b[c, r, q] * sb
-                    H[c, r, r2] = hv
-                    Ht[c, r, r2] = ht
+                                sb += Spp[e, q, q2] * b[m, r2, q2]
+                            hv += b[m, r, q] * sb
+                    H[o, r, r2] = hv
+                    Ht[o, r, r2] = ht
+
+
+def _E6_kernel(ent_ptr, data, src_a, src_b, Ri, Pc, diagonal, maxent, E):
+    """E_c = a_cᵀ P_c b̃_c of every cluster position (:func:`_entity_blocks`), for the solves."""
+    M = src_a.shape[1]
+    n = src_a.shape[2]
+    A_ = np.empty((maxent, M, n))
+    B_ = np.empty((maxent, M, 3))
+    bc = np.empty((M, 3))
+    pb = np.empty((M, 3))
+    for e in range(ent_ptr.size - 1):
+        c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+        _entity_blocks(data, src_a, src_b, Ri, Pc, diagonal, e, c0, c1, A_, B_, E[c0:c1], bc, pb)
 
 
 _KERNELS = {}
@@ -637,6 +723,7 @@ def _kernels():
         _KERNELS["gather"] = numba.njit(cache=True)(_gather_kernel)
         _KERNELS["scatter6"] = numba.njit(cache=True, parallel=True)(_scatter6_kernel)
         _KERNELS["hat6"] = numba.njit(cache=True, parallel=True)(_hat6_kernel)
+        _KERNELS["E6"] = numba.njit(cache=True)(_E6_kernel)
     return _KERNELS
 
 
@@ -649,8 +736,9 @@ def _uniform6(st) -> bool:
     return bool((used >= 0).all() and (sn_size[used] == st.K).all() and (st.cl_off[:, 0] == 0).all())
 
 
-if numba is not None:       # the kernels call the compiled search (numba resolves globals)
+if numba is not None:       # the kernels call these compiled helpers (numba resolves globals)
     _find_block = numba.njit(cache=True)(_find_block)
+    _entity_blocks = numba.njit(cache=True)(_entity_blocks)
 
 
 # ------------------------------------------------------------------------------------------
@@ -956,7 +1044,19 @@ class SchurFactor:
             raise OptionError("backend", self.backend, BACKENDS, f"backend {self.backend!r} not available")
         self.st, self.m, self.labels = st, st.u, st.labels
         M, K = st.M, st.K
-        self.a, self.b = st.cluster_blocks(Ar)
+        # the common case (numba, one supernode per cluster) reads a_c, b_c from Ar's data in its
+        # kernels and makes b̃_c and E_c per point (:func:`_entity_blocks`): no stack of a, b, b̃
+        # or E over all clusters is held (216 + 192 bytes per image point of a bundle block);
+        # E is made for the solves only when one is asked for (:attr:`E`). The other paths
+        # keep the padded stacks a, b̃ and E.
+        self.fused = self.backend == "numba" and _uniform6(st)
+        self._data = Ar.data if self.fused else None
+        self._E = None
+        if self.fused:
+            self.a = self.b = None
+            b = st.gather(Ar.data, st.src_b)           # (for the point roots only)
+        else:
+            self.a, b = st.cluster_blocks(Ar)
         # the cluster weights depend on P only: kept with the structure for the next factor of
         # the same P (every Gauss-Newton iteration, the reliability at the solution)
         cached = st.__dict__.get("_weights")
@@ -968,27 +1068,31 @@ class SchurFactor:
             Pd = np.diagonal(Pc, axis1=1, axis2=2)
             diagonal = bool(M == 1 or not np.any(Pc - Pd[:, :, None] * np.eye(M)))
             st.__dict__["_weights"] = (P, self.P, Pc, diagonal)
-        self.Pc = Pc
-        R, bad, dC = _point_roots(self.b, Pc, st.ent_ptr, st.ent_size, damping,
+        self.Pc, self._diagonal_P = Pc, diagonal
+        R, bad, dC = _point_roots(b, Pc, st.ent_ptr, st.ent_size, damping,
                                   min(pivot_tol, POINT_PIVOT_TOL), self.backend, diagonal)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
         # point unknowns p̃ = R_j p: the point blocks become I, b_c becomes b_c R_j⁻¹
         self.R, self.Ri = R, _upper3_inverse(R)
-        self.b = bmm(self.b, self.Ri[st.cl_ent])
-        Pb = np.diagonal(Pc, axis1=1, axis2=2)[:, :, None] * self.b if diagonal else bmm(Pc, self.b)
-        self.E = bmm(_T(self.a), Pb)           # E_c = a_cᵀ P_c b̃_c
-        del Pb
-        self.Q = self.E                         # E_c C̃⁻¹ with C̃ = I
+        if self.fused:
+            del b
+        else:
+            self.b = bmm(b, self.Ri[st.cl_ent])
+            del b
+            Pb = np.diagonal(Pc, axis1=1, axis2=2)[:, :, None] * self.b if diagonal else bmm(Pc, self.b)
+            self._E = bmm(_T(self.a), Pb)          # E_c = a_cᵀ P_c b̃_c (= Q_c: C̃ = I)
+            del Pb
         nnz = int(st.bstart[-1])
         sn_size = np.diff(st.sn_ptr)
-        if self.backend == "numba" and _uniform6(st):
+        if self.fused:
             S_parts = np.zeros((SCATTER_CHUNKS, nnz))
             n_sn = st.sn_ptr.size - 1
             U_parts = np.zeros((SCATTER_CHUNKS, n_sn, K * K))
             _kernels()["scatter6"](st.ent_ptr, st.ent_size, st.cl_sn, st.bptr, st.bcol, st.bstart,
-                                   self.Q, self.a, Pc, S_parts, U_parts)
+                                   Ar.data, st.src_a, st.src_b, self.Ri, Pc, diagonal, self._maxent(),
+                                   S_parts, U_parts)
             # U = Σ_c a_cᵀ P_c a_c: diagonal blocks only, one per supernode
             used = np.unique(st.cl_sn[:, 0])
             diag_pos = np.array([st.bstart[_find_block(st.bptr, st.bcol, int(x), int(x))] for x in used],
@@ -999,10 +1103,10 @@ class SchurFactor:
         elif self.backend == "numba":
             S, U = np.zeros(nnz), np.zeros(nnz)
             _kernels()["scatter"](st.ent_ptr, st.ent_size, st.cl_sn, st.cl_off, sn_size, st.bptr,
-                                  st.bcol, st.bstart, self.a, Pc, self.Q, self.E, S, U)
+                                  st.bcol, st.bstart, self.a, Pc, self._E, self._E, S, U)
         else:
             Ua = np.matmul(_T(self.a), np.matmul(Pc, self.a))
-            S, U = _scatter_np(st, Ua, self.Q, self.E, nnz)
+            S, U = _scatter_np(st, Ua, self._E, self._E, nnz)
         if damping:
             dsel0 = st.flat_r == st.flat_c
             S = S.copy()
@@ -1027,6 +1131,22 @@ class SchurFactor:
         self._pflat, self._pcols = pflat, st.ent_cols.ravel()[pflat]
         self._blocks = None
         self._nuisance = None
+
+    def _maxent(self) -> int:
+        """The most cluster positions of one entity (the kernels' scratch size)."""
+        return max(int(np.diff(self.st.ent_ptr).max(initial=0)), 1)
+
+    @property
+    def E(self) -> np.ndarray:
+        """E_c = a_cᵀ P_c b̃_c of every cluster position (nc, K, 3), for the solves. The common
+        case's kernels make it per point; here it is made from Ar's data once a solve needs it."""
+        if self._E is None:
+            st = self.st
+            E = np.empty((st.cl_id.size, st.K, 3))
+            _kernels()["E6"](st.ent_ptr, self._data, st.src_a, st.src_b, self.Ri, self.Pc,
+                             self._diagonal_P, self._maxent(), E)
+            self._E = E
+        return self._E
 
     @staticmethod
     def _cluster_weights(st, P):
@@ -1121,40 +1241,50 @@ class SchurFactor:
             # in ascending reduced order
             red = st.cam[tS]
             self._nuisance = _Permuted(T, np.argsort(red))
-        nc, M, K = self.a.shape
+        nc, M, K = st.cl_id.size, st.M, st.K
         sn_size = np.diff(st.sn_ptr)
-        if self.backend == "numba" and _uniform6(st):
+        if self.fused:
+            # H, Ht by cluster id (the order of :meth:`hat_blocks` when all clusters have M rows:
+            # the result takes them without a copy)
             H, Ht = np.empty((nc, M, M)), np.empty((nc, M, M))
             Spp = np.empty((st.ent_size.size, 3, 3))
-            _kernels()["hat6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol,
-                               st.bstart, self.Q, self.a, self.b, Sig, Sigt, H, Ht, Spp)
-            self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
-            self.a = self.b = None         # only these blocks needed them (solve uses E and R)
+            _kernels()["hat6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol, st.bstart,
+                               self._data, st.src_a, st.src_b, self.Ri, self.Pc, self._diagonal_P, st.cl_id,
+                               Sig, Sigt, H, Ht, Spp)
+            self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)), True)   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
             return self._blocks
+        Q = self._E
         if self.backend == "numba":
             Gc, SA, SAt = np.zeros((nc, K, 3)), np.zeros((nc, K, M)), np.zeros((nc, K, M))
             _kernels()["gather"](st.ent_ptr, st.ent_size, st.cl_sn, st.cl_off, sn_size, st.sn_t, st.bptr,
-                                 st.bcol, st.bstart, self.Q, self.a, Sig, Sigt, Gc, SA, SAt)
+                                 st.bcol, st.bstart, Q, self.a, Sig, Sigt, Gc, SA, SAt)
         else:
-            Gc, SA, SAt = _gather_np(st, self.Q, self.a, Sig, Sigt)
+            Gc, SA, SAt = _gather_np(st, Q, self.a, Sig, Sigt)
         a, b = self.a, self.b
         F = bmm(a, Gc)                                        # a_c Σ_{k_c p}  (nc, M, 3)
         I3 = np.broadcast_to(np.eye(3), (st.ent_size.size, 3, 3))
-        Spp = I3 - _segment_sum(bmm(_T(self.Q), Gc), st.ent_ptr)      # Σ of p̃ (C̃ = I)
+        Spp = I3 - _segment_sum(bmm(_T(Q), Gc), st.ent_ptr)      # Σ of p̃ (C̃ = I)
         FbT = bmm(F, _T(b))
         H = bmm(a, SA) + FbT + _T(FbT) + bmm(bmm(b, Spp[st.cl_ent]), _T(b))
         Ht = bmm(a, SAt)
-        self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
-        self.a = self.b = None
+        self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)), False)   # (by cluster position)
+        self.a = self.b = None             # only these blocks needed them (solve uses E and R)
         return self._blocks
 
     def hat_blocks(self, cov):
         """a_i Σ a_jᵀ and a_i Σ_t a_jᵀ (nuisance part) for all pairs within each covariance
-        cluster, laid out as :func:`baarda.result.cluster_pairs` lays them out."""
-        H, Ht, _ = self._selected()
+        cluster, laid out as :func:`baarda.result.cluster_pairs` lays them out. When the factor's
+        blocks are in that layout already (one cluster size, clusters in id order: a bundle block)
+        they are returned themselves, not copied (the result repairs them in place: the factor
+        holds no second copy of them)."""
+        H, Ht, _, by_id = self._selected()
+        groups = list(by_size(cov))
+        if by_id and len(groups) == 1 and groups[0][0] == H.shape[1] \
+                and np.array_equal(groups[0][1], np.arange(H.shape[0])):
+            return H.reshape(-1), Ht.reshape(-1)       # the layout asked for: no copy
         out_h, out_t = [], []
-        for m, clusters, _ in by_size(cov):
-            p = self.st.cl_pos[clusters]
+        for m, clusters, _ in groups:
+            p = clusters if by_id else self.st.cl_pos[clusters]
             out_h.append(H[p, :m, :m].reshape(-1))
             out_t.append(Ht[p, :m, :m].reshape(-1))
         if len(out_h) == 1:            # (one cluster size: its stacks are new arrays already)
@@ -1216,7 +1346,8 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
     (+ λ diag), its inverse Ci_j (3 × 3, equilibrated Cholesky; a missing coordinate gets 1),
     and S −= E_c C_j⁻¹ E_c'ᵀ for every pair of clusters of point j. bad[e] = coordinate whose
     pivot fails, else −1. a_c and b_c are read from the design matrix's data through ``src_a``,
-    ``src_b`` (no padded copy of them is made)."""
+    ``src_b`` (no padded copy of them is made); E is scratch memory for the clusters of one
+    point (the solves make E_c again: :func:`_step_E`)."""
     M = src_a.shape[1]
     K = src_a.shape[2]
     a = np.zeros((M, K))
@@ -1229,6 +1360,7 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
     for e in range(ent_ptr.size - 1):
         c0, c1 = ent_ptr[e], ent_ptr[e + 1]
         C[:, :] = 0.0
+        E[: c1 - c0] = 0.0
         for c in range(c0, c1):
             g = cl_sn[c, 0]
             d0 = bstart[sn_diag[g]]
@@ -1245,7 +1377,7 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
                     for j in range(K):
                         S[d0 + i * K + j] += pa * a[r, j]
                     for q in range(3):
-                        E[c, i, q] += pa * b[r, q]
+                        E[c - c0, i, q] += pa * b[r, q]
                 for i in range(3):
                     pb = p * b[r, i]
                     for j in range(3):
@@ -1307,48 +1439,69 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
             g = cl_sn[c, 0]
             for i in range(K):
                 for q in range(3):
-                    Z[i, q] = E[c, i, 0] * Ci[e, 0, q] + E[c, i, 1] * Ci[e, 1, q] + E[c, i, 2] * Ci[e, 2, q]
+                    Z[i, q] = E[c - c0, i, 0] * Ci[e, 0, q] + E[c - c0, i, 1] * Ci[e, 1, q] + E[c - c0, i, 2] * Ci[e, 2, q]
             for c2 in range(c, c1):
                 h = cl_sn[c2, 0]
                 b1 = bstart[_find_block(bptr, bcol, g, h)]
                 b2 = bstart[_find_block(bptr, bcol, h, g)]
                 for i in range(K):
                     for j in range(K):
-                        y = Z[i, 0] * E[c2, j, 0] + Z[i, 1] * E[c2, j, 1] + Z[i, 2] * E[c2, j, 2]
+                        y = Z[i, 0] * E[c2 - c0, j, 0] + Z[i, 1] * E[c2 - c0, j, 1] + Z[i, 2] * E[c2 - c0, j, 2]
                         S[b1 + i * K + j] -= y
                         if c2 != c:
                             S[b2 + j * K + i] -= y
 
 
-def _step_solve_kernel(ent_ptr, ent_cols, col_S, E, Ci, bp, rhs_c):
+def _step_E(data, src_a, src_b, Pd, c, a, b, Ec):
+    """E_c = a_cᵀP_c b_c of cluster position c, summed as :func:`_step_factor_kernel` sums it
+    (the same numbers): a step keeps no stack of E over all clusters (216 bytes per image point)."""
+    _load_cluster(data, src_a, src_b, c, a, b)
+    Ec[:, :] = 0.0
+    for r in range(a.shape[0]):
+        p = Pd[c, r]
+        if p == 0.0:
+            continue
+        for i in range(a.shape[1]):
+            pa = p * a[r, i]
+            if pa == 0.0:
+                continue
+            for q in range(3):
+                Ec[i, q] += pa * b[r, q]
+
+
+def _step_solve_kernel(ent_ptr, col_S, data, src_a, src_b, Pd, Ci, bp, rhs_c):
     """rhs_c −= Σ_c E_c C_j⁻¹ b_p,j (the reduced right-hand side); returns t = C⁻¹ b_p."""
-    K = E.shape[1]
+    M, K = src_a.shape[1], src_a.shape[2]
+    a, b, E = np.empty((M, K)), np.empty((M, 3)), np.empty((K, 3))
     t = np.zeros((ent_ptr.size - 1, 3))
     for e in range(ent_ptr.size - 1):
         for q in range(3):
             t[e, q] = Ci[e, q, 0] * bp[e, 0] + Ci[e, q, 1] * bp[e, 1] + Ci[e, q, 2] * bp[e, 2]
         for c in range(ent_ptr[e], ent_ptr[e + 1]):
+            _step_E(data, src_a, src_b, Pd, c, a, b, E)
             for i in range(K):
                 k = col_S[c, i]
                 if k >= 0:
-                    rhs_c[k] -= E[c, i, 0] * t[e, 0] + E[c, i, 1] * t[e, 1] + E[c, i, 2] * t[e, 2]
+                    rhs_c[k] -= E[i, 0] * t[e, 0] + E[i, 1] * t[e, 1] + E[i, 2] * t[e, 2]
     return t
 
 
-def _step_back_kernel(ent_ptr, col_S, E, Ci, bp, xc):
+def _step_back_kernel(ent_ptr, col_S, data, src_a, src_b, Pd, Ci, bp, xc):
     """x_p,j = C_j⁻¹ (b_p,j − Σ_c E_cᵀ x_c)."""
-    K = E.shape[1]
+    M, K = src_a.shape[1], src_a.shape[2]
+    a, b, E = np.empty((M, K)), np.empty((M, 3)), np.empty((K, 3))
     ne = ent_ptr.size - 1
     xp = np.zeros((ne, 3))
     s = np.zeros(3)
     for e in range(ne):
         s[0], s[1], s[2] = bp[e, 0], bp[e, 1], bp[e, 2]
         for c in range(ent_ptr[e], ent_ptr[e + 1]):
+            _step_E(data, src_a, src_b, Pd, c, a, b, E)
             for i in range(K):
                 k = col_S[c, i]
                 if k >= 0:
                     for q in range(3):
-                        s[q] -= E[c, i, q] * xc[k]
+                        s[q] -= E[i, q] * xc[k]
         for q in range(3):
             xp[e, q] = Ci[e, q, 0] * s[0] + Ci[e, q, 1] * s[1] + Ci[e, q, 2] * s[2]
     return xp
@@ -1356,6 +1509,7 @@ def _step_back_kernel(ent_ptr, col_S, E, Ci, bp, xc):
 
 if numba is not None:
     _load_cluster = numba.njit(cache=True)(_load_cluster)
+    _step_E = numba.njit(cache=True)(_step_E)
 
 
 def _step_kernels():
@@ -1383,7 +1537,7 @@ class StepFactor:
         if not st.matches(Ar):
             raise ValueError("design matrix pattern differs from the analysed structure")
         self.st, self.m, self.labels = st, st.u, st.labels
-        nc, K = st.cl_id.size, st.K
+        K = st.K
         Pd = self.cluster_diagonal(st, P)
         nsn = st.sn_ptr.size - 1
         sn_diag = st.__dict__.get("_sn_diag")
@@ -1392,7 +1546,7 @@ class StepFactor:
             st.__dict__["_sn_diag"] = sn_diag
         ne = st.ent_size.size
         S = np.zeros(int(st.bstart[-1]))
-        E = np.zeros((nc, K, 3))
+        E = np.zeros((max(int(np.diff(st.ent_ptr).max(initial=0)), 1), K, 3))    # (one point's)
         Ci = np.zeros((ne, 3, 3))
         dC = np.zeros((ne, 3))
         dU = np.zeros((nsn, K))
@@ -1407,7 +1561,9 @@ class StepFactor:
         if damping:
             dsel = st.flat_r == st.flat_c
             S[dsel] += damping * diag_c[st.flat_r[dsel]]
-        self.E, self.Ci = E, Ci
+        # what the solves need: Ar's data (a reference: E_c is made again per cluster there, no
+        # stack of it is held), the weights and C_j⁻¹
+        self._data, self._Pd, self.Ci = Ar.data, Pd, Ci
         nc_ = st.cam.size
         Smat = sp.csr_matrix((S, (st.flat_r, st.flat_c)), shape=(nc_, nc_))
         try:
@@ -1471,9 +1627,9 @@ class StepFactor:
         bp = bp.reshape(ne, 3)
         k = _step_kernels()
         rhs = b[st.cam].copy()
-        k["step_solve"](st.ent_ptr, st.ent_cols, st.col_S, self.E, self.Ci, bp, rhs)
+        k["step_solve"](st.ent_ptr, st.col_S, self._data, st.src_a, st.src_b, self._Pd, self.Ci, bp, rhs)
         xc = self.S.solve(rhs)
-        xp = k["step_back"](st.ent_ptr, st.col_S, self.E, self.Ci, bp, xc)
+        xp = k["step_back"](st.ent_ptr, st.col_S, self._data, st.src_a, st.src_b, self._Pd, self.Ci, bp, xc)
         out = np.empty(self.m)
         out[st.cam] = xc
         out[self._pcols] = xp.ravel()[self._pflat]
