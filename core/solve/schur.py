@@ -275,10 +275,8 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     dest_b += coord_col[cb]
     del cb, rowb
     # the inverse: for each place in b the entry of the design matrix's data (−1: padding)
-    src_b = np.full(ncl * M * 3, -1, dtype=stype)
-    src_b[dest_b] = np.flatnonzero(~cm).astype(stype)
+    src_b = _inverse_map(dest_b, ~cm, ncl * M * 3, stype).reshape(ncl, M, 3)
     del dest_b
-    src_b = src_b.reshape(ncl, M, 3)
     rng = np.random.default_rng(12345)
     h1 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
     h2 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
@@ -310,12 +308,18 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
 
     # supernode slots of each cluster position
     nc = ncl
-    akey = cluster[rowc]                          # cluster position · nsn + supernode, in place
-    np.take(cl_pos, akey, out=akey)
-    akey *= max(nsn, 1)
-    akey += sn_of[colc]
-    run = np.flatnonzero(np.r_[True, akey[1:] != akey[:-1]]) if akey.size else np.zeros(0, dtype=np.int64)
-    skey = _unique_sorted(akey[run])
+    # runs of camera entries of one row and one supernode (a row's entries make one run or a
+    # few): the keys cluster position · nsn + supernode are made per run, not per entry
+    sn_e = sn_of.astype(_index_dtype(max(nsn, 1)))[colc]
+    brk = np.ones(colc.size, dtype=bool)
+    if brk.size:
+        np.not_equal(rowc[1:], rowc[:-1], out=brk[1:])
+        brk[1:] |= sn_e[1:] != sn_e[:-1]
+    run = np.flatnonzero(brk)
+    del brk
+    rkey = cl_pos[cluster[rowc[run]]] * max(nsn, 1) + sn_e[run]
+    del sn_e
+    skey = _unique_sorted(rkey)
     sp_, sg = skey // max(nsn, 1), skey % max(nsn, 1)
     sfirst = np.searchsorted(sp_, np.arange(nc))
     slot = np.arange(skey.size) - sfirst[sp_]
@@ -328,9 +332,9 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     K = max(int(sizes.sum(axis=1).max(initial=0)), 1)
     # (position·M + rpos)·K + local, in place, in the narrowest type that holds nc·M·K
     itype = _index_dtype(nc * M * K)
-    loc = np.searchsorted(skey, akey[run])
-    local = np.repeat(cl_off[sp_[loc], slot[loc]].astype(itype), np.diff(np.r_[run, akey.size]))
-    del loc, run, akey
+    loc = np.searchsorted(skey, rkey)
+    local = np.repeat(cl_off[sp_[loc], slot[loc]].astype(itype), np.diff(np.r_[run, colc.size]))
+    del loc, run, rkey
     local += off_of.astype(itype)[colc]
     del colc
     dest_a = cl_pos.astype(itype)[cluster].take(rowc)
@@ -340,10 +344,8 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     dest_a *= K
     dest_a += local
     del local
-    src_a = np.full(nc * M * K, -1, dtype=stype)
-    src_a[dest_a] = np.flatnonzero(cm).astype(stype)
+    src_a = _inverse_map(dest_a, cm, nc * M * K, stype).reshape(nc, M, K)
     del dest_a, cm
-    src_a = src_a.reshape(nc, M, K)
     col_S = np.full((nc, K), -1, dtype=_index_dtype(cam.size))
     for s_ in range(G):                          # a cluster sees every column of its supernodes
         g = cl_sn[:, s_]
@@ -401,6 +403,20 @@ def _row_hash(col: np.ndarray, row: np.ndarray, w: np.ndarray, u: int, chunk: in
         out += np.bincount(col[s:e], weights=w[row[s:e]], minlength=u)
         s = e
     return out
+
+
+def _inverse_map(dest: np.ndarray, mask: np.ndarray, size: int, dtype, chunk: int = 1 << 22) -> np.ndarray:
+    """src (size,) with src[dest[k]] = the k-th True position of ``mask`` and −1 elsewhere: the
+    place in the design matrix's data of each padded slot, made in chunks of entries (no
+    array of all the positions)."""
+    src = np.full(size, -1, dtype=dtype)
+    pos = 0
+    for s in range(0, mask.size, chunk):
+        idx = np.flatnonzero(mask[s:s + chunk]).astype(dtype)
+        idx += s
+        src[dest[pos:pos + idx.size]] = idx
+        pos += idx.size
+    return src
 
 
 def _index_dtype(top: int):
