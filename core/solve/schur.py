@@ -1362,8 +1362,7 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
     (+ λ diag), its inverse Ci_j (3 × 3, equilibrated Cholesky; a missing coordinate gets 1),
     and S −= E_c C_j⁻¹ E_c'ᵀ for every pair of clusters of point j. bad[e] = coordinate whose
     pivot fails, else −1. a_c and b_c are read from the design matrix's data through ``src_a``,
-    ``src_b`` (no padded copy of them is made); E is scratch memory for the clusters of one
-    point (the solves make E_c again: :func:`_step_E`)."""
+    ``src_b`` (no padded copy of them is made)."""
     M = src_a.shape[1]
     K = src_a.shape[2]
     a = np.zeros((M, K))
@@ -1376,7 +1375,6 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
     for e in range(ent_ptr.size - 1):
         c0, c1 = ent_ptr[e], ent_ptr[e + 1]
         C[:, :] = 0.0
-        E[: c1 - c0] = 0.0
         for c in range(c0, c1):
             g = cl_sn[c, 0]
             d0 = bstart[sn_diag[g]]
@@ -1393,7 +1391,7 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
                     for j in range(K):
                         S[d0 + i * K + j] += pa * a[r, j]
                     for q in range(3):
-                        E[c - c0, i, q] += pa * b[r, q]
+                        E[c, i, q] += pa * b[r, q]
                 for i in range(3):
                     pb = p * b[r, i]
                     for j in range(3):
@@ -1455,69 +1453,48 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
             g = cl_sn[c, 0]
             for i in range(K):
                 for q in range(3):
-                    Z[i, q] = E[c - c0, i, 0] * Ci[e, 0, q] + E[c - c0, i, 1] * Ci[e, 1, q] + E[c - c0, i, 2] * Ci[e, 2, q]
+                    Z[i, q] = E[c, i, 0] * Ci[e, 0, q] + E[c, i, 1] * Ci[e, 1, q] + E[c, i, 2] * Ci[e, 2, q]
             for c2 in range(c, c1):
                 h = cl_sn[c2, 0]
                 b1 = bstart[_find_block(bptr, bcol, g, h)]
                 b2 = bstart[_find_block(bptr, bcol, h, g)]
                 for i in range(K):
                     for j in range(K):
-                        y = Z[i, 0] * E[c2 - c0, j, 0] + Z[i, 1] * E[c2 - c0, j, 1] + Z[i, 2] * E[c2 - c0, j, 2]
+                        y = Z[i, 0] * E[c2, j, 0] + Z[i, 1] * E[c2, j, 1] + Z[i, 2] * E[c2, j, 2]
                         S[b1 + i * K + j] -= y
                         if c2 != c:
                             S[b2 + j * K + i] -= y
 
 
-def _step_E(data, src_a, src_b, Pd, c, a, b, Ec):
-    """E_c = a_cᵀP_c b_c of cluster position c, summed as :func:`_step_factor_kernel` sums it
-    (the same numbers): a step keeps no stack of E over all clusters (216 bytes per image point)."""
-    _load_cluster(data, src_a, src_b, c, a, b)
-    Ec[:, :] = 0.0
-    for r in range(a.shape[0]):
-        p = Pd[c, r]
-        if p == 0.0:
-            continue
-        for i in range(a.shape[1]):
-            pa = p * a[r, i]
-            if pa == 0.0:
-                continue
-            for q in range(3):
-                Ec[i, q] += pa * b[r, q]
-
-
-def _step_solve_kernel(ent_ptr, col_S, data, src_a, src_b, Pd, Ci, bp, rhs_c):
+def _step_solve_kernel(ent_ptr, ent_cols, col_S, E, Ci, bp, rhs_c):
     """rhs_c −= Σ_c E_c C_j⁻¹ b_p,j (the reduced right-hand side); returns t = C⁻¹ b_p."""
-    M, K = src_a.shape[1], src_a.shape[2]
-    a, b, E = np.empty((M, K)), np.empty((M, 3)), np.empty((K, 3))
+    K = E.shape[1]
     t = np.zeros((ent_ptr.size - 1, 3))
     for e in range(ent_ptr.size - 1):
         for q in range(3):
             t[e, q] = Ci[e, q, 0] * bp[e, 0] + Ci[e, q, 1] * bp[e, 1] + Ci[e, q, 2] * bp[e, 2]
         for c in range(ent_ptr[e], ent_ptr[e + 1]):
-            _step_E(data, src_a, src_b, Pd, c, a, b, E)
             for i in range(K):
                 k = col_S[c, i]
                 if k >= 0:
-                    rhs_c[k] -= E[i, 0] * t[e, 0] + E[i, 1] * t[e, 1] + E[i, 2] * t[e, 2]
+                    rhs_c[k] -= E[c, i, 0] * t[e, 0] + E[c, i, 1] * t[e, 1] + E[c, i, 2] * t[e, 2]
     return t
 
 
-def _step_back_kernel(ent_ptr, col_S, data, src_a, src_b, Pd, Ci, bp, xc):
+def _step_back_kernel(ent_ptr, col_S, E, Ci, bp, xc):
     """x_p,j = C_j⁻¹ (b_p,j − Σ_c E_cᵀ x_c)."""
-    M, K = src_a.shape[1], src_a.shape[2]
-    a, b, E = np.empty((M, K)), np.empty((M, 3)), np.empty((K, 3))
+    K = E.shape[1]
     ne = ent_ptr.size - 1
     xp = np.zeros((ne, 3))
     s = np.zeros(3)
     for e in range(ne):
         s[0], s[1], s[2] = bp[e, 0], bp[e, 1], bp[e, 2]
         for c in range(ent_ptr[e], ent_ptr[e + 1]):
-            _step_E(data, src_a, src_b, Pd, c, a, b, E)
             for i in range(K):
                 k = col_S[c, i]
                 if k >= 0:
                     for q in range(3):
-                        s[q] -= E[i, q] * xc[k]
+                        s[q] -= E[c, i, q] * xc[k]
         for q in range(3):
             xp[e, q] = Ci[e, q, 0] * s[0] + Ci[e, q, 1] * s[1] + Ci[e, q, 2] * s[2]
     return xp
@@ -1525,7 +1502,6 @@ def _step_back_kernel(ent_ptr, col_S, data, src_a, src_b, Pd, Ci, bp, xc):
 
 if numba is not None:
     _load_cluster = numba.njit(cache=True)(_load_cluster)
-    _step_E = numba.njit(cache=True)(_step_E)
 
 
 def _step_kernels():
@@ -1553,7 +1529,7 @@ class StepFactor:
         if not st.matches(Ar):
             raise ValueError("design matrix pattern differs from the analysed structure")
         self.st, self.m, self.labels = st, st.u, st.labels
-        K = st.K
+        nc, K = st.cl_id.size, st.K
         Pd = self.cluster_diagonal(st, P)
         nsn = st.sn_ptr.size - 1
         sn_diag = st.__dict__.get("_sn_diag")
@@ -1562,7 +1538,7 @@ class StepFactor:
             st.__dict__["_sn_diag"] = sn_diag
         ne = st.ent_size.size
         S = np.zeros(int(st.bstart[-1]))
-        E = np.zeros((max(int(np.diff(st.ent_ptr).max(initial=0)), 1), K, 3))    # (one point's)
+        E = np.zeros((nc, K, 3))
         Ci = np.zeros((ne, 3, 3))
         dC = np.zeros((ne, 3))
         dU = np.zeros((nsn, K))
@@ -1577,9 +1553,7 @@ class StepFactor:
         if damping:
             dsel = st.flat_r == st.flat_c
             S[dsel] += damping * diag_c[st.flat_r[dsel]]
-        # what the solves need: Ar's data (a reference: E_c is made again per cluster there, no
-        # stack of it is held), the weights and C_j⁻¹
-        self._data, self._Pd, self.Ci = Ar.data, Pd, Ci
+        self.E, self.Ci = E, Ci
         nc_ = st.cam.size
         Smat = sp.csr_matrix((S, (st.flat_r, st.flat_c)), shape=(nc_, nc_))
         try:
@@ -1643,9 +1617,9 @@ class StepFactor:
         bp = bp.reshape(ne, 3)
         k = _step_kernels()
         rhs = b[st.cam].copy()
-        k["step_solve"](st.ent_ptr, st.col_S, self._data, st.src_a, st.src_b, self._Pd, self.Ci, bp, rhs)
+        k["step_solve"](st.ent_ptr, st.ent_cols, st.col_S, self.E, self.Ci, bp, rhs)
         xc = self.S.solve(rhs)
-        xp = k["step_back"](st.ent_ptr, st.col_S, self._data, st.src_a, st.src_b, self._Pd, self.Ci, bp, xc)
+        xp = k["step_back"](st.ent_ptr, st.col_S, self.E, self.Ci, bp, xc)
         out = np.empty(self.m)
         out[st.cam] = xc
         out[self._pcols] = xp.ravel()[self._pflat]
