@@ -311,6 +311,8 @@ class Linearisation:
             kept = np.zeros(self.u, dtype=bool)
             kept[keep] = True
             self._reduced = (keep.copy(), kept[A.indices], Ar.indices, Ar.indptr)
+            Ar.has_canonical_format = True
+            return Ar                  # (its values are A.data[m] already: not gathered twice)
         _, m, indices, indptr = self._reduced
         Ar = sp.csr_matrix((A.data[m], indices, indptr), shape=(A.shape[0], keep.size), copy=False)
         Ar.has_canonical_format = True
@@ -419,6 +421,14 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         if use_schur:
             st = schur_structure(problem, Ar, keep, "schur")
 
+    def switch():
+        """Ar and its layout for a new set of unknowns ``keep``: the old layout goes before the
+        new Ar is made (a gauge switch must not hold both layouts and both matrices)."""
+        nonlocal st
+        st = None
+        reduce()
+        structure()
+
     def end_game_failed():
         """An undamped step of the end game failed (rejected, or a singular system). When far
         points are what drifts (along their rays towards infinity: vᵀPv falls towards an
@@ -439,14 +449,12 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                         keep_all = new
                     far = _far_columns(problem, x, free[keep_all])
                 keep = keep_all[~far]
-                reduce()
-                structure()
+                switch()
                 n_far = int(np.unique(params.point[free[keep_all][far]]).size)
                 return
         if n_far:
             keep, n_far = keep_all, 0
-            reduce()
-            structure()
+            switch()
         endgame = False
 
     it = 0
@@ -466,12 +474,10 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                 if free_gauge is None:
                     free_gauge = np.arange(free.size)
                 keep = free_gauge
-                reduce()
-                structure()
+                switch()
             elif lam == 0.0 and free_gauge is not None and keep is free_gauge:
                 keep = keep_all
-                reduce()
-                structure()
+                switch()
         if st is not None and not st.matches(Ar):
             st = schur_structure(problem, Ar, keep, "schur")
         try:
@@ -589,17 +595,19 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     lin.release()
     for s in problem.sets:
         getattr(s, "release", lambda: None)()
-    if back:
-        Ar = lin.reduced(A, keep_all)
     if plan.defect:
         old, plan = plan.eliminate, None       # (the iterations' plan and its G go first)
+        # Ar's values go while the datum is analysed on A (made again from A below: the same
+        # values at the same x, on the pattern the layout and the structure keep)
+        Ar = None
         # the datum at the solution; a block keeps its held coordinates where they still fix
         # the gauge (the reduced system, and so the structure, stay as they are)
         plan = _replan(problem, x, A, P, free, old) if use_schur else datum_mod.plan(problem, x, A, P, free)
         if use_schur and not np.array_equal(old, plan.eliminate):
             keep = np.setdiff1d(np.arange(free.size), plan.eliminate)
-            Ar = lin.reduced(A, keep)
-            structure()
+            st = None              # (the old layout goes before the new one is made)
+    if Ar is None:
+        Ar = lin.reduced(A, keep)
     if use_schur and st is None:
         structure()
     t_solve = time.perf_counter() - t0

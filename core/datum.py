@@ -262,7 +262,7 @@ def normal_diagonal(A: sp.csr_matrix, P: sp.csr_matrix) -> np.ndarray:
         A = sp.csr_matrix(A)
         Pdiag = P.diagonal()
         out = np.zeros(A.shape[1])
-        step = 1 << 20                                      # rows per chunk: no n·k temporaries
+        step = 1 << 17                                      # rows per chunk: no n·k temporaries (~12 MB)
         for s in range(0, A.shape[0], step):
             a, b = A.indptr[s], A.indptr[min(s + step, A.shape[0])]
             Pd = np.repeat(Pdiag[s:s + step], np.diff(A.indptr[s:s + step + 1]))

@@ -141,9 +141,8 @@ class Structure:
     col_S: np.ndarray          # (nc, K) S index of each local camera column, −1 padded
     cluster: np.ndarray        # cluster of each observation (n,)
     rpos: np.ndarray           # position of each observation within its cluster (n,)
-    in_a: np.ndarray           # per design-matrix entry: in a camera column (else a point column)
-    dest_a: np.ndarray         # place in a (nc·M·K) of the camera columns' entries, in order
-    dest_b: np.ndarray         # place in b (nc·M·3) of the point columns' entries, in order
+    src_a: np.ndarray          # (nc, M, K) place in the design matrix's data of each entry of a, −1 padded
+    src_b: np.ndarray          # (nc, M, 3) the same for b
     bptr: np.ndarray           # block pattern of S (CSR over supernodes)
     bcol: np.ndarray
     bstart: np.ndarray         # offset of each block in the flat value array (nblocks+1)
@@ -167,13 +166,17 @@ class Structure:
 
     def cluster_blocks(self, Ar) -> tuple[np.ndarray, np.ndarray]:
         """The entries of ``Ar`` (of this pattern) per cluster: a (clusters × M × K) on the
-        camera side, b (clusters × M × 3) on the point side, zero-padded."""
-        nc, M, K = self.cl_id.size, self.M, self.K
-        a = np.zeros(nc * M * K)
-        a[self.dest_a] = Ar.data[self.in_a]
-        b = np.zeros(nc * M * 3)
-        b[self.dest_b] = Ar.data[~self.in_a]
-        return a.reshape(nc, M, K), b.reshape(nc, M, 3)
+        camera side, b (clusters × M × 3) on the point side, zero-padded. (The compiled kernels
+        of the common case read Ar's data through :attr:`src_a`, :attr:`src_b` instead: these
+        padded copies are made only for the general kernels and the numpy fallback.)"""
+        return self.gather(Ar.data, self.src_a), self.gather(Ar.data, self.src_b)
+
+    @staticmethod
+    def gather(data: np.ndarray, src: np.ndarray) -> np.ndarray:
+        """data[src] with 0 where src is −1 (padding)."""
+        out = np.take(data, src, mode="wrap")
+        out[src < 0] = 0.0
+        return out
 
     def worthwhile(self) -> bool:
         """Whether elimination pays (the automatic choice of :func:`baarda.adjust.adjust`)."""
@@ -258,10 +261,11 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     cm = ~elig[col]
     colc, rowc = col[cm], row[cm]
     # the point side first (its destinations in b), so that the row of every entry goes early
-    in_a = _readonly(cm)
+    nnz = col.size
+    stype = _index_dtype(nnz + 1)
     cb = col[~cm]
     rowb = row[~cm]
-    del row, cm
+    del row
     coord_col = np.full(u, -1, dtype=np.int64)
     coord_col[ecols] = coord
     dest_b = cl_pos[cluster[rowb]]
@@ -270,10 +274,12 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     dest_b *= 3
     dest_b += coord_col[cb]
     del cb, rowb
-    dest_b = _narrow(dest_b, ncl * M * 3)
+    # the inverse: for each place in b the entry of the design matrix's data (−1: padding)
+    src_b = _inverse_map(dest_b, ~cm, ncl * M * 3, stype).reshape(ncl, M, 3)
+    del dest_b
     rng = np.random.default_rng(12345)
-    h1 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
-    h2 = np.bincount(colc, weights=rng.random(n)[rowc], minlength=u)[camcols]
+    h1 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
+    h2 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
     cnt = np.bincount(colc, minlength=u)[camcols]
     tk = (kind[camcols] == "t").astype(float)
     del rng
@@ -302,12 +308,18 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
 
     # supernode slots of each cluster position
     nc = ncl
-    akey = cluster[rowc]                          # cluster position · nsn + supernode, in place
-    np.take(cl_pos, akey, out=akey)
-    akey *= max(nsn, 1)
-    akey += sn_of[colc]
-    run = np.flatnonzero(np.r_[True, akey[1:] != akey[:-1]]) if akey.size else np.zeros(0, dtype=np.int64)
-    skey = _unique_sorted(akey[run])
+    # runs of camera entries of one row and one supernode (a row's entries make one run or a
+    # few): the keys cluster position · nsn + supernode are made per run, not per entry
+    sn_e = sn_of.astype(_index_dtype(max(nsn, 1)))[colc]
+    brk = np.ones(colc.size, dtype=bool)
+    if brk.size:
+        np.not_equal(rowc[1:], rowc[:-1], out=brk[1:])
+        brk[1:] |= sn_e[1:] != sn_e[:-1]
+    run = np.flatnonzero(brk)
+    del brk
+    rkey = cl_pos[cluster[rowc[run]]] * max(nsn, 1) + sn_e[run]
+    del sn_e
+    skey = _unique_sorted(rkey)
     sp_, sg = skey // max(nsn, 1), skey % max(nsn, 1)
     sfirst = np.searchsorted(sp_, np.arange(nc))
     slot = np.arange(skey.size) - sfirst[sp_]
@@ -320,9 +332,9 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     K = max(int(sizes.sum(axis=1).max(initial=0)), 1)
     # (position·M + rpos)·K + local, in place, in the narrowest type that holds nc·M·K
     itype = _index_dtype(nc * M * K)
-    loc = np.searchsorted(skey, akey[run])
-    local = np.repeat(cl_off[sp_[loc], slot[loc]].astype(itype), np.diff(np.r_[run, akey.size]))
-    del loc, run, akey
+    loc = np.searchsorted(skey, rkey)
+    local = np.repeat(cl_off[sp_[loc], slot[loc]].astype(itype), np.diff(np.r_[run, colc.size]))
+    del loc, run, rkey
     local += off_of.astype(itype)[colc]
     del colc
     dest_a = cl_pos.astype(itype)[cluster].take(rowc)
@@ -332,6 +344,8 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     dest_a *= K
     dest_a += local
     del local
+    src_a = _inverse_map(dest_a, cm, nc * M * K, stype).reshape(nc, M, K)
+    del dest_a, cm
     col_S = np.full((nc, K), -1, dtype=_index_dtype(cam.size))
     for s_ in range(G):                          # a cluster sees every column of its supernodes
         g = cl_sn[:, s_]
@@ -370,9 +384,39 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
                      cam=cam, cam_pos=cam_pos, sn_ptr=sn_ptr, sn_t=sn_t, n_points=n_points,
                      ent_ptr=ent_ptr, ent_cols=ent_cols, ent_size=ent_size, cl_id=cl_id,
                      cl_pos=cl_pos, cl_ent=cl_ent, cl_sn=cl_sn, cl_off=cl_off.astype(np.int64), col_S=col_S,
-                     cluster=cluster, rpos=rpos, in_a=in_a, dest_a=dest_a, dest_b=dest_b, bptr=bptr,
+                     cluster=cluster, rpos=rpos, src_a=src_a, src_b=src_b, bptr=bptr,
                      bcol=bcol, bstart=bstart, flat_r=flat_r, flat_c=flat_c,
                      labels=None if labels is None or isinstance(labels, LazySequence) else np.asarray(labels))
+
+
+def _row_hash(col: np.ndarray, row: np.ndarray, w: np.ndarray, u: int, chunk: int = 1 << 21) -> np.ndarray:
+    """Σ w[row] over the entries of each column (``row`` non-decreasing), summed in chunks of
+    whole rows: the weights of all entries are not gathered at once (8 bytes per entry). Columns
+    touched by the same rows get the same chunk sums and so the same totals — all the supernodes
+    are found by."""
+    out = np.zeros(u)
+    s, N = 0, col.size
+    while s < N:
+        e = N if s + chunk >= N else int(np.searchsorted(row, row[s + chunk], side="left"))
+        if e <= s:                 # (a row longer than a chunk)
+            e = int(np.searchsorted(row, row[s], side="right"))
+        out += np.bincount(col[s:e], weights=w[row[s:e]], minlength=u)
+        s = e
+    return out
+
+
+def _inverse_map(dest: np.ndarray, mask: np.ndarray, size: int, dtype, chunk: int = 1 << 22) -> np.ndarray:
+    """src (size,) with src[dest[k]] = the k-th True position of ``mask`` and −1 elsewhere: the
+    place in the design matrix's data of each padded slot, made in chunks of entries (no
+    array of all the positions)."""
+    src = np.full(size, -1, dtype=dtype)
+    pos = 0
+    for s in range(0, mask.size, chunk):
+        idx = np.flatnonzero(mask[s:s + chunk]).astype(dtype)
+        idx += s
+        src[dest[pos:pos + idx.size]] = idx
+        pos += idx.size
+    return src
 
 
 def _index_dtype(top: int):
@@ -504,18 +548,65 @@ def _gather_kernel(ent_ptr, ent_size, cl_sn, cl_off, sn_size, sn_t, bptr, bcol, 
 SCATTER_CHUNKS = 2
 
 
-def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, Q, a, Pc, S_parts, U_parts):
+def _entity_blocks(data, src_a, src_b, Ri, Pc, diagonal, e, c0, c1, A_, B_, Q_, bc, pb):
+    """For the clusters c0:c1 of entity e, from the design matrix's data (``src_a``, ``src_b``;
+    0 where padded): A_[c − c0] = a_c, B_[c − c0] = b̃_c = b_c R_e⁻¹ and Q_[c − c0] = E_c =
+    a_cᵀ P_c b̃_c — the products summed in the order of :func:`bmm`, so the numbers are those of
+    the stacked arrays :class:`SchurFactor` makes on the other paths. bc, pb: (M, 3) scratch."""
+    M = src_a.shape[1]
+    K = src_a.shape[2]
+    for c in range(c0, c1):
+        m = c - c0
+        for r in range(M):
+            for i in range(K):
+                k = src_a[c, r, i]
+                A_[m, r, i] = data[k] if k >= 0 else 0.0
+            for i in range(3):
+                k = src_b[c, r, i]
+                bc[r, i] = data[k] if k >= 0 else 0.0
+        for r in range(M):
+            for q in range(3):
+                acc = 0.0
+                for j in range(3):
+                    acc += bc[r, j] * Ri[e, j, q]
+                B_[m, r, q] = acc
+        for r in range(M):
+            for q in range(3):
+                if diagonal:
+                    pb[r, q] = Pc[c, r, r] * B_[m, r, q]
+                else:
+                    acc = 0.0
+                    for j in range(M):
+                        acc += Pc[c, r, j] * B_[m, j, q]
+                    pb[r, q] = acc
+        for i in range(K):
+            for q in range(3):
+                acc = 0.0
+                for r in range(M):
+                    acc += A_[m, r, i] * pb[r, q]
+                Q_[m, i, q] = acc
+
+
+def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, data, src_a, src_b, Ri, Pc, diagonal,
+                     maxent, S_parts, U_parts):
     """S_parts[k] −= Σ_{c ≤ c' ∈ j} Q_c Q_c'ᵀ (and its transpose) and U_parts[k, g] +=
     a_cᵀ P_c a_c (the diagonal blocks of U = A_cᵀPA_c, per supernode g) for the entities of
-    chunk k."""
+    chunk k. a_c and Q_c = E_c are made per entity (:func:`_entity_blocks`): no stack of them
+    over all clusters is held."""
     nchunk = S_parts.shape[0]
     ne = ent_ptr.size - 1
-    M = a.shape[1]
-    n = a.shape[2]
+    M = src_a.shape[1]
+    n = src_a.shape[2]
     for k in numba.prange(nchunk):
         S = S_parts[k]
+        A_ = np.empty((maxent, M, n))
+        B_ = np.empty((maxent, M, 3))
+        Q = np.empty((maxent, n, 3))
+        bc = np.empty((M, 3))
+        pb = np.empty((M, 3))
         for e in range(k * ne // nchunk, (k + 1) * ne // nchunk):
             c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+            _entity_blocks(data, src_a, src_b, Ri, Pc, diagonal, e, c0, c1, A_, B_, Q, bc, pb)
             for c in range(c0, c1):
                 g = cl_sn[c, 0]
                 for r in range(M):
@@ -524,9 +615,9 @@ def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, Q, a, Pc, S_p
                         if p == 0.0:
                             continue
                         for i in range(n):
-                            pa = p * a[c, r, i]
+                            pa = p * A_[c - c0, r, i]
                             for j in range(n):
-                                U_parts[k, g, i * n + j] += pa * a[c, r2, j]
+                                U_parts[k, g, i * n + j] += pa * A_[c - c0, r2, j]
             if ent_size[e] == 0:
                 continue
             for c in range(c0, c1):
@@ -536,24 +627,32 @@ def _scatter6_kernel(ent_ptr, ent_size, cl_sn, bptr, bcol, bstart, Q, a, Pc, S_p
                     b1 = bstart[_find_block(bptr, bcol, g, h)]
                     b2 = bstart[_find_block(bptr, bcol, h, g)]
                     for i in range(n):
-                        q0, q1, q2 = Q[c, i, 0], Q[c, i, 1], Q[c, i, 2]
+                        q0, q1, q2 = Q[c - c0, i, 0], Q[c - c0, i, 1], Q[c - c0, i, 2]
                         for j in range(n):
-                            y = q0 * Q[c2, j, 0] + q1 * Q[c2, j, 1] + q2 * Q[c2, j, 2]
+                            y = q0 * Q[c2 - c0, j, 0] + q1 * Q[c2 - c0, j, 1] + q2 * Q[c2 - c0, j, 2]
                             S[b1 + i * n + j] -= y
                             if c2 != c:
                                 S[b2 + j * n + i] -= y
 
 
-def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Sig, Sigt, H, Ht, Spp):
+def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, data, src_a, src_b, Ri, Pc, diagonal,
+                 out, Sig, Sigt, H, Ht, Spp):
     """_gather_kernel for one supernode of n unknowns per cluster, fused with what follows it,
     per entity (in parallel): G_c = −Σ_c' Σ_{k_c k_c'} Q_c', Σ̃_pp = I − Σ_c Q_cᵀ G_c and the
     cluster blocks H_c = a Σ_kk aᵀ + a G b̃ᵀ + b̃ Gᵀ aᵀ + b̃ Σ̃_pp b̃ᵀ, Ht_c = a Σt_kk aᵀ (the formulas
-    of :meth:`SchurFactor._selected`). G of an entity lives in scratch memory of its own."""
-    M = a.shape[1]
-    n = a.shape[2]
+    of :meth:`SchurFactor._selected`), written to H[out[c]], Ht[out[c]] (by cluster id). a_c, b̃_c,
+    Q_c and G of an entity live in scratch memory of its own (:func:`_entity_blocks`)."""
+    M = src_a.shape[1]
+    n = src_a.shape[2]
     for e in numba.prange(ent_ptr.size - 1):
         c0, c1 = ent_ptr[e], ent_ptr[e + 1]
         schur = ent_size[e] > 0
+        a = np.empty((c1 - c0, M, n))
+        b = np.empty((c1 - c0, M, 3))
+        Q = np.empty((c1 - c0, n, 3))
+        bc = np.empty((M, 3))
+        pb = np.empty((M, 3))
+        _entity_blocks(data, src_a, src_b, Ri, Pc, diagonal, e, c0, c1, a, b, Q, bc, pb)
         Gc = np.zeros((c1 - c0, n, 3))
         if schur:
             for c in range(c0, c1):
@@ -567,9 +666,9 @@ def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Si
                         s2 = 0.0
                         for j in range(n):
                             sg = Sig[base + i * n + j]
-                            s0 += sg * Q[c2, j, 0]
-                            s1 += sg * Q[c2, j, 1]
-                            s2 += sg * Q[c2, j, 2]
+                            s0 += sg * Q[c2 - c0, j, 0]
+                            s1 += sg * Q[c2 - c0, j, 1]
+                            s2 += sg * Q[c2 - c0, j, 2]
                         Gc[c - c0, i, 0] -= s0
                         Gc[c - c0, i, 1] -= s1
                         Gc[c - c0, i, 2] -= s2
@@ -579,12 +678,14 @@ def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Si
                 if schur:
                     for c in range(c0, c1):
                         for i in range(n):
-                            acc -= Q[c, i, q] * Gc[c - c0, i, q2]
+                            acc -= Q[c - c0, i, q] * Gc[c - c0, i, q2]
                 Spp[e, q, q2] = acc
         for c in range(c0, c1):
+            m = c - c0
             g = cl_sn[c, 0]
             base = bstart[_find_block(bptr, bcol, g, g)]
             tt = sn_t[g]
+            o = out[c]
             for r in range(M):
                 for r2 in range(M):
                     # a Σ_kk aᵀ and a Σt_kk aᵀ
@@ -594,25 +695,38 @@ def _hat6_kernel(ent_ptr, ent_size, cl_sn, sn_t, bptr, bcol, bstart, Q, a, b, Si
                         sa = 0.0
                         st = 0.0
                         for j in range(n):
-                            sa += Sig[base + i * n + j] * a[c, r2, j]
-                            st += Sigt[base + i * n + j] * a[c, r2, j]
-                        hv += a[c, r, i] * sa
+                            sa += Sig[base + i * n + j] * a[m, r2, j]
+                            st += Sigt[base + i * n + j] * a[m, r2, j]
+                        hv += a[m, r, i] * sa
                         if tt:
-                            ht += a[c, r, i] * st
+                            ht += a[m, r, i] * st
                     if schur:
                         for q in range(3):
                             f1 = 0.0
                             f2 = 0.0
                             for i in range(n):
-                                f1 += a[c, r, i] * Gc[c - c0, i, q]
-                                f2 += a[c, r2, i] * Gc[c - c0, i, q]
-                            hv += f1 * b[c, r2, q] + f2 * b[c, r, q]
+                                f1 += a[m, r, i] * Gc[m, i, q]
+                                f2 += a[m, r2, i] * Gc[m, i, q]
+                            hv += f1 * b[m, r2, q] + f2 * b[m, r, q]
                             sb = 0.0
                             for q2 in range(3):
-                                sb += Spp[e, q, q2] * b[c, r2, q2]
-                            hv += b[c, r, q] * sb
-                    H[c, r, r2] = hv
-                    Ht[c, r, r2] = ht
+                                sb += Spp[e, q, q2] * b[m, r2, q2]
+                            hv += b[m, r, q] * sb
+                    H[o, r, r2] = hv
+                    Ht[o, r, r2] = ht
+
+
+def _E6_kernel(ent_ptr, data, src_a, src_b, Ri, Pc, diagonal, maxent, E):
+    """E_c = a_cᵀ P_c b̃_c of every cluster position (:func:`_entity_blocks`), for the solves."""
+    M = src_a.shape[1]
+    n = src_a.shape[2]
+    A_ = np.empty((maxent, M, n))
+    B_ = np.empty((maxent, M, 3))
+    bc = np.empty((M, 3))
+    pb = np.empty((M, 3))
+    for e in range(ent_ptr.size - 1):
+        c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+        _entity_blocks(data, src_a, src_b, Ri, Pc, diagonal, e, c0, c1, A_, B_, E[c0:c1], bc, pb)
 
 
 _KERNELS = {}
@@ -625,6 +739,7 @@ def _kernels():
         _KERNELS["gather"] = numba.njit(cache=True)(_gather_kernel)
         _KERNELS["scatter6"] = numba.njit(cache=True, parallel=True)(_scatter6_kernel)
         _KERNELS["hat6"] = numba.njit(cache=True, parallel=True)(_hat6_kernel)
+        _KERNELS["E6"] = numba.njit(cache=True)(_E6_kernel)
     return _KERNELS
 
 
@@ -637,8 +752,9 @@ def _uniform6(st) -> bool:
     return bool((used >= 0).all() and (sn_size[used] == st.K).all() and (st.cl_off[:, 0] == 0).all())
 
 
-if numba is not None:       # the kernels call the compiled search (numba resolves globals)
+if numba is not None:       # the kernels call these compiled helpers (numba resolves globals)
     _find_block = numba.njit(cache=True)(_find_block)
+    _entity_blocks = numba.njit(cache=True)(_entity_blocks)
 
 
 # ------------------------------------------------------------------------------------------
@@ -944,7 +1060,19 @@ class SchurFactor:
             raise OptionError("backend", self.backend, BACKENDS, f"backend {self.backend!r} not available")
         self.st, self.m, self.labels = st, st.u, st.labels
         M, K = st.M, st.K
-        self.a, self.b = st.cluster_blocks(Ar)
+        # the common case (numba, one supernode per cluster) reads a_c, b_c from Ar's data in its
+        # kernels and makes b̃_c and E_c per point (:func:`_entity_blocks`): no stack of a, b, b̃
+        # or E over all clusters is held (216 + 192 bytes per image point of a bundle block);
+        # E is made for the solves only when one is asked for (:attr:`E`). The other paths
+        # keep the padded stacks a, b̃ and E.
+        self.fused = self.backend == "numba" and _uniform6(st)
+        self._data = Ar.data if self.fused else None
+        self._E = None
+        if self.fused:
+            self.a = self.b = None
+            b = st.gather(Ar.data, st.src_b)           # (for the point roots only)
+        else:
+            self.a, b = st.cluster_blocks(Ar)
         # the cluster weights depend on P only: kept with the structure for the next factor of
         # the same P (every Gauss-Newton iteration, the reliability at the solution)
         cached = st.__dict__.get("_weights")
@@ -956,27 +1084,31 @@ class SchurFactor:
             Pd = np.diagonal(Pc, axis1=1, axis2=2)
             diagonal = bool(M == 1 or not np.any(Pc - Pd[:, :, None] * np.eye(M)))
             st.__dict__["_weights"] = (P, self.P, Pc, diagonal)
-        self.Pc = Pc
-        R, bad, dC = _point_roots(self.b, Pc, st.ent_ptr, st.ent_size, damping,
+        self.Pc, self._diagonal_P = Pc, diagonal
+        R, bad, dC = _point_roots(b, Pc, st.ent_ptr, st.ent_size, damping,
                                   min(pivot_tol, POINT_PIVOT_TOL), self.backend, diagonal)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
         # point unknowns p̃ = R_j p: the point blocks become I, b_c becomes b_c R_j⁻¹
         self.R, self.Ri = R, _upper3_inverse(R)
-        self.b = bmm(self.b, self.Ri[st.cl_ent])
-        Pb = np.diagonal(Pc, axis1=1, axis2=2)[:, :, None] * self.b if diagonal else bmm(Pc, self.b)
-        self.E = bmm(_T(self.a), Pb)           # E_c = a_cᵀ P_c b̃_c
-        del Pb
-        self.Q = self.E                         # E_c C̃⁻¹ with C̃ = I
+        if self.fused:
+            del b
+        else:
+            self.b = bmm(b, self.Ri[st.cl_ent])
+            del b
+            Pb = np.diagonal(Pc, axis1=1, axis2=2)[:, :, None] * self.b if diagonal else bmm(Pc, self.b)
+            self._E = bmm(_T(self.a), Pb)          # E_c = a_cᵀ P_c b̃_c (= Q_c: C̃ = I)
+            del Pb
         nnz = int(st.bstart[-1])
         sn_size = np.diff(st.sn_ptr)
-        if self.backend == "numba" and _uniform6(st):
+        if self.fused:
             S_parts = np.zeros((SCATTER_CHUNKS, nnz))
             n_sn = st.sn_ptr.size - 1
             U_parts = np.zeros((SCATTER_CHUNKS, n_sn, K * K))
             _kernels()["scatter6"](st.ent_ptr, st.ent_size, st.cl_sn, st.bptr, st.bcol, st.bstart,
-                                   self.Q, self.a, Pc, S_parts, U_parts)
+                                   Ar.data, st.src_a, st.src_b, self.Ri, Pc, diagonal, self._maxent(),
+                                   S_parts, U_parts)
             # U = Σ_c a_cᵀ P_c a_c: diagonal blocks only, one per supernode
             used = np.unique(st.cl_sn[:, 0])
             diag_pos = np.array([st.bstart[_find_block(st.bptr, st.bcol, int(x), int(x))] for x in used],
@@ -987,10 +1119,10 @@ class SchurFactor:
         elif self.backend == "numba":
             S, U = np.zeros(nnz), np.zeros(nnz)
             _kernels()["scatter"](st.ent_ptr, st.ent_size, st.cl_sn, st.cl_off, sn_size, st.bptr,
-                                  st.bcol, st.bstart, self.a, Pc, self.Q, self.E, S, U)
+                                  st.bcol, st.bstart, self.a, Pc, self._E, self._E, S, U)
         else:
             Ua = np.matmul(_T(self.a), np.matmul(Pc, self.a))
-            S, U = _scatter_np(st, Ua, self.Q, self.E, nnz)
+            S, U = _scatter_np(st, Ua, self._E, self._E, nnz)
         if damping:
             dsel0 = st.flat_r == st.flat_c
             S = S.copy()
@@ -1015,6 +1147,22 @@ class SchurFactor:
         self._pflat, self._pcols = pflat, st.ent_cols.ravel()[pflat]
         self._blocks = None
         self._nuisance = None
+
+    def _maxent(self) -> int:
+        """The most cluster positions of one entity (the kernels' scratch size)."""
+        return max(int(np.diff(self.st.ent_ptr).max(initial=0)), 1)
+
+    @property
+    def E(self) -> np.ndarray:
+        """E_c = a_cᵀ P_c b̃_c of every cluster position (nc, K, 3), for the solves. The common
+        case's kernels make it per point; here it is made from Ar's data once a solve needs it."""
+        if self._E is None:
+            st = self.st
+            E = np.empty((st.cl_id.size, st.K, 3))
+            _kernels()["E6"](st.ent_ptr, self._data, st.src_a, st.src_b, self.Ri, self.Pc,
+                             self._diagonal_P, self._maxent(), E)
+            self._E = E
+        return self._E
 
     @staticmethod
     def _cluster_weights(st, P):
@@ -1109,40 +1257,50 @@ class SchurFactor:
             # in ascending reduced order
             red = st.cam[tS]
             self._nuisance = _Permuted(T, np.argsort(red))
-        nc, M, K = self.a.shape
+        nc, M, K = st.cl_id.size, st.M, st.K
         sn_size = np.diff(st.sn_ptr)
-        if self.backend == "numba" and _uniform6(st):
+        if self.fused:
+            # H, Ht by cluster id (the order of :meth:`hat_blocks` when all clusters have M rows:
+            # the result takes them without a copy)
             H, Ht = np.empty((nc, M, M)), np.empty((nc, M, M))
             Spp = np.empty((st.ent_size.size, 3, 3))
-            _kernels()["hat6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol,
-                               st.bstart, self.Q, self.a, self.b, Sig, Sigt, H, Ht, Spp)
-            self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
-            self.a = self.b = None         # only these blocks needed them (solve uses E and R)
+            _kernels()["hat6"](st.ent_ptr, st.ent_size, st.cl_sn, st.sn_t, st.bptr, st.bcol, st.bstart,
+                               self._data, st.src_a, st.src_b, self.Ri, self.Pc, self._diagonal_P, st.cl_id,
+                               Sig, Sigt, H, Ht, Spp)
+            self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)), True)   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
             return self._blocks
+        Q = self._E
         if self.backend == "numba":
             Gc, SA, SAt = np.zeros((nc, K, 3)), np.zeros((nc, K, M)), np.zeros((nc, K, M))
             _kernels()["gather"](st.ent_ptr, st.ent_size, st.cl_sn, st.cl_off, sn_size, st.sn_t, st.bptr,
-                                 st.bcol, st.bstart, self.Q, self.a, Sig, Sigt, Gc, SA, SAt)
+                                 st.bcol, st.bstart, Q, self.a, Sig, Sigt, Gc, SA, SAt)
         else:
-            Gc, SA, SAt = _gather_np(st, self.Q, self.a, Sig, Sigt)
+            Gc, SA, SAt = _gather_np(st, Q, self.a, Sig, Sigt)
         a, b = self.a, self.b
         F = bmm(a, Gc)                                        # a_c Σ_{k_c p}  (nc, M, 3)
         I3 = np.broadcast_to(np.eye(3), (st.ent_size.size, 3, 3))
-        Spp = I3 - _segment_sum(bmm(_T(self.Q), Gc), st.ent_ptr)      # Σ of p̃ (C̃ = I)
+        Spp = I3 - _segment_sum(bmm(_T(Q), Gc), st.ent_ptr)      # Σ of p̃ (C̃ = I)
         FbT = bmm(F, _T(b))
         H = bmm(a, SA) + FbT + _T(FbT) + bmm(bmm(b, Spp[st.cl_ent]), _T(b))
         Ht = bmm(a, SAt)
-        self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)))   # Σ_pp = R⁻¹ Σ̃ R⁻ᵀ
-        self.a = self.b = None
+        self._blocks = (H, Ht, bmm(bmm(self.Ri, Spp), _T(self.Ri)), False)   # (by cluster position)
+        self.a = self.b = None             # only these blocks needed them (solve uses E and R)
         return self._blocks
 
     def hat_blocks(self, cov):
         """a_i Σ a_jᵀ and a_i Σ_t a_jᵀ (nuisance part) for all pairs within each covariance
-        cluster, laid out as :func:`baarda.result.cluster_pairs` lays them out."""
-        H, Ht, _ = self._selected()
+        cluster, laid out as :func:`baarda.result.cluster_pairs` lays them out. When the factor's
+        blocks are in that layout already (one cluster size, clusters in id order: a bundle block)
+        they are returned themselves, not copied (the result repairs them in place: the factor
+        holds no second copy of them)."""
+        H, Ht, _, by_id = self._selected()
+        groups = list(by_size(cov))
+        if by_id and len(groups) == 1 and groups[0][0] == H.shape[1] \
+                and np.array_equal(groups[0][1], np.arange(H.shape[0])):
+            return H.reshape(-1), Ht.reshape(-1)       # the layout asked for: no copy
         out_h, out_t = [], []
-        for m, clusters, _ in by_size(cov):
-            p = self.st.cl_pos[clusters]
+        for m, clusters, _ in groups:
+            p = clusters if by_id else self.st.cl_pos[clusters]
             out_h.append(H[p, :m, :m].reshape(-1))
             out_t.append(Ht[p, :m, :m].reshape(-1))
         if len(out_h) == 1:            # (one cluster size: its stacks are new arrays already)
@@ -1184,17 +1342,31 @@ class SchurFactor:
 # ------------------------------------------------------------------------------------------
 # the step of one iteration: a fused compiled pass (no selected inverse, no reliability blocks)
 # ------------------------------------------------------------------------------------------
-def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, a, b, Pd, lam, pivot_tol,
-                        S, E, Ci, dC, dU, bad):
+def _load_cluster(data, src_a, src_b, c, ac, bc):
+    """a_c and b_c of cluster position c from the design matrix's data (0 where padded)."""
+    for r in range(src_a.shape[1]):
+        for i in range(src_a.shape[2]):
+            k = src_a[c, r, i]
+            ac[r, i] = data[k] if k >= 0 else 0.0
+        for i in range(3):
+            k = src_b[c, r, i]
+            bc[r, i] = data[k] if k >= 0 else 0.0
+
+
+def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, data, src_a, src_b, Pd, lam,
+                        pivot_tol, S, E, Ci, dC, dU, bad):
     """One pass over the entities for N + λ diag(N) (the module docstring's formulas in normal-
     equation form, every cluster seeing one supernode of K unknowns, diagonal P_c):
     U = Σ a_cᵀP_c a_c into the diagonal blocks of S (its diagonal into dU), E_c = a_cᵀP_c b_c,
     C_j = Σ b_cᵀP_c b_c
     (+ λ diag), its inverse Ci_j (3 × 3, equilibrated Cholesky; a missing coordinate gets 1),
     and S −= E_c C_j⁻¹ E_c'ᵀ for every pair of clusters of point j. bad[e] = coordinate whose
-    pivot fails, else −1."""
-    M = a.shape[1]
-    K = a.shape[2]
+    pivot fails, else −1. a_c and b_c are read from the design matrix's data through ``src_a``,
+    ``src_b`` (no padded copy of them is made)."""
+    M = src_a.shape[1]
+    K = src_a.shape[2]
+    a = np.zeros((M, K))
+    b = np.zeros((M, 3))
     C = np.zeros((3, 3))
     L = np.zeros((3, 3))
     Li = np.zeros((3, 3))
@@ -1206,23 +1378,24 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, a
         for c in range(c0, c1):
             g = cl_sn[c, 0]
             d0 = bstart[sn_diag[g]]
+            _load_cluster(data, src_a, src_b, c, a, b)
             for r in range(M):
                 p = Pd[c, r]
                 if p == 0.0:
                     continue
                 for i in range(K):
-                    pa = p * a[c, r, i]
+                    pa = p * a[r, i]
                     if pa == 0.0:
                         continue
-                    dU[g, i] += pa * a[c, r, i]
+                    dU[g, i] += pa * a[r, i]
                     for j in range(K):
-                        S[d0 + i * K + j] += pa * a[c, r, j]
+                        S[d0 + i * K + j] += pa * a[r, j]
                     for q in range(3):
-                        E[c, i, q] += pa * b[c, r, q]
+                        E[c, i, q] += pa * b[r, q]
                 for i in range(3):
-                    pb = p * b[c, r, i]
+                    pb = p * b[r, i]
                     for j in range(3):
-                        C[i, j] += pb * b[c, r, j]
+                        C[i, j] += pb * b[r, j]
         if ent_cols[e, 0] < 0 and ent_cols[e, 1] < 0 and ent_cols[e, 2] < 0:
             continue
         for k in range(3):
@@ -1327,6 +1500,10 @@ def _step_back_kernel(ent_ptr, col_S, E, Ci, bp, xc):
     return xp
 
 
+if numba is not None:
+    _load_cluster = numba.njit(cache=True)(_load_cluster)
+
+
 def _step_kernels():
     if "step" not in _KERNELS:
         _KERNELS["step"] = numba.njit(cache=True)(_step_factor_kernel)
@@ -1353,7 +1530,6 @@ class StepFactor:
             raise ValueError("design matrix pattern differs from the analysed structure")
         self.st, self.m, self.labels = st, st.u, st.labels
         nc, K = st.cl_id.size, st.K
-        a, b = st.cluster_blocks(Ar)
         Pd = self.cluster_diagonal(st, P)
         nsn = st.sn_ptr.size - 1
         sn_diag = st.__dict__.get("_sn_diag")
@@ -1368,9 +1544,8 @@ class StepFactor:
         dU = np.zeros((nsn, K))
         bad = np.full(ne, -1, dtype=np.int64)
         _step_kernels()["step"](st.ent_ptr, st.ent_cols, st.cl_sn, st.bptr, st.bcol, st.bstart, sn_diag,
-                                a, b, Pd, float(damping),
+                                Ar.data, st.src_a, st.src_b, Pd, float(damping),
                                 min(pivot_tol, POINT_PIVOT_TOL), S, E, Ci, dC, dU, bad)
-        del a, b                   # (not alive while S is factored)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
