@@ -207,10 +207,11 @@ def test_jobs_shared_computes_once_for_waiting_callers_and_retries_after_an_erro
     class Owner:                     # any object that can be weakly referenced
         pass
 
-    owner, calls, gate = Owner(), [], threading.Event()
+    owner, calls, gate, started = Owner(), [], threading.Event(), threading.Event()
 
     def compute():
         calls.append(threading.current_thread().name)
+        started.set()
         gate.wait(30)
         return object()
 
@@ -219,7 +220,7 @@ def test_jobs_shared_computes_once_for_waiting_callers_and_retries_after_an_erro
                for _ in range(6)]
     for t in threads:
         t.start()
-    assert wait_for(lambda: len(calls) == 1)
+    assert started.wait(30)
     gate.set()
     for t in threads:
         t.join(30)
@@ -260,13 +261,3 @@ def test_sessions_on_one_cached_file_share_its_suspects_per_test_policy(tmp_path
     finally:
         jobs.clear_cache()
 
-
-def wait_for(cond, timeout=30.0):
-    import time
-
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return cond()
