@@ -253,6 +253,15 @@ def _local_stylesheets() -> None:
     panel.theme.base.patch_stylesheet = _patch_stylesheet_locally
 
 
+#: Draw the maps with WebGL (``baarda serve --webgl``). Off by default: where the browser renders
+#: without a GPU (a virtual machine, a remote desktop, a blocklisted driver, headless Chromium)
+#: WebGL runs in software, and one repaint of a map of a real block (Ladybug's 63,686 image
+#: points) took 15-45 s there against under a second on the 2D canvas; every change of the
+#: page's layout (opening a tab of the right panel) repaints the maps. On a GPU, WebGL pans and
+#: zooms blocks of 10⁵ and more image points more smoothly.
+WEBGL = False
+
+
 def _extensions():
     if _served():
         _local_stylesheets()
@@ -262,6 +271,7 @@ def _extensions():
     # HoloViews' backend is the process's (a sixth of a session's setup when set each time)
     if hv.Store.current_backend != "bokeh" or "bokeh" not in hv.Store.renderers:
         hv.extension("bokeh", logo=False)
+    hv.renderer("bokeh").webgl = WEBGL       # (the plots' renderers copy it from this one)
 
 
 #: Views of different sessions are built one at a time: a session being built holds the
@@ -598,11 +608,15 @@ def warm(path):
     return TASKS.submit(run)
 
 
-def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = False, **kwargs):
+def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = False, webgl: bool = False,
+          **kwargs):
     """Serve the dashboard on ``address:port`` (loopback by default) and print its URL.
 
-    show: open a browser (only if asked; there may be no display). Blocks until stopped.
+    show: open a browser (only if asked; there may be no display). webgl: draw the maps with
+    WebGL (:data:`WEBGL`). Blocks until stopped.
     """
+    global WEBGL
+    WEBGL = bool(webgl)
     url = f"http://{address}:{port}/"
     print(f"baarda dashboard: {url}", flush=True)
     if (path or default_path()) is not None:

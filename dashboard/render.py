@@ -21,10 +21,11 @@ def _theme():
 
 def figure(obj):
     """The Bokeh model of the HoloViews object ``obj``, in a new Bokeh document of its own
-    with HoloViews' theme."""
+    with HoloViews' theme, drawn on the 2D canvas."""
     # HoloViews attaches a plot to a given document in its server mode only; otherwise it
     # takes curdoc()'s
-    renderer = hv.renderer("bokeh").instance(mode="server")
+    # (on the 2D canvas: a report opens, and prints, where the reader's browser has no GPU)
+    renderer = hv.renderer("bokeh").instance(mode="server", webgl=False)
     return renderer.get_plot(obj, doc=Document(theme=_theme())).state
 
 

@@ -339,6 +339,36 @@ def test_block_views_build_bokeh_models(block_problem):
     np.testing.assert_allclose(x1b - x, 2 * (x1 - x), rtol=1e-9, atol=1e-12)
 
 
+def test_maps_draw_on_the_canvas_unless_served_with_webgl(block_problem, monkeypatch):
+    """The maps draw on the 2D canvas: in a browser without a GPU (headless Chromium here)
+    WebGL runs in software, and one repaint of Ladybug's maps took 15-45 s. ``baarda serve
+    --webgl`` draws them with WebGL; the report's figures are on the canvas either way."""
+    from bokeh.models import Plot
+
+    from baarda.cli import main
+    from baarda.dashboard import app, render
+    from baarda.dashboard.views import LayoutMap
+
+    def backends():
+        tpl = app.create_app(problem=block_problem, background=False)
+        root = pn.panel(LayoutMap(state=tpl.state)).get_root(Document())
+        return {p.output_backend for p in root.select({"type": Plot})}
+
+    assert backends() == {"canvas"}
+    try:
+        monkeypatch.setattr(app, "WEBGL", True)
+        assert backends() == {"webgl"}
+        assert render.figure(hv.Points([(0, 0), (1, 1)])).output_backend == "canvas"
+    finally:
+        monkeypatch.setattr(app, "WEBGL", False)
+        app._extensions()
+    assert backends() == {"canvas"}
+    served = []
+    monkeypatch.setattr(app, "serve", lambda *a, **kw: served.append(kw))
+    assert main(["serve", "--webgl"]) == 0 and main(["serve"]) == 0
+    assert [kw["webgl"] for kw in served] == [True, False]
+
+
 @pytest.mark.skipif(not DEMO_BLOCK.exists(), reason="data/demo-block.json not written yet")
 def test_demo_block_app_builds():
     from baarda.dashboard.app import create_app

@@ -132,6 +132,23 @@ def wait_for_title(page, prefix, timeout=30_000):
                            " return false; }", arg=prefix, timeout=timeout)
 
 
+JS_DRAWN = """(p) => {   // a figure titled p… is drawn: its view is in the page, shown, and done painting
+  for (const d of Bokeh.documents) for (const m of d.all_models) {
+    if (m.constructor.__name__ !== 'Figure' || !m.title || !String(m.title.text).startsWith(p)) continue;
+    const v = Bokeh.index.find_one(m);
+    if (!v || !v.el || !v.el.isConnected) continue;
+    const r = v.el.getBoundingClientRect();
+    if (r.width > 0 && r.height > 0 && (typeof v.has_finished !== 'function' || v.has_finished())) return true;
+  }
+  return false; }"""
+
+
+def wait_for_drawn(page, prefix, timeout=30_000):
+    """Wait until a Bokeh figure titled ``prefix…`` is drawn in the page (not only in the
+    document: its view is shown and has finished painting)."""
+    page.wait_for_function(JS_DRAWN, arg=prefix, timeout=timeout)
+
+
 def real_errors(errors):
     return [e for e in errors if not any(b in e for b in BENIGN)]
 

@@ -21,13 +21,15 @@ from __future__ import annotations
 
 import pytest
 
-from tests.browser.test_app import LOAD_TIMEOUT, click_tab, open_app, real_errors, wait_for_title
+from tests.browser.test_app import LOAD_TIMEOUT, click_tab, open_app, real_errors, wait_for_drawn, wait_for_title
 from tests.browser.test_maps import MAPS
 
 pytestmark = pytest.mark.browser
 
 SIZES = [(1280, 800), (1440, 900), (1920, 1080)]
-RIGHT = ["Suspects", "Tests table", "Hypotheses", "Find errors", "Teaching"]
+#: the right panel's tabs and what each shows once the server has sent it (its screenshot waits for it)
+RIGHT = {"Suspects": ".suspects-table .tabulator-row", "Tests table": ".tests-table .tabulator-row",
+         "Hypotheses": ".hyp-add", "Find errors": ".snoop-run", "Teaching": ".inject-run"}
 
 JS_PROBLEMS = """() => {
   const all = (root, sel, out = []) => {      // through every shadow root, the root's own too
@@ -109,11 +111,12 @@ def walk_views(page, name: str, screenshots, maps: dict):
         page.set_viewport_size({"width": width, "height": height})
         for tab, prefix in maps.items():
             click_tab(page, tab)
-            wait_for_title(page, prefix, timeout=120_000)
+            wait_for_drawn(page, prefix, timeout=LOAD_TIMEOUT)
             check(page, f"{name} {width}×{height}, map {tab}")
             page.screenshot(path=str(screenshots / f"layout-{name}-{width}-{tab.lower()}.png"))
-        for tab in RIGHT:
+        for tab, shown in RIGHT.items():
             click_tab(page, tab)
+            page.locator(f".right-tabs {shown}:visible").first.wait_for(timeout=LOAD_TIMEOUT)
             check(page, f"{name} {width}×{height}, {tab}")
             page.screenshot(path=str(screenshots / f"layout-{name}-{width}-{tab.lower().replace(' ', '-')}.png"))
 
