@@ -201,24 +201,25 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     M = int(csize.max(initial=1))
     if M > MAX_CLUSTER or n == 0 or u == 0:
         return None
-    counts = np.diff(Ar.indptr)
-    row = np.repeat(np.arange(n, dtype=_index_dtype(n)), counts)
-    col = Ar.indices                              # no copy: indices of any integer type index alike
-    del counts
     order = np.argsort(cluster, kind="stable")
     cstart = np.concatenate([[0], np.cumsum(csize)[:-1]])
     rpos = np.empty(n, dtype=np.int64)
     rpos[order] = np.arange(n) - cstart[cluster[order]]
+    del order, cstart
+    # (the per-entry temporaries below are made chunk by chunk of whole rows: _entries)
 
     # eliminable points: candidates seen by no cluster together with another point
     is_pt = (kind == "k") & (point >= 0)
     npt = int(point.max(initial=-1)) + 1
-    m = np.flatnonzero(is_pt[col])
-    key = cluster[row[m]]                         # clusters of the point entries only
-    key *= max(npt, 1)
-    key += point[col[m]]
-    del m
-    key = _unique_sorted(key)
+    keys = []
+    for _, row, col in _entries(Ar):
+        m = is_pt[col]
+        key = cluster[row[m]]                     # clusters of the point entries only
+        key *= max(npt, 1)
+        key += point[col[m]]
+        keys.append(_unique_sorted(key))
+    key = _unique_sorted(np.concatenate(keys)) if keys else np.zeros(0, dtype=np.int64)
+    del keys
     kc, kp = key // max(npt, 1), key % max(npt, 1)
     del key
     per_cl = np.bincount(kc, minlength=ncl)
@@ -256,33 +257,37 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     ent_cols[e_of, coord] = ecols
     ent_size = (ent_cols >= 0).sum(axis=1).astype(np.int64)
 
-    # supernodes: camera columns touched by the same rows (two random row hashes)
+    # the point side (its places in b), and supernodes: camera columns touched by the same rows
+    # (two random row hashes, summed chunk by chunk of whole rows: columns touched by the same
+    # rows get the same chunk sums and so the same totals)
     camcols = np.flatnonzero(~elig)
-    cm = ~elig[col]
-    colc, rowc = col[cm], row[cm]
-    # the point side first (its destinations in b), so that the row of every entry goes early
-    nnz = col.size
+    nnz = Ar.indices.size
     stype = _index_dtype(nnz + 1)
-    cb = col[~cm]
-    rowb = row[~cm]
-    del row
     coord_col = np.full(u, -1, dtype=np.int64)
     coord_col[ecols] = coord
-    dest_b = cl_pos[cluster[rowb]]
-    dest_b *= M
-    dest_b += rpos[rowb]
-    dest_b *= 3
-    dest_b += coord_col[cb]
-    del cb, rowb
-    # the inverse: for each place in b the entry of the design matrix's data (−1: padding)
-    src_b = _inverse_map(dest_b, ~cm, ncl * M * 3, stype).reshape(ncl, M, 3)
-    del dest_b
+    src_b = np.full(ncl * M * 3, -1, dtype=stype)
     rng = np.random.default_rng(12345)
-    h1 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
-    h2 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
-    cnt = np.bincount(colc, minlength=u)[camcols]
-    tk = (kind[camcols] == "t").astype(float)
+    w1, w2 = rng.random(n), rng.random(n)
     del rng
+    h1, h2, cnt = np.zeros(u), np.zeros(u), np.zeros(u, dtype=np.int64)
+    for e0, row, col in _entries(Ar):
+        cm = ~elig[col]
+        rowb = row[~cm]
+        dest_b = cl_pos[cluster[rowb]]
+        dest_b *= M
+        dest_b += rpos[rowb]
+        dest_b *= 3
+        dest_b += coord_col[col[~cm]]
+        src_b[dest_b] = _positions(~cm, e0, stype)
+        del rowb, dest_b
+        colc, rowc = col[cm], row[cm]
+        h1 += np.bincount(colc, weights=w1[rowc], minlength=u)
+        h2 += np.bincount(colc, weights=w2[rowc], minlength=u)
+        cnt += np.bincount(colc, minlength=u)
+    src_b = src_b.reshape(ncl, M, 3)
+    del w1, w2
+    h1, h2, cnt = h1[camcols], h2[camcols], cnt[camcols]
+    tk = (kind[camcols] == "t").astype(float)
     _, grp = np.unique(np.stack([h1, h2, cnt.astype(float), tk], 1), axis=0, return_inverse=True)
     grp = grp.ravel()
     ngrp = int(grp.max(initial=-1)) + 1
@@ -310,15 +315,22 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     nc = ncl
     # runs of camera entries of one row and one supernode (a row's entries make one run or a
     # few): the keys cluster position · nsn + supernode are made per run, not per entry
-    sn_e = sn_of.astype(_index_dtype(max(nsn, 1)))[colc]
-    brk = np.ones(colc.size, dtype=bool)
-    if brk.size:
-        np.not_equal(rowc[1:], rowc[:-1], out=brk[1:])
-        brk[1:] |= sn_e[1:] != sn_e[:-1]
-    run = np.flatnonzero(brk)
-    del brk
-    rkey = cl_pos[cluster[rowc[run]]] * max(nsn, 1) + sn_e[run]
-    del sn_e
+    sn_of_e = sn_of.astype(_index_dtype(max(nsn, 1)))
+    rkey, rlen, nrun = [], [], []
+    for _, row, col in _entries(Ar):
+        cm = ~elig[col]
+        colc, rowc = col[cm], row[cm]
+        sn_e = sn_of_e[colc]
+        brk = np.ones(colc.size, dtype=bool)
+        if brk.size:
+            np.not_equal(rowc[1:], rowc[:-1], out=brk[1:])
+            brk[1:] |= sn_e[1:] != sn_e[:-1]
+        run = np.flatnonzero(brk)
+        rkey.append(cl_pos[cluster[rowc[run]]] * max(nsn, 1) + sn_e[run])
+        rlen.append(np.diff(np.r_[run, colc.size]))
+        nrun.append(run.size)
+    rkey = np.concatenate(rkey) if rkey else np.zeros(0, dtype=np.int64)
+    rlen = np.concatenate(rlen) if rlen else np.zeros(0, dtype=np.int64)
     skey = _unique_sorted(rkey)
     sp_, sg = skey // max(nsn, 1), skey % max(nsn, 1)
     sfirst = np.searchsorted(sp_, np.arange(nc))
@@ -333,19 +345,26 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     # (position·M + rpos)·K + local, in place, in the narrowest type that holds nc·M·K
     itype = _index_dtype(nc * M * K)
     loc = np.searchsorted(skey, rkey)
-    local = np.repeat(cl_off[sp_[loc], slot[loc]].astype(itype), np.diff(np.r_[run, colc.size]))
-    del loc, run, rkey
-    local += off_of.astype(itype)[colc]
-    del colc
-    dest_a = cl_pos.astype(itype)[cluster].take(rowc)
-    dest_a *= M
-    dest_a += rpos.astype(itype)[rowc]
-    del rowc
-    dest_a *= K
-    dest_a += local
-    del local
-    src_a = _inverse_map(dest_a, cm, nc * M * K, stype).reshape(nc, M, K)
-    del dest_a, cm
+    run_off = cl_off[sp_[loc], slot[loc]].astype(itype)
+    del loc, rkey
+    pos_row = cl_pos.astype(itype)[cluster]
+    rpos_t, off_t = rpos.astype(itype), off_of.astype(itype)
+    src_a = np.full(nc * M * K, -1, dtype=stype)
+    r0 = 0
+    for (e0, row, col), k in zip(_entries(Ar), nrun):
+        cm = ~elig[col]
+        colc, rowc = col[cm], row[cm]
+        local = np.repeat(run_off[r0:r0 + k], rlen[r0:r0 + k])
+        r0 += k
+        local += off_t[colc]
+        dest_a = pos_row[rowc]
+        dest_a *= M
+        dest_a += rpos_t[rowc]
+        dest_a *= K
+        dest_a += local
+        src_a[dest_a] = _positions(cm, e0, stype)
+    src_a = src_a.reshape(nc, M, K)
+    del run_off, rlen, pos_row, rpos_t, off_t
     col_S = np.full((nc, K), -1, dtype=_index_dtype(cam.size))
     for s_ in range(G):                          # a cluster sees every column of its supernodes
         g = cl_sn[:, s_]
@@ -389,34 +408,26 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
                      labels=None if labels is None or isinstance(labels, LazySequence) else np.asarray(labels))
 
 
-def _row_hash(col: np.ndarray, row: np.ndarray, w: np.ndarray, u: int, chunk: int = 1 << 21) -> np.ndarray:
-    """Σ w[row] over the entries of each column (``row`` non-decreasing), summed in chunks of
-    whole rows: the weights of all entries are not gathered at once (8 bytes per entry). Columns
-    touched by the same rows get the same chunk sums and so the same totals — all the supernodes
-    are found by."""
-    out = np.zeros(u)
-    s, N = 0, col.size
-    while s < N:
-        e = N if s + chunk >= N else int(np.searchsorted(row, row[s + chunk], side="left"))
-        if e <= s:                 # (a row longer than a chunk)
-            e = int(np.searchsorted(row, row[s], side="right"))
-        out += np.bincount(col[s:e], weights=w[row[s:e]], minlength=u)
-        s = e
-    return out
+def _entries(A: sp.csr_matrix, chunk: int = 1 << 21):
+    """(e0, row, col) of runs of whole rows of ``A`` with about ``chunk`` entries each: the row
+    and column of the entries e0, e0 + 1, ... (the per-entry temporaries of :func:`analyse` are
+    a chunk's, not the whole matrix's: 4 bytes per entry and array)."""
+    indptr, n = A.indptr, A.shape[0]
+    rtype = _index_dtype(n)
+    r0 = 0
+    while r0 < n:
+        e0 = int(indptr[r0])
+        r1 = min(max(int(np.searchsorted(indptr, e0 + chunk, side="right")) - 1, r0 + 1), n)
+        e1 = int(indptr[r1])
+        yield e0, np.repeat(np.arange(r0, r1, dtype=rtype), np.diff(indptr[r0:r1 + 1])), A.indices[e0:e1]
+        r0 = r1
 
 
-def _inverse_map(dest: np.ndarray, mask: np.ndarray, size: int, dtype, chunk: int = 1 << 22) -> np.ndarray:
-    """src (size,) with src[dest[k]] = the k-th True position of ``mask`` and −1 elsewhere: the
-    place in the design matrix's data of each padded slot, made in chunks of entries (no
-    array of all the positions)."""
-    src = np.full(size, -1, dtype=dtype)
-    pos = 0
-    for s in range(0, mask.size, chunk):
-        idx = np.flatnonzero(mask[s:s + chunk]).astype(dtype)
-        idx += s
-        src[dest[pos:pos + idx.size]] = idx
-        pos += idx.size
-    return src
+def _positions(mask: np.ndarray, e0: int, dtype) -> np.ndarray:
+    """The places e0 + k in the design matrix's data of the True entries k of ``mask``."""
+    idx = np.flatnonzero(mask).astype(dtype)
+    idx += e0
+    return idx
 
 
 def _index_dtype(top: int):
