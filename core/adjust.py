@@ -68,7 +68,7 @@ from .errors import DatumDefectError, OptionError, SingularError
 from .model.problem import take, weight_matrix
 from .result import Adjustment, HeldColumns
 from .solve import schur
-from .solve.linalg import SPDFactor, keep_columns
+from .solve.linalg import SPDFactor, compact, keep_columns
 from .solve.schur import schur_structure
 
 METHODS = ("auto", "gauss-newton", "levenberg-marquardt")
@@ -298,23 +298,27 @@ class Linearisation:
         self._A_indices = A.indices
         return A
 
-    def reduced(self, A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
-        """A[:, keep] (:func:`keep_columns`), its pattern kept for the next A of this layout."""
+    def reduced(self, A: sp.csr_matrix, keep: np.ndarray, consume: bool = False) -> sp.csr_matrix:
+        """A[:, keep] (:func:`keep_columns`), its pattern kept for the next A of this layout.
+        consume: A is dropped afterwards; Ar's values are moved within A's data array (no second
+        array of values while both exist)."""
         if A.indices is not getattr(self, "_A_indices", None):
-            return keep_columns(A, keep)
+            return keep_columns(A, keep, consume)
         if keep.size == self.u:
             self._reduced = None       # (the held gauge's pattern is made again when needed)
             return A                   # every column (the free gauge's steps): A itself, no copy
         if self._reduced is None or not np.array_equal(self._reduced[0], keep):
             self._reduced = None
-            Ar = keep_columns(A, keep)
             kept = np.zeros(self.u, dtype=bool)
             kept[keep] = True
-            self._reduced = (keep.copy(), kept[A.indices], Ar.indices, Ar.indptr)
+            m = kept[A.indices]
+            Ar = keep_columns(A, keep, consume)
+            self._reduced = (keep.copy(), m, Ar.indices, Ar.indptr)
             Ar.has_canonical_format = True
             return Ar                  # (its values are A.data[m] already: not gathered twice)
         _, m, indices, indptr = self._reduced
-        Ar = sp.csr_matrix((A.data[m], indices, indptr), shape=(A.shape[0], keep.size), copy=False)
+        data = compact(A.data, m) if consume else A.data[m]
+        Ar = sp.csr_matrix((data, indices, indptr), shape=(A.shape[0], keep.size), copy=False)
         Ar.has_canonical_format = True
         return Ar
 
@@ -375,7 +379,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     plan = datum_mod.plan(problem, x, A, P, free)
     keep_all = np.setdiff1d(np.arange(free.size), plan.eliminate)
     keep = keep_all                # the unknowns solved for (far points held in the end game)
-    Ar = lin.reduced(A, keep)
+    Ar = lin.reduced(A, keep, consume=True)
     if Ar is not A:
         A = None                   # (made again at x when needed: full() below)
     st = schur_structure(problem, Ar, keep, options.solver)
@@ -409,7 +413,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         """Ar = A[:, keep]; A's values are let go when Ar is a copy (:func:`full`)."""
         nonlocal A, Ar
         Ar = None
-        Ar = lin.reduced(full(), keep)
+        Ar = lin.reduced(full(), keep, consume=True)
         if Ar is not A:
             A = None
 
@@ -587,19 +591,20 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         else:
             quiet = 0
     # what only the iterations needed is freed before the datum at the solution is analysed
-    full()                         # (A at the solution: the datum and the result need it)
     back = keep is not keep_all
+    if back or plan.defect:
+        # Ar's values go before A is made (and while the datum is analysed on A): made again
+        # from A below, the same values at the same x on the pattern the layout keeps
+        Ar = None
+    full()                         # (A at the solution: the datum and the result need it)
     keep, free_gauge = keep_all, None
     if back:
-        st = Ar = None             # another gauge's (or the far points') layout
+        st = None                  # another gauge's (or the far points') layout
     lin.release()
     for s in problem.sets:
         getattr(s, "release", lambda: None)()
     if plan.defect:
         old, plan = plan.eliminate, None       # (the iterations' plan and its G go first)
-        # Ar's values go while the datum is analysed on A (made again from A below: the same
-        # values at the same x, on the pattern the layout and the structure keep)
-        Ar = None
         # the datum at the solution; a block keeps its held coordinates where they still fix
         # the gauge (the reduced system, and so the structure, stay as they are)
         plan = _replan(problem, x, A, P, free, old) if use_schur else datum_mod.plan(problem, x, A, P, free)

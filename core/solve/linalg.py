@@ -282,9 +282,11 @@ class LowRankUpdate:
         return self.solve(np.eye(self.m))
 
 
-def keep_columns(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
+def keep_columns(A: sp.csr_matrix, keep: np.ndarray, consume: bool = False) -> sp.csr_matrix:
     """A[:, keep] for sorted ``keep`` by one pass over the entries (scipy's column indexing
-    costs a gather per entry and a re-sort; here the order is kept and so is canonical form)."""
+    costs a gather per entry and a re-sort; here the order is kept and so is canonical form).
+    consume: A's values are not needed afterwards; the kept ones are moved to the front of A's
+    own data array (A is left invalid) instead of being copied (no second array of values)."""
     A = sp.csr_matrix(A)
     if keep.size == A.shape[1]:
         return A
@@ -292,10 +294,21 @@ def keep_columns(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
     colmap[keep] = np.arange(keep.size)
     new = colmap[A.indices]
     m = new >= 0
-    cm = np.zeros(m.size + 1, dtype=A.indptr.dtype)        # kept entries before each entry
-    np.cumsum(m, out=cm[1:])
-    indptr = cm[A.indptr]
-    del cm
-    out = sp.csr_matrix((A.data[m], new[m], indptr), shape=(A.shape[0], keep.size))
+    dropped = np.flatnonzero(~m)                           # (the held columns' few entries)
+    indptr = A.indptr - np.searchsorted(dropped, A.indptr).astype(A.indptr.dtype)
+    del dropped
+    data = compact(A.data, m) if consume else A.data[m]
+    out = sp.csr_matrix((data, compact(new, m), indptr), shape=(A.shape[0], keep.size), copy=False)
     out.has_sorted_indices = A.has_sorted_indices
     return out
+
+
+def compact(a: np.ndarray, m: np.ndarray, chunk: int = 1 << 22) -> np.ndarray:
+    """a[m] moved to the front of ``a`` itself, chunk by chunk (the order kept; no second array
+    of a's size): returns the view of those first values."""
+    pos = 0
+    for s in range(0, a.size, chunk):
+        part = a[s:s + chunk][m[s:s + chunk]]
+        a[pos:pos + part.size] = part
+        pos += part.size
+    return a[:pos]

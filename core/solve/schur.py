@@ -59,6 +59,7 @@ adjustment — a modern synthesis, §6.1 (reduced camera system).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -138,7 +139,6 @@ class Structure:
     cl_ent: np.ndarray         # entity of position p
     cl_sn: np.ndarray          # (nc, G) supernodes of position p, −1 padded
     cl_off: np.ndarray         # (nc, G) their first local column
-    col_S: np.ndarray          # (nc, K) S index of each local camera column, −1 padded
     cluster: np.ndarray        # cluster of each observation (n,)
     rpos: np.ndarray           # position of each observation within its cluster (n,)
     src_a: np.ndarray          # (nc, M, K) place in the design matrix's data of each entry of a, −1 padded
@@ -178,6 +178,19 @@ class Structure:
         out[src < 0] = 0.0
         return out
 
+    @cached_property
+    def col_S(self) -> np.ndarray:
+        """(nc, K) S index of each local camera column, −1 padded (made when first asked for: the
+        kernels of the iterations read it off cl_sn and sn_ptr)."""
+        sn_size = np.diff(self.sn_ptr)
+        col_S = np.full((self.cl_sn.shape[0], self.K), -1, dtype=_index_dtype(self.cam.size))
+        for s_ in range(self.G):                 # a cluster sees every column of its supernodes
+            g = self.cl_sn[:, s_]
+            for i in range(int(sn_size.max(initial=0))):
+                p_ = np.flatnonzero((g >= 0) & (i < sn_size[np.maximum(g, 0)]))
+                col_S[p_, self.cl_off[p_, s_] + i] = self.sn_ptr[g[p_]] + i
+        return col_S
+
     def worthwhile(self) -> bool:
         """Whether elimination pays (the automatic choice of :func:`baarda.adjust.adjust`)."""
         return self.n_eliminated >= MIN_ELIMINATED and self.n_eliminated >= MIN_SHARE * self.u
@@ -201,24 +214,25 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     M = int(csize.max(initial=1))
     if M > MAX_CLUSTER or n == 0 or u == 0:
         return None
-    counts = np.diff(Ar.indptr)
-    row = np.repeat(np.arange(n, dtype=_index_dtype(n)), counts)
-    col = Ar.indices                              # no copy: indices of any integer type index alike
-    del counts
     order = np.argsort(cluster, kind="stable")
     cstart = np.concatenate([[0], np.cumsum(csize)[:-1]])
     rpos = np.empty(n, dtype=np.int64)
     rpos[order] = np.arange(n) - cstart[cluster[order]]
+    del order, cstart
+    # (the per-entry temporaries below are made chunk by chunk of whole rows: _entries)
 
     # eliminable points: candidates seen by no cluster together with another point
     is_pt = (kind == "k") & (point >= 0)
     npt = int(point.max(initial=-1)) + 1
-    m = np.flatnonzero(is_pt[col])
-    key = cluster[row[m]]                         # clusters of the point entries only
-    key *= max(npt, 1)
-    key += point[col[m]]
-    del m
-    key = _unique_sorted(key)
+    keys = []
+    for _, row, col in _entries(Ar):
+        m = is_pt[col]
+        key = cluster[row[m]]                     # clusters of the point entries only
+        key *= max(npt, 1)
+        key += point[col[m]]
+        keys.append(_unique_sorted(key))
+    key = _unique_sorted(np.concatenate(keys)) if keys else np.zeros(0, dtype=np.int64)
+    del keys
     kc, kp = key // max(npt, 1), key % max(npt, 1)
     del key
     per_cl = np.bincount(kc, minlength=ncl)
@@ -256,33 +270,37 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     ent_cols[e_of, coord] = ecols
     ent_size = (ent_cols >= 0).sum(axis=1).astype(np.int64)
 
-    # supernodes: camera columns touched by the same rows (two random row hashes)
+    # the point side (its places in b), and supernodes: camera columns touched by the same rows
+    # (two random row hashes, summed chunk by chunk of whole rows: columns touched by the same
+    # rows get the same chunk sums and so the same totals)
     camcols = np.flatnonzero(~elig)
-    cm = ~elig[col]
-    colc, rowc = col[cm], row[cm]
-    # the point side first (its destinations in b), so that the row of every entry goes early
-    nnz = col.size
+    nnz = Ar.indices.size
     stype = _index_dtype(nnz + 1)
-    cb = col[~cm]
-    rowb = row[~cm]
-    del row
     coord_col = np.full(u, -1, dtype=np.int64)
     coord_col[ecols] = coord
-    dest_b = cl_pos[cluster[rowb]]
-    dest_b *= M
-    dest_b += rpos[rowb]
-    dest_b *= 3
-    dest_b += coord_col[cb]
-    del cb, rowb
-    # the inverse: for each place in b the entry of the design matrix's data (−1: padding)
-    src_b = _inverse_map(dest_b, ~cm, ncl * M * 3, stype).reshape(ncl, M, 3)
-    del dest_b
+    src_b = np.full(ncl * M * 3, -1, dtype=stype)
     rng = np.random.default_rng(12345)
-    h1 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
-    h2 = _row_hash(colc, rowc, rng.random(n), u)[camcols]
-    cnt = np.bincount(colc, minlength=u)[camcols]
-    tk = (kind[camcols] == "t").astype(float)
+    w1, w2 = rng.random(n), rng.random(n)
     del rng
+    h1, h2, cnt = np.zeros(u), np.zeros(u), np.zeros(u, dtype=np.int64)
+    for e0, row, col in _entries(Ar):
+        cm = ~elig[col]
+        rowb = row[~cm]
+        dest_b = cl_pos[cluster[rowb]]
+        dest_b *= M
+        dest_b += rpos[rowb]
+        dest_b *= 3
+        dest_b += coord_col[col[~cm]]
+        src_b[dest_b] = _positions(~cm, e0, stype)
+        del rowb, dest_b
+        colc, rowc = col[cm], row[cm]
+        h1 += np.bincount(colc, weights=w1[rowc], minlength=u)
+        h2 += np.bincount(colc, weights=w2[rowc], minlength=u)
+        cnt += np.bincount(colc, minlength=u)
+    src_b = src_b.reshape(ncl, M, 3)
+    del w1, w2
+    h1, h2, cnt = h1[camcols], h2[camcols], cnt[camcols]
+    tk = (kind[camcols] == "t").astype(float)
     _, grp = np.unique(np.stack([h1, h2, cnt.astype(float), tk], 1), axis=0, return_inverse=True)
     grp = grp.ravel()
     ngrp = int(grp.max(initial=-1)) + 1
@@ -310,15 +328,22 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     nc = ncl
     # runs of camera entries of one row and one supernode (a row's entries make one run or a
     # few): the keys cluster position · nsn + supernode are made per run, not per entry
-    sn_e = sn_of.astype(_index_dtype(max(nsn, 1)))[colc]
-    brk = np.ones(colc.size, dtype=bool)
-    if brk.size:
-        np.not_equal(rowc[1:], rowc[:-1], out=brk[1:])
-        brk[1:] |= sn_e[1:] != sn_e[:-1]
-    run = np.flatnonzero(brk)
-    del brk
-    rkey = cl_pos[cluster[rowc[run]]] * max(nsn, 1) + sn_e[run]
-    del sn_e
+    sn_of_e = sn_of.astype(_index_dtype(max(nsn, 1)))
+    rkey, rlen, nrun = [], [], []
+    for _, row, col in _entries(Ar):
+        cm = ~elig[col]
+        colc, rowc = col[cm], row[cm]
+        sn_e = sn_of_e[colc]
+        brk = np.ones(colc.size, dtype=bool)
+        if brk.size:
+            np.not_equal(rowc[1:], rowc[:-1], out=brk[1:])
+            brk[1:] |= sn_e[1:] != sn_e[:-1]
+        run = np.flatnonzero(brk)
+        rkey.append(cl_pos[cluster[rowc[run]]] * max(nsn, 1) + sn_e[run])
+        rlen.append(np.diff(np.r_[run, colc.size]))
+        nrun.append(run.size)
+    rkey = np.concatenate(rkey) if rkey else np.zeros(0, dtype=np.int64)
+    rlen = np.concatenate(rlen) if rlen else np.zeros(0, dtype=np.int64)
     skey = _unique_sorted(rkey)
     sp_, sg = skey // max(nsn, 1), skey % max(nsn, 1)
     sfirst = np.searchsorted(sp_, np.arange(nc))
@@ -333,25 +358,26 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     # (position·M + rpos)·K + local, in place, in the narrowest type that holds nc·M·K
     itype = _index_dtype(nc * M * K)
     loc = np.searchsorted(skey, rkey)
-    local = np.repeat(cl_off[sp_[loc], slot[loc]].astype(itype), np.diff(np.r_[run, colc.size]))
-    del loc, run, rkey
-    local += off_of.astype(itype)[colc]
-    del colc
-    dest_a = cl_pos.astype(itype)[cluster].take(rowc)
-    dest_a *= M
-    dest_a += rpos.astype(itype)[rowc]
-    del rowc
-    dest_a *= K
-    dest_a += local
-    del local
-    src_a = _inverse_map(dest_a, cm, nc * M * K, stype).reshape(nc, M, K)
-    del dest_a, cm
-    col_S = np.full((nc, K), -1, dtype=_index_dtype(cam.size))
-    for s_ in range(G):                          # a cluster sees every column of its supernodes
-        g = cl_sn[:, s_]
-        for i in range(int(sn_size.max(initial=0))):
-            p_ = np.flatnonzero((g >= 0) & (i < sn_size[np.maximum(g, 0)]))
-            col_S[p_, cl_off[p_, s_] + i] = sn_ptr[g[p_]] + i
+    run_off = cl_off[sp_[loc], slot[loc]].astype(itype)
+    del loc, rkey
+    pos_row = cl_pos.astype(itype)[cluster]
+    rpos_t, off_t = rpos.astype(itype), off_of.astype(itype)
+    src_a = np.full(nc * M * K, -1, dtype=stype)
+    r0 = 0
+    for (e0, row, col), k in zip(_entries(Ar), nrun):
+        cm = ~elig[col]
+        colc, rowc = col[cm], row[cm]
+        local = np.repeat(run_off[r0:r0 + k], rlen[r0:r0 + k])
+        r0 += k
+        local += off_t[colc]
+        dest_a = pos_row[rowc]
+        dest_a *= M
+        dest_a += rpos_t[rowc]
+        dest_a *= K
+        dest_a += local
+        src_a[dest_a] = _positions(cm, e0, stype)
+    src_a = src_a.reshape(nc, M, K)
+    del run_off, rlen, pos_row, rpos_t, off_t
     rpos = _narrow(rpos, M)
 
     # block pattern of S: supernodes sharing an entity (plus the diagonal)
@@ -383,40 +409,32 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     return Structure(n=n, u=u, M=M, K=K, G=G, indptr=_readonly(Ar.indptr), indices=_readonly(Ar.indices),
                      cam=cam, cam_pos=cam_pos, sn_ptr=sn_ptr, sn_t=sn_t, n_points=n_points,
                      ent_ptr=ent_ptr, ent_cols=ent_cols, ent_size=ent_size, cl_id=cl_id,
-                     cl_pos=cl_pos, cl_ent=cl_ent, cl_sn=cl_sn, cl_off=cl_off.astype(np.int64), col_S=col_S,
+                     cl_pos=cl_pos, cl_ent=cl_ent, cl_sn=cl_sn, cl_off=cl_off.astype(np.int64),
                      cluster=cluster, rpos=rpos, src_a=src_a, src_b=src_b, bptr=bptr,
                      bcol=bcol, bstart=bstart, flat_r=flat_r, flat_c=flat_c,
                      labels=None if labels is None or isinstance(labels, LazySequence) else np.asarray(labels))
 
 
-def _row_hash(col: np.ndarray, row: np.ndarray, w: np.ndarray, u: int, chunk: int = 1 << 21) -> np.ndarray:
-    """Σ w[row] over the entries of each column (``row`` non-decreasing), summed in chunks of
-    whole rows: the weights of all entries are not gathered at once (8 bytes per entry). Columns
-    touched by the same rows get the same chunk sums and so the same totals — all the supernodes
-    are found by."""
-    out = np.zeros(u)
-    s, N = 0, col.size
-    while s < N:
-        e = N if s + chunk >= N else int(np.searchsorted(row, row[s + chunk], side="left"))
-        if e <= s:                 # (a row longer than a chunk)
-            e = int(np.searchsorted(row, row[s], side="right"))
-        out += np.bincount(col[s:e], weights=w[row[s:e]], minlength=u)
-        s = e
-    return out
+def _entries(A: sp.csr_matrix, chunk: int = 1 << 21):
+    """(e0, row, col) of runs of whole rows of ``A`` with about ``chunk`` entries each: the row
+    and column of the entries e0, e0 + 1, ... (the per-entry temporaries of :func:`analyse` are
+    a chunk's, not the whole matrix's: 4 bytes per entry and array)."""
+    indptr, n = A.indptr, A.shape[0]
+    rtype = _index_dtype(n)
+    r0 = 0
+    while r0 < n:
+        e0 = int(indptr[r0])
+        r1 = min(max(int(np.searchsorted(indptr, e0 + chunk, side="right")) - 1, r0 + 1), n)
+        e1 = int(indptr[r1])
+        yield e0, np.repeat(np.arange(r0, r1, dtype=rtype), np.diff(indptr[r0:r1 + 1])), A.indices[e0:e1]
+        r0 = r1
 
 
-def _inverse_map(dest: np.ndarray, mask: np.ndarray, size: int, dtype, chunk: int = 1 << 22) -> np.ndarray:
-    """src (size,) with src[dest[k]] = the k-th True position of ``mask`` and −1 elsewhere: the
-    place in the design matrix's data of each padded slot, made in chunks of entries (no
-    array of all the positions)."""
-    src = np.full(size, -1, dtype=dtype)
-    pos = 0
-    for s in range(0, mask.size, chunk):
-        idx = np.flatnonzero(mask[s:s + chunk]).astype(dtype)
-        idx += s
-        src[dest[pos:pos + idx.size]] = idx
-        pos += idx.size
-    return src
+def _positions(mask: np.ndarray, e0: int, dtype) -> np.ndarray:
+    """The places e0 + k in the design matrix's data of the True entries k of ``mask``."""
+    idx = np.flatnonzero(mask).astype(dtype)
+    idx += e0
+    return idx
 
 
 def _index_dtype(top: int):
@@ -1042,6 +1060,21 @@ class _Permuted:
 # ------------------------------------------------------------------------------------------
 # numeric factor
 # ------------------------------------------------------------------------------------------
+def _weights(st: Structure, P):
+    """(P as CSR, the weights P_c of every cluster position (nc, M, M), whether every P_c is
+    diagonal). They depend on P only: kept with the structure for the next factor of the same P
+    (every iteration, the reliability at the solution)."""
+    cached = st.__dict__.get("_weights")
+    if cached is not None and cached[0] is P:
+        return cached[1:]
+    Pcsr = sp.csr_matrix(P)
+    Pc = SchurFactor._cluster_weights(st, Pcsr)
+    Pd = np.diagonal(Pc, axis1=1, axis2=2)
+    diagonal = bool(st.M == 1 or not np.any(Pc - Pd[:, :, None] * np.eye(st.M)))
+    st.__dict__["_weights"] = (P, Pcsr, Pc, diagonal)
+    return Pcsr, Pc, diagonal
+
+
 class SchurFactor:
     """N = AᵀPA factored through the reduced camera system (module docstring).
 
@@ -1059,7 +1092,7 @@ class SchurFactor:
         if self.backend not in BACKENDS or (self.backend == "numba" and numba is None):
             raise OptionError("backend", self.backend, BACKENDS, f"backend {self.backend!r} not available")
         self.st, self.m, self.labels = st, st.u, st.labels
-        M, K = st.M, st.K
+        K = st.K
         # the common case (numba, one supernode per cluster) reads a_c, b_c from Ar's data in its
         # kernels and makes b̃_c and E_c per point (:func:`_entity_blocks`): no stack of a, b, b̃
         # or E over all clusters is held (216 + 192 bytes per image point of a bundle block);
@@ -1073,17 +1106,7 @@ class SchurFactor:
             b = st.gather(Ar.data, st.src_b)           # (for the point roots only)
         else:
             self.a, b = st.cluster_blocks(Ar)
-        # the cluster weights depend on P only: kept with the structure for the next factor of
-        # the same P (every Gauss-Newton iteration, the reliability at the solution)
-        cached = st.__dict__.get("_weights")
-        if cached is not None and cached[0] is P:
-            _, self.P, Pc, diagonal = cached
-        else:
-            self.P = sp.csr_matrix(P)
-            Pc = self._cluster_weights(st, self.P)
-            Pd = np.diagonal(Pc, axis1=1, axis2=2)
-            diagonal = bool(M == 1 or not np.any(Pc - Pd[:, :, None] * np.eye(M)))
-            st.__dict__["_weights"] = (P, self.P, Pc, diagonal)
+        self.P, Pc, diagonal = _weights(st, P)
         self.Pc, self._diagonal_P = Pc, diagonal
         R, bad, dC = _point_roots(b, Pc, st.ent_ptr, st.ent_size, damping,
                                   min(pivot_tol, POINT_PIVOT_TOL), self.backend, diagonal)
@@ -1353,11 +1376,30 @@ def _load_cluster(data, src_a, src_b, c, ac, bc):
             bc[r, i] = data[k] if k >= 0 else 0.0
 
 
+def _cluster_E(data, src_a, src_b, Pd, c, a, b, Ec):
+    """E_c = a_cᵀP_c b_c (K × 3) of cluster position c, diagonal P_c, summed in the order of
+    :func:`_step_factor_kernel` (the same numbers: the solves make E_c again rather than keep
+    K · 3 values per image point)."""
+    _load_cluster(data, src_a, src_b, c, a, b)
+    Ec[:, :] = 0.0
+    for r in range(a.shape[0]):
+        p = Pd[c, r]
+        if p == 0.0:
+            continue
+        for i in range(a.shape[1]):
+            pa = p * a[r, i]
+            if pa == 0.0:
+                continue
+            for q in range(3):
+                Ec[i, q] += pa * b[r, q]
+
+
 def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, data, src_a, src_b, Pd, lam,
                         pivot_tol, S, E, Ci, dC, dU, bad):
     """One pass over the entities for N + λ diag(N) (the module docstring's formulas in normal-
     equation form, every cluster seeing one supernode of K unknowns, diagonal P_c):
-    U = Σ a_cᵀP_c a_c into the diagonal blocks of S (its diagonal into dU), E_c = a_cᵀP_c b_c,
+    U = Σ a_cᵀP_c a_c into the diagonal blocks of S (its diagonal into dU), E_c = a_cᵀP_c b_c
+    (into E, rows 0, 1, ... for the clusters of the entity at hand: E holds one entity's),
     C_j = Σ b_cᵀP_c b_c
     (+ λ diag), its inverse Ci_j (3 × 3, equilibrated Cholesky; a missing coordinate gets 1),
     and S −= E_c C_j⁻¹ E_c'ᵀ for every pair of clusters of point j. bad[e] = coordinate whose
@@ -1375,6 +1417,7 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
     for e in range(ent_ptr.size - 1):
         c0, c1 = ent_ptr[e], ent_ptr[e + 1]
         C[:, :] = 0.0
+        E[: c1 - c0] = 0.0
         for c in range(c0, c1):
             g = cl_sn[c, 0]
             d0 = bstart[sn_diag[g]]
@@ -1391,7 +1434,7 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
                     for j in range(K):
                         S[d0 + i * K + j] += pa * a[r, j]
                     for q in range(3):
-                        E[c, i, q] += pa * b[r, q]
+                        E[c - c0, i, q] += pa * b[r, q]
                 for i in range(3):
                     pb = p * b[r, i]
                     for j in range(3):
@@ -1453,48 +1496,51 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
             g = cl_sn[c, 0]
             for i in range(K):
                 for q in range(3):
-                    Z[i, q] = E[c, i, 0] * Ci[e, 0, q] + E[c, i, 1] * Ci[e, 1, q] + E[c, i, 2] * Ci[e, 2, q]
+                    Z[i, q] = E[c - c0, i, 0] * Ci[e, 0, q] + E[c - c0, i, 1] * Ci[e, 1, q] + E[c - c0, i, 2] * Ci[e, 2, q]
             for c2 in range(c, c1):
                 h = cl_sn[c2, 0]
                 b1 = bstart[_find_block(bptr, bcol, g, h)]
                 b2 = bstart[_find_block(bptr, bcol, h, g)]
                 for i in range(K):
                     for j in range(K):
-                        y = Z[i, 0] * E[c2, j, 0] + Z[i, 1] * E[c2, j, 1] + Z[i, 2] * E[c2, j, 2]
+                        y = Z[i, 0] * E[c2 - c0, j, 0] + Z[i, 1] * E[c2 - c0, j, 1] + Z[i, 2] * E[c2 - c0, j, 2]
                         S[b1 + i * K + j] -= y
                         if c2 != c:
                             S[b2 + j * K + i] -= y
 
 
-def _step_solve_kernel(ent_ptr, ent_cols, col_S, E, Ci, bp, rhs_c):
-    """rhs_c −= Σ_c E_c C_j⁻¹ b_p,j (the reduced right-hand side); returns t = C⁻¹ b_p."""
-    K = E.shape[1]
+def _step_solve_kernel(ent_ptr, cl_sn, sn_ptr, data, src_a, src_b, Pd, Ci, bp, rhs_c):
+    """rhs_c −= Σ_c E_c C_j⁻¹ b_p,j (the reduced right-hand side); returns t = C⁻¹ b_p. (Every
+    cluster sees the K unknowns of one supernode: S indices sn_ptr[cl_sn[c, 0]] + 0 .. K − 1.)"""
+    M, K = src_a.shape[1], src_a.shape[2]
+    a, b, E = np.zeros((M, K)), np.zeros((M, 3)), np.zeros((K, 3))
     t = np.zeros((ent_ptr.size - 1, 3))
     for e in range(ent_ptr.size - 1):
         for q in range(3):
             t[e, q] = Ci[e, q, 0] * bp[e, 0] + Ci[e, q, 1] * bp[e, 1] + Ci[e, q, 2] * bp[e, 2]
         for c in range(ent_ptr[e], ent_ptr[e + 1]):
+            _cluster_E(data, src_a, src_b, Pd, c, a, b, E)
+            k0 = sn_ptr[cl_sn[c, 0]]
             for i in range(K):
-                k = col_S[c, i]
-                if k >= 0:
-                    rhs_c[k] -= E[c, i, 0] * t[e, 0] + E[c, i, 1] * t[e, 1] + E[c, i, 2] * t[e, 2]
+                rhs_c[k0 + i] -= E[i, 0] * t[e, 0] + E[i, 1] * t[e, 1] + E[i, 2] * t[e, 2]
     return t
 
 
-def _step_back_kernel(ent_ptr, col_S, E, Ci, bp, xc):
+def _step_back_kernel(ent_ptr, cl_sn, sn_ptr, data, src_a, src_b, Pd, Ci, bp, xc):
     """x_p,j = C_j⁻¹ (b_p,j − Σ_c E_cᵀ x_c)."""
-    K = E.shape[1]
+    M, K = src_a.shape[1], src_a.shape[2]
+    a, b, E = np.zeros((M, K)), np.zeros((M, 3)), np.zeros((K, 3))
     ne = ent_ptr.size - 1
     xp = np.zeros((ne, 3))
     s = np.zeros(3)
     for e in range(ne):
         s[0], s[1], s[2] = bp[e, 0], bp[e, 1], bp[e, 2]
         for c in range(ent_ptr[e], ent_ptr[e + 1]):
+            _cluster_E(data, src_a, src_b, Pd, c, a, b, E)
+            k0 = sn_ptr[cl_sn[c, 0]]
             for i in range(K):
-                k = col_S[c, i]
-                if k >= 0:
-                    for q in range(3):
-                        s[q] -= E[c, i, q] * xc[k]
+                for q in range(3):
+                    s[q] -= E[i, q] * xc[k0 + i]
         for q in range(3):
             xp[e, q] = Ci[e, q, 0] * s[0] + Ci[e, q, 1] * s[1] + Ci[e, q, 2] * s[2]
     return xp
@@ -1502,6 +1548,7 @@ def _step_back_kernel(ent_ptr, col_S, E, Ci, bp, xc):
 
 if numba is not None:
     _load_cluster = numba.njit(cache=True)(_load_cluster)
+    _cluster_E = numba.njit(cache=True)(_cluster_E)
 
 
 def _step_kernels():
@@ -1529,7 +1576,7 @@ class StepFactor:
         if not st.matches(Ar):
             raise ValueError("design matrix pattern differs from the analysed structure")
         self.st, self.m, self.labels = st, st.u, st.labels
-        nc, K = st.cl_id.size, st.K
+        K = st.K
         Pd = self.cluster_diagonal(st, P)
         nsn = st.sn_ptr.size - 1
         sn_diag = st.__dict__.get("_sn_diag")
@@ -1538,7 +1585,7 @@ class StepFactor:
             st.__dict__["_sn_diag"] = sn_diag
         ne = st.ent_size.size
         S = np.zeros(int(st.bstart[-1]))
-        E = np.zeros((nc, K, 3))
+        E = np.zeros((int(np.diff(st.ent_ptr).max(initial=1)), K, 3))     # one entity's E_c
         Ci = np.zeros((ne, 3, 3))
         dC = np.zeros((ne, 3))
         dU = np.zeros((nsn, K))
@@ -1553,7 +1600,8 @@ class StepFactor:
         if damping:
             dsel = st.flat_r == st.flat_c
             S[dsel] += damping * diag_c[st.flat_r[dsel]]
-        self.E, self.Ci = E, Ci
+        self.Ci, self._data, self._Pd = Ci, Ar.data, Pd      # (E_c is made again by the solves)
+        del E
         nc_ = st.cam.size
         Smat = sp.csr_matrix((S, (st.flat_r, st.flat_c)), shape=(nc_, nc_))
         try:
@@ -1586,16 +1634,9 @@ class StepFactor:
 
     @staticmethod
     def cluster_diagonal(st: Structure, P) -> np.ndarray:
-        """The diagonal weights of every cluster position (nc, M), kept with the structure."""
-        cached = st.__dict__.get("_step_weights")
-        if cached is not None and cached[0] is P:
-            return cached[1]
-        w = np.asarray(sp.csr_matrix(P).diagonal())
-        Pd = np.zeros(st.cl_id.size * st.M)
-        Pd[st.cl_pos[st.cluster] * st.M + st.rpos] = w
-        Pd = Pd.reshape(-1, st.M)
-        st.__dict__["_step_weights"] = (P, Pd)
-        return Pd
+        """The diagonal weights of every cluster position (nc, M): a view of the cluster weights
+        kept with the structure (:func:`_weights`, which the reliability's factor uses too)."""
+        return np.diagonal(_weights(st, P)[1], axis1=1, axis2=2)
 
     @staticmethod
     def _camera_diagonal(st, dU):
@@ -1617,9 +1658,9 @@ class StepFactor:
         bp = bp.reshape(ne, 3)
         k = _step_kernels()
         rhs = b[st.cam].copy()
-        k["step_solve"](st.ent_ptr, st.ent_cols, st.col_S, self.E, self.Ci, bp, rhs)
+        k["step_solve"](st.ent_ptr, st.cl_sn, st.sn_ptr, self._data, st.src_a, st.src_b, self._Pd, self.Ci, bp, rhs)
         xc = self.S.solve(rhs)
-        xp = k["step_back"](st.ent_ptr, st.col_S, self.E, self.Ci, bp, xc)
+        xp = k["step_back"](st.ent_ptr, st.cl_sn, st.sn_ptr, self._data, st.src_a, st.src_b, self._Pd, self.Ci, bp, xc)
         out = np.empty(self.m)
         out[st.cam] = xc
         out[self._pcols] = xp.ravel()[self._pflat]
