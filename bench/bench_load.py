@@ -108,6 +108,12 @@ async def open_session(context, url, t0, t0_wall, timeout_ms):
                                " const p = performance.getEntriesByName('first-contentful-paint')[0];"
                                " return m && p && m.startTime <= p.startTime; })()")
     out["paint"] = None if fcp is None else fcp / 1000 - t0_wall
+    # when the browser sent the page's request and had its answer (a request that waits for
+    # one of the browser's six connections to the host is sent late)
+    nav = await page.evaluate("(() => { const n = performance.getEntriesByType('navigation')[0];"
+                              " return n ? [performance.timeOrigin + n.requestStart,"
+                              " performance.timeOrigin + n.responseEnd] : null; })()")
+    out["sent"], out["answered"] = (None, None) if not nav else (nav[0] / 1000 - t0_wall, nav[1] / 1000 - t0_wall)
     out["summary"] = out["paint"] if mark and out["paint"] is not None else out["seen"]
     print(f"  summary after {out['summary']:.1f} s", file=sys.stderr, flush=True)
     # the maps and the right-hand panel's first tab (the ranked suspects) are drawn
@@ -211,7 +217,9 @@ async def run(args) -> int:
                          f"{maps[-1]:.1f}", ""))
             rows.append(("  (sessions whose summary was in their first paint)", "",
                          str(sum(s["summary"] == s["paint"] for s in sessions)), "", ""))
-            for key, what in (("created", "browser: page created"), ("paint", "browser: first contentful paint"),
+            for key, what in (("created", "browser: page created"), ("sent", "browser: page's request sent"),
+                              ("answered", "browser: page's answer received"),
+                              ("paint", "browser: first contentful paint"),
                               ("seen", "browser: summary visible to Playwright"),
                               ("loaded", "browser: page's load event"),
                               ("live", "browser: Bokeh's summary pane rendered")):
