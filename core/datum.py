@@ -407,8 +407,8 @@ def plan(problem, x, A, P, free) -> DatumPlan:
     datum = problem.datum
     point_of = problem.params.point[free]
     ids = problem.points.ids
-    moved = sorted({ids[p] for p in point_of[np.abs(G).max(axis=1) > 1e-9] if p >= 0})
     if datum.kind != "free":
+        moved = sorted({ids[p] for p in point_of[np.abs(G).max(axis=1) > 1e-9] if p >= 0})
         raise DatumDefectError(
             d, list(names),
             f"datum defect {d}: the observations leave {'; '.join(names)} undetermined "

@@ -141,30 +141,60 @@ def test_trafalgar_reaches_ceres_optimum_in_cost_and_parameters():
     assert again.history[0] < 1e-4
 
 
-def test_step_factor_equals_schur_factor():
-    """The fused compiled factor of the iterations (schur.StepFactor) takes the steps of the
-    reference SchurFactor (square-root elimination), damped and undamped, on BAL Ladybug
-    (far points: 3 × 3 blocks of condition 1e12) after a few iterations; same diag(N)."""
-    pytest.importorskip("numba")
+def _step_factor_takes_the_reference_steps(st, Ar, P, v, monkeypatch):
+    """StepFactor against SchurFactor (square-root elimination), damped and undamped: the same
+    diag(N) and steps; and the same numbers, bit for bit, whether the factor keeps every E_c for
+    its solves or makes them again from the design matrix (schur.KEEP_E_BYTES)."""
     from baarda.solve import schur
 
-    require_extdata(BAL)
-    problem = read_problem(BAL / "problem-49-7776-pre.txt")
-    adj = adjust(problem, Options(max_iter=5))
-    st, Ar, P = adj.schur_structure, adj.Ar, adj.P
     assert schur.StepFactor.applicable(st, P)
-    g = -(Ar.T @ (P @ adj.v))
+    g = -(Ar.T @ (P @ v))
     for lam in (0.0, 1e-6, 1e-2):
         ref, fast = schur.SchurFactor(st, Ar, P, damping=lam), schur.StepFactor(st, Ar, P, damping=lam)
+        assert fast._Et.shape[0] == st.cl_sn.shape[0]          # small blocks keep E_c
         assert np.allclose(fast.diagonal, ref.diagonal, rtol=1e-12, atol=0)
         d = np.sqrt(ref.diagonal)
         x_ref, x_fast = ref.solve(g) * d, fast.solve(g) * d        # in conditional σ
         assert np.abs(x_fast - x_ref).max() <= 1e-6 * max(np.abs(x_ref).max(), 1.0)
+        with monkeypatch.context() as m:
+            m.setattr(schur, "KEEP_E_BYTES", 0)
+            again = schur.StepFactor(st, Ar, P, damping=lam)
+        assert again._Et.shape[0] == 0
+        assert np.array_equal(again.solve(g), fast.solve(g))
+
+
+def test_step_factor_equals_schur_factor(monkeypatch):
+    """The fused compiled factor of the iterations (schur.StepFactor) takes the steps of the
+    reference SchurFactor on BAL Ladybug (far points: 3 × 3 blocks of condition 1e12) after a
+    few iterations."""
+    pytest.importorskip("numba")
+
+    require_extdata(BAL)
+    problem = read_problem(BAL / "problem-49-7776-pre.txt")
+    adj = adjust(problem, Options(max_iter=5))
+    _step_factor_takes_the_reference_steps(adj.schur_structure, adj.Ar, adj.P, adj.v, monkeypatch)
     # the numpy backend keeps the reference factor for the steps: same result
     a = adjust(problem, Options(max_iter=8, backend="numpy"))
     b = adjust(problem, Options(max_iter=8))
     assert a.iterations == b.iterations
     assert abs(a.vPv - b.vPv) <= 1e-9 * a.vPv
+
+
+def test_step_factor_with_duplicate_keypoints(tmp_path, monkeypatch):
+    """Two keypoints of one point in one image: a pair of clusters of one point on the same
+    diagonal block of S (the pair's product and its transpose both go there)."""
+    pytest.importorskip("numba")
+    from tests.test_colmap import duplicate_model
+
+    txt, _, _, added = duplicate_model(tmp_path)
+    problem = read_problem(txt)
+    adj = adjust(problem, Options(solver="schur", max_iter=3))
+    st = adj.schur_structure
+    g = st.cl_sn[:, 0]
+    same = [e for e in range(st.ent_size.size)
+            if np.unique(g[st.ent_ptr[e]:st.ent_ptr[e + 1]]).size < st.ent_ptr[e + 1] - st.ent_ptr[e]]
+    assert len(same) == len(added)
+    _step_factor_takes_the_reference_steps(st, adj.Ar, adj.P, adj.v, monkeypatch)
 
 
 def _two_view_bundler(path, src):

@@ -89,6 +89,10 @@ PIVOT_TOL = 1e-11
 #: the 3 × 3 point blocks are inverted in closed form, stable to a condition of ~1e14: a point
 #: seen along nearly parallel rays (far away, short base) is weak but still determined
 POINT_PIVOT_TOL = 1e-14
+#: The step's factor keeps every E_c (K × 3 per image point) for its solves up to this many bytes
+#: (Trafalgar 8 MB, Dubrovnik 18 MB); above, the solves make E_c again from the design matrix's
+#: data (the same numbers), so a large block holds no K · 3 values per image point.
+KEEP_E_BYTES = 64 << 20
 #: Entries of the temporary arrays in one chunk of the numpy fallback.
 CHUNK = 1 << 21
 BACKENDS = ("numba", "numpy")
@@ -1395,16 +1399,17 @@ def _cluster_E(data, src_a, src_b, Pd, c, a, b, Ec):
 
 
 def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, data, src_a, src_b, Pd, lam,
-                        pivot_tol, S, E, Ci, dC, dU, bad):
+                        pivot_tol, S, Et, keep, Z, Ci, dC, dU, bad):
     """One pass over the entities for N + λ diag(N) (the module docstring's formulas in normal-
     equation form, every cluster seeing one supernode of K unknowns, diagonal P_c):
     U = Σ a_cᵀP_c a_c into the diagonal blocks of S (its diagonal into dU), E_c = a_cᵀP_c b_c
-    (into E, rows 0, 1, ... for the clusters of the entity at hand: E holds one entity's),
-    C_j = Σ b_cᵀP_c b_c
-    (+ λ diag), its inverse Ci_j (3 × 3, equilibrated Cholesky; a missing coordinate gets 1),
-    and S −= E_c C_j⁻¹ E_c'ᵀ for every pair of clusters of point j. bad[e] = coordinate whose
-    pivot fails, else −1. a_c and b_c are read from the design matrix's data through ``src_a``,
-    ``src_b`` (no padded copy of them is made)."""
+    (into Et transposed, 3 × K: at cluster position c when ``keep``, else at rows 0, 1, ... for
+    the clusters of the entity at hand, Et holding one entity's), C_j = Σ b_cᵀP_c b_c (+ λ diag), its inverse Ci_j (3 × 3, equilibrated
+    Cholesky; a missing coordinate gets 1), Z_c = E_c C_j⁻¹, and S −= Z_c E_c'ᵀ for every pair
+    of clusters of point j. S is symmetric: only its upper half is summed (the diagonal blocks'
+    upper triangles, the blocks (g, h) with g < h), then mirrored (:func:`_mirror_blocks`).
+    bad[e] = coordinate whose pivot fails, else −1. a_c and b_c are read from the design
+    matrix's data through ``src_a``, ``src_b`` (no padded copy of them is made)."""
     M = src_a.shape[1]
     K = src_a.shape[2]
     a = np.zeros((M, K))
@@ -1413,11 +1418,11 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
     L = np.zeros((3, 3))
     Li = np.zeros((3, 3))
     dd = np.empty(3)
-    Z = np.zeros((K, 3))
     for e in range(ent_ptr.size - 1):
         c0, c1 = ent_ptr[e], ent_ptr[e + 1]
+        o = 0 if keep else c0                  # Et[c − o] is cluster position c's E_cᵀ
         C[:, :] = 0.0
-        E[: c1 - c0] = 0.0
+        Et[c0 - o: c1 - o] = 0.0
         for c in range(c0, c1):
             g = cl_sn[c, 0]
             d0 = bstart[sn_diag[g]]
@@ -1431,10 +1436,10 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
                     if pa == 0.0:
                         continue
                     dU[g, i] += pa * a[r, i]
-                    for j in range(K):
+                    for j in range(i, K):
                         S[d0 + i * K + j] += pa * a[r, j]
                     for q in range(3):
-                        E[c - c0, i, q] += pa * b[r, q]
+                        Et[c - o, q, i] += pa * b[r, q]
                 for i in range(3):
                     pb = p * b[r, i]
                     for j in range(3):
@@ -1493,25 +1498,70 @@ def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, d
                     t += Li[k, i] * Li[k, j]
                 Ci[e, i, j] = t / (dd[i] * dd[j])
         for c in range(c0, c1):
-            g = cl_sn[c, 0]
             for i in range(K):
                 for q in range(3):
-                    Z[i, q] = E[c - c0, i, 0] * Ci[e, 0, q] + E[c - c0, i, 1] * Ci[e, 1, q] + E[c - c0, i, 2] * Ci[e, 2, q]
+                    Z[c - c0, i, q] = Et[c - o, 0, i] * Ci[e, 0, q] + Et[c - o, 1, i] * Ci[e, 1, q] \
+                        + Et[c - o, 2, i] * Ci[e, 2, q]
+        for c in range(c0, c1):
+            g = cl_sn[c, 0]
+            u, ut = c - c0, c - o            # (Z's row, Et's row)
             for c2 in range(c, c1):
                 h = cl_sn[c2, 0]
-                b1 = bstart[_find_block(bptr, bcol, g, h)]
-                b2 = bstart[_find_block(bptr, bcol, h, g)]
+                w, wt = c2 - c0, c2 - o
+                if g == h:
+                    # a diagonal block: its upper triangle (two clusters of one point in one
+                    # image, duplicate keypoints, add the pair's product and its transpose)
+                    b1 = bstart[sn_diag[g]]
+                    for i in range(K):
+                        z0, z1, z2 = Z[u, i, 0], Z[u, i, 1], Z[u, i, 2]
+                        for j in range(i, K):
+                            y = z0 * Et[wt, 0, j] + z1 * Et[wt, 1, j] + z2 * Et[wt, 2, j]
+                            if c2 != c:
+                                y += Z[w, j, 0] * Et[ut, 0, i] + Z[w, j, 1] * Et[ut, 1, i] + Z[w, j, 2] * Et[ut, 2, i]
+                            S[b1 + i * K + j] -= y
+                    continue
+                lo, hi = (u, wt) if g < h else (w, ut)
+                b1 = bstart[_find_block(bptr, bcol, min(g, h), max(g, h))]
+                e0, e1, e2 = Et[hi, 0], Et[hi, 1], Et[hi, 2]
                 for i in range(K):
+                    z0, z1, z2 = Z[lo, i, 0], Z[lo, i, 1], Z[lo, i, 2]
+                    row = S[b1 + i * K: b1 + i * K + K]      # (a view: the inner loop vectorises)
                     for j in range(K):
-                        y = Z[i, 0] * E[c2 - c0, j, 0] + Z[i, 1] * E[c2 - c0, j, 1] + Z[i, 2] * E[c2 - c0, j, 2]
-                        S[b1 + i * K + j] -= y
-                        if c2 != c:
-                            S[b2 + j * K + i] -= y
+                        row[j] -= z0 * e0[j] + z1 * e1[j] + z2 * e2[j]
+    _mirror_blocks(bptr, bcol, bstart, K, S)
 
 
-def _step_solve_kernel(ent_ptr, cl_sn, sn_ptr, data, src_a, src_b, Pd, Ci, bp, rhs_c):
+def _mirror_blocks(bptr, bcol, bstart, K, S):
+    """S's lower half from its upper half: block (h, g) = block (g, h)ᵀ for g < h, and the lower
+    triangle of each diagonal block from its upper triangle."""
+    for g in range(bptr.size - 1):
+        for p in range(bptr[g], bptr[g + 1]):
+            h = bcol[p]
+            if h < g:
+                continue
+            b1 = bstart[p]
+            if h == g:
+                for i in range(K):
+                    for j in range(i + 1, K):
+                        S[b1 + j * K + i] = S[b1 + i * K + j]
+                continue
+            b2 = bstart[_find_block(bptr, bcol, h, g)]
+            for i in range(K):
+                for j in range(K):
+                    S[b2 + j * K + i] = S[b1 + i * K + j]
+
+
+def _stored_E(Et, c, E):
+    """E (K × 3) = Et[c]ᵀ, the E_c the factor kept (the same numbers :func:`_cluster_E` makes)."""
+    for i in range(E.shape[0]):
+        for q in range(3):
+            E[i, q] = Et[c, q, i]
+
+
+def _step_solve_kernel(ent_ptr, cl_sn, sn_ptr, data, src_a, src_b, Pd, Et, Ci, bp, rhs_c):
     """rhs_c −= Σ_c E_c C_j⁻¹ b_p,j (the reduced right-hand side); returns t = C⁻¹ b_p. (Every
-    cluster sees the K unknowns of one supernode: S indices sn_ptr[cl_sn[c, 0]] + 0 .. K − 1.)"""
+    cluster sees the K unknowns of one supernode: S indices sn_ptr[cl_sn[c, 0]] + 0 .. K − 1.)
+    E_c is read from ``Et`` where the factor kept it (Et not empty), else made again."""
     M, K = src_a.shape[1], src_a.shape[2]
     a, b, E = np.zeros((M, K)), np.zeros((M, 3)), np.zeros((K, 3))
     t = np.zeros((ent_ptr.size - 1, 3))
@@ -1519,14 +1569,17 @@ def _step_solve_kernel(ent_ptr, cl_sn, sn_ptr, data, src_a, src_b, Pd, Ci, bp, r
         for q in range(3):
             t[e, q] = Ci[e, q, 0] * bp[e, 0] + Ci[e, q, 1] * bp[e, 1] + Ci[e, q, 2] * bp[e, 2]
         for c in range(ent_ptr[e], ent_ptr[e + 1]):
-            _cluster_E(data, src_a, src_b, Pd, c, a, b, E)
+            if Et.shape[0]:
+                _stored_E(Et, c, E)
+            else:
+                _cluster_E(data, src_a, src_b, Pd, c, a, b, E)
             k0 = sn_ptr[cl_sn[c, 0]]
             for i in range(K):
                 rhs_c[k0 + i] -= E[i, 0] * t[e, 0] + E[i, 1] * t[e, 1] + E[i, 2] * t[e, 2]
     return t
 
 
-def _step_back_kernel(ent_ptr, cl_sn, sn_ptr, data, src_a, src_b, Pd, Ci, bp, xc):
+def _step_back_kernel(ent_ptr, cl_sn, sn_ptr, data, src_a, src_b, Pd, Et, Ci, bp, xc):
     """x_p,j = C_j⁻¹ (b_p,j − Σ_c E_cᵀ x_c)."""
     M, K = src_a.shape[1], src_a.shape[2]
     a, b, E = np.zeros((M, K)), np.zeros((M, 3)), np.zeros((K, 3))
@@ -1536,7 +1589,10 @@ def _step_back_kernel(ent_ptr, cl_sn, sn_ptr, data, src_a, src_b, Pd, Ci, bp, xc
     for e in range(ne):
         s[0], s[1], s[2] = bp[e, 0], bp[e, 1], bp[e, 2]
         for c in range(ent_ptr[e], ent_ptr[e + 1]):
-            _cluster_E(data, src_a, src_b, Pd, c, a, b, E)
+            if Et.shape[0]:
+                _stored_E(Et, c, E)
+            else:
+                _cluster_E(data, src_a, src_b, Pd, c, a, b, E)
             k0 = sn_ptr[cl_sn[c, 0]]
             for i in range(K):
                 for q in range(3):
@@ -1548,7 +1604,9 @@ def _step_back_kernel(ent_ptr, cl_sn, sn_ptr, data, src_a, src_b, Pd, Ci, bp, xc
 
 if numba is not None:
     _load_cluster = numba.njit(cache=True)(_load_cluster)
+    _mirror_blocks = numba.njit(cache=True)(_mirror_blocks)
     _cluster_E = numba.njit(cache=True)(_cluster_E)
+    _stored_E = numba.njit(cache=True)(_stored_E)
 
 
 def _step_kernels():
@@ -1585,14 +1643,17 @@ class StepFactor:
             st.__dict__["_sn_diag"] = sn_diag
         ne = st.ent_size.size
         S = np.zeros(int(st.bstart[-1]))
-        E = np.zeros((int(np.diff(st.ent_ptr).max(initial=1)), K, 3))     # one entity's E_c
+        maxent = int(np.diff(st.ent_ptr).max(initial=1))
+        nc = st.cl_sn.shape[0]
+        keep = nc * K * 3 * 8 <= KEEP_E_BYTES              # every E_c, or one entity's at a time
+        Et, Z = np.zeros((nc if keep else maxent, 3, K)), np.zeros((maxent, K, 3))
         Ci = np.zeros((ne, 3, 3))
         dC = np.zeros((ne, 3))
         dU = np.zeros((nsn, K))
         bad = np.full(ne, -1, dtype=np.int64)
         _step_kernels()["step"](st.ent_ptr, st.ent_cols, st.cl_sn, st.bptr, st.bcol, st.bstart, sn_diag,
                                 Ar.data, st.src_a, st.src_b, Pd, float(damping),
-                                min(pivot_tol, POINT_PIVOT_TOL), S, E, Ci, dC, dU, bad)
+                                min(pivot_tol, POINT_PIVOT_TOL), S, Et, keep, Z, Ci, dC, dU, bad)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
             raise self._singular(int(st.ent_cols[e, bad[e]]))
@@ -1600,8 +1661,9 @@ class StepFactor:
         if damping:
             dsel = st.flat_r == st.flat_c
             S[dsel] += damping * diag_c[st.flat_r[dsel]]
-        self.Ci, self._data, self._Pd = Ci, Ar.data, Pd      # (E_c is made again by the solves)
-        del E
+        self.Ci, self._data, self._Pd = Ci, Ar.data, Pd
+        self._Et = Et if keep else np.zeros((0, 3, K))     # (else E_c is made again by the solves)
+        del Et, Z
         nc_ = st.cam.size
         Smat = sp.csr_matrix((S, (st.flat_r, st.flat_c)), shape=(nc_, nc_))
         try:
@@ -1658,9 +1720,11 @@ class StepFactor:
         bp = bp.reshape(ne, 3)
         k = _step_kernels()
         rhs = b[st.cam].copy()
-        k["step_solve"](st.ent_ptr, st.cl_sn, st.sn_ptr, self._data, st.src_a, st.src_b, self._Pd, self.Ci, bp, rhs)
+        k["step_solve"](st.ent_ptr, st.cl_sn, st.sn_ptr, self._data, st.src_a, st.src_b, self._Pd, self._Et,
+                        self.Ci, bp, rhs)
         xc = self.S.solve(rhs)
-        xp = k["step_back"](st.ent_ptr, st.cl_sn, st.sn_ptr, self._data, st.src_a, st.src_b, self._Pd, self.Ci, bp, xc)
+        xp = k["step_back"](st.ent_ptr, st.cl_sn, st.sn_ptr, self._data, st.src_a, st.src_b, self._Pd, self._Et,
+                            self.Ci, bp, xc)
         out = np.empty(self.m)
         out[st.cam] = xc
         out[self._pcols] = xp.ravel()[self._pflat]
