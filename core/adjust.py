@@ -95,6 +95,11 @@ ROUNDOFF_STEP = 1e-6
 GAUGE_COST = 1.0
 #: undamped end games (after the function tolerance) that may fail before the run stops
 MAX_END_GAMES = 3
+#: A gauge switch keeps the elimination layouts it leaves while all of them together take at
+#: most this many bytes (a block switches between the free gauge of its damped steps and the held
+#: one of its undamped steps: the held layout is not analysed twice); larger blocks hold one
+#: layout at a time.
+KEEP_LAYOUTS_BYTES = 64 << 20
 #: an undamped end-game step may raise vᵀPv by this much (relative) and still count as round-off
 ROUNDOFF_COST = 1e-10
 
@@ -383,6 +388,8 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     if Ar is not A:
         A = None                   # (made again at x when needed: full() below)
     st = schur_structure(problem, Ar, keep, options.solver)
+    st_keep = keep                 # the unknowns st was analysed for
+    layouts = []                   # (keep, layout) kept across gauge switches (KEEP_LAYOUTS_BYTES)
     use_schur = st is not None     # points eliminated (the decision is kept for every later Ar)
     # Levenberg-Marquardt from the start for blocks whose points are eliminated (as Ceres);
     # Gauss-Newton first otherwise, damped only once a step makes the fit much worse
@@ -418,17 +425,25 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
             A = None
 
     def structure():
-        """The elimination layout of the current Ar. One is held at a time: the previous one
-        (another gauge's, or without far points) is dropped before this one is analysed."""
-        nonlocal st
-        st = None
+        """The elimination layout of the current Ar: one kept from an earlier switch
+        (:data:`KEEP_LAYOUTS_BYTES`), else analysed. Otherwise one is held at a time: the
+        previous one (another gauge's, or without far points) is dropped before this one is
+        analysed."""
+        nonlocal st, st_keep
+        st, st_keep = None, keep
         if use_schur:
-            st = schur_structure(problem, Ar, keep, "schur")
+            st = next((s for k, s in layouts if np.array_equal(k, keep) and s.matches(Ar)), None)
+            if st is None:
+                st = schur_structure(problem, Ar, keep, "schur")
 
     def switch():
         """Ar and its layout for a new set of unknowns ``keep``: the old layout goes before the
-        new Ar is made (a gauge switch must not hold both layouts and both matrices)."""
+        new Ar is made (a gauge switch must not hold both layouts and both matrices), unless
+        the layouts are small enough to be kept."""
         nonlocal st
+        if st is not None and not any(s is st for _, s in layouts) and \
+                sum(_nbytes(s) for _, s in layouts) + _nbytes(st) <= KEEP_LAYOUTS_BYTES:
+            layouts.append((st_keep, st))
         st = None
         reduce()
         structure()
@@ -483,7 +498,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
                 keep = keep_all
                 switch()
         if st is not None and not st.matches(Ar):
-            st = schur_structure(problem, Ar, keep, "schur")
+            structure()
         try:
             factor, diagN = _factor(st, Ar, P, labels[keep], options.backend, lam, problem, plan)
         except DatumDefectError:
@@ -628,6 +643,12 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     if "Ar" not in adj.__dict__ and np.array_equal(adj.keep, keep):
         adj.seed(Ar=Ar)            # (its pattern is the structure's: not made a second time)
     return adj
+
+
+def _nbytes(st) -> int:
+    """Bytes of the arrays an elimination layout holds (its cached ones too)."""
+    vals = [w for v in vars(st).values() for w in (v if isinstance(v, tuple) else (v,))]
+    return sum(v.nbytes for v in vals if isinstance(v, np.ndarray))
 
 
 def check_termination(step: float, previous: float | None, tol: float) -> int:

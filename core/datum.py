@@ -44,6 +44,7 @@ import scipy.linalg as la
 import scipy.sparse as sp
 
 from .errors import DatumDefectError
+from .solve.compiled import njit
 from .solve.linalg import SPDFactor
 
 TRANSFORMS = {
@@ -271,6 +272,22 @@ def normal_diagonal(A: sp.csr_matrix, P: sp.csr_matrix) -> np.ndarray:
     return np.asarray((A.multiply(P @ A)).sum(axis=0)).ravel()
 
 
+def _gram(a_ptr, a_idx, a_val, w_ptr, w_idx, w_val, out):
+    """out += AᵀW for two CSR matrices of the same rows, into a dense ``out`` (the nuisance
+    block AₜᵀPAₜ of :func:`null_space` with W = PAₜ: compiled where numba is installed and the
+    block is small, :data:`DENSE_NTT`; scipy's sparse product otherwise, the same sums)."""
+    for r in range(a_ptr.size - 1):
+        for p in range(a_ptr[r], a_ptr[r + 1]):
+            i, v = a_idx[p], a_val[p]
+            for q in range(w_ptr[r], w_ptr[r + 1]):
+                out[i, w_idx[q]] += v * w_val[q]
+
+
+_jit = njit(cache=True)
+_GRAM = _jit(_gram) if _jit is not None else None
+#: nuisance unknowns up to which :func:`null_space` sums AₜᵀPAₜ into a dense matrix (8 · n² bytes)
+DENSE_NTT = 2000
+
 #: rows per block of :func:`null_space`'s sums (a block's temporaries are ~ 300 B per row)
 BLOCK_ROWS = 1 << 18
 
@@ -326,11 +343,17 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
     if t.size:
         # N_tt = A_tᵀPA_t and A_tᵀP(A_k G_k) (G_t = 0), summed over row blocks: no copy of A_t
         # or of R = A G over all observations is held
-        Ntt, AtPR = None, np.zeros((t.size, G.shape[1]))
+        dense = _GRAM is not None and t.size <= DENSE_NTT
+        Ntt, AtPR = np.zeros((t.size, t.size)) if dense else None, np.zeros((t.size, G.shape[1]))
         for s, e in blocks:
             Ab, Pb = A[s:e], P[s:e, s:e]
             At = Ab[:, t]
-            Ntt = At.T @ Pb @ At if Ntt is None else Ntt + At.T @ Pb @ At
+            if dense:
+                W = sp.csr_matrix(Pb @ At)
+                _GRAM(At.indptr, At.indices, At.data, W.indptr, W.indices, W.data, Ntt)
+                del W
+            else:
+                Ntt = At.T @ Pb @ At if Ntt is None else Ntt + At.T @ Pb @ At
             AtPR += At.T @ (Pb @ (Ab @ G))
             del Ab, At
         Ntt = sp.csr_matrix(Ntt)

@@ -228,3 +228,34 @@ def test_two_view_bundler_block_with_zero_cameras_converges(tmp_path):
     again = adjust(problem, Options(method="gauss-newton", max_iter=1), x0=adj.x)
     assert again.history[0] < 1e-4
     assert main(["analyze", str(path), "--quiet"]) == 0
+
+
+def test_gauge_switches_reuse_small_layouts(monkeypatch):
+    """A free block switches between the free gauge of its damped steps and the held gauge of
+    its undamped ones: the held gauge's elimination layout is kept, not analysed again
+    (KEEP_LAYOUTS_BYTES), and the adjustment is the same, bit for bit, as with one layout at a
+    time."""
+    from baarda.model.bundle import build_block_problem
+    from baarda.simulate import simulate_block
+
+    block, _ = simulate_block(strips=2, images_per_strip=5, seed=4, datum="free")
+    problem = build_block_problem(block)
+    calls = []
+    real = adjust_mod.schur_structure
+
+    def counted(*a, **k):
+        calls.append(a[2].size)
+        return real(*a, **k)
+
+    monkeypatch.setattr(adjust_mod, "schur_structure", counted)
+    x0 = problem.params.x0.copy()
+    x0[problem.params.kind == "k"] += 0.5                 # far enough from the solution to damp
+    kept = adjust(problem, Options(solver="schur"), x0=x0)
+    n_kept = len(calls)
+    calls.clear()
+    monkeypatch.setattr(adjust_mod, "KEEP_LAYOUTS_BYTES", 0)
+    one = adjust(problem, Options(solver="schur"), x0=x0)
+    assert kept.damped and len(set(calls)) == 2                 # both gauges were used
+    assert n_kept < len(calls)
+    assert kept.iterations == one.iterations and np.array_equal(kept.x, one.x)
+    assert kept.schur_structure is not None and kept.schur_structure.matches(kept.Ar)

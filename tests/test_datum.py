@@ -97,3 +97,31 @@ def test_keep_columns_equals_scipy_column_indexing(n, u, data):
     ref.sort_indices()
     np.testing.assert_array_equal(B.indptr, ref.indptr)
     np.testing.assert_array_equal(B.indices, ref.indices)
+
+
+def test_nuisance_block_dense_and_sparse_give_the_same_null_space(monkeypatch):
+    """null_space's AₜᵀPAₜ summed densely by the compiled kernel (small blocks) and by scipy's
+    sparse product (large blocks, or no numba): the same null space and S-base, to round-off;
+    and the dense sum against AₜᵀPAₜ itself, with a correlated (non-diagonal) P."""
+    block, _ = simulate_block(strips=2, images_per_strip=4, seed=2, datum="free", rho=0.3)
+    pr = build_block_problem(block)
+    f, J = pr.evaluate(pr.params.x0)
+    A = J[:, pr.params.free].tocsr()
+    P = sp.csr_matrix(weight_matrix(pr.cov))
+    assert P.nnz > P.shape[0]                                   # correlated: P not diagonal
+    free = pr.params.free
+    if datum._GRAM is not None:
+        t = np.flatnonzero(pr.params.kind[free] == "t")
+        At = A[:, t]
+        out = np.zeros((t.size, t.size))
+        W = sp.csr_matrix(P @ At)
+        datum._GRAM(At.indptr, At.indices, At.data, W.indptr, W.indices, W.data, out)
+        ref = (At.T @ P @ At).toarray()
+        assert np.abs(out - ref).max() <= 1e-12 * np.abs(ref).max()
+    dense = datum.plan(pr, pr.params.x0, A, P, free)
+    monkeypatch.setattr(datum, "DENSE_NTT", -1)
+    sparse = datum.plan(pr, pr.params.x0, A, P, free)
+    assert dense.names == sparse.names and len(dense.names) == 7
+    assert np.array_equal(dense.eliminate, sparse.eliminate)
+    sign = np.sign(np.sum(dense.G * sparse.G, axis=0))          # (each null vector up to its sign)
+    assert np.abs(dense.G * sign - sparse.G).max() <= 1e-10 * np.abs(sparse.G).max()
