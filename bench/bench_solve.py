@@ -7,7 +7,7 @@ the block written as a COLMAP RADIAL model with flipped axes, :func:`bench.bench
 the ratio of the two times, both final costs ½Σr² (Ceres' evaluated in BAL's model over the image
 points COLMAP kept: it drops those whose point is behind the camera), both iteration counts
 (Ceres: successful + unsuccessful steps) and the end-to-end ``baarda analyze FILE --json`` time
-(a subprocess).
+and peak resident set (a subprocess: read, adjust, reliability, JSON).
 
 Usage (from the repository root): ``python -m bench.bench_solve [--problems DIR/FILE ...] [--no-analyze]
 [--repeat N]``.
@@ -86,6 +86,17 @@ def ceres(block, threads: int = 1):
     return t, cost, its, problem.n // 2, str(summary["termination_type"]).split(".")[-1]
 
 
+def analyze_run(path: Path, out: Path) -> tuple[float, float]:
+    """``baarda analyze FILE --json OUT`` end to end in a subprocess: (seconds, its peak
+    resident set in MB, from the kernel's accounting of that child alone)."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "baarda.cli", "analyze", str(path), "--quiet",
+                             "--json", str(out)])
+    _, _, usage = os.wait4(proc.pid, 0)
+    proc.returncode = 0                   # (reaped here: Popen must not wait for it again)
+    return time.perf_counter() - t0, usage.ru_maxrss / 1024.0
+
+
 def warm_up():
     """Compile or load the numba kernels on a small block (not timed)."""
     small = EXTDATA / "problem-49-7776-pre.txt"
@@ -104,7 +115,7 @@ def main():
           f"load average {os.getloadavg()[0]:.2f}, cores {os.cpu_count()}", flush=True)
     warm_up()
     head = (f"{'problem':<28} {'baarda s':>8} {'its':>4} {'½Σr² baarda':>16} {'Ceres s':>8} {'its':>4} "
-            f"{'½Σr² Ceres':>16} {'ratio':>6} {'rel.Δcost':>9} {'analyze s':>9}  status")
+            f"{'½Σr² Ceres':>16} {'ratio':>6} {'rel.Δcost':>9} {'analyze s':>9} {'peak MB':>7}  status")
     print(head)
     print("-" * len(head), flush=True)
     with tempfile.TemporaryDirectory() as tmpdir:
@@ -128,13 +139,10 @@ def main():
                                                  else "")
                 except ImportError:
                     pass
-            t_a = None
+            t_a = rss = None
             if not args.no_analyze:
                 with tempfile.TemporaryDirectory() as out:
-                    t0 = time.perf_counter()
-                    subprocess.run([sys.executable, "-m", "baarda.cli", "analyze", str(path), "--quiet",
-                                    "--json", str(Path(out) / "r.json")], check=False)
-                    t_a = time.perf_counter() - t0
+                    t_a, rss = analyze_run(path, Path(out) / "r.json")
 
             def fmt(v, spec):
                 return format(v, spec) if v is not None else "-"
@@ -142,7 +150,7 @@ def main():
             rel = abs(cost_b - cost_c) / cost_c if cost_c else None
             print(f"{path.name:<28} {t_b:>8.2f} {adj.iterations:>4} {cost_b:>16,.6f} {fmt(t_c, '>8.2f')} "
                   f"{fmt(its_c, '>4')} {fmt(cost_c, '>16,.6f')} {fmt(ratio, '>6.2f')} {fmt(rel, '>9.1e')} "
-                  f"{fmt(t_a, '>9.2f')}  {adj.termination}{note}", flush=True)
+                  f"{fmt(t_a, '>9.2f')} {fmt(rss, '>7.0f')}  {adj.termination}{note}", flush=True)
             del adj, problem, block
 
 

@@ -382,6 +382,7 @@ def _analyze(args) -> int:
     doc["summary"]["timings"] = {k: round(v, 6) for k, v in adj.timings.items()}
     if args.json:
         results.write_json(adj, args.json, doc)
+    written = set(doc)             # (written again below only when the steps below add to it)
     if args.csv:
         results.write_csv(adj, args.csv, doc)
     if args.geojson:
@@ -476,7 +477,7 @@ def _analyze(args) -> int:
         except BaardaError as err:
             doc["variance_components"] = {"error": str(err)}
             prec_lines.append(f"  {err}")
-    if args.json:
+    if args.json and (set(doc) != written or args.sbase or args.criterion):
         results.write_json(adj, args.json, doc)
     if not args.quiet:
         print(results.text_summary(adj, top=args.top))

@@ -153,3 +153,26 @@ def test_computed_lists_the_cached_properties_already_computed():
     twin = dataclasses.replace(fresh).seed(**got)
     assert twin.factor is fresh.factor
     np.testing.assert_array_equal(twin.r, fresh.r)
+
+
+def test_json_document_streams_one_record_per_line(tmp_path):
+    """dump_json: the document read back is the document; each record of a list of records on a
+    line of its own (grep-able, and written by the compiled encoder); NaN refused (strict JSON);
+    strings from files stay text (escaped, no raw control characters)."""
+    import json
+
+    from baarda.io.results import dump_json
+
+    doc = {"schema": "baarda-analysis/1.0",
+           "summary": {"title": "t\u001b[31mred\n", "nested": {"a": [1, 2.5, None]}},
+           "observations": [{"index": i, "id": f"p{i}\"", "w": i / 3} for i in range(5)],
+           "points": [], "inseparable": [[1, 2]]}
+    path = tmp_path / "r.json"
+    dump_json(doc, path)
+    text = path.read_text()
+    assert json.loads(text) == doc
+    lines = text.splitlines()
+    assert sum(1 for s in lines if s.startswith('  {"index": ')) == 5
+    assert "\u001b" not in text and all(c.isprintable() for s in lines for c in s)
+    with pytest.raises(ValueError):
+        dump_json({"observations": [{"w": float("nan")}]}, tmp_path / "nan.json")

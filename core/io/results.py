@@ -175,8 +175,28 @@ def finite(x):
 
 
 def write_json(adj, path, doc=None) -> None:
-    doc = doc if doc is not None else to_dict(adj)
-    Path(path).write_text(json.dumps(doc, indent=1, allow_nan=False))
+    """The result document as JSON (:func:`dump_json`)."""
+    dump_json(doc if doc is not None else to_dict(adj), path)
+
+
+def dump_json(doc: dict, path) -> None:
+    """``doc`` as strict JSON (no NaN), streamed to ``path``: the lists of records (observations,
+    points, groups, ...) one record per line, everything else indented. (json's indenting
+    encoder is pure Python, ~6 µs per value: 40 s for BAL Dubrovnik's 167,000 observations; the
+    compact one per record is compiled.)"""
+    compact = json.JSONEncoder(allow_nan=False, ensure_ascii=True, separators=(", ", ": "))
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write("{")
+        for k, (key, val) in enumerate(doc.items()):
+            fh.write(("," if k else "") + "\n " + json.dumps(str(key)) + ": ")
+            if isinstance(val, list) and val and all(isinstance(v, dict) for v in val):
+                fh.write("[")
+                for i, rec in enumerate(val):
+                    fh.write(("," if i else "") + "\n  " + compact.encode(rec))
+                fh.write("\n ]")
+            else:
+                fh.write(json.dumps(val, indent=1, allow_nan=False).replace("\n", "\n "))
+        fh.write("\n}\n")
 
 
 def write_csv(adj, directory, doc=None) -> list[Path]:
