@@ -1,4 +1,5 @@
-"""Solve speed on real BAL problems: baarda's adjustment beside pycolmap's Ceres, same run.
+"""Solve speed on real BAL problems and a real COLMAP model: baarda's adjustment beside pycolmap's
+Ceres, same run.
 
 For each problem: baarda's solve (``adjust``: datum analysis, structure, iterations; read and
 build excluded; numba kernels warmed up on a small problem first), then pycolmap's Ceres bundle
@@ -11,7 +12,9 @@ and peak resident set (a subprocess: read, adjust, reliability, JSON).
 
 Usage (from the repository root): ``python -m bench.bench_solve [--problems DIR/FILE ...] [--no-analyze]
 [--repeat N]``.
-Compressed BAL files are decompressed to a temporary file when the reader does not take them.
+Compressed BAL files are decompressed to a temporary file when the reader does not take them. A
+COLMAP model (a folder) is adjusted as it is, intrinsics fixed on both sides, and Ceres's cost
+evaluated in COLMAP's camera model.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ os.environ.setdefault("GLOG_minloglevel", "2")     # quiet pycolmap/Ceres
 
 
 from baarda.adjust import Options, adjust  # noqa: E402
+from baarda.build import read_problem  # noqa: E402
 from baarda.model.sfm import build_sfm_problem, initial_cost  # noqa: E402
 from baarda.errors import InputError  # noqa: E402
 from baarda.io.bal import read_bal  # noqa: E402
@@ -36,7 +40,7 @@ from bench.bench_blocks import bal_as_colmap  # noqa: E402
 
 EXTDATA = Path(__file__).resolve().parents[2] / "shared" / "extdata" / "bal"
 PROBLEMS = [EXTDATA / "problem-21-11315-pre.txt.bz2", EXTDATA / "problem-16-22106-pre.txt.bz2",
-            EXTDATA / "problem-49-7776-pre.txt"]
+            EXTDATA / "problem-49-7776-pre.txt", EXTDATA.parent / "colmap" / "test_colmap-sparse0"]
 
 
 def readable(path: Path, tmp: Path) -> Path:
@@ -59,7 +63,6 @@ def ceres(block, threads: int = 1):
     import pycolmap
 
     pycolmap.logging.minloglevel = 2
-    from baarda.build import read_problem
 
     with tempfile.TemporaryDirectory() as tmp:
         bal_as_colmap(block, Path(tmp) / "in")
@@ -84,6 +87,36 @@ def ceres(block, threads: int = 1):
         cost = initial_cost(problem)
     its = int(summary["num_successful_steps"]) + int(summary["num_unsuccessful_steps"])
     return t, cost, its, problem.n // 2, str(summary["termination_type"]).split(".")[-1]
+
+
+def ceres_colmap(model: Path, threads: int = 1):
+    """pycolmap's Ceres bundle adjustment of a COLMAP model as it is, intrinsics fixed (as baarda
+    adjusts a COLMAP model): (seconds, ½Σr² in COLMAP's camera model, iterations, image points,
+    termination)."""
+    import pycolmap
+
+    pycolmap.logging.minloglevel = 2
+    rec = pycolmap.Reconstruction(str(model))
+    ba = pycolmap.BundleAdjustmentOptions()
+    ba.refine_focal_length = ba.refine_extra_params = ba.refine_principal_point = False
+    ba.print_summary = False
+    ba.ceres.solver_options.num_threads = threads
+    config = pycolmap.BundleAdjustmentConfig()
+    for i in rec.reg_image_ids():
+        config.add_image(i)
+    t0 = time.perf_counter()
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(ba, config, rec)
+    summary = adjuster.solve().todict()["ceres_summary"]
+    t = time.perf_counter() - t0
+    cost, n = 0.0, 0
+    for im in rec.images.values():
+        cam, pose = rec.cameras[im.camera_id], im.cam_from_world()
+        for p2 in im.points2D:
+            if p2.has_point3D():
+                r = cam.img_from_cam(pose * rec.points3D[p2.point3D_id].xyz) - p2.xy
+                cost, n = cost + 0.5 * float(r @ r), n + 1
+    its = int(summary["num_successful_steps"]) + int(summary["num_unsuccessful_steps"])
+    return t, cost, its, n, str(summary["termination_type"]).split(".")[-1]
 
 
 def analyze_run(path: Path, out: Path) -> tuple[float, float]:
@@ -123,9 +156,12 @@ def main():
             if not path.exists():
                 print(f"{path.name:<28} skipped: not found", flush=True)
                 continue
-            local = readable(path, Path(tmpdir))
-            block = read_bal(local)
-            problem = build_sfm_problem(block)
+            colmap = path.is_dir()
+            if colmap:
+                problem = read_problem(path, "colmap")
+            else:
+                block = read_bal(readable(path, Path(tmpdir)))
+                problem = build_sfm_problem(block)
             t0 = time.perf_counter()
             adj = adjust(problem, Options())
             t_b = time.perf_counter() - t0
@@ -134,7 +170,8 @@ def main():
             note = ""
             if not args.no_ceres:
                 try:
-                    t_c, cost_c, its_c, kept, term = ceres(block, args.threads)
+                    t_c, cost_c, its_c, kept, term = (ceres_colmap(path, args.threads) if colmap
+                                                      else ceres(block, args.threads))
                     note = f"; Ceres {term}" + (f" over {kept} of {problem.n // 2} image points" if kept != problem.n // 2
                                                  else "")
                 except ImportError:
@@ -151,7 +188,8 @@ def main():
             print(f"{path.name:<28} {t_b:>8.2f} {adj.iterations:>4} {cost_b:>16,.6f} {fmt(t_c, '>8.2f')} "
                   f"{fmt(its_c, '>4')} {fmt(cost_c, '>16,.6f')} {fmt(ratio, '>6.2f')} {fmt(rel, '>9.1e')} "
                   f"{fmt(t_a, '>9.2f')} {fmt(rss, '>7.0f')}  {adj.termination}{note}", flush=True)
-            del adj, problem, block
+            del adj, problem
+            block = None
 
 
 if __name__ == "__main__":
