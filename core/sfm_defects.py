@@ -68,7 +68,7 @@ import numpy as np
 from .defects import LocalDefect, adjust_setting_aside
 from .errors import InputError
 from .model.bundle import AP_GROUPS, ImageObservations, build_block_problem
-from .model.sfm import CAMERA_MODELS, SfmBlock, build_sfm_problem
+from .model.sfm import CAMERA_MODELS, SfmBlock, build_sfm_problem, held_coefficients
 
 DEPTH_FACTOR = 1e6   # K: a depth σ beyond K × the block extent is "not determined"
 MIN_POINTS = 3       # points an image needs to fix its 6 pose unknowns
@@ -104,7 +104,7 @@ class _View:
                 names, feeds = CAMERA_MODELS[c.model]
                 val = dict(zip(names, c.params))
                 f.append(abs(val[feeds[0]]) if feeds[0] is not None else 0.0)
-                self.camera_free.append(tuple(nm for nm in names if nm not in ("cx", "cy"))
+                self.camera_free.append(tuple(nm for nm in names if nm not in held_coefficients(c.model))
                                         if b.refine_intrinsics else ())
             self.focal = np.array(f, dtype=float)
             self.obs_sigma = np.full(self.obs_image.size, float(b.sigma_px))
@@ -548,7 +548,7 @@ def _hold_intrinsics(model, problem, cameras):
     found = []
     for cid, cam in zip(_View(model).camera_ids, model.cameras):
         if cid in cameras:
-            names = tuple(n for n in CAMERA_MODELS[cam.model][0] if n not in ("cx", "cy"))
+            names = tuple(n for n in CAMERA_MODELS[cam.model][0] if n not in held_coefficients(cam.model))
             found.append(LocalDefect("camera", str(cid), names,
                                      "the observations do not determine its intrinsics "
                                      "(singular normal equations with them estimated)",

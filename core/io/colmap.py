@@ -20,10 +20,13 @@ be compressed (``images.txt.gz``, :mod:`baarda.io.source`).
 Conventions: the pose (q, t) maps world to camera, q = (w, x, y, z) scalar first
 (:func:`baarda.observations.rotation.R_from_quaternion`); the camera looks down +z; pixel coordinates have
 their origin at the upper-left corner of the image (the centre of the first pixel is at
-0.5, 0.5), y down. Projection: :mod:`baarda.model.sfm` with s = +1; supported camera models:
-SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV. Intrinsics are held fixed unless
-``refine_intrinsics``; then, like COLMAP's bundle adjuster, the focal lengths and distortion
-parameters are estimated and the principal point stays fixed. Ids in the output are COLMAP's
+0.5, 0.5), y down. Projection: :mod:`baarda.model.sfm` with s = +1; camera models:
+SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, and — their distortion always held at the
+file's values (:mod:`baarda.observations.fixed_models`) — FULL_OPENCV, OPENCV_FISHEYE,
+RADIAL_FISHEYE, SIMPLE_RADIAL_FISHEYE, FOV, THIN_PRISM_FISHEYE (RAD_TAN_THIN_PRISM_FISHEYE is
+refused, naming the camera). Intrinsics are held fixed unless ``refine_intrinsics``; then, like
+COLMAP's bundle adjuster, the focal lengths and the distortion parameters of the first five
+models are estimated and the principal point stays fixed. Ids in the output are COLMAP's
 IMAGE_ID, POINT3D_ID and CAMERA_ID; the image names are kept in ``Problem.extra["image_names"]``.
 """
 

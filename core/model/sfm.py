@@ -45,6 +45,7 @@ import numpy as np
 from ..datum import Datum
 from ..errors import ConversionError
 from ..observations.geodetic import LinearSet
+from ..observations.fixed_models import FIXED_MODELS
 from ..observations.projection import INTRINSICS, ProjectionSet
 from ..observations.rotation import R_from_rodrigues, opk_from_R
 from .bundle import Block, Camera, Image, ImageObservations, ObjectPoint
@@ -62,6 +63,17 @@ CAMERA_MODELS = {
     "OPENCV": (("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"), INTRINSICS),
     "BAL": (("f", "k1", "k2"), ("f", "f", None, None, "k1", "k2", None, None)),
 }
+# COLMAP's other models: their distortion is held at the file's values (fixed_models)
+for _model, (_code, _names) in FIXED_MODELS.items():
+    _one = _model in ("SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
+    CAMERA_MODELS[_model] = ((("f",) if _one else ("fx", "fy")) + ("cx", "cy") + _names,
+                             (("f", "f") if _one else ("fx", "fy")) + ("cx", "cy", None, None, None, None))
+
+
+def held_coefficients(model: str) -> tuple[str, ...]:
+    """The parameters of a camera model that are never estimated: the distortion coefficients of
+    the models of :mod:`baarda.observations.fixed_models`, besides c_x, c_y of every model."""
+    return ("cx", "cy") + (FIXED_MODELS[model][1] if model in FIXED_MODELS else ())
 SIGN = {"bal": -1.0, "bundler": -1.0, "colmap": 1.0}
 
 
@@ -164,12 +176,19 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
                      for im in block.images], dtype=np.int64).reshape(-1, 6)
     cam_index = {}
     intrinsics = np.full((len(block.cameras), 8), -1, dtype=np.int64)
+    dtab = np.full((len(block.cameras), 9), -1, dtype=np.int64)     # held-distortion models
+    dtab[:, 0] = 0
     for c, cam in enumerate(block.cameras):
         names, feeds = CAMERA_MODELS[cam.model]
+        held = held_coefficients(cam.model)
         where = {nm: pl.add(f"camera {cam.id}.{nm}", val, "t",
-                            fixed=not block.refine_intrinsics or nm in ("cx", "cy"))
+                            fixed=not block.refine_intrinsics or nm in held)
                  for nm, val in zip(names, cam.params)}
         intrinsics[c] = [where[nm] if nm is not None else -1 for nm in feeds]
+        if cam.model in FIXED_MODELS:
+            code, coef = FIXED_MODELS[cam.model]
+            dtab[c, 0] = code
+            dtab[c, 1:1 + len(coef)] = [where[nm] for nm in coef]
         cam_index[cam.id] = c
     h = len(pl)
     npt = len(block.points)
@@ -185,8 +204,9 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     # int32 indices where they fit (kept with the problem: 5 × 4 bytes per image point saved)
     it = np.int32 if max(params.size, 2 * m) < 2 ** 31 - 1 else np.int64
     pose_i, cam_i = pose.astype(it), intrinsics.astype(it)
+    fixed = {} if not (dtab[:, 0] > 0).any() else {"dcam": img_cam[ii].astype(it), "dtab": dtab}
     sets = [ProjectionSet(rows=np.arange(2 * m, dtype=it), ipt=index.astype(it)[pp], irot=pose_i[ii, :3],
-                          itr=pose_i[ii, 3:], iint=cam_i[img_cam[ii]], sign=SIGN[block.convention])]
+                          itr=pose_i[ii, 3:], iint=cam_i[img_cam[ii]], sign=SIGN[block.convention], **fixed)]
     s2 = block.sigma_px ** 2
     # covariance: the image points stacked (one 2 × 2 matrix broadcast), then the control points
     groups = [(2, np.arange(m, dtype=np.int64), np.arange(2 * m, dtype=np.int64).reshape(m, 2),
@@ -300,6 +320,8 @@ def to_block(block: SfmBlock):
     img_cam = {im.id: im.camera for im in block.images}
     cams = []
     for cam in block.cameras:
+        if cam.model in FIXED_MODELS:
+            raise ConversionError(f"camera {cam.id}", f"the {cam.model} model has no native equivalent")
         names, feeds = CAMERA_MODELS[cam.model]
         val = dict(zip(names, cam.params))
         fx, fy, cx, cy, k1, k2, p1, p2 = (val[nm] if nm is not None else 0.0 for nm in feeds)

@@ -41,6 +41,7 @@ import numpy as np
 
 from ..solve.compiled import njit
 from .distortion import brown
+from .fixed_models import fixed_distortion, fixed_distortion_scalar
 from .rotation import R_from_rodrigues, skew
 
 #: The eight intrinsics of the projective camera, in the order of :attr:`ProjectionSet.iint`.
@@ -66,7 +67,10 @@ class ProjectionSet:
     rows: global rows (x of point k at 2k, y at 2k + 1). ipt (m × 3): parameter indices of the
     point; irot, itr (m × 3): of the image's ρ and t; iint (m × 8): of the camera's
     intrinsics in the order of :data:`INTRINSICS`, −1 where the intrinsic is zero.
-    sign: s of the module docstring.
+    sign: s of the module docstring. Cameras of the models of :mod:`baarda.observations.fixed_models`
+    (distortion held): ``dtab`` (cameras × 9) their model code (0: the OPENCV family above) and
+    the parameter indices of their 8 coefficients (−1: none), ``dcam`` (m,) each point's row of
+    dtab; both None when every camera is of the OPENCV family.
     """
 
     rows: np.ndarray
@@ -75,6 +79,14 @@ class ProjectionSet:
     itr: np.ndarray
     iint: np.ndarray
     sign: float
+    dcam: np.ndarray | None = None
+    dtab: np.ndarray | None = None
+
+    def _fixed(self):
+        """(dcam, dtab) for the kernel: empty arrays when no camera has a held-distortion model."""
+        if self.dcam is None:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 9), dtype=np.int64)
+        return self.dcam, self.dtab
 
     @property
     def angular(self) -> np.ndarray:
@@ -95,7 +107,7 @@ class ProjectionSet:
         f = np.empty(2 * m)
         jv = np.empty(jr.size)
         kernel(np.ascontiguousarray(x, dtype=float), self.ipt, self.irot, self.itr, self.iint,
-               float(self.sign), start, start[:0, 0], f, jv)
+               float(self.sign), *self._fixed(), start, start[:0, 0], f, jv)
         return f, jr, jc, jv
 
     def values(self, x):
@@ -106,7 +118,7 @@ class ProjectionSet:
         start = self._starts()
         f = np.empty(2 * self.ipt.shape[0])
         kernel(np.ascontiguousarray(x, dtype=float), self.ipt, self.irot, self.itr, self.iint,
-               float(self.sign), start, start[:0, 0], f, np.empty(0))
+               float(self.sign), *self._fixed(), start, start[:0, 0], f, np.empty(0))
         return f
 
     def pattern(self):
@@ -125,7 +137,7 @@ class ProjectionSet:
         start = self._starts()
         f = np.empty(2 * self.ipt.shape[0])
         kernel(np.ascontiguousarray(x, dtype=float), self.ipt, self.irot, self.itr, self.iint,
-               float(self.sign), start, dest, f, out)
+               float(self.sign), *self._fixed(), start, dest, f, out)
         return f
 
     #: the Jacobian pattern is a function of the (frozen) index arrays alone: once the design
@@ -197,6 +209,13 @@ class ProjectionSet:
         # ∂(u_d, v_d)/∂(u, v): duu, duv = dvu, dvv (OpenCV's p1, p2 are Brown's p2, p1)
         dx, dy, duu, duv, dvv = brown(u, v, k1, k2, 0.0, p2, p1)
         ud, vd, dvu = u + dx, v + dy, duv
+        if self.dcam is not None:          # the held-distortion models (fixed_models)
+            ud, vd, duu, duv, dvu, dvv = (np.array(a, dtype=float, copy=True) for a in (ud, vd, duu, duv, dvu, dvv))
+            code = self.dtab[self.dcam, 0]
+            for c in np.unique(self.dcam[code > 0]):
+                on = self.dcam == c
+                d = np.array([xe[j] for j in self.dtab[c, 1:]])
+                ud[on], vd[on], duu[on], duv[on], dvu[on], dvv[on] = fixed_distortion(int(self.dtab[c, 0]), d, u[on], v[on])
         f = np.empty(2 * m)
         f[0::2] = fx * ud + cx
         f[1::2] = fy * vd + cy
@@ -246,14 +265,16 @@ def _kept_entries(jcols: np.ndarray, m: int) -> np.ndarray:
     return keep.ravel()
 
 
-def _projection_kernel(x, ipt, irot, itr, iint, s, start, dest, f, jv):
+def _projection_kernel(x, ipt, irot, itr, iint, s, dcam, dtab, start, dest, f, jv):
     """f and the Jacobian values of every image point: the formulas of
     :meth:`ProjectionSet.evaluate_numpy`, one observation at a time (compiled by numba).
     The values of row r (x, y) of point i (17: point, t, ρ, the eight intrinsics) go to
     jv[start[r, i]:] in column order (to jv[dest[k]] for entry k when dest is given; none
     when jv is empty), those of absent intrinsics and the structural zeros
-    (:data:`_STRUCTURAL_ZERO`) left out."""
+    (:data:`_STRUCTURAL_ZERO`) left out. dcam, dtab: :class:`ProjectionSet`'s (empty: none)."""
     store, direct = jv.size > 0, dest.size == 0
+    held = dcam.size > 0
+    dp = np.zeros(8)
     K, K2, R, Jr = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     SX, RS, dPr = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     P, ins, g = np.empty(3), np.empty(8), np.empty((2, 3))
@@ -290,8 +311,14 @@ def _projection_kernel(x, ipt, irot, itr, iint, s, start, dest, f, jv):
         iz = 1.0 / P[2]
         u, v = s * P[0] * iz, s * P[1] * iz
         r2 = u * u + v * v
-        dx, dy, duu, duv, dvv = _brown(u, v, k1, k2, 0.0, p2, p1)
-        ud, vd, dvu = u + dx, v + dy, duv
+        code = dtab[dcam[i], 0] if held else 0
+        if code == 0:
+            dx, dy, duu, duv, dvv = _brown(u, v, k1, k2, 0.0, p2, p1)
+            ud, vd, dvu = u + dx, v + dy, duv
+        else:
+            for j in range(8):
+                dp[j] = x[dtab[dcam[i], 1 + j]] if dtab[dcam[i], 1 + j] >= 0 else 0.0
+            ud, vd, duu, duv, dvu, dvv = _fixed_scalar(code, dp, u, v)
         f[2 * i] = fx * ud + cx
         f[2 * i + 1] = fy * vd + cy
         # ∂(x, y)/∂P = diag(fx, fy) D ∂(u, v)/∂P
@@ -338,6 +365,7 @@ def _mat3(A, B, out):
 
 _KERNEL = {}
 _brown = brown                   # compiled in place by _compiled_projection
+_fixed_scalar = fixed_distortion_scalar
 
 
 def _compiled_projection():
@@ -346,8 +374,9 @@ def _compiled_projection():
         jit = njit(cache=True)
         if jit is None:
             return None
-        global _mat3, _brown         # the kernel calls the compiled product and distortion
+        global _mat3, _brown, _fixed_scalar   # the kernel calls the compiled product and distortions
         _mat3 = njit(cache=True, inline="always")(_mat3)
         _brown = njit(cache=True, inline="always")(brown)
+        _fixed_scalar = njit(cache=True)(fixed_distortion_scalar)
         _KERNEL["p"] = jit(_projection_kernel)
     return _KERNEL["p"]

@@ -1,0 +1,187 @@
+"""COLMAP's other camera models, their distortion held at the file's values.
+
+COLMAP writes, besides the radial-tangential models of :mod:`baarda.observations.distortion`
+(``SIMPLE_PINHOLE`` … ``OPENCV``), models whose distortion baarda does not estimate: their
+coefficients stay at the file's values (as when COLMAP's bundle adjuster is told to keep the
+intrinsics), while the focal lengths may still be refined. At the normalised point (u, v) of
+:mod:`baarda.observations.projection` each gives the distorted point (u_d, v_d), then
+x = f_x u_d + c_x, y = f_y v_d + c_y (Schönberger & Frahm 2016, the camera models of COLMAP's
+``src/colmap/sensor/models.h``; r² = u² + v²):
+
+* ``FULL_OPENCV`` (code 1; k1, k2, p1, p2, k3, k4, k5, k6): the rational radial factor
+  g = (1 + k1 r² + k2 r⁴ + k3 r⁶) / (1 + k4 r² + k5 r⁴ + k6 r⁶),
+  u_d = u g + 2 p1 u v + p2 (r² + 2u²), v_d = v g + 2 p2 u v + p1 (r² + 2v²).
+* ``OPENCV_FISHEYE``, ``RADIAL_FISHEYE``, ``SIMPLE_RADIAL_FISHEYE`` (code 2; k1 … k4, the
+  latter two with fewer terms): θ = atan r, θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸),
+  (u_d, v_d) = (θ_d / r)(u, v); the point itself for r ≤ machine ε.
+* ``FOV`` (code 3; ω): (u_d, v_d) = F(r²)(u, v), F = atan(2 r tan(ω/2)) / (r ω), with
+  COLMAP's series for ω² < 10⁻⁴ and for r² < 10⁻⁴.
+* ``THIN_PRISM_FISHEYE`` (code 4; k1, k2, p1, p2, k3, k4, sx1, sy1): the fisheye angle first,
+  (ū, v̄) = (θ / r)(u, v), then ρ² = ū² + v̄², a = k1 ρ² + k2 ρ⁴ + k3 ρ⁶ + k4 ρ⁸,
+  u_d = ū (1 + a) + 2 p1 ū v̄ + p2 (ρ² + 2ū²) + sx1 ρ², v_d = v̄ (1 + a) + 2 p2 ū v̄ + p1 (ρ² + 2v̄²) + sy1 ρ².
+
+Each function returns (u_d, v_d, J00, J01, J10, J11), J = ∂(u_d, v_d)/∂(u, v), analytic.
+:func:`fixed_distortion` is the numpy reference (arrays); :func:`fixed_distortion_scalar` the
+same formulas one point at a time for the compiled projection kernel (numba), tested equal, and
+both against pycolmap's own projection (``tests/test_camera_models.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: model → (code, names of its distortion coefficients in the order the formulas read them)
+FIXED_MODELS = {
+    "FULL_OPENCV": (1, ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")),
+    "OPENCV_FISHEYE": (2, ("k1", "k2", "k3", "k4")),
+    "RADIAL_FISHEYE": (2, ("k1", "k2")),
+    "SIMPLE_RADIAL_FISHEYE": (2, ("k",)),
+    "FOV": (3, ("omega",)),
+    "THIN_PRISM_FISHEYE": (4, ("k1", "k2", "p1", "p2", "k3", "k4", "sx1", "sy1")),
+}
+EPS = float(np.finfo(float).eps)
+FOV_EPS = 1e-4
+
+
+def fixed_distortion_scalar(code, d, u, v):
+    """(u_d, v_d, J00, J01, J10, J11) of one point (module docstring); ``d`` the 8 coefficients
+    of the model (zeros after its own)."""
+    if code == 1:
+        k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
+        u2, v2, uv = u * u, v * v, u * v
+        r2 = u2 + v2
+        r4 = r2 * r2
+        r6 = r4 * r2
+        num = 1.0 + k1 * r2 + k2 * r4 + k3 * r6
+        den = 1.0 + k4 * r2 + k5 * r4 + k6 * r6
+        g = num / den
+        dg = ((k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4) * den - num * (k4 + 2.0 * k5 * r2 + 3.0 * k6 * r4)) / (den * den)
+        ud = u * g + 2.0 * p1 * uv + p2 * (r2 + 2.0 * u2)
+        vd = v * g + 2.0 * p2 * uv + p1 * (r2 + 2.0 * v2)
+        c = 2.0 * uv * dg + 2.0 * p1 * u + 2.0 * p2 * v
+        return (ud, vd, g + 2.0 * u2 * dg + 2.0 * p1 * v + 6.0 * p2 * u, c, c,
+                g + 2.0 * v2 * dg + 2.0 * p2 * u + 6.0 * p1 * v)
+    if code == 2:
+        r = math.sqrt(u * u + v * v)
+        if r <= EPS:
+            return u, v, 1.0, 0.0, 0.0, 1.0
+        th = math.atan(r)
+        t2 = th * th
+        poly = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))
+        dpoly = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
+        s = th * poly / r
+        q = (dpoly / (1.0 + r * r) - s) / (r * r)           # s'(r) / r
+        return u * s, v * s, s + q * u * u, q * u * v, q * u * v, s + q * v * v
+    if code == 3:
+        om = d[0]
+        r2 = u * u + v * v
+        om2 = om * om
+        if om2 < FOV_EPS:
+            f = om2 * r2 / 3.0 - om2 / 12.0 + 1.0
+            df = om2 / 3.0
+        elif r2 < FOV_EPS:
+            t = math.tan(om / 2.0)
+            f = -2.0 * t * (4.0 * r2 * t * t - 3.0) / (3.0 * om)
+            df = -8.0 * t * t * t / (3.0 * om)
+        else:
+            r = math.sqrt(r2)
+            t = math.tan(om / 2.0)
+            a = math.atan(2.0 * t * r)
+            f = a / (r * om)
+            df = (2.0 * t * r / (1.0 + 4.0 * t * t * r2) - a) / (2.0 * r2 * r * om)
+        return u * f, v * f, f + 2.0 * u * u * df, 2.0 * u * v * df, 2.0 * u * v * df, f + 2.0 * v * v * df
+    # code 4: THIN_PRISM_FISHEYE
+    r = math.sqrt(u * u + v * v)
+    if r > EPS:
+        th = math.atan(r)
+        a = th / r
+        qa = (1.0 / (1.0 + r * r) - a) / (r * r)             # a'(r) / r
+        f00, f01, f11 = a + qa * u * u, qa * u * v, a + qa * v * v
+        uu, vv = a * u, a * v
+    else:
+        f00, f01, f11 = 1.0, 0.0, 1.0
+        uu, vv = u, v
+    k1, k2, p1, p2, k3, k4, sx, sy = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
+    w2, z2, wz = uu * uu, vv * vv, uu * vv
+    R2 = w2 + z2
+    rad = R2 * (k1 + R2 * (k2 + R2 * (k3 + R2 * k4)))
+    drad = k1 + R2 * (2.0 * k2 + R2 * (3.0 * k3 + R2 * 4.0 * k4))
+    ud = uu * (1.0 + rad) + 2.0 * p1 * wz + p2 * (R2 + 2.0 * w2) + sx * R2
+    vd = vv * (1.0 + rad) + 2.0 * p2 * wz + p1 * (R2 + 2.0 * z2) + sy * R2
+    d00 = 1.0 + rad + 2.0 * w2 * drad + 2.0 * p1 * vv + 6.0 * p2 * uu + 2.0 * sx * uu
+    d01 = 2.0 * wz * drad + 2.0 * p1 * uu + 2.0 * p2 * vv + 2.0 * sx * vv
+    d10 = 2.0 * wz * drad + 2.0 * p2 * vv + 2.0 * p1 * uu + 2.0 * sy * uu
+    d11 = 1.0 + rad + 2.0 * z2 * drad + 2.0 * p2 * uu + 6.0 * p1 * vv + 2.0 * sy * vv
+    return (ud, vd, d00 * f00 + d01 * f01, d00 * f01 + d01 * f11,
+            d10 * f00 + d11 * f01, d10 * f01 + d11 * f11)
+
+
+def fixed_distortion(code: int, d, u: np.ndarray, v: np.ndarray):
+    """:func:`fixed_distortion_scalar` over arrays u, v of one model ``code`` and one set of
+    coefficients ``d`` (8,); the same formulas, vectorised (the numpy reference)."""
+    u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
+    d = np.asarray(d, dtype=float)
+    one, zero = np.ones_like(u), np.zeros_like(u)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if code == 1:
+            k1, k2, p1, p2, k3, k4, k5, k6 = d
+            u2, v2, uv = u * u, v * v, u * v
+            r2 = u2 + v2
+            r4 = r2 * r2
+            r6 = r4 * r2
+            num = 1.0 + k1 * r2 + k2 * r4 + k3 * r6
+            den = 1.0 + k4 * r2 + k5 * r4 + k6 * r6
+            g = num / den
+            dg = ((k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4) * den - num * (k4 + 2.0 * k5 * r2 + 3.0 * k6 * r4)) / (den * den)
+            c = 2.0 * uv * dg + 2.0 * p1 * u + 2.0 * p2 * v
+            return (u * g + 2.0 * p1 * uv + p2 * (r2 + 2.0 * u2), v * g + 2.0 * p2 * uv + p1 * (r2 + 2.0 * v2),
+                    g + 2.0 * u2 * dg + 2.0 * p1 * v + 6.0 * p2 * u, c, c,
+                    g + 2.0 * v2 * dg + 2.0 * p2 * u + 6.0 * p1 * v)
+        if code == 2:
+            r = np.sqrt(u * u + v * v)
+            on = r > EPS
+            th = np.arctan(r)
+            t2 = th * th
+            poly = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))
+            dpoly = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
+            s = np.where(on, th * poly / r, 1.0)
+            q = np.where(on, (dpoly / (1.0 + r * r) - s) / (r * r), 0.0)
+            return u * s, v * s, s + q * u * u, q * u * v, q * u * v, s + q * v * v
+        if code == 3:
+            om = float(d[0])
+            r2 = u * u + v * v
+            om2 = om * om
+            if om2 < FOV_EPS:
+                f = om2 * r2 / 3.0 - om2 / 12.0 + 1.0
+                df = om2 / 3.0 * one
+            else:
+                t = math.tan(om / 2.0)
+                r = np.sqrt(r2)
+                a = np.arctan(2.0 * t * r)
+                small = r2 < FOV_EPS
+                f = np.where(small, -2.0 * t * (4.0 * r2 * t * t - 3.0) / (3.0 * om), a / (r * om))
+                df = np.where(small, -8.0 * t * t * t / (3.0 * om) * one,
+                              (2.0 * t * r / (1.0 + 4.0 * t * t * r2) - a) / (2.0 * r2 * r * om))
+            return u * f, v * f, f + 2.0 * u * u * df, 2.0 * u * v * df, 2.0 * u * v * df, f + 2.0 * v * v * df
+        r = np.sqrt(u * u + v * v)
+        on = r > EPS
+        th = np.arctan(r)
+        a = np.where(on, th / r, 1.0)
+        qa = np.where(on, (1.0 / (1.0 + r * r) - a) / (r * r), 0.0)
+    f00, f01, f11 = a + qa * u * u, qa * u * v + zero, a + qa * v * v
+    uu, vv = a * u, a * v
+    k1, k2, p1, p2, k3, k4, sx, sy = d
+    w2, z2, wz = uu * uu, vv * vv, uu * vv
+    R2 = w2 + z2
+    rad = R2 * (k1 + R2 * (k2 + R2 * (k3 + R2 * k4)))
+    drad = k1 + R2 * (2.0 * k2 + R2 * (3.0 * k3 + R2 * 4.0 * k4))
+    ud = uu * (1.0 + rad) + 2.0 * p1 * wz + p2 * (R2 + 2.0 * w2) + sx * R2
+    vd = vv * (1.0 + rad) + 2.0 * p2 * wz + p1 * (R2 + 2.0 * z2) + sy * R2
+    d00 = 1.0 + rad + 2.0 * w2 * drad + 2.0 * p1 * vv + 6.0 * p2 * uu + 2.0 * sx * uu
+    d01 = 2.0 * wz * drad + 2.0 * p1 * uu + 2.0 * p2 * vv + 2.0 * sx * vv
+    d10 = 2.0 * wz * drad + 2.0 * p2 * vv + 2.0 * p1 * uu + 2.0 * sy * uu
+    d11 = 1.0 + rad + 2.0 * z2 * drad + 2.0 * p2 * uu + 6.0 * p1 * vv + 2.0 * sy * vv
+    return (ud, vd, d00 * f00 + d01 * f01, d00 * f01 + d01 * f11,
+            d10 * f00 + d11 * f01, d10 * f01 + d11 * f11)
