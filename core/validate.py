@@ -141,6 +141,34 @@ def check_numeric_range(problem, path, control=None) -> None:
                 if np.isfinite(x0[j]) else "is not a finite number (no approximate value could be computed)")
         raise InputError(path, 0, f"{problem.params.labels[j]}: coordinate or parameter {what}",
                          field=problem.params.labels[j])
+    _check_projections(problem, path, control, x0)
+
+
+def _check_projections(problem, path, control, x0) -> None:
+    """An image point whose projection is undefined at the start values (a division or EUCM
+    camera's model has no real distorted point there, a point in the camera's centre plane) is
+    refused, naming it and its camera, instead of reaching the adjustment as NaN."""
+    from .observations.projection import ProjectionSet
+
+    for s in problem.sets:
+        if not isinstance(s, ProjectionSet):
+            continue
+        with np.errstate(all="ignore"):
+            f = s.values(x0)
+        bad = ~np.isfinite(f)
+        if not bad.any():
+            continue
+        k = int(np.flatnonzero(bad)[0])
+        i = int(s.rows[k])
+        fl, line = _where(problem, i, path, control)
+        cam = ""
+        if s.dcam is not None:
+            labels = problem.params.labels
+            j = int(s.iint[k // 2, 0])
+            cam = f" through {labels[j].rsplit('.', 1)[0]}" if j >= 0 else ""
+        raise InputError(fl, line, f"{_label(problem, i)}: its projection{cam} is undefined at the file's "
+                         f"values (outside the camera model's field of view, or in the camera's centre "
+                         f"plane); {max(int(bad.sum()) // 2, 1)} image point(s) in all", field="value")
 
 
 def _refuse_large(path, lines, values, what) -> None:

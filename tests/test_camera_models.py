@@ -12,10 +12,10 @@ import pytest
 
 from baarda.adjust import adjust
 from baarda.build import read_problem
-from baarda.errors import ConversionError
+from baarda.errors import ConversionError, InputError
 from baarda.io.colmap import read_colmap
 from baarda.model.sfm import CAMERA_MODELS, SfmBlock, SfmCamera, SfmImage, initial_cost, to_block
-from baarda.observations.fixed_models import FIXED_MODELS, fixed_distortion, fixed_distortion_scalar
+from baarda.observations.fixed_models import FIXED_MODELS, MAX_COEFFICIENTS, fixed_distortion, fixed_distortion_scalar
 
 from tests.test_colmap import pycolmap_cost
 
@@ -28,11 +28,18 @@ COEFFICIENTS = {
     "FOV": [0.9],
     "FOV-small": [0.005],
     "THIN_PRISM_FISHEYE": [0.05, -0.01, 0.001, -0.002, 0.003, -0.001, 0.0005, -0.0007],
+    "RAD_TAN_THIN_PRISM_FISHEYE": [0.05, -0.01, 0.003, -0.001, 0.0004, -0.0001, 0.001, -0.002, 0.0005,
+                                   -0.0003, -0.0007, 0.0002],
+    "SIMPLE_DIVISION": [-0.15],
+    "DIVISION": [0.02],
+    "EUCM": [0.6, 1.1],
+    "SIMPLE_FISHEYE": [],
+    "FISHEYE": [],
 }
 
 
 def _focal(model):
-    return [1280.0] if model.startswith(("SIMPLE", "RADIAL")) else [1280.0, 1250.0]
+    return [1280.0] if model.startswith(("SIMPLE", "RADIAL_")) else [1280.0, 1250.0]
 
 
 @pytest.mark.parametrize("case", list(COEFFICIENTS))
@@ -50,7 +57,7 @@ def test_distortion_equals_pycolmaps_projection(case):
     focal = _focal(model)
     cam = pycolmap.Camera(model=model, width=1024, height=768, params=focal + [512.0, 384.0] + coef)
     ref = np.array([cam.img_from_cam(p) for p in P])
-    d = np.zeros(8)
+    d = np.zeros(MAX_COEFFICIENTS)
     d[:len(coef)] = coef
     u, v = P[:, 0] / P[:, 2], P[:, 1] / P[:, 2]
     out = np.stack(fixed_distortion(code, d, u, v), 1)
@@ -151,3 +158,15 @@ def test_held_distortion_models_have_no_native_camera():
                      convention="colmap")
     with pytest.raises(ConversionError, match="OPENCV_FISHEYE"):
         to_block(block)
+
+
+def test_undefined_projection_is_refused_naming_the_image_point(tmp_path):
+    """A division camera whose k leaves no real distorted point for some image points: refused
+    with the file, the line and the image point, not an internal error or NaN residuals."""
+    model_dir, _ = _synthetic(tmp_path, "SIMPLE_DIVISION", [-0.1], "txt")
+    cams = (model_dir / "cameras.txt").read_text()
+    (model_dir / "cameras.txt").write_text(cams.replace(" -0.1", " 30"))
+    with pytest.raises(InputError) as err:
+        read_problem(model_dir)
+    msg = str(err.value)
+    assert "images.txt:" in msg and "projection through camera" in msg and "undefined" in msg

@@ -23,8 +23,9 @@ their origin at the upper-left corner of the image (the centre of the first pixe
 0.5, 0.5), y down. Projection: :mod:`baarda.model.sfm` with s = +1; camera models:
 SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, and — their distortion always held at the
 file's values (:mod:`baarda.observations.fixed_models`) — FULL_OPENCV, OPENCV_FISHEYE,
-RADIAL_FISHEYE, SIMPLE_RADIAL_FISHEYE, FOV, THIN_PRISM_FISHEYE (RAD_TAN_THIN_PRISM_FISHEYE is
-refused, naming the camera). Intrinsics are held fixed unless ``refine_intrinsics``; then, like
+RADIAL_FISHEYE, SIMPLE_RADIAL_FISHEYE, FOV, THIN_PRISM_FISHEYE, RAD_TAN_THIN_PRISM_FISHEYE,
+SIMPLE_DIVISION, DIVISION, SIMPLE_FISHEYE, FISHEYE, EUCM (EQUIRECTANGULAR, not a central
+perspective camera, is refused, naming the camera). Intrinsics are held fixed unless ``refine_intrinsics``; then, like
 COLMAP's bundle adjuster, the focal lengths and the distortion parameters of the first five
 models are estimated and the principal point stays fixed. Ids in the output are COLMAP's
 IMAGE_ID, POINT3D_ID and CAMERA_ID; the image names are kept in ``Problem.extra["image_names"]``.
@@ -46,7 +47,9 @@ from .source import EXTENSIONS, WHITESPACE, Numbers, logical_path, open_binary, 
 
 MODEL_IDS = {0: "SIMPLE_PINHOLE", 1: "PINHOLE", 2: "SIMPLE_RADIAL", 3: "RADIAL", 4: "OPENCV",
              5: "OPENCV_FISHEYE", 6: "FULL_OPENCV", 7: "FOV", 8: "SIMPLE_RADIAL_FISHEYE",
-             9: "RADIAL_FISHEYE", 10: "THIN_PRISM_FISHEYE", 11: "RAD_TAN_THIN_PRISM_FISHEYE"}
+             9: "RADIAL_FISHEYE", 10: "THIN_PRISM_FISHEYE", 11: "RAD_TAN_THIN_PRISM_FISHEYE",
+             12: "SIMPLE_DIVISION", 13: "DIVISION", 14: "SIMPLE_FISHEYE", 15: "FISHEYE", 16: "EUCM",
+             17: "EQUIRECTANGULAR"}
 SUPPORTED = tuple(m for m in CAMERA_MODELS if m != "BAL")
 FILES = ("cameras", "images", "points3D")
 INVALID_ID = 2 ** 64 - 1

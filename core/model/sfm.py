@@ -45,7 +45,7 @@ import numpy as np
 from ..datum import Datum
 from ..errors import ConversionError
 from ..observations.geodetic import LinearSet
-from ..observations.fixed_models import FIXED_MODELS
+from ..observations.fixed_models import FIXED_MODELS, MAX_COEFFICIENTS
 from ..observations.projection import INTRINSICS, ProjectionSet
 from ..observations.rotation import R_from_rodrigues, opk_from_R
 from .bundle import Block, Camera, Image, ImageObservations, ObjectPoint
@@ -65,7 +65,7 @@ CAMERA_MODELS = {
 }
 # COLMAP's other models: their distortion is held at the file's values (fixed_models)
 for _model, (_code, _names) in FIXED_MODELS.items():
-    _one = _model in ("SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
+    _one = _model in ("SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "SIMPLE_FISHEYE", "SIMPLE_DIVISION")
     CAMERA_MODELS[_model] = ((("f",) if _one else ("fx", "fy")) + ("cx", "cy") + _names,
                              (("f", "f") if _one else ("fx", "fy")) + ("cx", "cy", None, None, None, None))
 
@@ -176,7 +176,7 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
                      for im in block.images], dtype=np.int64).reshape(-1, 6)
     cam_index = {}
     intrinsics = np.full((len(block.cameras), 8), -1, dtype=np.int64)
-    dtab = np.full((len(block.cameras), 9), -1, dtype=np.int64)     # held-distortion models
+    dtab = np.full((len(block.cameras), 1 + MAX_COEFFICIENTS), -1, dtype=np.int64)   # held-distortion models
     dtab[:, 0] = 0
     for c, cam in enumerate(block.cameras):
         names, feeds = CAMERA_MODELS[cam.model]

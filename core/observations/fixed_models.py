@@ -11,14 +11,22 @@ x = f_x u_d + c_x, y = f_y v_d + c_y (Schönberger & Frahm 2016, the camera mode
 * ``FULL_OPENCV`` (code 1; k1, k2, p1, p2, k3, k4, k5, k6): the rational radial factor
   g = (1 + k1 r² + k2 r⁴ + k3 r⁶) / (1 + k4 r² + k5 r⁴ + k6 r⁶),
   u_d = u g + 2 p1 u v + p2 (r² + 2u²), v_d = v g + 2 p2 u v + p1 (r² + 2v²).
-* ``OPENCV_FISHEYE``, ``RADIAL_FISHEYE``, ``SIMPLE_RADIAL_FISHEYE`` (code 2; k1 … k4, the
-  latter two with fewer terms): θ = atan r, θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸),
+* ``OPENCV_FISHEYE``, ``RADIAL_FISHEYE``, ``SIMPLE_RADIAL_FISHEYE``, ``FISHEYE``,
+  ``SIMPLE_FISHEYE`` (code 2; k1 … k4, the others with fewer terms or none, equidistant): θ = atan r, θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸),
   (u_d, v_d) = (θ_d / r)(u, v); the point itself for r ≤ machine ε.
 * ``FOV`` (code 3; ω): (u_d, v_d) = F(r²)(u, v), F = atan(2 r tan(ω/2)) / (r ω), with
   COLMAP's series for ω² < 10⁻⁴ and for r² < 10⁻⁴.
 * ``THIN_PRISM_FISHEYE`` (code 4; k1, k2, p1, p2, k3, k4, sx1, sy1): the fisheye angle first,
   (ū, v̄) = (θ / r)(u, v), then ρ² = ū² + v̄², a = k1 ρ² + k2 ρ⁴ + k3 ρ⁶ + k4 ρ⁸,
   u_d = ū (1 + a) + 2 p1 ū v̄ + p2 (ρ² + 2ū²) + sx1 ρ², v_d = v̄ (1 + a) + 2 p2 ū v̄ + p1 (ρ² + 2v̄²) + sy1 ρ².
+* ``RAD_TAN_THIN_PRISM_FISHEYE`` (code 5; k0 … k5, p0, p1, s0 … s3; Project Aria's
+  Fisheye624): the fisheye angle (ū, v̄) as above, t² = ū² + v̄², (x_r, y_r) = (1 + k0 t² + … +
+  k5 t¹²)(ū, v̄), ρ² = x_r² + y_r², u_d = x_r + 2 p1 x_r y_r + p0 (ρ² + 2x_r²) + s0 ρ² + s1 ρ⁴,
+  v_d = y_r + 2 p0 x_r y_r + p1 (ρ² + 2y_r²) + s2 ρ² + s3 ρ⁴.
+* ``SIMPLE_DIVISION``, ``DIVISION`` (code 6; k): the division model's distorted point,
+  (u_d, v_d) = 2 (u, v) / (1 + √(1 − 4 k r²)) (undistorting it, (u, v) = (u_d, v_d) / (1 + k r_d²)).
+* ``EUCM`` (code 7; α, β): (u_d, v_d) = (u, v) / (α √(β r² + 1) + 1 − α) (the enhanced unified
+  model, points in front of the camera).
 
 Each function returns (u_d, v_d, J00, J01, J10, J11), J = ∂(u_d, v_d)/∂(u, v), analytic.
 :func:`fixed_distortion` is the numpy reference (arrays); :func:`fixed_distortion_scalar` the
@@ -32,6 +40,8 @@ import math
 
 import numpy as np
 
+from ..solve.compiled import njit
+
 #: model → (code, names of its distortion coefficients in the order the formulas read them)
 FIXED_MODELS = {
     "FULL_OPENCV": (1, ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")),
@@ -40,14 +50,22 @@ FIXED_MODELS = {
     "SIMPLE_RADIAL_FISHEYE": (2, ("k",)),
     "FOV": (3, ("omega",)),
     "THIN_PRISM_FISHEYE": (4, ("k1", "k2", "p1", "p2", "k3", "k4", "sx1", "sy1")),
+    "RAD_TAN_THIN_PRISM_FISHEYE": (5, ("k0", "k1", "k2", "k3", "k4", "k5", "p0", "p1", "s0", "s1", "s2", "s3")),
+    "SIMPLE_DIVISION": (6, ("k",)),
+    "DIVISION": (6, ("k",)),
+    "EUCM": (7, ("alpha", "beta")),
+    "SIMPLE_FISHEYE": (2, ()),
+    "FISHEYE": (2, ()),
 }
+#: the most coefficients a model has (the width of :class:`~baarda.observations.projection.ProjectionSet`'s table)
+MAX_COEFFICIENTS = 12
 EPS = float(np.finfo(float).eps)
 FOV_EPS = 1e-4
 
 
 def fixed_distortion_scalar(code, d, u, v):
-    """(u_d, v_d, J00, J01, J10, J11) of one point (module docstring); ``d`` the 8 coefficients
-    of the model (zeros after its own)."""
+    """(u_d, v_d, J00, J01, J10, J11) of one point (module docstring); ``d`` the
+    :data:`MAX_COEFFICIENTS` coefficients of the model (zeros after its own)."""
     if code == 1:
         k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
         u2, v2, uv = u * u, v * v, u * v
@@ -92,6 +110,21 @@ def fixed_distortion_scalar(code, d, u, v):
             f = a / (r * om)
             df = (2.0 * t * r / (1.0 + 4.0 * t * t * r2) - a) / (2.0 * r2 * r * om)
         return u * f, v * f, f + 2.0 * u * u * df, 2.0 * u * v * df, 2.0 * u * v * df, f + 2.0 * v * v * df
+    if code == 5:
+        return _rad_tan_scalar(d, u, v)
+    if code == 6:
+        r2 = u * u + v * v
+        q = math.sqrt(1.0 - 4.0 * d[0] * r2)
+        s = 2.0 / (1.0 + q)
+        ds = 4.0 * d[0] / (q * (1.0 + q) * (1.0 + q))            # ∂s/∂(r²)
+        return u * s, v * s, s + 2.0 * u * u * ds, 2.0 * u * v * ds, 2.0 * u * v * ds, s + 2.0 * v * v * ds
+    if code == 7:
+        al, be = d[0], d[1]
+        w = math.sqrt(be * (u * u + v * v) + 1.0)
+        den = al * w + 1.0 - al
+        s = 1.0 / den
+        ds = -al * be / (2.0 * w * den * den)
+        return u * s, v * s, s + 2.0 * u * u * ds, 2.0 * u * v * ds, 2.0 * u * v * ds, s + 2.0 * v * v * ds
     # code 4: THIN_PRISM_FISHEYE
     r = math.sqrt(u * u + v * v)
     if r > EPS:
@@ -118,15 +151,56 @@ def fixed_distortion_scalar(code, d, u, v):
             d10 * f00 + d11 * f01, d10 * f01 + d11 * f11)
 
 
+def _fisheye_angle(u, v):
+    """(ū, v̄) = (θ / r)(u, v), θ = atan r, and its Jacobian (f00, f01, f11; symmetric); the point
+    itself for r ≤ ε. Scalars."""
+    r = math.sqrt(u * u + v * v)
+    if r <= EPS:
+        return u, v, 1.0, 0.0, 1.0
+    a = math.atan(r) / r
+    qa = (1.0 / (1.0 + r * r) - a) / (r * r)                 # a'(r) / r
+    return a * u, a * v, a + qa * u * u, qa * u * v, a + qa * v * v
+
+
+def _rad_tan_scalar(d, u, v):
+    """RAD_TAN_THIN_PRISM_FISHEYE at one point (module docstring)."""
+    uu, vv, f00, f01, f11 = _fisheye_angle(u, v)
+    t2 = uu * uu + vv * vv
+    rad = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * (d[3] + t2 * (d[4] + t2 * d[5])))))
+    drad = d[0] + t2 * (2.0 * d[1] + t2 * (3.0 * d[2] + t2 * (4.0 * d[3] + t2 * (5.0 * d[4] + t2 * 6.0 * d[5]))))
+    xr, yr = uu * rad, vv * rad
+    g00, g01, g11 = rad + 2.0 * drad * uu * uu, 2.0 * drad * uu * vv, rad + 2.0 * drad * vv * vv
+    p0, p1, s0, s1, s2, s3 = d[6], d[7], d[8], d[9], d[10], d[11]
+    r2 = xr * xr + yr * yr
+    r4 = r2 * r2
+    xd = xr + 2.0 * p1 * xr * yr + p0 * (r2 + 2.0 * xr * xr) + s0 * r2 + s1 * r4
+    yd = yr + 2.0 * p0 * xr * yr + p1 * (r2 + 2.0 * yr * yr) + s2 * r2 + s3 * r4
+    h00 = 1.0 + 2.0 * p1 * yr + 6.0 * p0 * xr + 2.0 * s0 * xr + 4.0 * s1 * r2 * xr
+    h01 = 2.0 * p1 * xr + 2.0 * p0 * yr + 2.0 * s0 * yr + 4.0 * s1 * r2 * yr
+    h10 = 2.0 * p0 * yr + 2.0 * p1 * xr + 2.0 * s2 * xr + 4.0 * s3 * r2 * xr
+    h11 = 1.0 + 2.0 * p0 * xr + 6.0 * p1 * yr + 2.0 * s2 * yr + 4.0 * s3 * r2 * yr
+    # J = H G F
+    k00, k01 = h00 * g00 + h01 * g01, h00 * g01 + h01 * g11
+    k10, k11 = h10 * g00 + h11 * g01, h10 * g01 + h11 * g11
+    return xd, yd, k00 * f00 + k01 * f01, k00 * f01 + k01 * f11, k10 * f00 + k11 * f01, k10 * f01 + k11 * f11
+
+
+_jit = njit(cache=True)
+if _jit is not None:                 # (called by fixed_distortion_scalar inside the compiled kernel)
+    _fisheye_angle = _jit(_fisheye_angle)
+    _rad_tan_scalar = _jit(_rad_tan_scalar)
+
+
 def fixed_distortion(code: int, d, u: np.ndarray, v: np.ndarray):
     """:func:`fixed_distortion_scalar` over arrays u, v of one model ``code`` and one set of
-    coefficients ``d`` (8,); the same formulas, vectorised (the numpy reference)."""
+    coefficients ``d`` (:data:`MAX_COEFFICIENTS`,); the same formulas, vectorised (the numpy
+    reference)."""
     u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
     d = np.asarray(d, dtype=float)
     one, zero = np.ones_like(u), np.zeros_like(u)
     with np.errstate(divide="ignore", invalid="ignore"):
         if code == 1:
-            k1, k2, p1, p2, k3, k4, k5, k6 = d
+            k1, k2, p1, p2, k3, k4, k5, k6 = d[:8]
             u2, v2, uv = u * u, v * v, u * v
             r2 = u2 + v2
             r4 = r2 * r2
@@ -165,6 +239,21 @@ def fixed_distortion(code: int, d, u: np.ndarray, v: np.ndarray):
                 df = np.where(small, -8.0 * t * t * t / (3.0 * om) * one,
                               (2.0 * t * r / (1.0 + 4.0 * t * t * r2) - a) / (2.0 * r2 * r * om))
             return u * f, v * f, f + 2.0 * u * u * df, 2.0 * u * v * df, 2.0 * u * v * df, f + 2.0 * v * v * df
+        if code == 5:
+            return _rad_tan_numpy(d, u, v)
+        if code == 6:
+            r2 = u * u + v * v
+            q = np.sqrt(1.0 - 4.0 * d[0] * r2)
+            s = 2.0 / (1.0 + q)
+            ds = 4.0 * d[0] / (q * (1.0 + q) * (1.0 + q))
+            return u * s, v * s, s + 2.0 * u * u * ds, 2.0 * u * v * ds, 2.0 * u * v * ds, s + 2.0 * v * v * ds
+        if code == 7:
+            al, be = d[0], d[1]
+            w = np.sqrt(be * (u * u + v * v) + 1.0)
+            den = al * w + 1.0 - al
+            s = 1.0 / den
+            ds = -al * be / (2.0 * w * den * den)
+            return u * s, v * s, s + 2.0 * u * u * ds, 2.0 * u * v * ds, 2.0 * u * v * ds, s + 2.0 * v * v * ds
         r = np.sqrt(u * u + v * v)
         on = r > EPS
         th = np.arctan(r)
@@ -172,7 +261,7 @@ def fixed_distortion(code: int, d, u: np.ndarray, v: np.ndarray):
         qa = np.where(on, (1.0 / (1.0 + r * r) - a) / (r * r), 0.0)
     f00, f01, f11 = a + qa * u * u, qa * u * v + zero, a + qa * v * v
     uu, vv = a * u, a * v
-    k1, k2, p1, p2, k3, k4, sx, sy = d
+    k1, k2, p1, p2, k3, k4, sx, sy = d[:8]
     w2, z2, wz = uu * uu, vv * vv, uu * vv
     R2 = w2 + z2
     rad = R2 * (k1 + R2 * (k2 + R2 * (k3 + R2 * k4)))
@@ -185,3 +274,35 @@ def fixed_distortion(code: int, d, u: np.ndarray, v: np.ndarray):
     d11 = 1.0 + rad + 2.0 * z2 * drad + 2.0 * p2 * uu + 6.0 * p1 * vv + 2.0 * sy * vv
     return (ud, vd, d00 * f00 + d01 * f01, d00 * f01 + d01 * f11,
             d10 * f00 + d11 * f01, d10 * f01 + d11 * f11)
+
+
+def _fisheye_angle_numpy(u, v):
+    """:func:`_fisheye_angle` over arrays."""
+    r = np.sqrt(u * u + v * v)
+    on = r > EPS
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(on, np.arctan(r) / r, 1.0)
+        qa = np.where(on, (1.0 / (1.0 + r * r) - a) / (r * r), 0.0)
+    return a * u, a * v, a + qa * u * u, qa * u * v, a + qa * v * v
+
+
+def _rad_tan_numpy(d, u, v):
+    """:func:`_rad_tan_scalar` over arrays."""
+    uu, vv, f00, f01, f11 = _fisheye_angle_numpy(u, v)
+    t2 = uu * uu + vv * vv
+    rad = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * (d[3] + t2 * (d[4] + t2 * d[5])))))
+    drad = d[0] + t2 * (2.0 * d[1] + t2 * (3.0 * d[2] + t2 * (4.0 * d[3] + t2 * (5.0 * d[4] + t2 * 6.0 * d[5]))))
+    xr, yr = uu * rad, vv * rad
+    g00, g01, g11 = rad + 2.0 * drad * uu * uu, 2.0 * drad * uu * vv, rad + 2.0 * drad * vv * vv
+    p0, p1, s0, s1, s2, s3 = d[6], d[7], d[8], d[9], d[10], d[11]
+    r2 = xr * xr + yr * yr
+    r4 = r2 * r2
+    xd = xr + 2.0 * p1 * xr * yr + p0 * (r2 + 2.0 * xr * xr) + s0 * r2 + s1 * r4
+    yd = yr + 2.0 * p0 * xr * yr + p1 * (r2 + 2.0 * yr * yr) + s2 * r2 + s3 * r4
+    h00 = 1.0 + 2.0 * p1 * yr + 6.0 * p0 * xr + 2.0 * s0 * xr + 4.0 * s1 * r2 * xr
+    h01 = 2.0 * p1 * xr + 2.0 * p0 * yr + 2.0 * s0 * yr + 4.0 * s1 * r2 * yr
+    h10 = 2.0 * p0 * yr + 2.0 * p1 * xr + 2.0 * s2 * xr + 4.0 * s3 * r2 * xr
+    h11 = 1.0 + 2.0 * p0 * xr + 6.0 * p1 * yr + 2.0 * s2 * yr + 4.0 * s3 * r2 * yr
+    k00, k01 = h00 * g00 + h01 * g01, h00 * g01 + h01 * g11
+    k10, k11 = h10 * g00 + h11 * g01, h10 * g01 + h11 * g11
+    return xd, yd, k00 * f00 + k01 * f01, k00 * f01 + k01 * f11, k10 * f00 + k11 * f01, k10 * f01 + k11 * f11

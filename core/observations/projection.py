@@ -41,7 +41,7 @@ import numpy as np
 
 from ..solve.compiled import njit
 from .distortion import brown
-from .fixed_models import fixed_distortion, fixed_distortion_scalar
+from .fixed_models import MAX_COEFFICIENTS, fixed_distortion, fixed_distortion_scalar
 from .rotation import R_from_rodrigues, skew
 
 #: The eight intrinsics of the projective camera, in the order of :attr:`ProjectionSet.iint`.
@@ -68,8 +68,8 @@ class ProjectionSet:
     point; irot, itr (m × 3): of the image's ρ and t; iint (m × 8): of the camera's
     intrinsics in the order of :data:`INTRINSICS`, −1 where the intrinsic is zero.
     sign: s of the module docstring. Cameras of the models of :mod:`baarda.observations.fixed_models`
-    (distortion held): ``dtab`` (cameras × 9) their model code (0: the OPENCV family above) and
-    the parameter indices of their 8 coefficients (−1: none), ``dcam`` (m,) each point's row of
+    (distortion held): ``dtab`` (cameras × 13) their model code (0: the OPENCV family above) and
+    the parameter indices of their coefficients (−1: none), ``dcam`` (m,) each point's row of
     dtab; both None when every camera is of the OPENCV family.
     """
 
@@ -85,7 +85,7 @@ class ProjectionSet:
     def _fixed(self):
         """(dcam, dtab) for the kernel: empty arrays when no camera has a held-distortion model."""
         if self.dcam is None:
-            return np.zeros(0, dtype=np.int64), np.zeros((0, 9), dtype=np.int64)
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 1 + MAX_COEFFICIENTS), dtype=np.int64)
         return self.dcam, self.dtab
 
     @property
@@ -274,7 +274,7 @@ def _projection_kernel(x, ipt, irot, itr, iint, s, dcam, dtab, start, dest, f, j
     (:data:`_STRUCTURAL_ZERO`) left out. dcam, dtab: :class:`ProjectionSet`'s (empty: none)."""
     store, direct = jv.size > 0, dest.size == 0
     held = dcam.size > 0
-    dp = np.zeros(8)
+    dp = np.zeros(dtab.shape[1] - 1)
     K, K2, R, Jr = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     SX, RS, dPr = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     P, ins, g = np.empty(3), np.empty(8), np.empty((2, 3))
@@ -316,7 +316,7 @@ def _projection_kernel(x, ipt, irot, itr, iint, s, dcam, dtab, start, dest, f, j
             dx, dy, duu, duv, dvv = _brown(u, v, k1, k2, 0.0, p2, p1)
             ud, vd, dvu = u + dx, v + dy, duv
         else:
-            for j in range(8):
+            for j in range(dp.size):
                 dp[j] = x[dtab[dcam[i], 1 + j]] if dtab[dcam[i], 1 + j] >= 0 else 0.0
             ud, vd, duu, duv, dvu, dvv = _fixed_scalar(code, dp, u, v)
         f[2 * i] = fx * ud + cx

@@ -223,7 +223,7 @@ def main():
     # ---- COLMAP text
     cl = {k: v.splitlines() for k, v in col.items()}
     write_dir("colmap-unknown-model", {**col, "cameras.txt": col["cameras.txt"].replace("SIMPLE_RADIAL",
-                                                                                        "RAD_TAN_THIN_PRISM_FISHEYE")})
+                                                                                        "EQUIRECTANGULAR")})
     write_dir("colmap-param-count", {**col, "cameras.txt": col["cameras.txt"].replace("SIMPLE_RADIAL", "RADIAL")
                                      .replace(" 0.01\n", "\n")})
     il = cl["images.txt"]
