@@ -403,10 +403,10 @@ def _analyze(args) -> int:
     if obs_risk is not None:
         doc["risk"] = {"p": obs_risk.p, "L1": obs_risk.L1, "L2": obs_risk.L2, "tolerance": obs_risk.tolerance,
                        "rejected": int(obs_risk.rejected.sum())}
-        for d in doc["observations"]:
-            i = d["index"]
-            d["risk"] = {k: _finite(getattr(obs_risk, k)[i]) for k in ("lam_tol", "C", "alpha", "beta", "r_C")}
-            d["risk"]["rejected"] = bool(obs_risk.rejected[i])
+        def risk_of(i, r=obs_risk):
+            d = {k: _finite(getattr(r, k)[i]) for k in ("lam_tol", "C", "alpha", "beta", "r_C")}
+            return {"risk": {**d, "rejected": bool(r.rejected[i])}}
+        doc["observations"].add(risk_of)
     exchanges = [_exchange_test(adj, spec, both) for both, specs in ((True, args.exchange), (False, args.misidentified))
                  for spec in specs or ()]
     if exchanges:
@@ -424,12 +424,12 @@ def _analyze(args) -> int:
         base = named + [b for b in cc.sbase if b.startswith("normal=")]     # a 3D base: the normal's point
         ell = cc.ellipses()
         sd = np.sqrt(np.maximum(np.diag(cc.cov), 0.0))
-        for d in doc["points"]:
-            i = ids.index(d["id"])
-            for c, name in zip(np.flatnonzero(cc.point == i), "xyz"):
-                d["s" + "xyz"[cc.axis[c]]] = float(sd[c])
+        def transformed(i, cc=cc, sd=sd, ell=ell):      # (point i's record is point i of ids)
+            d = {"s" + "xyz"[cc.axis[c]]: float(sd[c]) for c in np.flatnonzero(cc.point == i)}
             if i < len(ell) and np.isfinite(ell[i, 0]):
                 d["ellipse"] = {"a": float(ell[i, 0]), "b": float(ell[i, 1]), "bearing": float(ell[i, 2])}
+            return d
+        doc["points"].add(transformed)
         doc["summary"]["sbase"] = base
         prec_lines.append(f"  S-base {', '.join(base)}: point standard deviations and ellipses transformed")
         if args.criterion:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -92,19 +93,57 @@ def far_point_ids(adj) -> list[str]:
     return [str(ids[i]) for i in np.flatnonzero(far_points(adj.problem, adj.x))]
 
 
-def observations(adj, reliability=None) -> list[dict]:
-    """One dict per observation; ``rejected`` by the statistic of ``reliability``'s policy (w or
-    τ), ``rejected_w`` and ``rejected_tau`` by each."""
+class Records(Sequence):
+    """The records of one table of the result document (observations, points, groups), each a
+    dict made when it is asked for: a block of millions of image points holds its arrays, not
+    millions of dicts (~1 KB each), and :func:`dump_json` and :func:`write_csv` stream them.
+    ``add(f)`` merges ``f(i)`` (a dict) into record i (the CLI's --risk columns)."""
+
+    def __init__(self, n: int, make):
+        self._n, self._make, self._extra = int(n), make, []
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(self._n))]
+        i = int(i)
+        if i < 0:
+            i += self._n
+        if not 0 <= i < self._n:
+            raise IndexError(i)
+        d = self._make(i)
+        for f in self._extra:
+            d.update(f(i))
+        return d
+
+    def __iter__(self):
+        for i in range(self._n):
+            yield self[i]
+
+    def __eq__(self, other):
+        return isinstance(other, (list, Records)) and len(other) == self._n and all(a == b for a, b in zip(self, other))
+
+    __hash__ = None
+
+    def add(self, f) -> None:
+        self._extra.append(f)
+
+
+def observations(adj, reliability=None) -> Records:
+    """One record per observation; ``rejected`` by the statistic of ``reliability``'s policy (w
+    or τ), ``rejected_w`` and ``rejected_tau`` by each."""
     rel = adj.reliability if reliability is None else reliability
     info = adj.problem.info
     sig = adj.problem.cov.sigma()
-    out = []
     r, w, tau, mdb, ext = adj.r, adj.w, adj.tau, rel.mdb, rel.external
     v, rej, unc = adj.v, rel.rejected, adj.uncontrolled
     rej_w = np.nan_to_num(np.abs(w)) > rel.critical_w
     rej_tau = np.nan_to_num(np.abs(tau)) > rel.critical_tau
     u_k, u_t = adj.u_k, adj.u_t
-    for i in range(adj.n):
+
+    def make(i):
         d = {"index": i, "kind": info.kind[i]}
         d.update(info.ids[i])
         d.update({
@@ -120,36 +159,40 @@ def observations(adj, reliability=None) -> list[dict]:
         })
         if info.group[i] >= 0:
             d["group"] = int(info.group[i])
-        out.append(d)
-    return out
+        return d
+    return Records(adj.n, make)
 
 
-def points(adj) -> list[dict]:
+def points(adj) -> Records:
     pts = adj.problem.points
     xyz = adj.coordinates
     sig = adj.point_sigma
-    out = []
-    for i, pid in enumerate(pts.ids):
-        d = {"id": pid, "status": pts.status[i]}
+
+    def make(i):
+        d = {"id": pts.ids[i], "status": pts.status[i]}
         for a, name in enumerate("xyz"):
             if pts.index[i, a] >= 0:
                 for key, val in ((name, _num(xyz[i, a])), ("s" + name, _num(sig[i, a]))):
                     if val is not None:              # left out, never NaN (strict JSON, the schema)
                         d[key] = val
-        out.append(d)
-    return out
+        return d
+    return Records(len(pts.ids), make)
 
 
-def groups(adj, reliability=None) -> list[dict]:
+def groups(adj, reliability=None) -> Records:
     rel = adj.reliability if reliability is None else reliability
-    return [{"group": g["group"], "members": [int(m) for m in g["members"]], "T": _num(g["T"]),
-             "dimension": int(g["dimension"]), "redundancy": _num(g["redundancy"]),
-             "critical": _num(g["critical"]), "alpha": g["alpha"], "rejected": bool(g["rejected"]),
-             "R": _num(g["R"]), "critical_R": _num(g["critical_R"]),
-             "nabla": [_num(x) for x in g["nabla"]], "nabla_sigma": [_num(x) for x in g["nabla_sigma"]],
-             "ellipse_axes": [_num(x) for x in g["ellipse_axes"]],
-             "delta0_prime_max": _num(g["delta0_prime_max"])}
-            for g in rel.groups]
+    gs = rel.groups
+
+    def make(i):
+        g = gs[i]
+        return {"group": g["group"], "members": [int(m) for m in g["members"]], "T": _num(g["T"]),
+                "dimension": int(g["dimension"]), "redundancy": _num(g["redundancy"]),
+                "critical": _num(g["critical"]), "alpha": g["alpha"], "rejected": bool(g["rejected"]),
+                "R": _num(g["R"]), "critical_R": _num(g["critical_R"]),
+                "nabla": [_num(x) for x in g["nabla"]], "nabla_sigma": [_num(x) for x in g["nabla_sigma"]],
+                "ellipse_axes": [_num(x) for x in g["ellipse_axes"]],
+                "delta0_prime_max": _num(g["delta0_prime_max"])}
+    return Records(len(gs), make)
 
 
 def to_dict(adj, reliability=None) -> dict:
@@ -189,7 +232,7 @@ def dump_json(doc: dict, path) -> None:
         fh.write("{")
         for k, (key, val) in enumerate(doc.items()):
             fh.write(("," if k else "") + "\n " + json.dumps(str(key)) + ": ")
-            if isinstance(val, list) and val and all(isinstance(v, dict) for v in val):
+            if isinstance(val, Records) or (isinstance(val, list) and val and all(isinstance(v, dict) for v in val)):
                 fh.write("[")
                 for i, rec in enumerate(val):
                     fh.write(("," if i else "") + "\n  " + compact.encode(rec))
@@ -208,18 +251,18 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
     mark = {} if doc["summary"]["converged"] else {"adjustment": "NOT converged"}
     written = []
     for name in ("observations", "points", "groups"):
-        rows = [{**row, **mark} for row in doc[name]]
+        rows = doc[name]                   # (records made twice, streamed: not held)
         path = d / f"{name}.csv"
-        keys = []
+        keys = {}
         for row in rows:
-            for k in row:
-                if k not in keys:
-                    keys.append(k)
+            keys.update(dict.fromkeys(row))
+        keys.update(dict.fromkeys(mark))
         with path.open("w", newline="") as fh:
-            wr = csv.DictWriter(fh, fieldnames=keys or ["empty"])
+            wr = csv.DictWriter(fh, fieldnames=list(keys) or ["empty"])
             wr.writeheader()
             for row in rows:
-                wr.writerow({k: (";".join(map(str, v)) if isinstance(v, list) else v) for k, v in row.items()})
+                wr.writerow({k: (";".join(map(str, v)) if isinstance(v, list) else v)
+                             for k, v in {**row, **mark}.items()})
         written.append(path)
     return written
 
