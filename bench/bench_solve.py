@@ -56,49 +56,16 @@ def readable(path: Path, tmp: Path) -> Path:
     return out
 
 
-def ceres(block, threads: int = 1):
-    """pycolmap's Ceres bundle adjustment of ``block`` (problem set-up and solve timed, as
-    baarda's ``adjust``): (seconds, ½Σr² in BAL's model over the image points Ceres kept,
-    iterations, how many of them, Ceres' termination)."""
+def _ceres_solve(rec, refine: bool, threads: int):
+    """pycolmap's Ceres bundle adjustment of reconstruction ``rec`` in place, every image (focal
+    length and extra parameters refined or not; principal point fixed): (seconds of set-up and
+    solve, iterations, termination)."""
     import pycolmap
 
     pycolmap.logging.minloglevel = 2
-
-    with tempfile.TemporaryDirectory() as tmp:
-        bal_as_colmap(block, Path(tmp) / "in")
-        rec = pycolmap.Reconstruction(str(Path(tmp) / "in"))
-        ba = pycolmap.BundleAdjustmentOptions()
-        ba.refine_focal_length = True
-        ba.refine_extra_params = True
-        ba.refine_principal_point = False
-        ba.print_summary = False
-        ba.ceres.solver_options.num_threads = threads
-        config = pycolmap.BundleAdjustmentConfig()
-        for i in rec.reg_image_ids():
-            config.add_image(i)
-        t0 = time.perf_counter()
-        adjuster = pycolmap.create_default_ceres_bundle_adjuster(ba, config, rec)
-        summary = adjuster.solve().todict()["ceres_summary"]
-        t = time.perf_counter() - t0
-        out = Path(tmp) / "out"
-        out.mkdir()
-        rec.write_text(str(out))
-        problem = read_problem(out, "colmap")
-        cost = initial_cost(problem)
-    its = int(summary["num_successful_steps"]) + int(summary["num_unsuccessful_steps"])
-    return t, cost, its, problem.n // 2, str(summary["termination_type"]).split(".")[-1]
-
-
-def ceres_colmap(model: Path, threads: int = 1):
-    """pycolmap's Ceres bundle adjustment of a COLMAP model as it is, intrinsics fixed (as baarda
-    adjusts a COLMAP model): (seconds, ½Σr² in COLMAP's camera model, iterations, image points,
-    termination)."""
-    import pycolmap
-
-    pycolmap.logging.minloglevel = 2
-    rec = pycolmap.Reconstruction(str(model))
     ba = pycolmap.BundleAdjustmentOptions()
-    ba.refine_focal_length = ba.refine_extra_params = ba.refine_principal_point = False
+    ba.refine_focal_length = ba.refine_extra_params = refine
+    ba.refine_principal_point = False
     ba.print_summary = False
     ba.ceres.solver_options.num_threads = threads
     config = pycolmap.BundleAdjustmentConfig()
@@ -108,6 +75,36 @@ def ceres_colmap(model: Path, threads: int = 1):
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(ba, config, rec)
     summary = adjuster.solve().todict()["ceres_summary"]
     t = time.perf_counter() - t0
+    its = int(summary["num_successful_steps"]) + int(summary["num_unsuccessful_steps"])
+    return t, its, str(summary["termination_type"]).split(".")[-1]
+
+
+def ceres(block, threads: int = 1):
+    """pycolmap's Ceres bundle adjustment of ``block`` (problem set-up and solve timed, as
+    baarda's ``adjust``; f, k1, k2 refined per camera as BAL defines): (seconds, ½Σr² in BAL's
+    model over the image points Ceres kept, iterations, how many of them, Ceres' termination)."""
+    import pycolmap
+
+    with tempfile.TemporaryDirectory() as tmp:
+        bal_as_colmap(block, Path(tmp) / "in")
+        rec = pycolmap.Reconstruction(str(Path(tmp) / "in"))
+        t, its, term = _ceres_solve(rec, True, threads)
+        out = Path(tmp) / "out"
+        out.mkdir()
+        rec.write_text(str(out))
+        problem = read_problem(out, "colmap")
+        cost = initial_cost(problem)
+    return t, cost, its, problem.n // 2, term
+
+
+def ceres_colmap(model: Path, threads: int = 1):
+    """pycolmap's Ceres bundle adjustment of a COLMAP model as it is, intrinsics fixed (as baarda
+    adjusts a COLMAP model): (seconds, ½Σr² in COLMAP's camera model, iterations, image points,
+    termination)."""
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(model))
+    t, its, term = _ceres_solve(rec, False, threads)
     cost, n = 0.0, 0
     for im in rec.images.values():
         cam, pose = rec.cameras[im.camera_id], im.cam_from_world()
@@ -115,8 +112,7 @@ def ceres_colmap(model: Path, threads: int = 1):
             if p2.has_point3D():
                 r = cam.img_from_cam(pose * rec.points3D[p2.point3D_id].xyz) - p2.xy
                 cost, n = cost + 0.5 * float(r @ r), n + 1
-    its = int(summary["num_successful_steps"]) + int(summary["num_unsuccessful_steps"])
-    return t, cost, its, n, str(summary["termination_type"]).split(".")[-1]
+    return t, cost, its, n, term
 
 
 def analyze_run(path: Path, out: Path) -> tuple[float, float]:

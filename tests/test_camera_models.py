@@ -102,6 +102,10 @@ def test_model_read_and_adjusted_to_ceres_optimum(tmp_path, model, kind):
     problem = read_problem(model_dir)
     assert problem.n == 2 * n
     assert initial_cost(problem) == pytest.approx(cost, rel=1e-12)
+    s, x = problem.sets[0], problem.params.x0
+    a, b = s.evaluate(x), s.evaluate_numpy(x)                   # compiled kernel (if numba) and numpy
+    assert np.allclose(a[0], b[0], rtol=1e-13, atol=0) and np.array_equal(a[2], b[2])
+    assert np.allclose(a[3], b[3], rtol=1e-10, atol=1e-12 * np.abs(b[3]).max())
     adj = adjust(problem)
     assert adj.converged
     ba = pycolmap.BundleAdjustmentOptions()

@@ -36,7 +36,7 @@ both against pycolmap's own projection (``tests/test_camera_models.py``).
 
 from __future__ import annotations
 
-import math
+import types
 
 import numpy as np
 
@@ -63,79 +63,49 @@ EPS = float(np.finfo(float).eps)
 FOV_EPS = 1e-4
 
 
-def fixed_distortion_scalar(code, d, u, v):
-    """(u_d, v_d, J00, J01, J10, J11) of one point (module docstring); ``d`` the
-    :data:`MAX_COEFFICIENTS` coefficients of the model (zeros after its own)."""
-    if code == 1:
-        k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
-        u2, v2, uv = u * u, v * v, u * v
-        r2 = u2 + v2
-        r4 = r2 * r2
-        r6 = r4 * r2
-        num = 1.0 + k1 * r2 + k2 * r4 + k3 * r6
-        den = 1.0 + k4 * r2 + k5 * r4 + k6 * r6
-        g = num / den
-        dg = ((k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4) * den - num * (k4 + 2.0 * k5 * r2 + 3.0 * k6 * r4)) / (den * den)
-        ud = u * g + 2.0 * p1 * uv + p2 * (r2 + 2.0 * u2)
-        vd = v * g + 2.0 * p2 * uv + p1 * (r2 + 2.0 * v2)
-        c = 2.0 * uv * dg + 2.0 * p1 * u + 2.0 * p2 * v
-        return (ud, vd, g + 2.0 * u2 * dg + 2.0 * p1 * v + 6.0 * p2 * u, c, c,
-                g + 2.0 * v2 * dg + 2.0 * p2 * u + 6.0 * p1 * v)
-    if code == 2:
-        r = math.sqrt(u * u + v * v)
-        if r <= EPS:
-            return u, v, 1.0, 0.0, 0.0, 1.0
-        th = math.atan(r)
-        t2 = th * th
-        poly = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))
-        dpoly = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
-        s = th * poly / r
-        q = (dpoly / (1.0 + r * r) - s) / (r * r)           # s'(r) / r
-        return u * s, v * s, s + q * u * u, q * u * v, q * u * v, s + q * v * v
-    if code == 3:
-        om = d[0]
-        r2 = u * u + v * v
-        om2 = om * om
-        if om2 < FOV_EPS:
-            f = om2 * r2 / 3.0 - om2 / 12.0 + 1.0
-            df = om2 / 3.0
-        elif r2 < FOV_EPS:
-            t = math.tan(om / 2.0)
-            f = -2.0 * t * (4.0 * r2 * t * t - 3.0) / (3.0 * om)
-            df = -8.0 * t * t * t / (3.0 * om)
-        else:
-            r = math.sqrt(r2)
-            t = math.tan(om / 2.0)
-            a = math.atan(2.0 * t * r)
-            f = a / (r * om)
-            df = (2.0 * t * r / (1.0 + 4.0 * t * t * r2) - a) / (2.0 * r2 * r * om)
-        return u * f, v * f, f + 2.0 * u * u * df, 2.0 * u * v * df, 2.0 * u * v * df, f + 2.0 * v * v * df
-    if code == 5:
-        return _rad_tan_scalar(d, u, v)
-    if code == 6:
-        r2 = u * u + v * v
-        q = math.sqrt(1.0 - 4.0 * d[0] * r2)
-        s = 2.0 / (1.0 + q)
-        ds = 4.0 * d[0] / (q * (1.0 + q) * (1.0 + q))            # ∂s/∂(r²)
-        return u * s, v * s, s + 2.0 * u * u * ds, 2.0 * u * v * ds, 2.0 * u * v * ds, s + 2.0 * v * v * ds
-    if code == 7:
-        al, be = d[0], d[1]
-        w = math.sqrt(be * (u * u + v * v) + 1.0)
-        den = al * w + 1.0 - al
-        s = 1.0 / den
-        ds = -al * be / (2.0 * w * den * den)
-        return u * s, v * s, s + 2.0 * u * u * ds, 2.0 * u * v * ds, 2.0 * u * v * ds, s + 2.0 * v * v * ds
-    # code 4: THIN_PRISM_FISHEYE
-    r = math.sqrt(u * u + v * v)
-    if r > EPS:
-        th = math.atan(r)
-        a = th / r
-        qa = (1.0 / (1.0 + r * r) - a) / (r * r)             # a'(r) / r
-        f00, f01, f11 = a + qa * u * u, qa * u * v, a + qa * v * v
-        uu, vv = a * u, a * v
-    else:
-        f00, f01, f11 = 1.0, 0.0, 1.0
-        uu, vv = u, v
+# ---- plain arithmetic: the same source serves numpy arrays and, compiled, single points ----
+def _scaled(u, v, s, h):
+    """(u, v) scaled by s(r²): (u_d, v_d, J00, J01, J10, J11) with h = ∂s/∂(r²)."""
+    c = 2.0 * u * v * h
+    return u * s, v * s, s + 2.0 * u * u * h, c, c, s + 2.0 * v * v * h
+
+
+def _full_opencv(d, u, v):
+    """FULL_OPENCV (code 1)."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
+    u2, v2, uv = u * u, v * v, u * v
+    r2 = u2 + v2
+    r4 = r2 * r2
+    r6 = r4 * r2
+    num = 1.0 + k1 * r2 + k2 * r4 + k3 * r6
+    den = 1.0 + k4 * r2 + k5 * r4 + k6 * r6
+    g = num / den
+    dg = ((k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4) * den - num * (k4 + 2.0 * k5 * r2 + 3.0 * k6 * r4)) / (den * den)
+    c = 2.0 * uv * dg + 2.0 * p1 * u + 2.0 * p2 * v
+    return (u * g + 2.0 * p1 * uv + p2 * (r2 + 2.0 * u2), v * g + 2.0 * p2 * uv + p1 * (r2 + 2.0 * v2),
+            g + 2.0 * u2 * dg + 2.0 * p1 * v + 6.0 * p2 * u, c, c, g + 2.0 * v2 * dg + 2.0 * p2 * u + 6.0 * p1 * v)
+
+
+def _division(d, u, v):
+    """SIMPLE_DIVISION, DIVISION (code 6): s = 2 / (1 + √(1 − 4 k r²))."""
+    q = np.sqrt(1.0 - 4.0 * d[0] * (u * u + v * v))
+    return _scaled(u, v, 2.0 / (1.0 + q), 4.0 * d[0] / (q * (1.0 + q) * (1.0 + q)))
+
+
+def _eucm(d, u, v):
+    """EUCM (code 7): s = 1 / (α √(β r² + 1) + 1 − α)."""
+    w = np.sqrt(d[1] * (u * u + v * v) + 1.0)
+    den = d[0] * w + 1.0 - d[0]
+    return _scaled(u, v, 1.0 / den, -d[0] * d[1] / (2.0 * w * den * den))
+
+
+def _compose(d00, d01, d10, d11, f00, f01, f10, f11):
+    """D F of two 2 × 2 Jacobians (a distortion D after the fisheye angle F)."""
+    return d00 * f00 + d01 * f10, d00 * f01 + d01 * f11, d10 * f00 + d11 * f10, d10 * f01 + d11 * f11
+
+
+def _prism(d, uu, vv, f00, f01, f10, f11):
+    """THIN_PRISM_FISHEYE (code 4) at the fisheye angle (ū, v̄) whose Jacobian is F."""
     k1, k2, p1, p2, k3, k4, sx, sy = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
     w2, z2, wz = uu * uu, vv * vv, uu * vv
     R2 = w2 + z2
@@ -143,166 +113,149 @@ def fixed_distortion_scalar(code, d, u, v):
     drad = k1 + R2 * (2.0 * k2 + R2 * (3.0 * k3 + R2 * 4.0 * k4))
     ud = uu * (1.0 + rad) + 2.0 * p1 * wz + p2 * (R2 + 2.0 * w2) + sx * R2
     vd = vv * (1.0 + rad) + 2.0 * p2 * wz + p1 * (R2 + 2.0 * z2) + sy * R2
-    d00 = 1.0 + rad + 2.0 * w2 * drad + 2.0 * p1 * vv + 6.0 * p2 * uu + 2.0 * sx * uu
-    d01 = 2.0 * wz * drad + 2.0 * p1 * uu + 2.0 * p2 * vv + 2.0 * sx * vv
-    d10 = 2.0 * wz * drad + 2.0 * p2 * vv + 2.0 * p1 * uu + 2.0 * sy * uu
-    d11 = 1.0 + rad + 2.0 * z2 * drad + 2.0 * p2 * uu + 6.0 * p1 * vv + 2.0 * sy * vv
-    return (ud, vd, d00 * f00 + d01 * f01, d00 * f01 + d01 * f11,
-            d10 * f00 + d11 * f01, d10 * f01 + d11 * f11)
+    j = _compose(1.0 + rad + 2.0 * w2 * drad + 2.0 * p1 * vv + 6.0 * p2 * uu + 2.0 * sx * uu,
+                 2.0 * wz * drad + 2.0 * p1 * uu + 2.0 * p2 * vv + 2.0 * sx * vv,
+                 2.0 * wz * drad + 2.0 * p2 * vv + 2.0 * p1 * uu + 2.0 * sy * uu,
+                 1.0 + rad + 2.0 * z2 * drad + 2.0 * p2 * uu + 6.0 * p1 * vv + 2.0 * sy * vv, f00, f01, f10, f11)
+    return ud, vd, j[0], j[1], j[2], j[3]
 
 
-def _fisheye_angle(u, v):
-    """(ū, v̄) = (θ / r)(u, v), θ = atan r, and its Jacobian (f00, f01, f11; symmetric); the point
-    itself for r ≤ ε. Scalars."""
-    r = math.sqrt(u * u + v * v)
-    if r <= EPS:
-        return u, v, 1.0, 0.0, 1.0
-    a = math.atan(r) / r
-    qa = (1.0 / (1.0 + r * r) - a) / (r * r)                 # a'(r) / r
-    return a * u, a * v, a + qa * u * u, qa * u * v, a + qa * v * v
-
-
-def _rad_tan_scalar(d, u, v):
-    """RAD_TAN_THIN_PRISM_FISHEYE at one point (module docstring)."""
-    uu, vv, f00, f01, f11 = _fisheye_angle(u, v)
+def _rad_tan(d, uu, vv, f00, f01, f10, f11):
+    """RAD_TAN_THIN_PRISM_FISHEYE (code 5) at the fisheye angle (ū, v̄) whose Jacobian is F."""
     t2 = uu * uu + vv * vv
     rad = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * (d[3] + t2 * (d[4] + t2 * d[5])))))
     drad = d[0] + t2 * (2.0 * d[1] + t2 * (3.0 * d[2] + t2 * (4.0 * d[3] + t2 * (5.0 * d[4] + t2 * 6.0 * d[5]))))
-    xr, yr = uu * rad, vv * rad
-    g00, g01, g11 = rad + 2.0 * drad * uu * uu, 2.0 * drad * uu * vv, rad + 2.0 * drad * vv * vv
+    xr, yr, g00, g01, g10, g11 = _scaled(uu, vv, rad, drad)
     p0, p1, s0, s1, s2, s3 = d[6], d[7], d[8], d[9], d[10], d[11]
     r2 = xr * xr + yr * yr
     r4 = r2 * r2
     xd = xr + 2.0 * p1 * xr * yr + p0 * (r2 + 2.0 * xr * xr) + s0 * r2 + s1 * r4
     yd = yr + 2.0 * p0 * xr * yr + p1 * (r2 + 2.0 * yr * yr) + s2 * r2 + s3 * r4
-    h00 = 1.0 + 2.0 * p1 * yr + 6.0 * p0 * xr + 2.0 * s0 * xr + 4.0 * s1 * r2 * xr
-    h01 = 2.0 * p1 * xr + 2.0 * p0 * yr + 2.0 * s0 * yr + 4.0 * s1 * r2 * yr
-    h10 = 2.0 * p0 * yr + 2.0 * p1 * xr + 2.0 * s2 * xr + 4.0 * s3 * r2 * xr
-    h11 = 1.0 + 2.0 * p0 * xr + 6.0 * p1 * yr + 2.0 * s2 * yr + 4.0 * s3 * r2 * yr
-    # J = H G F
-    k00, k01 = h00 * g00 + h01 * g01, h00 * g01 + h01 * g11
-    k10, k11 = h10 * g00 + h11 * g01, h10 * g01 + h11 * g11
-    return xd, yd, k00 * f00 + k01 * f01, k00 * f01 + k01 * f11, k10 * f00 + k11 * f01, k10 * f01 + k11 * f11
+    k = _compose(1.0 + 2.0 * p1 * yr + 6.0 * p0 * xr + 2.0 * s0 * xr + 4.0 * s1 * r2 * xr,
+                 2.0 * p1 * xr + 2.0 * p0 * yr + 2.0 * s0 * yr + 4.0 * s1 * r2 * yr,
+                 2.0 * p0 * yr + 2.0 * p1 * xr + 2.0 * s2 * xr + 4.0 * s3 * r2 * xr,
+                 1.0 + 2.0 * p0 * xr + 6.0 * p1 * yr + 2.0 * s2 * yr + 4.0 * s3 * r2 * yr, g00, g01, g10, g11)
+    j = _compose(k[0], k[1], k[2], k[3], f00, f01, f10, f11)
+    return xd, yd, j[0], j[1], j[2], j[3]
 
 
-_jit = njit(cache=True)
-if _jit is not None:                 # (called by fixed_distortion_scalar inside the compiled kernel)
-    _fisheye_angle = _jit(_fisheye_angle)
-    _rad_tan_scalar = _jit(_rad_tan_scalar)
+# ---- the branches: one point (compiled) and arrays (numpy) ----
+def _fisheye_scale(d, r2):
+    """Equidistant fisheye (code 2): s = θ_d / r and h = ∂s/∂(r²) at one point; s = 1 for
+    r ≤ ε (with d = 0 the fisheye angle ū = (θ / r) u of codes 4 and 5)."""
+    r = np.sqrt(r2)
+    if r <= EPS:
+        return 1.0, 0.0
+    th = np.arctan(r)
+    t2 = th * th
+    poly = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))
+    dpoly = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
+    s = th * poly / r
+    return s, 0.5 * (dpoly / (1.0 + r2) - s) / r2
+
+
+def _fisheye_scale_array(d, r2):
+    """:func:`_fisheye_scale` over an array of r²."""
+    r = np.sqrt(r2)
+    on = r > EPS
+    th = np.arctan(r)
+    t2 = th * th
+    poly = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))
+    dpoly = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
+    s = np.where(on, th * poly / r, 1.0)
+    return s, np.where(on, 0.5 * (dpoly / (1.0 + r2) - s) / r2, 0.0)
+
+
+def _fov_scale(om, r2):
+    """FOV (code 3): F and ∂F/∂(r²) at one point, COLMAP's series for small ω² and r²."""
+    om2 = om * om
+    if om2 < FOV_EPS:
+        return om2 * r2 / 3.0 - om2 / 12.0 + 1.0, om2 / 3.0
+    t = np.tan(om / 2.0)
+    if r2 < FOV_EPS:
+        return -2.0 * t * (4.0 * r2 * t * t - 3.0) / (3.0 * om), -8.0 * t * t * t / (3.0 * om)
+    r = np.sqrt(r2)
+    a = np.arctan(2.0 * t * r)
+    return a / (r * om), (2.0 * t * r / (1.0 + 4.0 * t * t * r2) - a) / (2.0 * r2 * r * om)
+
+
+def _fov_scale_array(om, r2):
+    """:func:`_fov_scale` over an array of r²."""
+    om2 = om * om
+    if om2 < FOV_EPS:
+        return om2 * r2 / 3.0 - om2 / 12.0 + 1.0, np.full_like(r2, om2 / 3.0)
+    t = np.tan(om / 2.0)
+    r = np.sqrt(r2)
+    a = np.arctan(2.0 * t * r)
+    small = r2 < FOV_EPS
+    return (np.where(small, -2.0 * t * (4.0 * r2 * t * t - 3.0) / (3.0 * om), a / (r * om)),
+            np.where(small, -8.0 * t * t * t / (3.0 * om), (2.0 * t * r / (1.0 + 4.0 * t * t * r2) - a) / (2.0 * r2 * r * om)))
+
+
+_ZERO4 = np.zeros(4)
+
+
+def _distort(code, d, u, v):
+    """The model ``code`` at (u, v): one source for both paths (:func:`fixed_distortion` runs a
+    copy of it whose branch functions are the array ones; :func:`compiled_distortion` compiles
+    it with every function it calls)."""
+    if code == 1:
+        return _full_opencv(d, u, v)
+    if code == 6:
+        return _division(d, u, v)
+    if code == 7:
+        return _eucm(d, u, v)
+    r2 = u * u + v * v
+    if code == 2:
+        s, h = _fisheye_scale(d, r2)
+        return _scaled(u, v, s, h)
+    if code == 3:
+        s, h = _fov_scale(d[0], r2)
+        return _scaled(u, v, s, h)
+    a, h = _fisheye_scale(_ZERO4, r2)               # the fisheye angle of codes 4 and 5
+    uu, vv, f00, f01, f10, f11 = _scaled(u, v, a, h)
+    if code == 4:
+        return _prism(d, uu, vv, f00, f01, f10, f11)
+    return _rad_tan(d, uu, vv, f00, f01, f10, f11)
+
+
+def _rebound(f, names: dict):
+    """``f`` with the global names in ``names`` bound to other functions (its own copy)."""
+    g = dict(f.__globals__)
+    g.update(names)
+    return types.FunctionType(f.__code__, g, f.__name__)
+
+
+_distort_array = _rebound(_distort, {"_fisheye_scale": _fisheye_scale_array, "_fov_scale": _fov_scale_array})
+
+
+def fixed_distortion_scalar(code, d, u, v):
+    """(u_d, v_d, J00, J01, J10, J11) of one point (module docstring); ``d`` the
+    :data:`MAX_COEFFICIENTS` coefficients of the model (zeros after its own)."""
+    return _distort(code, d, u, v)
 
 
 def fixed_distortion(code: int, d, u: np.ndarray, v: np.ndarray):
     """:func:`fixed_distortion_scalar` over arrays u, v of one model ``code`` and one set of
-    coefficients ``d`` (:data:`MAX_COEFFICIENTS`,); the same formulas, vectorised (the numpy
-    reference)."""
+    coefficients ``d`` (:data:`MAX_COEFFICIENTS`,); the same formulas (the numpy reference)."""
     u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
-    d = np.asarray(d, dtype=float)
-    one, zero = np.ones_like(u), np.zeros_like(u)
     with np.errstate(divide="ignore", invalid="ignore"):
-        if code == 1:
-            k1, k2, p1, p2, k3, k4, k5, k6 = d[:8]
-            u2, v2, uv = u * u, v * v, u * v
-            r2 = u2 + v2
-            r4 = r2 * r2
-            r6 = r4 * r2
-            num = 1.0 + k1 * r2 + k2 * r4 + k3 * r6
-            den = 1.0 + k4 * r2 + k5 * r4 + k6 * r6
-            g = num / den
-            dg = ((k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4) * den - num * (k4 + 2.0 * k5 * r2 + 3.0 * k6 * r4)) / (den * den)
-            c = 2.0 * uv * dg + 2.0 * p1 * u + 2.0 * p2 * v
-            return (u * g + 2.0 * p1 * uv + p2 * (r2 + 2.0 * u2), v * g + 2.0 * p2 * uv + p1 * (r2 + 2.0 * v2),
-                    g + 2.0 * u2 * dg + 2.0 * p1 * v + 6.0 * p2 * u, c, c,
-                    g + 2.0 * v2 * dg + 2.0 * p2 * u + 6.0 * p1 * v)
-        if code == 2:
-            r = np.sqrt(u * u + v * v)
-            on = r > EPS
-            th = np.arctan(r)
-            t2 = th * th
-            poly = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))
-            dpoly = 1.0 + t2 * (3.0 * d[0] + t2 * (5.0 * d[1] + t2 * (7.0 * d[2] + t2 * 9.0 * d[3])))
-            s = np.where(on, th * poly / r, 1.0)
-            q = np.where(on, (dpoly / (1.0 + r * r) - s) / (r * r), 0.0)
-            return u * s, v * s, s + q * u * u, q * u * v, q * u * v, s + q * v * v
-        if code == 3:
-            om = float(d[0])
-            r2 = u * u + v * v
-            om2 = om * om
-            if om2 < FOV_EPS:
-                f = om2 * r2 / 3.0 - om2 / 12.0 + 1.0
-                df = om2 / 3.0 * one
-            else:
-                t = math.tan(om / 2.0)
-                r = np.sqrt(r2)
-                a = np.arctan(2.0 * t * r)
-                small = r2 < FOV_EPS
-                f = np.where(small, -2.0 * t * (4.0 * r2 * t * t - 3.0) / (3.0 * om), a / (r * om))
-                df = np.where(small, -8.0 * t * t * t / (3.0 * om) * one,
-                              (2.0 * t * r / (1.0 + 4.0 * t * t * r2) - a) / (2.0 * r2 * r * om))
-            return u * f, v * f, f + 2.0 * u * u * df, 2.0 * u * v * df, 2.0 * u * v * df, f + 2.0 * v * v * df
-        if code == 5:
-            return _rad_tan_numpy(d, u, v)
-        if code == 6:
-            r2 = u * u + v * v
-            q = np.sqrt(1.0 - 4.0 * d[0] * r2)
-            s = 2.0 / (1.0 + q)
-            ds = 4.0 * d[0] / (q * (1.0 + q) * (1.0 + q))
-            return u * s, v * s, s + 2.0 * u * u * ds, 2.0 * u * v * ds, 2.0 * u * v * ds, s + 2.0 * v * v * ds
-        if code == 7:
-            al, be = d[0], d[1]
-            w = np.sqrt(be * (u * u + v * v) + 1.0)
-            den = al * w + 1.0 - al
-            s = 1.0 / den
-            ds = -al * be / (2.0 * w * den * den)
-            return u * s, v * s, s + 2.0 * u * u * ds, 2.0 * u * v * ds, 2.0 * u * v * ds, s + 2.0 * v * v * ds
-        r = np.sqrt(u * u + v * v)
-        on = r > EPS
-        th = np.arctan(r)
-        a = np.where(on, th / r, 1.0)
-        qa = np.where(on, (1.0 / (1.0 + r * r) - a) / (r * r), 0.0)
-    f00, f01, f11 = a + qa * u * u, qa * u * v + zero, a + qa * v * v
-    uu, vv = a * u, a * v
-    k1, k2, p1, p2, k3, k4, sx, sy = d[:8]
-    w2, z2, wz = uu * uu, vv * vv, uu * vv
-    R2 = w2 + z2
-    rad = R2 * (k1 + R2 * (k2 + R2 * (k3 + R2 * k4)))
-    drad = k1 + R2 * (2.0 * k2 + R2 * (3.0 * k3 + R2 * 4.0 * k4))
-    ud = uu * (1.0 + rad) + 2.0 * p1 * wz + p2 * (R2 + 2.0 * w2) + sx * R2
-    vd = vv * (1.0 + rad) + 2.0 * p2 * wz + p1 * (R2 + 2.0 * z2) + sy * R2
-    d00 = 1.0 + rad + 2.0 * w2 * drad + 2.0 * p1 * vv + 6.0 * p2 * uu + 2.0 * sx * uu
-    d01 = 2.0 * wz * drad + 2.0 * p1 * uu + 2.0 * p2 * vv + 2.0 * sx * vv
-    d10 = 2.0 * wz * drad + 2.0 * p2 * vv + 2.0 * p1 * uu + 2.0 * sy * uu
-    d11 = 1.0 + rad + 2.0 * z2 * drad + 2.0 * p2 * uu + 6.0 * p1 * vv + 2.0 * sy * vv
-    return (ud, vd, d00 * f00 + d01 * f01, d00 * f01 + d01 * f11,
-            d10 * f00 + d11 * f01, d10 * f01 + d11 * f11)
+        return _distort_array(int(code), np.asarray(d, dtype=float), u, v)
 
 
-def _fisheye_angle_numpy(u, v):
-    """:func:`_fisheye_angle` over arrays."""
-    r = np.sqrt(u * u + v * v)
-    on = r > EPS
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = np.where(on, np.arctan(r) / r, 1.0)
-        qa = np.where(on, (1.0 / (1.0 + r * r) - a) / (r * r), 0.0)
-    return a * u, a * v, a + qa * u * u, qa * u * v, a + qa * v * v
+_COMPILED = {}
 
 
-def _rad_tan_numpy(d, u, v):
-    """:func:`_rad_tan_scalar` over arrays."""
-    uu, vv, f00, f01, f11 = _fisheye_angle_numpy(u, v)
-    t2 = uu * uu + vv * vv
-    rad = 1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * (d[3] + t2 * (d[4] + t2 * d[5])))))
-    drad = d[0] + t2 * (2.0 * d[1] + t2 * (3.0 * d[2] + t2 * (4.0 * d[3] + t2 * (5.0 * d[4] + t2 * 6.0 * d[5]))))
-    xr, yr = uu * rad, vv * rad
-    g00, g01, g11 = rad + 2.0 * drad * uu * uu, 2.0 * drad * uu * vv, rad + 2.0 * drad * vv * vv
-    p0, p1, s0, s1, s2, s3 = d[6], d[7], d[8], d[9], d[10], d[11]
-    r2 = xr * xr + yr * yr
-    r4 = r2 * r2
-    xd = xr + 2.0 * p1 * xr * yr + p0 * (r2 + 2.0 * xr * xr) + s0 * r2 + s1 * r4
-    yd = yr + 2.0 * p0 * xr * yr + p1 * (r2 + 2.0 * yr * yr) + s2 * r2 + s3 * r4
-    h00 = 1.0 + 2.0 * p1 * yr + 6.0 * p0 * xr + 2.0 * s0 * xr + 4.0 * s1 * r2 * xr
-    h01 = 2.0 * p1 * xr + 2.0 * p0 * yr + 2.0 * s0 * yr + 4.0 * s1 * r2 * yr
-    h10 = 2.0 * p0 * yr + 2.0 * p1 * xr + 2.0 * s2 * xr + 4.0 * s3 * r2 * xr
-    h11 = 1.0 + 2.0 * p0 * xr + 6.0 * p1 * yr + 2.0 * s2 * yr + 4.0 * s3 * r2 * yr
-    k00, k01 = h00 * g00 + h01 * g01, h00 * g01 + h01 * g11
-    k10, k11 = h10 * g00 + h11 * g01, h10 * g01 + h11 * g11
-    return xd, yd, k00 * f00 + k01 * f01, k00 * f01 + k01 * f11, k10 * f00 + k11 * f01, k10 * f01 + k11 * f11
+def compiled_distortion():
+    """:func:`fixed_distortion_scalar` compiled by numba with every function it calls (for the
+    kernel of :mod:`baarda.observations.projection`), or None without numba."""
+    if "d" not in _COMPILED:
+        jit = njit()
+        if jit is None:
+            return None
+        g = dict(globals())
+        for name in ("_scaled", "_compose", "_full_opencv", "_division", "_eucm", "_prism", "_rad_tan",
+                     "_fisheye_scale", "_fov_scale", "_distort"):
+            g[name] = jit(types.FunctionType(globals()[name].__code__, g, name))
+        _COMPILED["d"] = g["_distort"]
+    return _COMPILED["d"]

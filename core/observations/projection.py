@@ -41,7 +41,7 @@ import numpy as np
 
 from ..solve.compiled import njit
 from .distortion import brown
-from .fixed_models import MAX_COEFFICIENTS, fixed_distortion, fixed_distortion_scalar
+from .fixed_models import MAX_COEFFICIENTS, compiled_distortion, fixed_distortion, fixed_distortion_scalar
 from .rotation import R_from_rodrigues, skew
 
 #: The eight intrinsics of the projective camera, in the order of :attr:`ProjectionSet.iint`.
@@ -377,6 +377,6 @@ def _compiled_projection():
         global _mat3, _brown, _fixed_scalar   # the kernel calls the compiled product and distortions
         _mat3 = njit(cache=True, inline="always")(_mat3)
         _brown = njit(cache=True, inline="always")(brown)
-        _fixed_scalar = njit(cache=True)(fixed_distortion_scalar)
+        _fixed_scalar = compiled_distortion()
         _KERNEL["p"] = jit(_projection_kernel)
     return _KERNEL["p"]
