@@ -29,6 +29,7 @@ from .errors import InputError
 from .model.bundle import Block
 from .model.problem import by_size
 from .model.sfm import SfmBlock
+from .observations.projection import ProjectionSet
 
 SIGMA_MIN = 1e-30
 SIGMA_MAX = 1e30
@@ -148,8 +149,6 @@ def _check_projections(problem, path, control, x0) -> None:
     """An image point whose projection is undefined at the start values (a division or EUCM
     camera's model has no real distorted point there, a point in the camera's centre plane) is
     refused, naming it and its camera, instead of reaching the adjustment as NaN."""
-    from .observations.projection import ProjectionSet
-
     for s in problem.sets:
         if not isinstance(s, ProjectionSet):
             continue
