@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .model.problem import by_size, cluster_sizes, size_groups, size_weights
+from .solve import heap
 from .solve.linalg import SPDFactor, keep_columns
 from .solve.schur import SchurFactor, bmm, schur_structure
 from .stats import hypotheses
@@ -310,6 +311,7 @@ class Adjustment:
             I, J, _ = cluster_pairs(self.problem.cov)
             out = pair_products(self.Ar, factor, I, J), self._nuisance_products(I, J)
         out = self.repair_hat_blocks(*out, inplace=True)     # fresh arrays: no copies
+        heap.trim(self.n)             # (the factor's freed temporaries)
         self.timings.setdefault("selected_inverse", time.perf_counter() - t0)
         return out
 
@@ -399,6 +401,7 @@ class Adjustment:
                 phkp[members] = diag(_mm(Pc, HkP))
                 uk[members] = diag(HkP)
                 del HP, HkP, PHP
+        heap.trim(self.n)
         self.timings.setdefault("reliability", time.perf_counter() - t0)
         return r, pcp, php, phkp, uk
 
@@ -422,14 +425,20 @@ class Adjustment:
         correlated cluster may fall outside [0, 1] — only the cluster's trace is bounded — and is
         reported as computed.
         """
-        raw = self._cluster_stats[0].copy()
+        raw = self._cluster_stats[0]
         single = cluster_sizes(self.problem.cov)[self.problem.cov.cluster] == 1
-        raw[single] = np.clip(raw[single], 0.0, 1.0)
+        # clipped in place (no second array of n values): the few values the clip changes are
+        # kept as computed for u_t = 1 − r_i − u_k,i (:attr:`u_t`)
+        out = np.flatnonzero(single & ((raw < 0.0) | (raw > 1.0)))
+        del single
+        self.__dict__["_r_clipped"] = (out, raw[out].copy())
+        raw[out] = np.clip(raw[out], 0.0, 1.0)
         return raw
 
-    @cached_property
+    @property
     def weight_diagonal(self) -> np.ndarray:
-        """P_ii per observation (the diagonal of the cluster inverses, :func:`size_weights`)."""
+        """P_ii per observation (the diagonal of the cluster inverses, :func:`size_weights`; made
+        on demand, not kept)."""
         out = np.empty(self.n)
         for (_, _, members, _), Pc in zip(size_groups(self.problem.cov), size_weights(self.problem.cov)):
             out[members] = np.diagonal(Pc, axis1=1, axis2=2)
@@ -440,13 +449,17 @@ class Adjustment:
         """Observations whose (P C_vv P)_ii vanishes, relative to P_ii: w_i is undefined and an error
         in them cannot be detected at all (F80 §4). For an uncorrelated observation this is
         r_i ≤ R_EPS; a component of a correlated cluster can have r_i ≤ 0 while (P C_vv P)_ii > 0,
-        and its w_i is defined."""
-        return self._cluster_stats[1] <= R_EPS * self.weight_diagonal
+        and its w_i is defined. (The same with the clipped (P C_vv P)_ii of :attr:`qvv_pp`:
+        P_ii > 0.)"""
+        Pii = self.weight_diagonal
+        Pii *= R_EPS
+        return self._cluster_stats[1] <= Pii
 
     @cached_property
     def qvv_pp(self) -> np.ndarray:
-        """(P C_vv P)_ii, the variance of (Pv)_i."""
-        return np.maximum(self._cluster_stats[1], 0.0)
+        """(P C_vv P)_ii, the variance of (Pv)_i (clipped at 0 in place: the cluster statistics
+        hold no second array of it)."""
+        return np.maximum(self._cluster_stats[1], 0.0, out=self._cluster_stats[1])
 
     @cached_property
     def w(self) -> np.ndarray:
@@ -484,7 +497,12 @@ class Adjustment:
     @cached_property
     def u_t(self) -> np.ndarray:
         """Contribution of each observation to the nuisance parameters (F80 eq. 16)."""
-        return 1.0 - self._cluster_stats[0] - self.u_k
+        u_k = self.u_k
+        out = 1.0 - self._cluster_stats[0] - u_k
+        idx, raw = self.__dict__.get("_r_clipped", (None, None))
+        if idx is not None and idx.size:          # r_i as computed, not as clipped (:attr:`r`)
+            out[idx] = 1.0 - raw - u_k[idx]
+        return out
 
     @cached_property
     def u_k(self) -> np.ndarray:
@@ -494,12 +512,12 @@ class Adjustment:
     @cached_property
     def php_k(self) -> np.ndarray:
         """(P H_k P)_ii ≥ 0, H_k the coordinate part of H = A Σ Aᵀ (F80 eq. 18's numerator)."""
-        return np.maximum(self._cluster_stats[3], 0.0)
+        return np.maximum(self._cluster_stats[3], 0.0, out=self._cluster_stats[3])   # (in place)
 
     @cached_property
     def php(self) -> np.ndarray:
         """(P H P)_ii ≥ 0 (the numerator of the external reliability over all unknowns)."""
-        return np.maximum(self._cluster_stats[2], 0.0)
+        return np.maximum(self._cluster_stats[2], 0.0, out=self._cluster_stats[2])   # (in place)
 
     @property
     def external(self) -> np.ndarray:
@@ -572,6 +590,7 @@ class Adjustment:
             mu_max[k] = (h.delta0_prime_max / h.delta0) ** 2
             T[k], q[k] = h.T, h.q
             red[k] = float(r[mem].sum())
+        heap.trim(self.n)
         return keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max
 
     def cluster_group_tests(self) -> dict:
