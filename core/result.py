@@ -109,6 +109,19 @@ def _cluster_blocks(cov, values):
         yield m, members, C, block
 
 
+class _Stats:
+    """:attr:`Adjustment._cluster_stats`: items 0, 1 and 3 held, 2 and 4 from
+    :attr:`Adjustment._cluster_extra` (made when first asked for)."""
+
+    def __init__(self, adj, r, pcp, phkp):
+        self._adj, self._held = adj, {0: r, 1: pcp, 3: phkp}
+
+    def __getitem__(self, k):
+        if k in self._held:
+            return self._held[k]
+        return self._adj._cluster_extra[{2: 0, 4: 1}[k]]
+
+
 class HeldColumns:
     """The design matrix A (n × u) kept as its reduced copy Ar = A[:, keep] and the few entries
     of the held columns (the datum's d coordinates), so that a result does not hold A's values
@@ -378,12 +391,28 @@ class Adjustment:
 
     @cached_property
     def _cluster_stats(self):
-        """Per observation: (C_vv P)_ii, (P C_vv P)_ii, (P H P)_ii, (P H_k P)_ii (see module doc)."""
+        """Per observation: (C_vv P)_ii, (P C_vv P)_ii, (P H P)_ii, (P H_k P)_ii, u_k,i (see module
+        doc), indexed 0-4. The first, second and fourth are made here; (P H P)_ii and u_k,i, which
+        only :attr:`external_all`, :attr:`u_k` and :attr:`u_t` need, when first asked for (the same
+        pass over the clusters: the same numbers; two arrays of n fewer held meanwhile)."""
         t0 = time.perf_counter()
+        out = self._cluster_pass(("r", "pcp", "phkp"))
+        self.timings.setdefault("reliability", time.perf_counter() - t0)
+        return _Stats(self, out["r"], out["pcp"], out["phkp"])
+
+    @cached_property
+    def _cluster_extra(self):
+        out = self._cluster_pass(("php", "uk"))
+        return out["php"], out["uk"]
+
+    def _cluster_pass(self, names) -> dict:
+        """The per-observation statistics ``names`` (of r, pcp, php, phkp, uk) from the cluster
+        blocks of H and H_t, chunk by chunk of clusters."""
         cov = self.problem.cov
         H, Ht = self.hat_blocks
         n = self.n
-        r, pcp, php, phkp, uk = (np.empty(n) for _ in range(5))
+        res = {name: np.empty(n) for name in names}
+        r, pcp, php, phkp, uk = (res.get(name) for name in ("r", "pcp", "php", "phkp", "uk"))
         diag = lambda X: np.diagonal(X, axis1=1, axis2=2)  # noqa: E731
         for (m, members_all, C, Hc_all), (_, _, _, Htc_all), Pc_all in zip(
                 _cluster_blocks(cov, H), _cluster_blocks(cov, Ht), size_weights(cov)):
@@ -394,16 +423,20 @@ class Adjustment:
                 members, Hc, Htc, Pc = members_all[sl], Hc_all[sl], Htc_all[sl], Pc_all[sl]
                 HP = _mm(Hc, Pc)
                 HkP = HP - _mm(Htc, Pc)
-                r[members] = 1.0 - diag(HP)                   # (C_vv P)_ii = 1 − (H P)_ii
+                if r is not None:
+                    r[members] = 1.0 - diag(HP)               # (C_vv P)_ii = 1 − (H P)_ii
                 PHP = _mm(Pc, HP)
-                php[members] = diag(PHP)
-                pcp[members] = diag(Pc) - diag(PHP)           # P C_vv P = P − P H P
-                phkp[members] = diag(_mm(Pc, HkP))
-                uk[members] = diag(HkP)
+                if php is not None:
+                    php[members] = diag(PHP)
+                if pcp is not None:
+                    pcp[members] = diag(Pc) - diag(PHP)       # P C_vv P = P − P H P
+                if phkp is not None:
+                    phkp[members] = diag(_mm(Pc, HkP))
+                if uk is not None:
+                    uk[members] = diag(HkP)
                 del HP, HkP, PHP
         heap.trim(self.n)
-        self.timings.setdefault("reliability", time.perf_counter() - t0)
-        return r, pcp, php, phkp, uk
+        return res
 
     def cluster_cvv(self):
         """Cluster blocks of C_vv = C − A Σ Aᵀ (F80 eq. 8), as stacks per cluster size:
@@ -557,6 +590,7 @@ class Adjustment:
         valid = g_sorted[starts] >= 0
         starts, ends = starts[valid], ends[valid]
         keys = g_sorted[starts].astype(np.int64)
+        del g_sorted
         ng = keys.size
         ptr = np.concatenate([[0], np.cumsum(ends - starts)]).astype(np.int64)
         members = np.empty(int(ptr[-1]), dtype=np.int64)
@@ -617,7 +651,8 @@ class Adjustment:
         gid = self.problem.info.group
         Pv = self.Pv
         counts = np.bincount(gid[gid >= 0])
-        for (members, C, Cvv), Pall in zip(self.cluster_cvv(), size_weights(self.problem.cov)):
+        H, _ = self.hat_blocks
+        for (_, members, C, Hc), Pall in zip(_cluster_blocks(self.problem.cov, H), size_weights(self.problem.cov)):
             g0 = gid[members]
             same = (g0 >= 0).all(axis=1) & (g0 == g0[:, :1]).all(axis=1)
             same &= counts[np.maximum(g0[:, 0], 0)] == members.shape[1]
@@ -626,7 +661,8 @@ class Adjustment:
             sel = np.flatnonzero(same)
             for s in range(0, sel.size, GROUP_CHUNK):     # (the temporaries of a chunk only)
                 part = sel[s:s + GROUP_CHUNK]
-                mem, Cv, Pc = members[part], Cvv[part], Pall[part]    # P_c: the cached cluster weights
+                # C_vv = C − H of the chunk's clusters (not of all at once: the same numbers)
+                mem, Cv, Pc = members[part], C[part] - Hc[part], Pall[part]    # P_c: the cached cluster weights
                 W = Pc @ Cv @ Pc
                 del Cv
                 W = 0.5 * (W + np.swapaxes(W, 1, 2))
