@@ -67,7 +67,7 @@ from . import datum as datum_mod
 from .errors import DatumDefectError, OptionError, SingularError
 from .model.problem import take, weight_matrix
 from .result import Adjustment, HeldColumns
-from .solve import schur
+from .solve import heap, schur
 from .solve.linalg import SPDFactor, compact, keep_columns
 from .solve.schur import schur_structure
 
@@ -102,6 +102,8 @@ MAX_END_GAMES = 3
 KEEP_LAYOUTS_BYTES = 64 << 20
 #: an undamped end-game step may raise vᵀPv by this much (relative) and still count as round-off
 ROUNDOFF_COST = 1e-10
+#: entries per chunk of :meth:`Linearisation._layout`'s temporaries
+LAYOUT_CHUNK = 1 << 20
 
 #: termination status → message (> 0 converged, ≤ 0 not; the style of SciPy's least_squares)
 STATUS = {
@@ -218,6 +220,21 @@ class Linearisation:
         f, parts = self.evaluate(x)
         return f, self.design(parts)
 
+    def first(self, x: np.ndarray):
+        """f(x) and A at the first evaluation: the layout is found from the set's pattern alone,
+        before any Jacobian value is made, and a set that writes its values in place
+        (``evaluate_into``) writes them straight into A's data — no array of the raw entries
+        beside the layout's temporaries. The same f and A as :meth:`evaluate` and :meth:`design`
+        (the same kernel); otherwise those two."""
+        sets = self.problem.sets
+        s = sets[0] if len(sets) == 1 else None
+        if s is not None and hasattr(s, "evaluate_into") and hasattr(s, "pattern"):
+            self._layout([(*s.pattern(), None)])
+            if self._first is None:
+                return self.linearise(x)
+        f, parts = self.evaluate(x)
+        return f, self.design(parts)
+
     def _direct(self, s) -> None:
         """Make the place in A's data of every entry of the set ``s`` (the inverse of the gather
         order, which it replaces). A set whose pattern is fixed (``pattern_fixed``: a function of
@@ -244,31 +261,78 @@ class Linearisation:
         return f, parts
 
     def _layout(self, parts):
+        """The CSR pattern of A and the gathering order of the raw entries (their stable sort by
+        (row, column), duplicates summed). Built in chunks of :data:`LAYOUT_CHUNK` entries: the
+        int64 keys row·u + column are the only full-size int64 array besides the sort's order
+        (no rows, columns or sorted keys of every entry beside them, ~0.4 KB per image point)."""
         problem = self.problem
-        rows = np.concatenate([np.asarray(s.rows, dtype=np.int64)[jr]      # (int64: the keys below)
-                               for s, (jr, _, _) in zip(problem.sets, parts)])
-        cols = self.col[np.concatenate([jc for _, jc, _ in parts])]
-        m = cols >= 0
-        key = rows[m] * max(self.u, 1) + cols[m]
-        del rows, cols             # (the temporaries go as soon as they are used)
-        order = np.argsort(key, kind="stable")
-        ks = key[order]
-        del key
-        first = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]]) if ks.size else np.zeros(0, dtype=np.int64)
-        uniq = ks if first.size == ks.size else ks[first]
+        U = max(self.u, 1)
         n = problem.n
-        indptr = np.searchsorted(uniq // max(self.u, 1), np.arange(n + 1)).astype(np.int64)
+        sizes = [np.asarray(jr).size for jr, _, _ in parts]
+        E = int(sum(sizes))
+        itype = np.int32 if E < 2 ** 31 - 1 else np.int64
+        m = np.empty(E, dtype=bool)         # entries of free columns
+        o = 0
+        for (_, jc, _), k in zip(parts, sizes):
+            for s in range(0, k, LAYOUT_CHUNK):
+                e = min(s + LAYOUT_CHUNK, k)
+                m[o + s:o + e] = self.col[jc[s:e]] >= 0
+            o += k
+        nm = int(np.count_nonzero(m))
+        key = np.empty(nm, dtype=np.int64)
+        pos = 0
+        rows = cols = mk = None
+        for s_, (jr, jc, _), k in zip(problem.sets, parts, sizes):
+            srows = np.asarray(s_.rows)
+            for s in range(0, k, LAYOUT_CHUNK):
+                e = min(s + LAYOUT_CHUNK, k)
+                rows = srows[jr[s:e]].astype(np.int64)
+                cols = self.col[jc[s:e]]
+                mk = cols >= 0
+                c = int(np.count_nonzero(mk))
+                key[pos:pos + c] = rows[mk] * U + cols[mk]
+                pos += c
+        del rows, cols, mk
+        order = np.argsort(key, kind="stable").astype(itype)
+        # entries of the free columns in CSR order (the same stable order as before)
+        self._take = order if nm == E else np.flatnonzero(m).astype(itype)[order]
+        del m
+        # duplicates (one parameter feeding two intrinsics) summed by reduceat over their runs;
+        # the unique keys give A's row pointer and column indices, chunk by chunk
+        small = self.u < 2 ** 31 - 1
+        indices = np.empty(nm, dtype=np.int32 if small else np.int64)
+        counts = np.zeros(n, dtype=np.int64)
+        firsts, nu = [], 0
+        ks = new = uk = None
+        for s in range(0, nm, LAYOUT_CHUNK):
+            e = min(s + LAYOUT_CHUNK, nm)
+            ks = key[order[s:e]]
+            new = np.empty(e - s, dtype=bool)
+            new[0] = s == 0 or ks[0] != key[order[s - 1]]
+            np.not_equal(ks[1:], ks[:-1], out=new[1:])
+            if new.all():
+                firsts.append((s, e))
+                uk = ks
+            else:
+                firsts.append(np.flatnonzero(new) + s)
+                uk = ks[new]
+            indices[nu:nu + uk.size] = uk % U
+            counts += np.bincount(uk // U, minlength=n)
+            nu += uk.size
+        del key, order, ks, new, uk
         self._key = tuple((jr, jc) for jr, jc, _ in parts)
-        # entries of the free columns in CSR order; duplicates (one parameter feeding two
-        # intrinsics) summed by reduceat over their runs
-        itype = np.int32 if m.size < 2 ** 31 - 1 else np.int64
-        self._first = None if first.size == ks.size else first
-        del ks, first
-        self._take = np.flatnonzero(m).astype(itype)[order]
-        del order, m
-        small = uniq.size < 2 ** 31 - 1 and self.u < 2 ** 31 - 1       # int32 indices where they fit
+        if nu == nm:
+            self._first = None
+        else:
+            self._first = np.concatenate([np.arange(*f, dtype=np.int64) if isinstance(f, tuple) else f
+                                          for f in firsts])
+            indices = indices[:nu].copy()
+        del firsts
+        small = nu < 2 ** 31 - 1 and self.u < 2 ** 31 - 1       # int32 indices where they fit
+        indptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(counts, out=indptr[1:])
         self._indptr = indptr.astype(np.int32 if small else np.int64)
-        self._indices = (uniq % max(self.u, 1)).astype(np.int32 if small else np.int64)
+        self._indices = indices.astype(np.int32 if small else np.int64, copy=False)
         self._reduced = self._dest = self._fixed = None
 
     def release(self) -> None:
@@ -375,12 +439,12 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     free = params.free
     x = (params.x0 if x0 is None else x0).astype(float).copy()
     x_ref = x.copy()
+    heap.map_large(problem.n)
     P = weight_matrix(problem.cov)
     labels = _Labels(params.labels, free)
     lin = Linearisation(problem, free)
-    f, parts = lin.evaluate(x)
-    A = lin.design(parts)
-    del parts                      # the entries live on in A
+    f, A = lin.first(x)
+    heap.trim(problem.n)           # (the layout's temporaries: freed heap given back)
     plan = datum_mod.plan(problem, x, A, P, free)
     keep_all = np.setdiff1d(np.arange(free.size), plan.eliminate)
     keep = keep_all                # the unknowns solved for (far points held in the end game)
@@ -434,6 +498,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         if use_schur:
             st = next((s for k, s in layouts if np.array_equal(k, keep) and s.matches(Ar)), None)
             if st is None:
+                heap.trim(problem.n)   # (the old layout's freed heap, before the new one is analysed)
                 st = schur_structure(problem, Ar, keep, "schur")
 
     def switch():
@@ -483,6 +548,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         # to diagnose (DatumDefectError), not something to damp away
         first = it == 1
         lam = 1.0 / mu if damped and not endgame and not first else 0.0
+        heap.trim(problem.n)       # (the last step's freed heap, before this one's factor)
         if plan.defect:
             # a free network's or block's damped steps move all unknowns, the gauge too (the
             # damping makes N + λD regular, as in Ceres, which fixes no gauge); its undamped
@@ -618,6 +684,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     lin.release()
     for s in problem.sets:
         getattr(s, "release", lambda: None)()
+    heap.trim(problem.n)           # (the iterations' freed heap, before the datum is analysed)
     if plan.defect:
         old, plan = plan.eliminate, None       # (the iterations' plan and its G go first)
         # the datum at the solution; a block keeps its held coordinates where they still fix
@@ -642,6 +709,7 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
         adj.seed(schur_structure=st)
     if "Ar" not in adj.__dict__ and np.array_equal(adj.keep, keep):
         adj.seed(Ar=Ar)            # (its pattern is the structure's: not made a second time)
+    heap.trim(problem.n)
     return adj
 
 

@@ -288,6 +288,26 @@ _GRAM = _jit(_gram) if _jit is not None else None
 #: nuisance unknowns up to which :func:`null_space` sums AₜᵀPAₜ into a dense matrix (8 · n² bytes)
 DENSE_NTT = 2000
 
+
+def row_view(A: sp.csr_matrix, s: int, e: int) -> sp.csr_matrix:
+    """Rows s:e of a CSR matrix on views of its data and indices (``A[s:e]`` copies them: the
+    same matrix, without the copy)."""
+    a, b = int(A.indptr[s]), int(A.indptr[e])
+    out = sp.csr_matrix((A.data[a:b], A.indices[a:b], A.indptr[s:e + 1] - A.indptr[s]),
+                        shape=(e - s, A.shape[1]), copy=False)
+    out.has_canonical_format = A.has_canonical_format
+    return out
+
+
+def column_counts(A: sp.csr_matrix, step: int = 1 << 22) -> np.ndarray:
+    """Entries per column (``np.bincount(A.indices)``, in chunks: bincount casts int32 indices to
+    int64, a copy of them all at once)."""
+    out = np.zeros(A.shape[1], dtype=np.int64)
+    for s in range(0, A.indices.size, step):
+        out += np.bincount(A.indices[s:s + step], minlength=A.shape[1])
+    return out
+
+
 #: rows per block of :func:`null_space`'s sums (a block's temporaries are ~ 300 B per row)
 BLOCK_ROWS = 1 << 18
 
@@ -332,7 +352,10 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
     Returns (G, names) over the free parameters; G spans {g : A g = 0} ∩ span(similarities).
     """
     Gall, names = similarity_candidates(problem, x)
-    G = Gall[free]                 # (a copy: the candidates of every parameter go at once)
+    if free.size == Gall.shape[0] and np.array_equal(free, np.arange(free.size)):
+        G = Gall                   # every parameter free: the candidates are this function's own
+    else:
+        G = Gall[free]             # (a copy: the candidates of every parameter go at once)
     del Gall
     kind = problem.params.kind[free]
     t = np.flatnonzero(kind == "t")
@@ -346,7 +369,7 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
         dense = _GRAM is not None and t.size <= DENSE_NTT
         Ntt, AtPR = np.zeros((t.size, t.size)) if dense else None, np.zeros((t.size, G.shape[1]))
         for s, e in blocks:
-            Ab, Pb = A[s:e], P[s:e, s:e]
+            Ab, Pb = row_view(A, s, e), P[s:e, s:e]
             At = Ab[:, t]
             if dense:
                 W = sp.csr_matrix(Pb @ At)
@@ -365,7 +388,7 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
     diagN = normal_diagonal(A, P)
     num = np.zeros((G.shape[1], G.shape[1]))
     for s, e in blocks:
-        R = A[s:e] @ G
+        R = row_view(A, s, e) @ G
         num += R.T @ (P[s:e, s:e] @ R)
     del R
     Gk = G[k]
@@ -399,11 +422,14 @@ def null_space(problem, x, A: sp.csr_matrix, P: sp.csr_matrix, free: np.ndarray)
         extra = Ur[:, : coef.shape[1] - alone.size] / np.where(on, D, 1.0)[:, None]
         new = np.hstack([single, extra])
         check = G @ new
+        check /= np.abs(check).max(axis=0)
         ok = (sr[: coef.shape[1] - alone.size] > 1e-6 * max(sr.max(initial=0.0), 1e-300)).all()
-        if ok and np.linalg.matrix_rank(check / np.abs(check).max(axis=0), tol=1e-8) == coef.shape[1]:
+        if ok and np.linalg.matrix_rank(check, tol=1e-8) == coef.shape[1]:
             coef = new
+        del check
     Gn = G @ coef
-    Gn = Gn / np.abs(Gn).max(axis=0)              # unit size: the scale of N is irrelevant here
+    del G
+    Gn /= np.abs(Gn).max(axis=0)                  # unit size: the scale of N is irrelevant here
     desc = []
     for c in range(coef.shape[1]):
         w = np.abs(coef[:, c]) * np.sqrt(np.maximum(np.diag(den), 0.0))
@@ -463,7 +489,7 @@ def plan(problem, x, A, P, free) -> DatumPlan:
     # but they decide its conditioning: hold points that many observations determine (a 2-ray
     # point next to a camera, or a point near infinity, makes the regularised system needlessly
     # ill-conditioned), spread so that they fix the transformations best (pivoted QR of G)
-    nobs = np.bincount(sp.csr_matrix(A).indices, minlength=A.shape[1])[cand]
+    nobs = column_counts(sp.csr_matrix(A))[cand]
     dist, ref = point_distances(problem, x)
     strong = (nobs >= np.quantile(nobs, 0.9)) & (dist[point_of[cand]] <= ref)
     def equilibrated(rows):

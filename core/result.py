@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .model.problem import by_size, cluster_sizes, size_groups, size_weights
+from .solve import heap
 from .solve.linalg import SPDFactor, keep_columns
 from .solve.schur import SchurFactor, bmm, schur_structure
 from .stats import hypotheses
@@ -106,6 +107,19 @@ def _cluster_blocks(cov, values):
         block = values[pos:pos + k * m * m].reshape(k, m, m)
         pos += k * m * m
         yield m, members, C, block
+
+
+class _Stats:
+    """:attr:`Adjustment._cluster_stats`: items 0, 1 and 3 held, 2 and 4 from
+    :attr:`Adjustment._cluster_extra` (made when first asked for)."""
+
+    def __init__(self, adj, r, pcp, phkp):
+        self._adj, self._held = adj, {0: r, 1: pcp, 3: phkp}
+
+    def __getitem__(self, k):
+        if k in self._held:
+            return self._held[k]
+        return self._adj._cluster_extra[{2: 0, 4: 1}[k]]
 
 
 class HeldColumns:
@@ -310,6 +324,7 @@ class Adjustment:
             I, J, _ = cluster_pairs(self.problem.cov)
             out = pair_products(self.Ar, factor, I, J), self._nuisance_products(I, J)
         out = self.repair_hat_blocks(*out, inplace=True)     # fresh arrays: no copies
+        heap.trim(self.n)             # (the factor's freed temporaries)
         self.timings.setdefault("selected_inverse", time.perf_counter() - t0)
         return out
 
@@ -376,12 +391,28 @@ class Adjustment:
 
     @cached_property
     def _cluster_stats(self):
-        """Per observation: (C_vv P)_ii, (P C_vv P)_ii, (P H P)_ii, (P H_k P)_ii (see module doc)."""
+        """Per observation: (C_vv P)_ii, (P C_vv P)_ii, (P H P)_ii, (P H_k P)_ii, u_k,i (see module
+        doc), indexed 0-4. The first, second and fourth are made here; (P H P)_ii and u_k,i, which
+        only :attr:`external_all`, :attr:`u_k` and :attr:`u_t` need, when first asked for (the same
+        pass over the clusters: the same numbers; two arrays of n fewer held meanwhile)."""
         t0 = time.perf_counter()
+        out = self._cluster_pass(("r", "pcp", "phkp"))
+        self.timings.setdefault("reliability", time.perf_counter() - t0)
+        return _Stats(self, out["r"], out["pcp"], out["phkp"])
+
+    @cached_property
+    def _cluster_extra(self):
+        out = self._cluster_pass(("php", "uk"))
+        return out["php"], out["uk"]
+
+    def _cluster_pass(self, names) -> dict:
+        """The per-observation statistics ``names`` (of r, pcp, php, phkp, uk) from the cluster
+        blocks of H and H_t, chunk by chunk of clusters."""
         cov = self.problem.cov
         H, Ht = self.hat_blocks
         n = self.n
-        r, pcp, php, phkp, uk = (np.empty(n) for _ in range(5))
+        res = {name: np.empty(n) for name in names}
+        r, pcp, php, phkp, uk = (res.get(name) for name in ("r", "pcp", "php", "phkp", "uk"))
         diag = lambda X: np.diagonal(X, axis1=1, axis2=2)  # noqa: E731
         for (m, members_all, C, Hc_all), (_, _, _, Htc_all), Pc_all in zip(
                 _cluster_blocks(cov, H), _cluster_blocks(cov, Ht), size_weights(cov)):
@@ -392,15 +423,20 @@ class Adjustment:
                 members, Hc, Htc, Pc = members_all[sl], Hc_all[sl], Htc_all[sl], Pc_all[sl]
                 HP = _mm(Hc, Pc)
                 HkP = HP - _mm(Htc, Pc)
-                r[members] = 1.0 - diag(HP)                   # (C_vv P)_ii = 1 − (H P)_ii
+                if r is not None:
+                    r[members] = 1.0 - diag(HP)               # (C_vv P)_ii = 1 − (H P)_ii
                 PHP = _mm(Pc, HP)
-                php[members] = diag(PHP)
-                pcp[members] = diag(Pc) - diag(PHP)           # P C_vv P = P − P H P
-                phkp[members] = diag(_mm(Pc, HkP))
-                uk[members] = diag(HkP)
+                if php is not None:
+                    php[members] = diag(PHP)
+                if pcp is not None:
+                    pcp[members] = diag(Pc) - diag(PHP)       # P C_vv P = P − P H P
+                if phkp is not None:
+                    phkp[members] = diag(_mm(Pc, HkP))
+                if uk is not None:
+                    uk[members] = diag(HkP)
                 del HP, HkP, PHP
-        self.timings.setdefault("reliability", time.perf_counter() - t0)
-        return r, pcp, php, phkp, uk
+        heap.trim(self.n)
+        return res
 
     def cluster_cvv(self):
         """Cluster blocks of C_vv = C − A Σ Aᵀ (F80 eq. 8), as stacks per cluster size:
@@ -422,14 +458,20 @@ class Adjustment:
         correlated cluster may fall outside [0, 1] — only the cluster's trace is bounded — and is
         reported as computed.
         """
-        raw = self._cluster_stats[0].copy()
+        raw = self._cluster_stats[0]
         single = cluster_sizes(self.problem.cov)[self.problem.cov.cluster] == 1
-        raw[single] = np.clip(raw[single], 0.0, 1.0)
+        # clipped in place (no second array of n values): the few values the clip changes are
+        # kept as computed for u_t = 1 − r_i − u_k,i (:attr:`u_t`)
+        out = np.flatnonzero(single & ((raw < 0.0) | (raw > 1.0)))
+        del single
+        self.__dict__["_r_clipped"] = (out, raw[out].copy())
+        raw[out] = np.clip(raw[out], 0.0, 1.0)
         return raw
 
-    @cached_property
+    @property
     def weight_diagonal(self) -> np.ndarray:
-        """P_ii per observation (the diagonal of the cluster inverses, :func:`size_weights`)."""
+        """P_ii per observation (the diagonal of the cluster inverses, :func:`size_weights`; made
+        on demand, not kept)."""
         out = np.empty(self.n)
         for (_, _, members, _), Pc in zip(size_groups(self.problem.cov), size_weights(self.problem.cov)):
             out[members] = np.diagonal(Pc, axis1=1, axis2=2)
@@ -440,13 +482,17 @@ class Adjustment:
         """Observations whose (P C_vv P)_ii vanishes, relative to P_ii: w_i is undefined and an error
         in them cannot be detected at all (F80 §4). For an uncorrelated observation this is
         r_i ≤ R_EPS; a component of a correlated cluster can have r_i ≤ 0 while (P C_vv P)_ii > 0,
-        and its w_i is defined."""
-        return self._cluster_stats[1] <= R_EPS * self.weight_diagonal
+        and its w_i is defined. (The same with the clipped (P C_vv P)_ii of :attr:`qvv_pp`:
+        P_ii > 0.)"""
+        Pii = self.weight_diagonal
+        Pii *= R_EPS
+        return self._cluster_stats[1] <= Pii
 
     @cached_property
     def qvv_pp(self) -> np.ndarray:
-        """(P C_vv P)_ii, the variance of (Pv)_i."""
-        return np.maximum(self._cluster_stats[1], 0.0)
+        """(P C_vv P)_ii, the variance of (Pv)_i (clipped at 0 in place: the cluster statistics
+        hold no second array of it)."""
+        return np.maximum(self._cluster_stats[1], 0.0, out=self._cluster_stats[1])
 
     @cached_property
     def w(self) -> np.ndarray:
@@ -484,7 +530,12 @@ class Adjustment:
     @cached_property
     def u_t(self) -> np.ndarray:
         """Contribution of each observation to the nuisance parameters (F80 eq. 16)."""
-        return 1.0 - self._cluster_stats[0] - self.u_k
+        u_k = self.u_k
+        out = 1.0 - self._cluster_stats[0] - u_k
+        idx, raw = self.__dict__.get("_r_clipped", (None, None))
+        if idx is not None and idx.size:          # r_i as computed, not as clipped (:attr:`r`)
+            out[idx] = 1.0 - raw - u_k[idx]
+        return out
 
     @cached_property
     def u_k(self) -> np.ndarray:
@@ -494,12 +545,12 @@ class Adjustment:
     @cached_property
     def php_k(self) -> np.ndarray:
         """(P H_k P)_ii ≥ 0, H_k the coordinate part of H = A Σ Aᵀ (F80 eq. 18's numerator)."""
-        return np.maximum(self._cluster_stats[3], 0.0)
+        return np.maximum(self._cluster_stats[3], 0.0, out=self._cluster_stats[3])   # (in place)
 
     @cached_property
     def php(self) -> np.ndarray:
         """(P H P)_ii ≥ 0 (the numerator of the external reliability over all unknowns)."""
-        return np.maximum(self._cluster_stats[2], 0.0)
+        return np.maximum(self._cluster_stats[2], 0.0, out=self._cluster_stats[2])   # (in place)
 
     @property
     def external(self) -> np.ndarray:
@@ -539,6 +590,7 @@ class Adjustment:
         valid = g_sorted[starts] >= 0
         starts, ends = starts[valid], ends[valid]
         keys = g_sorted[starts].astype(np.int64)
+        del g_sorted
         ng = keys.size
         ptr = np.concatenate([[0], np.cumsum(ends - starts)]).astype(np.int64)
         members = np.empty(int(ptr[-1]), dtype=np.int64)
@@ -572,6 +624,7 @@ class Adjustment:
             mu_max[k] = (h.delta0_prime_max / h.delta0) ** 2
             T[k], q[k] = h.T, h.q
             red[k] = float(r[mem].sum())
+        heap.trim(self.n)
         return keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max
 
     def cluster_group_tests(self) -> dict:
@@ -598,7 +651,8 @@ class Adjustment:
         gid = self.problem.info.group
         Pv = self.Pv
         counts = np.bincount(gid[gid >= 0])
-        for (members, C, Cvv), Pall in zip(self.cluster_cvv(), size_weights(self.problem.cov)):
+        H, _ = self.hat_blocks
+        for (_, members, C, Hc), Pall in zip(_cluster_blocks(self.problem.cov, H), size_weights(self.problem.cov)):
             g0 = gid[members]
             same = (g0 >= 0).all(axis=1) & (g0 == g0[:, :1]).all(axis=1)
             same &= counts[np.maximum(g0[:, 0], 0)] == members.shape[1]
@@ -607,7 +661,8 @@ class Adjustment:
             sel = np.flatnonzero(same)
             for s in range(0, sel.size, GROUP_CHUNK):     # (the temporaries of a chunk only)
                 part = sel[s:s + GROUP_CHUNK]
-                mem, Cv, Pc = members[part], Cvv[part], Pall[part]    # P_c: the cached cluster weights
+                # C_vv = C − H of the chunk's clusters (not of all at once: the same numbers)
+                mem, Cv, Pc = members[part], C[part] - Hc[part], Pall[part]    # P_c: the cached cluster weights
                 W = Pc @ Cv @ Pc
                 del Cv
                 W = 0.5 * (W + np.swapaxes(W, 1, 2))

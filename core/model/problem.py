@@ -496,8 +496,15 @@ def size_weights(cov) -> tuple:
     """P_c = C_c⁻¹ (symmetrised) of every cluster, stacked as :func:`size_groups` stacks C."""
     out = []
     for _, _, _, C in size_groups(cov):
-        W = np.linalg.inv(C)
-        W = 0.5 * (W + np.swapaxes(W, 1, 2))
+        if C.ndim == 3 and C.shape[0] > 1 and C.strides[0] == 0:
+            # one matrix broadcast over the clusters (a block's image points): its inverse,
+            # broadcast likewise (the same numbers: the stack is inverted matrix by matrix)
+            W1 = np.linalg.inv(C[:1])
+            W1 = 0.5 * (W1 + np.swapaxes(W1, 1, 2))
+            W = np.broadcast_to(W1[0], C.shape)
+        else:
+            W = np.linalg.inv(C)
+            W = 0.5 * (W + np.swapaxes(W, 1, 2))
         W.setflags(write=False)
         out.append(W)
     return tuple(out)

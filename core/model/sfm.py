@@ -266,8 +266,11 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
         roles = ("image", "point", "keypoint", "component", "id")
         values = (*values[:2], range(int(kp.max()) + 1), *values[2:])
     ids = RecordIds(roles, values, codes)
+    if not nc:
+        # one σ for every image point: broadcast (read-only), not n copies of it
+        sfile = np.broadcast_to(np.float64(block.sigma_px), (n,))
     info = ObservationInfo(kind=Categorical(("image-x", "image-y", "control-x", "control-y", "control-z"), kind_codes),
-                           ids=ids, value_file=l.copy(), unit=units, sigma_file=sfile, sigma_unit=units,
+                           ids=ids, value_file=l, unit=units, sigma_file=sfile, sigma_unit=units,
                            line=lines, group=group)
     controlled = {cp.id for cp in block.control}
     status = tuple("control" if pid in controlled else "tie" for pid in block.points) if controlled else \

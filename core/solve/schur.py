@@ -261,6 +261,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     cl_point_ent = np.full(ncl, -1, dtype=np.int64)
     sel = ~bad[kp]
     cl_point_ent[kc[sel]] = ent_of_point[kp[sel]]
+    del kc, kp, sel, per_cl, bad, ent_of_point, pts
     alone = np.flatnonzero(cl_point_ent < 0)
     ent_of_cl = cl_point_ent.copy()
     ent_of_cl[alone] = n_points + np.arange(alone.size)
@@ -272,6 +273,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     ent_ptr = np.concatenate([[0], np.cumsum(np.bincount(cl_ent, minlength=ne))]).astype(np.int64)
     ent_cols = np.full((ne, 3), -1, dtype=np.int64)
     ent_cols[e_of, coord] = ecols
+    del e_of, first, cl_point_ent, ent_of_cl
     ent_size = (ent_cols >= 0).sum(axis=1).astype(np.int64)
 
     # the point side (its places in b), and supernodes: camera columns touched by the same rows
@@ -302,7 +304,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
         h2 += np.bincount(colc, weights=w2[rowc], minlength=u)
         cnt += np.bincount(colc, minlength=u)
     src_b = src_b.reshape(ncl, M, 3)
-    del w1, w2
+    del w1, w2, coord_col
     h1, h2, cnt = h1[camcols], h2[camcols], cnt[camcols]
     tk = (kind[camcols] == "t").astype(float)
     _, grp = np.unique(np.stack([h1, h2, cnt.astype(float), tk], 1), axis=0, return_inverse=True)
@@ -327,12 +329,14 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     off_of[cam] = np.arange(cam.size) - sn_ptr[sn_sorted]
     sn_t = np.zeros(nsn, dtype=bool)
     sn_t[sn_sorted] = kind[cam] == "t"
+    del h1, h2, cnt, tk, grp, firstcol, rank, sn, o, sn_sorted
 
     # supernode slots of each cluster position
     nc = ncl
     # runs of camera entries of one row and one supernode (a row's entries make one run or a
     # few): the keys cluster position · nsn + supernode are made per run, not per entry
     sn_of_e = sn_of.astype(_index_dtype(max(nsn, 1)))
+    del sn_of
     rkey, rlen, nrun = [], [], []
     for _, row, col in _entries(Ar):
         cm = ~elig[col]
@@ -363,7 +367,7 @@ def analyse(Ar, cov, kind: np.ndarray, point: np.ndarray, labels=None) -> Struct
     itype = _index_dtype(nc * M * K)
     loc = np.searchsorted(skey, rkey)
     run_off = cl_off[sp_[loc], slot[loc]].astype(itype)
-    del loc, rkey
+    del loc, rkey, skey, sp_, sg, sfirst, slot, sizes, sn_of_e
     pos_row = cl_pos.astype(itype)[cluster]
     rpos_t, off_t = rpos.astype(itype), off_of.astype(itype)
     src_a = np.full(nc * M * K, -1, dtype=stype)

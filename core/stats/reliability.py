@@ -34,16 +34,27 @@ class GroupTests(LazySequence):
     their order; the q semi-axes δ0/√λ(W_s) ascending in λ, F80 eq. 10-14), made on demand.
 
     ``per_group`` and ``per_member`` name the arrays indexed by group and by member position
-    (``members[ptr[k]:ptr[k + 1]]``); each is an attribute too (``groups.T``)."""
+    (``members[ptr[k]:ptr[k + 1]]``); each is an attribute too (``groups.T``). The arrays that
+    follow from the others and the policy (α_q, the critical values, δ0(q), R, δ0′max, the
+    semi-axes: :class:`_Derived`) may be given as ``derive`` instead: they are then made when
+    asked for and not kept (a block of a million image points holds seven arrays fewer)."""
 
     PER_GROUP = ("T", "dimension", "redundancy", "critical", "rejected", "alpha", "R", "critical_R",
                  "delta0", "delta0_prime_max")
     PER_MEMBER = ("nabla", "nabla_sigma", "ellipse_axes")
 
-    def __init__(self, group, ptr, members, **arrays):
+    def __init__(self, group, ptr, members, derive=None, **arrays):
         self.group, self.ptr, self.members = group, ptr, members
+        self._derive = derive
         for name in self.PER_GROUP + self.PER_MEMBER:
-            setattr(self, name, arrays[name])
+            if derive is None or name not in derive.NAMES:
+                setattr(self, name, arrays[name])
+
+    def __getattr__(self, name):
+        derive = self.__dict__.get("_derive")
+        if derive is not None and name in derive.NAMES:
+            return derive.array(name)          # made on demand, not kept
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @classmethod
     def empty(cls) -> "GroupTests":
@@ -58,14 +69,21 @@ class GroupTests(LazySequence):
     def _item(self, k):
         a, b = int(self.ptr[k]), int(self.ptr[k + 1])
         q = int(self.dimension[k])
-        axes = self.ellipse_axes[a:b]
+        d = self._derive
+        if d is not None:
+            der = d.item(k, a, b)
+        else:
+            der = {"critical": float(self.critical[k]), "alpha": float(self.alpha[k]), "R": float(self.R[k]),
+                   "critical_R": float(self.critical_R[k]), "delta0": float(self.delta0[k]),
+                   "delta0_prime_max": float(self.delta0_prime_max[k]), "ellipse_axes": self.ellipse_axes[a:b]}
+        axes = der["ellipse_axes"]
         return {"group": int(self.group[k]), "members": self.members[a:b], "T": float(self.T[k]),
                 "dimension": q, "redundancy": float(self.redundancy[k]),
-                "critical": float(self.critical[k]), "rejected": bool(self.rejected[k]),
-                "alpha": float(self.alpha[k]), "nabla": self.nabla[a:b], "R": float(self.R[k]),
-                "critical_R": float(self.critical_R[k]), "delta0": float(self.delta0[k]),
+                "critical": der["critical"], "rejected": bool(self.rejected[k]),
+                "alpha": der["alpha"], "nabla": self.nabla[a:b], "R": der["R"],
+                "critical_R": der["critical_R"], "delta0": der["delta0"],
                 "nabla_sigma": self.nabla_sigma[a:b], "ellipse_axes": axes[np.isfinite(axes)],
-                "delta0_prime_max": float(self.delta0_prime_max[k])}
+                "delta0_prime_max": der["delta0_prime_max"]}
 
     def take(self, idx):
         idx = np.asarray(idx, dtype=np.int64)
@@ -76,6 +94,56 @@ class GroupTests(LazySequence):
         arrays.update({name: getattr(self, name)[flat] for name in self.PER_MEMBER})
         return GroupTests(self.group[idx], np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
                           self.members[flat], **arrays)
+
+
+class _Derived:
+    """The group-test arrays that follow from q, T, μmax, the eigenvalues λ(W_s) and the policy:
+    α_q, χ²_{1−α_q}(q), F_{1−α_q}(q, r − q) and δ0(q) (tabled per q), R = (T/q)/((vᵀPv − T)/(r − q)),
+    δ0′max = δ0 √μmax and the semi-axes δ0/√λ (Förstner 1980, eq. 10-14) — the formulas
+    :attr:`Reliability.groups` used to store, the same numbers, made when asked for."""
+
+    NAMES = ("alpha", "critical", "critical_R", "delta0", "R", "delta0_prime_max", "ellipse_axes")
+
+    def __init__(self, q, T, ptr, wlam, mu_max, table, dof, vPv):
+        self.q, self.T, self.ptr, self.wlam, self.mu_max = q, T, ptr, wlam, mu_max
+        self.table, self.dof, self.vPv = table, dof, vPv      # table: q → (α, crit, crit_R, δ0)
+        self.qs = np.array(sorted(table), dtype=np.int64)
+
+    def _by_q(self, j: int, q=None) -> np.ndarray:
+        q = self.q if q is None else q
+        vals = np.array([self.table[int(v)][j] for v in self.qs.tolist()], dtype=float)
+        return vals[np.searchsorted(self.qs, q)] if q.size else np.empty(0)
+
+    def array(self, name: str) -> np.ndarray:
+        if name in ("alpha", "critical", "critical_R", "delta0"):
+            return self._by_q(("alpha", "critical", "critical_R", "delta0").index(name))
+        q, T, dof, vPv = self.q, self.T, self.dof, self.vPv
+        d0 = self._by_q(3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if name == "R":
+                ok = (q > 0) & (dof > q) & (vPv > T)
+                return np.where(ok, (T / np.maximum(q, 1)) / ((vPv - T) / np.maximum(dof - q, 1)), np.nan)
+            if name == "delta0_prime_max":
+                return d0 * np.sqrt(np.maximum(self.mu_max, 0.0))
+            d0_member = np.repeat(d0, np.diff(self.ptr))
+            wlam = self.wlam
+            return np.where(wlam > 0, d0_member / np.sqrt(np.where(wlam > 0, wlam, 1.0)), np.inf)
+
+    def item(self, k: int, a: int, b: int) -> dict:
+        """The values of group k (members at a:b), by the same formulas on its own numbers."""
+        q, T = self.q[k:k + 1], self.T[k:k + 1]
+        alpha, crit, crit_R, d0 = self.table[int(q[0])]
+        dof, vPv = self.dof, self.vPv
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ok = (q > 0) & (dof > q) & (vPv > T)
+            R = np.where(ok, (T / np.maximum(q, 1)) / ((vPv - T) / np.maximum(dof - q, 1)), np.nan)
+            d0a = np.array([d0])
+            dprime = d0a * np.sqrt(np.maximum(self.mu_max[k:k + 1], 0.0))
+            wlam = self.wlam[a:b]
+            axes = np.where(wlam > 0, d0a / np.sqrt(np.where(wlam > 0, wlam, 1.0)), np.inf)
+        return {"alpha": float(alpha), "critical": float(crit), "critical_R": float(crit_R),
+                "delta0": float(d0), "R": float(R[0]), "delta0_prime_max": float(dprime[0]),
+                "ellipse_axes": axes}
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,23 +240,15 @@ class Reliability:
         if g is None:
             return GroupTests.empty()
         keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max = g
-        alpha, crit, crit_R, d0 = (np.empty(q.size) for _ in range(4))
         dof, vPv = self.result.dof, self.result.vPv
-        for qq in np.unique(q).tolist():
-            alpha[q == qq] = self.policy.alpha(qq)
-            crit[q == qq] = self.policy.critical_T(qq)
-            crit_R[q == qq] = self.policy.critical_R(qq, dof)
-            d0[q == qq] = self.policy.delta0(qq)
-        rejected = (q > 0) & (T > crit)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ok = (q > 0) & (dof > q) & (vPv > T)
-            R = np.where(ok, (T / np.maximum(q, 1)) / ((vPv - T) / np.maximum(dof - q, 1)), np.nan)
-            d0_member = np.repeat(d0, np.diff(ptr))
-            axes = np.where(wlam > 0, d0_member / np.sqrt(np.where(wlam > 0, wlam, 1.0)), np.inf)
-            dprime = d0 * np.sqrt(np.maximum(mu_max, 0.0))
-        return GroupTests(keys, ptr, members, T=T, dimension=q, redundancy=red, critical=crit,
-                          rejected=rejected, alpha=alpha, R=R, critical_R=crit_R, delta0=d0,
-                          delta0_prime_max=dprime, nabla=nabla, nabla_sigma=nabla_sigma, ellipse_axes=axes)
+        # α_q, the critical values and δ0(q) per dimension q; every array that follows from them
+        # (and R, δ0′max, the semi-axes) is made when asked for (:class:`_Derived`)
+        table = {qq: (self.policy.alpha(qq), self.policy.critical_T(qq), self.policy.critical_R(qq, dof),
+                      self.policy.delta0(qq)) for qq in np.unique(q).tolist()}
+        derive = _Derived(q, T, ptr, wlam, mu_max, table, dof, vPv)
+        rejected = (q > 0) & (T > derive.array("critical"))
+        return GroupTests(keys, ptr, members, derive=derive, T=T, dimension=q, redundancy=red,
+                          rejected=rejected, nabla=nabla, nabla_sigma=nabla_sigma)
 
     def test(self, H, label: str = ""):
         """Multi-dimensional test of a hypothesis matrix H (n × q) under the policy
