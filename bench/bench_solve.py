@@ -115,15 +115,31 @@ def ceres_colmap(model: Path, threads: int = 1):
     return t, cost, its, n, term
 
 
-def analyze_run(path: Path, out: Path) -> tuple[float, float]:
+#: runs ``baarda analyze`` in this process and prints its peak resident set (VmHWM: the
+#: high-water mark of this process's own memory since exec; ru_maxrss of a child would include
+#: the parent's resident set at the fork)
+_PEAK = """
+import sys, runpy
+sys.argv = ["baarda"] + sys.argv[1:]
+try:
+    runpy.run_module("baarda.cli", run_name="__main__")
+finally:
+    hwm = next(s for s in open("/proc/self/status") if s.startswith("VmHWM"))
+    print("PEAK_KB", hwm.split()[1], file=sys.stderr)
+"""
+
+
+def analyze_run(path: Path, out: Path) -> tuple[float, float | None]:
     """``baarda analyze FILE --json OUT`` end to end in a subprocess: (seconds, its peak
-    resident set in MB, from the kernel's accounting of that child alone)."""
+    resident set in MB, or None where /proc is not there)."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "baarda.cli", "analyze", str(path), "--quiet",
-                             "--json", str(out)])
-    _, _, usage = os.wait4(proc.pid, 0)
-    proc.returncode = 0                   # (reaped here: Popen must not wait for it again)
-    return time.perf_counter() - t0, usage.ru_maxrss / 1024.0
+    proc = subprocess.run([sys.executable, "-c", _PEAK, "analyze", str(path), "--quiet", "--json", str(out)],
+                          stderr=subprocess.PIPE, text=True, check=False)
+    t = time.perf_counter() - t0
+    if proc.returncode:
+        sys.stderr.write(proc.stderr)
+    peak = [s.split()[1] for s in proc.stderr.splitlines() if s.startswith("PEAK_KB ")]
+    return t, float(peak[-1]) / 1024.0 if peak else None
 
 
 def warm_up():
