@@ -3,7 +3,7 @@
 For each size a synthetic BAL problem (:mod:`bench.make_big_bal`, written to /tmp, never
 committed) is analysed end to end in a fresh subprocess — read, build the Problem, adjust
 (Levenberg-Marquardt from the perturbed start), reliability (r, w, MDB, δ̄0 of every observation
-and the 2D test of every image point), optionally the JSON document — and a 2D network of
+and the 2D test of every image point), optionally the JSON document written to a temporary file — and a 2D network of
 10⁵ points and 3·10⁵ distances likewise (build the network, build the Problem, adjust,
 reliability). After each stage the table shows its seconds, the process's peak resident set so
 far (``ru_maxrss``) and its resident set after the stage (what the stage keeps), with wall and CPU
@@ -90,9 +90,15 @@ def worker_bal(path: str, with_json: bool, until: str = "") -> None:
     out = reliability(adj)
     st("reliability", **out)
     if with_json:
+        import tempfile
+
         from baarda.io import results
         doc = results.to_dict(adj)
-        st("to_dict", observations=len(doc["observations"]))
+        with tempfile.TemporaryDirectory() as tmp:      # (written, measured, deleted)
+            out = Path(tmp) / "r.json"
+            results.write_json(adj, out, doc)
+            size = out.stat().st_size
+        st("json", observations=len(doc["observations"]), json_mb=round(size / 2 ** 20))
     del np
 
 
@@ -178,7 +184,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", nargs="*", type=float, default=[1e6, 2.5e6, 5e6], help="image points per BAL block")
     ap.add_argument("--network", type=int, default=100_000, help="points of the 2D network (0: none)")
-    ap.add_argument("--json", action="store_true", help="also build the JSON document (results.to_dict)")
+    ap.add_argument("--json", action="store_true", help="also write the JSON document (results.write_json, "
+                    "to a temporary file)")
     ap.add_argument("--limit-gb", type=float, default=8.0)
     ap.add_argument("--dir", default="/tmp", help="where the synthetic BAL files are written")
     ap.add_argument("--until", choices=("read", "build", ""), default="",

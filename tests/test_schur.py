@@ -234,3 +234,25 @@ def test_exclude_free_datum_and_chained():
     a = exclude(exclude(adj, rows[:2]), [rows[2] - 2])
     b = exclude(adj, rows, method="refactor")
     _agree(a, b, 1e-8)
+
+
+def test_memory_bounds_keep_the_numbers(monkeypatch):
+    """SchurFactor.solve in groups of right-hand sides (SOLVE_BYTES), E_c made again for every
+    solve instead of kept (KEEP_E_BYTES) and the point covariances in chunks of points
+    (result.POINT_CHUNK): the same numbers as all at once."""
+    import baarda.result as result_mod
+
+    _, pr = _block(datum="free")
+    adj = adjust(pr, Options(solver="schur"))
+    f = adj.factor
+    B = np.random.default_rng(0).standard_normal((f.m, 9))
+    ref = f.solve(B)
+    ref_cov = adj.point_cov.copy()
+    monkeypatch.setattr(schur, "SOLVE_BYTES", 1)
+    monkeypatch.setattr(schur, "KEEP_E_BYTES", 0)
+    f2 = schur.SchurFactor(adj.schur_structure, adj.Ar, adj.P)
+    assert np.allclose(f2.solve(B), ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+    assert f2._E is None                                          # made for each solve, not kept
+    monkeypatch.setattr(result_mod, "POINT_CHUNK", 3)
+    again = dataclasses.replace(adj, timings={})
+    assert np.abs(again.point_cov - ref_cov).max() <= 1e-12 * np.abs(ref_cov).max()   # (Z by groups: round-off)

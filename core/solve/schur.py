@@ -93,6 +93,8 @@ POINT_PIVOT_TOL = 1e-14
 #: (Trafalgar 8 MB, Dubrovnik 18 MB); above, the solves make E_c again from the design matrix's
 #: data (the same numbers), so a large block holds no K · 3 values per image point.
 KEEP_E_BYTES = 64 << 20
+#: Bytes of the per-cluster temporaries of one group of right-hand sides in SchurFactor.solve.
+SOLVE_BYTES = 64 << 20
 #: Entries of the temporary arrays in one chunk of the numpy fallback.
 CHUNK = 1 << 21
 BACKENDS = ("numba", "numpy")
@@ -1186,14 +1188,18 @@ class SchurFactor:
     @property
     def E(self) -> np.ndarray:
         """E_c = a_cᵀ P_c b̃_c of every cluster position (nc, K, 3), for the solves. The common
-        case's kernels make it per point; here it is made from Ar's data once a solve needs it."""
-        if self._E is None:
-            st = self.st
-            E = np.empty((st.cl_id.size, st.K, 3))
-            _kernels()["E6"](st.ent_ptr, self._data, st.src_a, st.src_b, self.Ri, self.Pc,
-                             self._diagonal_P, self._maxent(), E)
+        case's kernels make it per point; here it is made from Ar's data once a solve needs it,
+        and kept for the next solve when it takes at most :data:`KEEP_E_BYTES` (a large block
+        makes it again for each solve: K · 24 bytes per image point not held)."""
+        if self._E is not None:
+            return self._E
+        st = self.st
+        E = np.empty((st.cl_id.size, st.K, 3))
+        _kernels()["E6"](st.ent_ptr, self._data, st.src_a, st.src_b, self.Ri, self.Pc,
+                         self._diagonal_P, self._maxent(), E)
+        if E.nbytes <= KEEP_E_BYTES:
             self._E = E
-        return self._E
+        return E
 
     @staticmethod
     def _cluster_weights(st, P):
@@ -1229,17 +1235,24 @@ class SchurFactor:
 
     # -- solves -------------------------------------------------------------------------------
     def solve(self, b: np.ndarray) -> np.ndarray:
-        """N⁻¹ b for a vector or a matrix of right-hand sides (reduced unknowns)."""
+        """N⁻¹ b for a vector or a matrix of right-hand sides (reduced unknowns). Several
+        right-hand sides go in groups whose per-cluster temporaries (~ 8 · K · 6 bytes per image
+        point and column) stay within :data:`SOLVE_BYTES`: each column's numbers are the same."""
         st = self.st
         b = np.asarray(b, dtype=float)
         vec = b.ndim == 1
         B = b.reshape(self.m, -1)
         q = B.shape[1]
+        per_col = 48 * st.K * max(st.cl_sn.shape[0], 1)
+        if q > 1 and q * per_col > SOLVE_BYTES:
+            step = max(1, SOLVE_BYTES // per_col)
+            return np.hstack([self.solve(B[:, k:k + step]).reshape(self.m, -1) for k in range(0, q, step)])
         ne = st.ent_size.size
         bp = np.zeros((ne * 3, q))
         bp[self._pflat] = B[self._pcols]
         yp = bmm(_T(self.Ri), bp.reshape(ne, 3, q))             # Ṽ⁻¹ b̃_p = R⁻ᵀ b_p  (ne, 3, q)
-        Wy = bmm(self.E, yp[st.cl_ent]).reshape(-1, q)            # E_c y_e(c)  (nc·K, q)
+        E = self.E
+        Wy = bmm(E, yp[st.cl_ent]).reshape(-1, q)                 # E_c y_e(c)  (nc·K, q)
         cols = st.col_S.ravel()
         ok = cols >= 0
         rhs = B[st.cam].copy()
@@ -1247,7 +1260,8 @@ class SchurFactor:
             rhs[:, j] -= np.bincount(cols[ok], weights=Wy[ok, j], minlength=st.cam.size)
         xc = self.S.solve(rhs).reshape(-1, q)
         xk = np.where(ok[:, None], xc[np.maximum(cols, 0)], 0.0).reshape(-1, st.K, q)
-        t = _segment_sum(bmm(_T(self.E), xk), st.ent_ptr)       # W_jᵀ x_c  (ne, 3, q)
+        t = _segment_sum(bmm(_T(E), xk), st.ent_ptr)            # W_jᵀ x_c  (ne, 3, q)
+        del E
         xp = bmm(self.Ri, yp - t).reshape(ne * 3, q)            # p = R⁻¹ p̃
         out = np.empty((self.m, q))
         out[st.cam] = xc
