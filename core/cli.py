@@ -20,26 +20,19 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-
-from . import __version__, truth
-from .adjust import Options
-from .build import read_problem
-from .datum import split_normal
-from .errors import BaardaError, DatumDefectError, HypothesisError, InputError, NotFoundError, SingularError
-from .io import read_model, read_truth, results
+from . import __version__
+from .analysis import Extras, SolverOptions, analyze
+from .errors import BaardaError, HypothesisError, InputError, NotFoundError, SingularError
+from .io import read_model, results
+from .io.analysis_text import robust_lines
 from .io.control import add_control
 from .io.gama import UndefinedPointsWarning
 from .io.geojson import write_geojson
-from .io.hypothesis import read_hypothesis
+from .io.hypothesis import HYPOTHESIS_SPECS, parse_hypothesis
 from .io.native import write_native
 from .model.sfm import SfmBlock, to_block
-from .network_defects import adjust_network
-from .sfm_defects import adjust_block
 from .simulate import simulate_to_files
-from .stats import (analyses, hypotheses, misidentification, precision, risk, robust, separability, snooping,
-                    variance)
-from .stats.ap_tests import ap_test
+from .stats import analyses, separability
 from .text import number, printable, printable_lines, shorten
 
 #: exit status of a run whose adjustment did not converge (module docstring)
@@ -63,15 +56,12 @@ def _add_test_options(p):
                         "σ0 a posteriori (GNU Gama's sigma-act), w otherwise")
 
 
-def _options(args, problem) -> Options:
-    """The adjustment's options and test policy from the command line; the statistic of the
-    decisions defaults to the σ0 the file asks for (``problem.sigma_act``)."""
-    if args.statistic is None:
-        sigma0 = "aposteriori" if getattr(problem, "sigma_act", "apriori") == "aposteriori" else "apriori"
-    else:
-        sigma0 = "aposteriori" if args.statistic == "tau" else "apriori"
-    return Options(alpha0=args.alpha, beta0=args.beta, b_method=args.b_method, max_iter=args.max_iter,
-                   sigma0=sigma0, global_test=args.global_test)
+def _policy(args) -> dict:
+    """The test policy of the command line as TestPolicy's fields; without --statistic the
+    decisions use the σ0 the file asks for (:func:`baarda.analysis.analyze`)."""
+    sigma0 = None if args.statistic is None else ("aposteriori" if args.statistic == "tau" else "apriori")
+    return {"alpha0": args.alpha, "beta0": args.beta, "b_method": args.b_method, "sigma0": sigma0,
+            "global_test": args.global_test}
 
 
 def _add_iteration_option(p):
@@ -118,14 +108,6 @@ def _warn_dropped(path, model_or_problem, quiet=False):
         lines = ", ".join(str(d["line"]) for d in dropped[:20]) + (" ..." if len(dropped) > 20 else "")
         print(printable(f"baarda: warning: {path}: {len(dropped)} observation(s) to undefined point(s) "
                         f"{', '.join(map(str, ids))} dropped (--drop-undefined; line(s) {lines})"), file=sys.stderr)
-
-
-def _adjust_with_defects(problem, options, progress=None, strict=False):
-    """Adjust; local defects found by the adjustment are set aside (networks: geodetic, blocks:
-    sfm_defects) unless ``strict``. Returns ``(adjustment, problem adjusted)``."""
-    if "network_model" in problem.extra:
-        return adjust_network(problem, options, progress=progress, strict=strict)
-    return adjust_block(problem, options, progress=progress, strict=strict)
 
 
 def _read_quietly(fn, *a, **kw):
@@ -319,252 +301,90 @@ def cmd_analyze(args) -> int:
         raise InputError(args.input, 0, str(err)) from None
 
 
-def _finite(x):
-    """A float for JSON: None for ∞ / NaN."""
-    x = float(x)
-    return x if np.isfinite(x) else None
-
-
-def _risk(adj, args):
-    """The risk-minimising tests of --risk with its tolerance (baarda.stats.risk.per_observation)."""
-    if not args.risk:
+def _extras(args) -> Extras:
+    """What ``baarda analyze``'s options ask for beyond the adjustment and its tests."""
+    risk = None
+    if args.risk:
+        try:
+            risk = tuple(float(x) for x in args.risk.split(","))
+        except ValueError:
+            risk = ()
+        if len(risk) != 3:
+            raise BaardaError(f"--risk: expected P,L1,L2 (three numbers), got {args.risk!r}")
+    elif args.risk_lambda_bar is not None or args.risk_coordinate is not None:
         raise BaardaError("--risk-lambda-bar / --risk-coordinate need --risk P,L1,L2")
-    try:
-        p, L1, L2 = (float(x) for x in args.risk.split(","))
-    except ValueError:
-        raise BaardaError(f"--risk: expected P,L1,L2 (three numbers), got {args.risk!r}") from None
-    if (args.risk_lambda_bar is None) == (args.risk_coordinate is None):
+    if risk is not None and (args.risk_lambda_bar is None) == (args.risk_coordinate is None):
         raise BaardaError("--risk: give one tolerance, --risk-lambda-bar TOL or --risk-coordinate METRES")
-    try:
-        return risk.per_observation(adj, p, L1, L2, lambda_bar_tol=args.risk_lambda_bar,
-                                    coordinate_tol=args.risk_coordinate)
-    except BaardaError as err:
-        raise BaardaError(f"--risk: {err}") from None
-
-
-def _exchange_test(adj, spec: str, both: bool):
-    """The test of one --exchange / --misidentified IMAGE:A:B (baarda.stats.misidentification)."""
-    option = "--exchange" if both else "--misidentified"
-    parts = [x.strip() for x in spec.split(":")]
-    if len(parts) != 3 or not all(parts):
-        raise BaardaError(f"{option}: expected IMAGE:A:B, got {spec!r}")
-    try:
-        return misidentification.exchange_test(adj, *parts, both=both)
-    except BaardaError as err:
-        raise BaardaError(f"{option} {spec}: {err}") from None
-
-
-def _analyze(args) -> int:
-    t0 = time.perf_counter()
-    problem = _read_quietly(read_problem, args.input, args.format, control=args.control,
-                            sigma_px=args.sigma_px, refine_intrinsics=args.refine_intrinsics,
-                            strict=args.strict, drop_undefined=args.drop_undefined)
-    _warn_dropped(args.input, problem, args.quiet)
-    t_read = time.perf_counter() - t0
-    options = _options(args, problem)
-    try:
-        # blocks: unknowns found undetermined by a few points/images are left out (sfm_defects)
-        adj, problem = _adjust_with_defects(problem, options, progress=_progress(args.quiet),
-                                            strict=args.strict)
-    except DatumDefectError as err:
-        raise InputError(args.input, 0, _defect_message(err, problem)) from None
-    if not args.quiet and sys.stderr.isatty():
-        print("", file=sys.stderr)
-    t1 = time.perf_counter()
-    try:
-        doc = results.to_dict(adj)
-    except SingularError as err:
-        if adj.converged:
-            raise
-        return _diverged(args, problem, options, adj, err)
-    adj.timings["read"] = t_read
-    adj.timings["reliability"] = time.perf_counter() - t1
-    doc["summary"]["timings"] = {k: round(v, 6) for k, v in adj.timings.items()}
-    if args.json:
-        results.write_json(adj, args.json, doc)
-    written = set(doc)             # (written again below only when the steps below add to it)
-    if args.csv:
-        results.write_csv(adj, args.csv, doc)
-    if args.geojson:
-        write_geojson(adj, args.geojson)
     truth_path = args.truth
     if truth_path is None:
         guess = Path(args.input).with_suffix(".truth.json")
         truth_path = guess if guess.exists() else None
-    findings = None
-    if truth_path is not None:
-        findings = truth.compare(adj, read_truth(truth_path))
-        doc["planted"] = findings
-    snoop = None
-    if args.snoop:
-        snoop = snooping.iterate(problem, options, use_tau=options.sigma0 == "aposteriori")
-        doc["snooping"] = [s.__dict__ for s in snoop.steps]
-    obs_risk = _risk(adj, args) if args.risk or args.risk_lambda_bar or args.risk_coordinate else None
-    if obs_risk is not None:
-        doc["risk"] = {"p": obs_risk.p, "L1": obs_risk.L1, "L2": obs_risk.L2, "tolerance": obs_risk.tolerance,
-                       "rejected": int(obs_risk.rejected.sum())}
-        def risk_of(i, r=obs_risk):
-            d = {k: _finite(getattr(r, k)[i]) for k in ("lam_tol", "C", "alpha", "beta", "r_C")}
-            return {"risk": {**d, "rejected": bool(r.rejected[i])}}
-        doc["observations"].add(risk_of)
-    exchanges = [_exchange_test(adj, spec, both) for both, specs in ((True, args.exchange), (False, args.misidentified))
-                 for spec in specs or ()]
-    if exchanges:
-        doc["exchange_tests"] = [e.as_dict() for e in exchanges]
+    sbase = tuple(b.strip() for b in args.sbase.split(",")) if args.sbase else None
+    return Extras(snooping=bool(args.snoop), risk=risk, risk_lambda_bar=args.risk_lambda_bar,
+                  risk_coordinate=args.risk_coordinate,
+                  exchanges=tuple((spec, True) for spec in args.exchange or ())
+                  + tuple((spec, False) for spec in args.misidentified or ()),
+                  sbase=sbase, criterion=args.criterion, criterion_c0=args.criterion_c0, robust=args.robust,
+                  variance_components=args.variance_components,
+                  truth=None if truth_path is None else str(truth_path))
 
-    prec_lines = []
-    if args.sbase or args.criterion:
-        ids = problem.points.ids
-        base = [b.strip() for b in args.sbase.split(",")] if args.sbase else list(ids[:2])
-        named, normal = split_normal(base)
-        unknown = [b for b in named + ([normal] if normal is not None else []) if b not in ids]
-        if unknown:
-            raise BaardaError(f"--sbase: unknown point id(s) {', '.join(unknown)}")
-        cc = precision.covariance(adj, sbase=base)
-        base = named + [b for b in cc.sbase if b.startswith("normal=")]     # a 3D base: the normal's point
-        ell = cc.ellipses()
-        sd = np.sqrt(np.maximum(np.diag(cc.cov), 0.0))
-        def transformed(i, cc=cc, sd=sd, ell=ell):      # (point i's record is point i of ids)
-            d = {"s" + "xyz"[cc.axis[c]]: float(sd[c]) for c in np.flatnonzero(cc.point == i)}
-            if i < len(ell) and np.isfinite(ell[i, 0]):
-                d["ellipse"] = {"a": float(ell[i, 0]), "b": float(ell[i, 1]), "bearing": float(ell[i, 2])}
-            return d
-        doc["points"].add(transformed)
-        doc["summary"]["sbase"] = base
-        prec_lines.append(f"  S-base {', '.join(base)}: point standard deviations and ellipses transformed")
-        if args.criterion:
-            reason = analyses.criterion_reason(adj)
-            if reason:
-                raise BaardaError(f"--criterion: {reason}")
-            try:
-                fit = analyses.criterion_fit(analyses.criterion_setup(adj, base, cov=cc), kind=args.criterion,
-                                             C0=args.criterion_c0)
-            except BaardaError as err:
-                raise BaardaError(f"--criterion: {err}") from None
-            doc["criterion"] = fit
-            u = analyses.criterion_units(fit["kind"])
-            c2 = f", C2 = {fit['C2']:.4g} {u['C2']}" if fit["kind"] != "linear" else ""
-            bound = (" (C2 at the end of its range: d² hardly varies with distance over this network)"
-                     if fit["C2_at_bound"] else "")
-            prec_lines.append(f"  criterion matrix ({fit['kind']}, M84 §2.3): fitted C1 = {fit['C1']:.4g} {u['C1']}"
-                              f"{c2}, λmax/λmin = {fit['ratio']:.3g}{bound}")
-    rob = None
-    if args.robust:
-        rob = robust.estimate(problem, args.robust, options)
-        doc["robust"] = rob.as_dict()
-    vc = None
-    if args.variance_components:
-        try:
-            if args.variance_components.startswith("radial"):
-                structure = "isotropic" if args.variance_components == "radial-isotropic" else "radial"
-                est = analyses.radial_variance(problem, options, structure)
-                doc["variance_components"] = est.as_dict()
-                doc["variance_estimate"] = {"kind": args.variance_components, "converged": bool(est.converged),
-                                            "iterations": int(est.iterations), "std_error": "rigorous",
-                                            "notes": list(est.notes)}
-                prec_lines.append(f"  radial variance model, {structure} (F80 §2.1, {est.iterations} iterations"
-                                  f"{'' if est.converged else ', NOT converged'}):")
-                for d in est.as_dict():
-                    se = "held at 0" if d["std_error"] is None else f"± {number(d['std_error'], '.2g')}"
-                    prec_lines.append(f"    {d['component']:<8s} θ = {number(d['theta'])} {se}   "
-                                      f"redundancy {d['redundancy']:.2f}")
-                prec_lines += [f"    {note}" for note in est.notes]
-                vc = None
-            else:
-                vc = variance.estimate(problem, options=options)
-                doc["variance_components"] = vc.as_dict()
-                doc["variance_estimate"] = vc.summary()
-        except BaardaError as err:
-            doc["variance_components"] = {"error": str(err)}
-            prec_lines.append(f"  {err}")
-    if args.json and (set(doc) != written or args.sbase or args.criterion):
+
+def _analysis(args, progress=None, strict=None):
+    """:func:`baarda.analysis.analyze` of the input with the command line's reader options,
+    solver options and test policy; the dropped-observations warning printed."""
+    policy = _policy(args)
+    analysis = _read_quietly(analyze, args.input, format=args.format, control=getattr(args, "control", None),
+                             sigma_px=getattr(args, "sigma_px", None),
+                             refine_intrinsics=getattr(args, "refine_intrinsics", None),
+                             strict=bool(getattr(args, "strict", False) if strict is None else strict),
+                             drop_undefined=args.drop_undefined,
+                             solver=SolverOptions(max_iter=getattr(args, "max_iter", 200)),
+                             policy=policy, progress=progress)
+    _warn_dropped(args.input, analysis.problem, args.quiet)
+    return analysis
+
+
+def _analyze(args) -> int:
+    extras = _extras(args)                   # usage errors first
+    analysis = _analysis(args, progress=_progress(args.quiet))
+    adj = analysis.adjustment
+    if not args.quiet and sys.stderr.isatty():
+        print("", file=sys.stderr)
+    t1 = time.perf_counter()
+    try:
+        doc = analysis.to_dict()
+    except SingularError as err:
+        if adj.converged:
+            raise
+        return _diverged(args, analysis, err)
+    adj.timings["reliability"] = time.perf_counter() - t1
+    analysis._add_extras(doc, extras)
+    doc["summary"]["timings"] = {k: round(v, 6) for k, v in adj.timings.items()}
+    if args.json:
         results.write_json(adj, args.json, doc)
+    if args.csv:
+        results.write_csv(adj, args.csv, doc)
+    if args.geojson:
+        write_geojson(adj, args.geojson)
     if not args.quiet:
-        print(results.text_summary(adj, top=args.top))
-        if snoop is not None:
-            info = problem.info
-            stat = "τ" if snoop.use_tau else "w"
-            print(f"  iterative data snooping on {stat}: {len(snoop.steps)} observation(s) removed, σ̂0 "
-                  f"{number(adj.sigma0_post)} → {number(snoop.adjustment.sigma0_post)}")
-            for k, st in enumerate(snoop.steps, 1):
-                ids = printable(" ".join(f"{a}={b}" for a, b in info.ids[st.removed].items()))
-                print(f"    {k:>2d}. #{st.removed:<5d} {info.kind[st.removed]:<15s} {ids:<40s} "
-                      f"|{stat}| = {number(st.statistic, '7.2f')} > {number(st.critical, '.2f')}  ∇̂ = {number(st.nabla, '+.4g')}")
-                if st.twins:
-                    print("        the data cannot tell it from (w-tests correlated |ρ| ≥ 0.99, F80 §7.4): " + "; ".join(
-                        f"#{j} " + printable(" ".join(f"{a}={b}" for a, b in info.ids[j].items()))
-                        + f" (ρ = {number(rho, '+.4f')})" for j, rho in zip(st.twins, st.twin_rho)))
-        if obs_risk is not None:
-            fin = np.isfinite(obs_risk.C)
-            print(printable(f"  risk minimisation (M84 §3.3; p = {obs_risk.p:g}, L1 = {obs_risk.L1:g}, L2 = "
-                            f"{obs_risk.L2:g}, tolerance {obs_risk.tolerance}): C_i from "
-                            f"{number(obs_risk.C[fin].min() if fin.any() else np.nan, '.3g')} to "
-                            f"{number(obs_risk.C[fin].max() if fin.any() else np.nan, '.3g')}; "
-                            f"{int(obs_risk.rejected.sum())} rejected (|w| > C_i), {int(adj.rejected.sum())} at α0"))
-            info = problem.info
-            for i in np.argsort(-np.nan_to_num(obs_risk.r_C), kind="stable")[:args.top]:
-                ids = printable(" ".join(f"{a}={b}" for a, b in info.ids[i].items()))
-                print(f"    #{i:<5d} {info.kind[i]:<15s} {ids:<40s} λtol = {number(obs_risk.lam_tol[i], '9.3g')}  "
-                      f"C = {number(obs_risk.C[i], '6.3g')}  r_C = {number(obs_risk.r_C[i], '.3g')}"
-                      f"{'  REJECTED' if obs_risk.rejected[i] else ''}")
-        for e in exchanges:
-            what = "exchange" if e.both else "misidentification"
-            verdict = (f"T = {number(e.T, '.4g')} (crit {number(e.critical, '.2f')}) "
-                       f"{'REJECTED' if e.rejected else 'accepted'}, ŝ = {number(e.s_hat, '.3g')}") if e.testable else "not testable"
-            print(printable(f"  {what} of {e.point_a}/{e.point_b} in image {e.image} (F80 §7.1): {verdict}"))
-            print(printable(f"    {e.message}"))
-        for line in prec_lines:
-            print(printable(line))
-        if rob is not None:
-            _print_robust(rob)
-        if vc is not None:
-            print(f"  variance components (F80 eq. 9, {vc.iterations} iterations"
-                  f"{'' if vc.converged else ', NOT converged'}):")
-            for d in vc.as_dict():
-                print(f"    {d['group']:<20s} σ̂²/σ² = {number(d['factor'], '8.4f')} ± {number(d['std_error'], '.4f')}   "
-                      f"redundancy {d['redundancy']:.2f}")
-            va = vc.adjustment
-            print(f"    with these components: {int(va.rejected.sum())} observation(s) rejected "
-                  f"(before: {int(adj.rejected.sum())}), global test "
-                  f"{'passed' if va.global_test['passed'] else 'FAILED'}")
-        if findings is not None:
-            print(printable_lines(truth.text(findings)))
+        print(analysis.text(top=args.top, extras=extras))
     return _convergence_status(args.input, adj)
 
 
-def _print_robust(rob) -> None:
-    """The robust estimation's lines of the text summary (R84 §6-8)."""
-    print(f"  robust estimation ({rob.method}, {rob.iterations} iterations"
-          f"{'' if rob.converged else ', NOT converged'}): {len(rob.suspects)} suspect(s) confirmed by "
-          f"least squares (R84 §7; {rob.candidates} candidate(s), {len(rob.readmitted)} readmitted)")
-    for sp in rob.suspects:
-        ids = printable(" ".join(f"{a}={b}" for a, b in sp["ids"].items()))
-        base = "" if sp["size_base"] is None else f" = {number(sp['size_base'], '.3g')} base lengths"
-        print(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {number(sp['size_sigma'], '6.1f')}σ"
-              f"{base} ({sp['class']}), T = {number(sp['T'], '.1f')}, robust weight {sp['weight']:.3g}")
-    for fl in rob.floored:
-        print(f"    weight floor raised to {fl['floor']:.0e} for {', '.join(fl['unknowns']) or 'all'} "
-              f"(down-weighted, they would leave unknowns undetermined)")
-    if rob.final is not None:
-        print(f"    least squares without them: {int(rob.final.rejected.sum())} rejected by data snooping, "
-              f"σ̂0 = {number(rob.final.sigma0_post)}")
-
-
-def _diverged(args, problem, options, adj, err) -> int:
+def _diverged(args, analysis, err) -> int:
     """An adjustment that did not converge and whose normal equations are singular at its last
     iterate: no reliability can be computed there. Say so in one line (exit status
     :data:`NOT_CONVERGED`), and run the robust estimation if asked — it is what finds the gross
     error that makes least squares diverge (R84 §6: a large error)."""
+    adj = analysis.adjustment
     why = (adj.termination or "not converged").removeprefix("not converged: ")
     hint = ("" if args.robust else
             f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
     print(printable(f"baarda: {args.input}: NOT converged after {adj.iterations} iterations ({why}) and the normal "
                     f"equations at the last iterate are singular ({err}): no reliability computed, no JSON/CSV "
                     f"written{hint}"), file=sys.stderr)
-    if args.robust:
-        rob = robust.estimate(problem, args.robust, options)
-        if not args.quiet:
-            _print_robust(rob)
+    if args.robust and not args.quiet:
+        print("\n".join(robust_lines(analysis.robust(args.robust))))
     return NOT_CONVERGED
 
 
@@ -578,101 +398,28 @@ def _convergence_status(path, adj) -> int:
     return NOT_CONVERGED
 
 
-def _defect_message(err, problem) -> str:
-    """The datum-defect message with the counts and the undetermined unknowns by entity."""
-    n, u = problem.n, problem.params.free.size
-    groups: dict[str, list[str]] = {}
-    for label in err.undetermined:
-        entity, _, name = label.rpartition(".")
-        if entity:
-            groups.setdefault(entity, []).append(name)
-    entities = list(groups)
-    kinds: dict[str, list[str]] = {}
-    for e in entities:
-        kind, _, ident = e.rpartition(" ")
-        kinds.setdefault(kind or "unknown", []).append(ident or e)
-    summary = "; ".join(f"{k}s {', '.join(v[:12])}{' ...' if len(v) > 12 else ''}" if k != "unknown"
-                        else ", ".join(v[:12]) for k, v in kinds.items())
-    gauge = " (7 of them fixed by the free-block datum)" if problem.convention else ""
-    lines = f"{n} observations for {u} unknowns{gauge}"
-    return f"{lines}; {err.message}" + (f" [by entity: {summary}]" if summary and len(entities) > 1 else "")
-
-
-#: The --hypothesis specifications of ``baarda test`` (fields separated by ':').
-HYPOTHESIS_SPECS = ("observation:INDEX", "group:G", "image-point:IMAGE:POINT[:KEYPOINT]", "control:POINT",
-                    "transfer:POINT:IMAGE,IMAGE,...", "ap-group:CAMERA:brown|ebner", "exchanged:IMAGE:A:B",
-                    "model-point:MODEL:POINT", "file:PATH")
-
-
-def parse_hypothesis(text: str) -> dict:
-    """A --hypothesis SPEC as the specification dict of
-    :func:`baarda.stats.hypotheses.hypothesis_matrix` (``file:PATH`` gives {"kind": "file", "path"});
-    BaardaError naming the argument for a malformed one."""
-    kind, _, rest = text.partition(":")
-    forms = {spec.split(":", 1)[0]: spec for spec in HYPOTHESIS_SPECS}
-    if kind not in forms:
-        raise BaardaError(f"--hypothesis {text!r}: unknown kind {kind!r} (one of {', '.join(forms)})")
-    if kind == "file":
-        if not rest:
-            raise BaardaError(f"--hypothesis {text!r}: expected file:PATH")
-        return {"kind": "file", "path": rest}
-    names = {"observation": ["index"], "group": ["group"], "image-point": ["image", "point"],
-             "control": ["point"], "transfer": ["point", "images"], "ap-group": ["camera", "group"],
-             "exchanged": ["image", "a", "b"], "model-point": ["model", "point"]}[kind]
-    parts = rest.split(":") if rest else []
-    if kind == "image-point" and len(parts) == 3:          # a COLMAP image's keypoint on the point
-        names = names + ["keypoint"]
-    if len(parts) != len(names) or not all(parts):
-        raise BaardaError(f"--hypothesis {text!r}: expected {forms[kind]}")
-    spec = {"kind": kind, **dict(zip(names, parts))}
-    if kind in ("observation", "group"):
-        key = names[0]
-        try:
-            spec[key] = int(spec[key])
-        except ValueError:
-            raise BaardaError(f"--hypothesis {text!r}: {key.upper()} must be an integer, not {spec[key]!r}") from None
-    if kind == "transfer":
-        spec["images"] = [im for im in spec["images"].split(",") if im]
-    return spec
-
-
 def cmd_test(args) -> int:
-    """``baarda test``: each hypothesis in full (:func:`baarda.stats.analyses.hypothesis_analysis`)."""
+    """``baarda test``: each hypothesis in full (:meth:`baarda.analysis.Analysis.test`)."""
     specs = [(text, parse_hypothesis(text)) for text in args.hypothesis]     # usage errors first
-    problem = _read_quietly(read_problem, args.input, args.format, control=args.control,
-                            sigma_px=args.sigma_px, refine_intrinsics=args.refine_intrinsics,
-                            drop_undefined=args.drop_undefined)
-    _warn_dropped(args.input, problem, args.quiet)
-    options = _options(args, problem)
-    try:
-        adj, problem = _adjust_with_defects(problem, options)
-    except DatumDefectError as err:
-        raise InputError(args.input, 0, _defect_message(err, problem)) from None
-    rel = adj.reliability
+    analysis = _analysis(args, strict=False)
+    adj, rel = analysis.adjustment, analysis.reliability
     tests, matrices = [], []
     for text, spec in specs:
         try:
-            if spec["kind"] == "file":
-                H = read_hypothesis(spec["path"], adj.n)
-            elif spec["kind"] == "ap-group" and f"{spec['camera']}:{spec['group']}" in problem.extra.get("ap_groups", {}):
-                t = ap_test(adj, str(spec["camera"]), str(spec["group"]), policy=rel.policy)
-                tests.append({"hypothesis": text, "spec": spec, "ap_test": t.as_dict()})
-                continue
-            else:
-                H = hypotheses.hypothesis_matrix(adj, spec)
+            t = analysis.test(spec, label=text)
         except InputError:
             raise
         except (NotFoundError, HypothesisError) as err:
             raise BaardaError(f"--hypothesis {text!r}: {err}") from None
-        matrices.append((text, H))
-        tests.append({"hypothesis": text, "spec": spec,
-                      **analyses.hypothesis_analysis(adj, H, label=text, reliability=rel)})
-        if spec["kind"] == "exchanged":      # the linear range, q = 0 and the iterated test (F80 §7.1)
-            tests[-1]["exchange_test"] = misidentification.exchange_test(
-                adj, str(spec["image"]), str(spec["a"]), str(spec["b"]), policy=rel.policy).as_dict()
+        if "ap_test" in t:
+            tests.append({"hypothesis": text, "spec": spec, "ap_test": t["ap_test"]})
+            continue
+        matrices.append((text, analysis.matrix(spec)))
+        t.pop("spec")
+        tests.append({"hypothesis": text, "spec": spec, **t})
     # hypotheses the data cannot tell apart (F80 §7.4, M84 §3.3): their statistics correlate |ρ| ≥ 0.99
     apart = separability.inseparable_pairs(adj, matrices) if len(matrices) > 1 else []
-    doc = {"schema": f"baarda-test/{results.SCHEMA_VERSION}", "summary": results.summary(adj, rel),
+    doc = {"schema": f"baarda-test/{results.SCHEMA_VERSION}", "summary": analysis.summary(),
            "tests": tests, "inseparable": [{"hypotheses": list(g.members), "rho": g.rho} for g in apart]}
     if args.json:
         Path(args.json).write_text(json.dumps(results.finite(doc), indent=1, allow_nan=False))
@@ -760,26 +507,23 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_report(args) -> int:
-    problem = _read_quietly(read_problem, args.input, args.format, drop_undefined=args.drop_undefined)
-    _warn_dropped(args.input, problem, args.quiet)
+    out = Path(args.out) if args.out else Path(args.input).with_suffix(".html")
+    if out.resolve() == Path(args.input).resolve():
+        raise BaardaError(f"{out}: refusing to overwrite the input file")
     try:
-        adj, problem = _adjust_with_defects(problem, _options(args, problem))
+        analysis = _analysis(args, strict=False)
     except InputError:
         raise
     except BaardaError as err:         # a singular normal matrix ...: the file's fault, name it
         raise InputError(args.input, 0, str(err)) from None
-    out = Path(args.out) if args.out else Path(args.input).with_suffix(".html")
-    if out.resolve() == Path(args.input).resolve():
-        raise BaardaError(f"{out}: refusing to overwrite the input file")
 
     logging.getLogger("bokeh").setLevel(logging.ERROR)   # static export warns about server callbacks
-    from .dashboard.report import write_report
-    from .dashboard.state import State
+    from .dashboard.report import write_analysis_report
 
-    write_report(adj, out, state=State.from_adjustment(adj, policy=adj.policy))
+    write_analysis_report(analysis, out)
     if not args.quiet:
         print(printable(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)"))
-    return _convergence_status(args.input, adj)
+    return _convergence_status(args.input, analysis.adjustment)
 
 
 def cmd_serve(args) -> int:

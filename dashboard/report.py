@@ -316,3 +316,9 @@ def write_report(adj, path, state: State | None = None) -> Path:
     path = Path(path)
     path.write_text(report_html(adj, state=state), encoding="utf-8")
     return path
+
+
+def write_analysis_report(analysis, path) -> Path:
+    """Write the client report of the core's ``analysis`` (:class:`baarda.analysis.Analysis`:
+    its adjustment, test policy and exclusions) to ``path``."""
+    return write_report(analysis.adjustment, path, state=State.from_analysis(analysis))

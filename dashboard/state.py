@@ -34,10 +34,11 @@ import pandas as pd
 import param
 
 from baarda.adjust import Options
+from baarda.analysis import Analysis, analyze
+from baarda.build import read_problem
 from baarda.errors import BaardaError
 from baarda.stats import precision, robust
 from baarda.stats.policy import TestPolicy
-from baarda.stats.reliability import Reliability
 
 from . import frames as tables
 from . import geometry, measures, specs
@@ -56,7 +57,8 @@ class State(param.Parameterized):
 
     source = param.String(default="", doc="Path of the problem file.")
     file_name = param.String(default="", doc="The file's name as shown (an upload's own name).")
-    problem = param.Parameter(default=None, doc="The full problem as read (baarda.model.problem.Problem).")
+    problem = param.Parameter(default=None, doc="The problem as read, its local defects set aside "
+                              "(baarda.model.problem.Problem; the Analysis's ``problem``).")
     alpha0 = param.Number(default=0.001, bounds=(1e-6, 0.5), doc="Size α0 of the 1D tests.")
     beta0 = param.Number(default=0.80, bounds=(0.5, 0.999), doc="Power β0.")
     b_method = param.Boolean(default=False, doc="Baarda's B-method for multi-dimensional tests.")
@@ -74,6 +76,10 @@ class State(param.Parameterized):
     selected_image = param.Parameter(default=None, doc="Image shown in the image-space view (blocks).")
     exaggeration = param.Number(default=1.0, bounds=(0.0, None),
                                 doc="Exaggeration of image residual vectors.")
+    analysis = param.Parameter(default=None, doc="The core's Analysis (baarda.analysis) of ``problem`` "
+                               "without the excluded observations under the state's test policy: "
+                               "``results``, ``reliability`` and ``kept`` are its adjustment, reliability "
+                               "and kept indices.")
     results = param.Parameter(default=None, doc="The core's Adjustment of the reduced problem.")
     reliability = param.Parameter(default=None, doc="The core's Reliability of ``results`` under the "
                                   "state's test policy (α0, β0, B-method, σ0): rebuilt over the same "
@@ -136,19 +142,33 @@ class State(param.Parameterized):
         """A state showing an existing adjustment (no exclusions, no new solve); ``policy`` (a
         :class:`TestPolicy`, e.g. the command line's) sets σ0 of the decisions and the global
         test, else the file's σ0 and the one-sided test."""
-        st = cls()
         mode = adj.problem.sigma_act if adj.problem.sigma_act in ("apriori", "aposteriori") else "apriori"
-        if policy is not None:
-            mode = policy.sigma0
-            st.global_test = policy.global_test
+        pol = TestPolicy(alpha0=adj.options.alpha0, beta0=adj.options.beta0, b_method=adj.options.b_method,
+                         sigma0=policy.sigma0 if policy is not None else mode,
+                         global_test=policy.global_test if policy is not None else "one-sided")
+        return cls.from_analysis(Analysis(adj.problem, adj, pol, name=str(adj.problem.source)))
+
+    @classmethod
+    def from_analysis(cls, analysis: Analysis) -> "State":
+        """A state showing the core's ``analysis`` as it is: its problem, exclusions, test policy
+        and adjustment (nothing solved again)."""
+        st = cls()
+        pol = analysis.policy
         with param.parameterized.discard_events(st):
-            st.param.update(problem=adj.problem, source=str(adj.problem.source), sigma0_mode=mode,
-                            alpha0=adj.options.alpha0, beta0=adj.options.beta0,
-                            b_method=adj.options.b_method, kept=np.arange(adj.n), results=adj)
-            st.reliability = Reliability(adj, st.policy())
+            st.param.update(problem=analysis.problem, source=str(analysis.problem.source or analysis.name),
+                            sigma0_mode=pol.sigma0, global_test=pol.global_test, alpha0=pol.alpha0,
+                            beta0=pol.beta0, b_method=pol.b_method, excluded=frozenset(analysis.excluded))
+            st._set_analysis(analysis)
             images = geometry.images(st.problem)
             st.selected_image = images[0]["id"] if images else None
         return st
+
+    def _set_analysis(self, analysis: Analysis) -> None:
+        """Make ``analysis`` current: its adjustment, reliability and kept indices."""
+        self.kept = np.asarray(analysis.kept)
+        self.analysis = analysis
+        self.reliability = analysis.reliability
+        self.results = analysis.adjustment
 
     # -- background computations ----------------------------------------------------------------
     def submit(self, label: str, fn, *args):
@@ -197,8 +217,6 @@ class State(param.Parameterized):
         when a name is given. A file read before by this server (same path, modification time,
         size and test options) is taken from the cache without reading or adjusting it again.
         """
-        from baarda.build import read_problem
-
         shown = plain(name if name is not None else Path(str(path)).name)
 
         def message(err) -> str:
@@ -236,7 +254,7 @@ class State(param.Parameterized):
                     self.error = message(fresh.error)
                     return False
                 fresh.frames()
-                hit = (fresh.problem, fresh.results, fresh.kept, fresh.problem_index(), fresh._frames)
+                hit = (fresh.analysis, fresh.problem_index(), fresh._frames)
                 if key is not None:
                     store(key, hit)
         self._check_cancel()
@@ -257,7 +275,8 @@ class State(param.Parameterized):
 
     def _set_loaded(self, hit, source: str) -> bool:
         """Make a cached (problem, adjustment, …) current without adjusting again."""
-        problem, adj, kept, index, frames = hit
+        analysis, index, frames = hit
+        problem = analysis.problem
         if self.problem is not None:
             self.param.trigger("replacing")
         with param.parameterized.discard_events(self):
@@ -269,7 +288,6 @@ class State(param.Parameterized):
             self.selected_point = self.selected_obs = self.selected_hypothesis = None
             images = geometry.images(self.problem)
             self.selected_image = images[0]["id"] if images else None
-            self.kept = kept
             self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
             self.components, self.criterion, self.criterion_error, self.analysis_error = None, None, "", ""
             self.robust = None
@@ -277,8 +295,7 @@ class State(param.Parameterized):
         self._frames = frames if self.robust_method == "none" else None
         self._cov = None
         with param.parameterized.batch_call_watchers(self):
-            self.reliability = Reliability(adj, self.policy())
-            self.results = adj
+            self._set_analysis(analysis.with_policy(self.policy()))
             self.solution += 1
             self._run_robust()
         self.param.update(source=source, file_name=plain(Path(source).name))
@@ -293,7 +310,8 @@ class State(param.Parameterized):
 
         error_path: a server path (an upload's temporary file) that a failure message shows as
         ``error_name`` instead."""
-        old = (self.problem, self.results, self.kept, self.excluded, self.hypotheses, self.hyp_results)
+        old = (self.problem, self.analysis, self.results, self.kept, self.excluded, self.hypotheses,
+               self.hyp_results)
         mode = problem.sigma_act if problem.sigma_act in ("apriori", "aposteriori") else "apriori"
         with param.parameterized.discard_events(self):
             self.problem = problem
@@ -310,7 +328,7 @@ class State(param.Parameterized):
             self.selected_image = images[0]["id"] if images else None
         if not self._readjust() or (self.jobs.cancel_event.is_set() and self.task):
             with param.parameterized.discard_events(self):
-                (self.problem, self.results, self.kept, self.excluded, self.hypotheses,
+                (self.problem, self.analysis, self.results, self.kept, self.excluded, self.hypotheses,
                  self.hyp_results) = old
             if error_path and error_name:
                 self.error = self.error.replace(error_path, error_name)
@@ -357,10 +375,13 @@ class State(param.Parameterized):
         On a worker thread (a background computation) the adjustment runs there and only its
         result is made current on the session's event loop (:meth:`on_loop`)."""
         t0 = time.perf_counter()
-        problem, excluded, mode, options = self.problem, self.excluded, self.sigma0_mode, self.options()
+        problem, excluded, mode, policy = self.problem, self.excluded, self.sigma0_mode, self.policy()
+        base = self.analysis if self.analysis is not None and self.analysis.problem is problem else None
         try:
             with self._busy():
-                adj, kept = measures.adjust_without(problem, excluded, mode, options, progress=self._iteration)
+                if base is None:          # a new problem: the core's analysis, local defects set aside
+                    base = analyze(problem, policy=policy, progress=self._iteration)
+                analysis = base.with_policy(policy).without(excluded, sigma_act=mode, progress=self._iteration)
         except Cancelled:
             raise
         except BaardaError as err:
@@ -380,9 +401,10 @@ class State(param.Parameterized):
             self._frames = None
             self._cov = None
             with param.parameterized.batch_call_watchers(self):
-                self.kept = kept
-                self.reliability = Reliability(adj, self.policy())
-                self.results = adj
+                if analysis.problem is not problem:      # local defects set aside
+                    with param.parameterized.discard_events(self):
+                        self.problem = analysis.problem
+                self._set_analysis(analysis)
                 self.solution += 1
                 self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
                 self.components, self.criterion, self.criterion_error = None, None, ""
@@ -399,7 +421,7 @@ class State(param.Parameterized):
             return
         self._frames = None
         with param.parameterized.batch_call_watchers(self):
-            self.reliability = Reliability(self.results, self.policy())   # same result: nothing solved
+            self._set_analysis(self.analysis.with_policy(self.policy()))   # same result: nothing solved
             self.param.trigger("results")
             self._run_hypotheses()
             self._run_robust()

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError
+from ..errors import BaardaError, InputError
 
 FIELDS = ("observation", "column", "value")
 
@@ -77,3 +77,41 @@ def _integer(path, lineno: int, field: str, text: str) -> int:
     if value < 0:
         raise InputError(path, lineno, f"{field}: must not be negative: {value}", field=field)
     return value
+
+
+#: The --hypothesis specifications of ``baarda test`` (fields separated by ':').
+HYPOTHESIS_SPECS = ("observation:INDEX", "group:G", "image-point:IMAGE:POINT[:KEYPOINT]", "control:POINT",
+                    "transfer:POINT:IMAGE,IMAGE,...", "ap-group:CAMERA:brown|ebner", "exchanged:IMAGE:A:B",
+                    "model-point:MODEL:POINT", "file:PATH")
+
+
+def parse_hypothesis(text: str) -> dict:
+    """A --hypothesis SPEC as the specification dict of
+    :func:`baarda.stats.hypotheses.hypothesis_matrix` (``file:PATH`` gives {"kind": "file", "path"});
+    BaardaError naming the argument for a malformed one."""
+    kind, _, rest = text.partition(":")
+    forms = {spec.split(":", 1)[0]: spec for spec in HYPOTHESIS_SPECS}
+    if kind not in forms:
+        raise BaardaError(f"--hypothesis {text!r}: unknown kind {kind!r} (one of {', '.join(forms)})")
+    if kind == "file":
+        if not rest:
+            raise BaardaError(f"--hypothesis {text!r}: expected file:PATH")
+        return {"kind": "file", "path": rest}
+    names = {"observation": ["index"], "group": ["group"], "image-point": ["image", "point"],
+             "control": ["point"], "transfer": ["point", "images"], "ap-group": ["camera", "group"],
+             "exchanged": ["image", "a", "b"], "model-point": ["model", "point"]}[kind]
+    parts = rest.split(":") if rest else []
+    if kind == "image-point" and len(parts) == 3:          # a COLMAP image's keypoint on the point
+        names = names + ["keypoint"]
+    if len(parts) != len(names) or not all(parts):
+        raise BaardaError(f"--hypothesis {text!r}: expected {forms[kind]}")
+    spec = {"kind": kind, **dict(zip(names, parts))}
+    if kind in ("observation", "group"):
+        key = names[0]
+        try:
+            spec[key] = int(spec[key])
+        except ValueError:
+            raise BaardaError(f"--hypothesis {text!r}: {key.upper()} must be an integer, not {spec[key]!r}") from None
+    if kind == "transfer":
+        spec["images"] = [im for im in spec["images"].split(",") if im]
+    return spec

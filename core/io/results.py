@@ -206,6 +206,32 @@ def to_dict(adj, reliability=None) -> dict:
     return doc
 
 
+def columns(records) -> dict:
+    """A table of records as columns: ``{key: numpy array}`` in the records' key order. Numbers
+    (None where the JSON has null) become float arrays with NaN, booleans and integers keep their
+    type where every record has them, anything else (strings, lists, dicts) an object array;
+    a key some records lack is missing (NaN / None) there."""
+    rows = list(records)
+    keys: dict = {}
+    for row in rows:
+        keys.update(dict.fromkeys(row))
+    out = {}
+    for key in keys:
+        vals = [row.get(key) for row in rows]
+        present = [v for v in vals if v is not None]
+        if present and all(isinstance(v, bool) for v in present) and len(present) == len(vals):
+            out[key] = np.array(vals, dtype=bool)
+        elif present and all(isinstance(v, int) and not isinstance(v, bool) for v in present) and len(present) == len(vals):
+            out[key] = np.array(vals, dtype=np.int64)
+        elif all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in present):
+            out[key] = np.array([np.nan if v is None else float(v) for v in vals], dtype=float)
+        else:
+            arr = np.empty(len(vals), dtype=object)
+            arr[:] = vals
+            out[key] = arr
+    return out
+
+
 def finite(x):
     """Lists and dicts of numbers with non-finite ones as None (strict JSON)."""
     if isinstance(x, dict):

@@ -46,6 +46,12 @@ def summary_html(s: dict) -> str:
         cards.append(("Block", f"{s['n_images']} images in {s['n_strips']} strips<br>{s['n_points']} points"))
     else:
         cards.append(("Network", f"{s['n_points']} points"))
+    defects = s.get("local_defects") or []
+    if defects:              # set aside by the core's analysis (baarda.analysis), named as the CLI names them
+        shown = "<br>".join(html_text(f"{d['entity']} {d['id']} ({', '.join(d['components'])}): {d['action']}")
+                            for d in defects[:6])
+        more = f"<br>… {len(defects) - 6} more" if len(defects) > 6 else ""
+        cards.append(("Local defects", f"<b class='na'>{len(defects)} set aside</b><br>{shown}{more}"))
     body = "".join(f"<div class='card'><div class='h'>{h}</div><div>{b}</div></div>" for h, b in cards)
     style = ("<style>.cards{display:flex;flex-wrap:wrap;gap:8px}.card{border:1px solid #ddd;border-radius:6px;"
              "padding:6px 10px;min-width:150px;font-size:13px;background:#fafafa}.card .h{font-size:11px;"
