@@ -76,10 +76,14 @@ C90      Clinger, W. D. (1990). How to read floating point numbers accurately. P
 """
 
 from .adjust import Options, adjust
+from .analysis import Analysis, Extras, SolverOptions, analyze
+from .build import read_problem
 from .datum import Datum
 from .errors import BaardaError, DatumDefectError, InputError, SingularError
 from .stats.hypotheses import HypothesisTest, common_error, selection
+from .stats.policy import TestPolicy
 
-__all__ = ["Options", "adjust", "Datum", "BaardaError", "DatumDefectError", "InputError",
-           "SingularError", "HypothesisTest", "common_error", "selection"]
+__all__ = ["analyze", "Analysis", "Extras", "SolverOptions", "TestPolicy", "read_problem", "Options", "adjust",
+           "Datum", "BaardaError", "DatumDefectError", "InputError", "SingularError", "HypothesisTest",
+           "common_error", "selection"]
 __version__ = "0.1.0"

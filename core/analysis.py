@@ -474,7 +474,8 @@ class Analysis:
     def planted(self, truth_path) -> list:
         """The planted errors of a ``.truth.json`` (:mod:`baarda.simulate`) and whether the tests
         found them (:func:`baarda.truth.compare`)."""
-        return self._cached(("planted", str(truth_path)), lambda: truth.compare(self.adjustment, read_truth(truth_path)))
+        return self._cached(("planted", str(truth_path)), lambda: truth.compare(self.adjustment, read_truth(truth_path),
+                                                                    reliability=self.reliability))
 
     # -- the document's extras ---------------------------------------------------------------------
     def _add_extras(self, doc: dict, ex: Extras) -> None:

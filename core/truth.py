@@ -28,9 +28,11 @@ def _hypothesis(adj, e):
     return None, None
 
 
-def compare(adj, truth: dict) -> list[dict]:
+def compare(adj, truth: dict, reliability=None) -> list[dict]:
     """One entry per planted error: kind, ids, class, max |w| of its observations, whether data
-    snooping rejects one of them, and T/critical/decision of the matching hypothesis."""
+    snooping rejects one of them, and T/critical/decision of the matching hypothesis, under
+    ``reliability``'s policy (default the adjustment's own)."""
+    rel = adj.reliability if reliability is None else reliability
     kept = adj.problem.extra.get("kept_rows")
     out = []
     for e in truth.get("errors", []):
@@ -43,10 +45,10 @@ def compare(adj, truth: dict) -> list[dict]:
         if rows.size:
             w = np.abs(np.nan_to_num(adj.w[rows]))
             d["max_w"] = float(w.max())
-            d["snooping_rejects"] = bool(adj.rejected[rows].any())
+            d["snooping_rejects"] = bool(rel.rejected[rows].any())
         name, H = _hypothesis(adj, e)
         if H is not None:
-            h = adj.test(H, label=name)
+            h = rel.test(H, label=name)
             d.update({"hypothesis": name, "T": h.T, "critical": h.critical_T, "rejected": h.rejected_T,
                       "nabla": h.nabla.tolist(), "nabla_sigma": h.nabla_sigma.tolist()})
         d["found"] = bool(d.get("snooping_rejects") or d.get("rejected"))

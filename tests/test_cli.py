@@ -183,7 +183,7 @@ def test_a_diverged_adjustment_is_a_status_not_a_crash(tmp_path, capsys, monkeyp
     from baarda import cli
     from baarda.errors import SingularError
 
-    def singular(adj):
+    def singular(*_):
         raise SingularError("normal matrix is singular: P00006.x is not determined by the observations")
 
     monkeypatch.setattr(cli.results, "to_dict", singular)
