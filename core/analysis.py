@@ -28,6 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+try:                        # optional: Analysis.records(frame=True)
+    import pandas as pd
+except ImportError:         # pragma: no cover - pandas comes with the dashboard extra
+    pd = None
+
 from .adjust import Options, adjust
 from .build import read_problem
 from .datum import split_normal
@@ -343,7 +348,8 @@ class Analysis:
         cols = self._cached(("records", table), lambda: results.columns(makers[table]()))
         if not frame:
             return dict(cols)
-        import pandas as pd        # optional: only for frames
+        if pd is None:
+            raise BaardaError("records(frame=True) needs pandas (pip install pandas); the columns without it: frame=False")
         return pd.DataFrame(cols)
 
     def text(self, top: int = 8, extras: Extras | None = None) -> str:

@@ -28,6 +28,7 @@ from tornado.ioloop import IOLoop
 
 from . import geometry
 from .jobs import TASKS, Cancelled, next_tick
+from .report import report_html
 from .state import State
 from .text import html_text
 from .views.controls import MAX_UPLOAD_MB
@@ -262,7 +263,7 @@ def _local_stylesheets() -> None:
 WEBGL = False
 
 
-def _extensions():
+def extensions():
     if _served():
         _local_stylesheets()
     pn.extension("tabulator", "filedropper", notifications=False, sizing_mode="stretch_width")
@@ -351,7 +352,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
     once the page has loaded (a file read before comes from the server's cache), the summary
     appears as soon as the adjustment is there, and the maps and tables are built after it.
     """
-    _extensions()
+    extensions()
     background = _served() if background is None else bool(background)
     sid = pn.state.curdoc.session_context.id if background and _served() else "-"
     if sid != "-":
@@ -377,7 +378,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
     template = FastListTemplate(first_summary=first, title="baarda", accent="#1f4e9c", header_background="#1f4e9c",
                                             sidebar_width=290, main_layout=None, theme_toggle=False,
                                             design=Fast, font="system-ui, sans-serif")
-    files = FilePanel(state=state)
+    files = FilePanel(state=state, render_report=report_html)
     # served, the sidebar's views are made with the page's first update (onload): the page the
     # server sends first is the header and the summary only (a tenth of a second of the event
     # loop per session, was three quarters)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import holoviews as hv
 import panel as pn
 
-from .app import TAB_NAMES, _extensions, main_views
+from .app import TAB_NAMES, extensions, main_views
 from .state import State
 from .views import MAP_VIEWS, SummaryHeader, SuspectsView, TestsTable
 
@@ -29,7 +29,7 @@ def view(analysis, what: str = "maps"):
     :data:`WHATS`."""
     if what not in WHATS:
         raise ValueError(f"view: what must be one of {', '.join(WHATS)} (got {what!r})")
-    _extensions()
+    extensions()
     if not hasattr(hv.opts, "Path"):     # a notebook's own pn.extension() loads HoloViews' backend half-way
         hv.extension("bokeh", logo=False)
     state = State.from_analysis(analysis)

@@ -37,6 +37,7 @@ from baarda.adjust import Options
 from baarda.analysis import Analysis, analyze
 from baarda.build import read_problem
 from baarda.errors import BaardaError
+from baarda.io.results import summary as core_summary
 from baarda.stats import precision, robust
 from baarda.stats.policy import TestPolicy
 
@@ -720,8 +721,6 @@ class State(param.Parameterized):
     # -- summary --------------------------------------------------------------------------------
     def summary(self) -> dict:
         """The numbers of the summary header, taken from the core's results."""
-        from baarda.io.results import summary as core_summary
-
         s = core_summary(self.results, self.reliability)
         obs, pts = self.frames()
         s.update(tables.summary_counts(obs, pts, self.excluded, geometry.images(self.problem)))

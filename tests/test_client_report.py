@@ -112,7 +112,7 @@ def test_file_panel_offers_the_report_and_every_table(demo):
     from baarda.dashboard.views.controls import FilePanel
 
     st = State.from_adjustment(demo)
-    panel = FilePanel(state=st)
+    panel = FilePanel(state=st, render_report=report_html)
     assert set(panel.tables) == set(TABLES)
     for name, widget in panel.tables.items():
         assert widget.filename == f"baarda-{name}.csv"

@@ -361,7 +361,7 @@ def test_maps_draw_on_the_canvas_unless_served_with_webgl(block_problem, monkeyp
         assert render.figure(hv.Points([(0, 0), (1, 1)])).output_backend == "canvas"
     finally:
         monkeypatch.setattr(app, "WEBGL", False)
-        app._extensions()
+        app.extensions()
     assert backends() == {"canvas"}
     served = []
     monkeypatch.setattr(app, "serve", lambda *a, **kw: served.append(kw))

@@ -182,6 +182,8 @@ class FilePanel(pn.viewable.Viewer):
     """
 
     state = param.ClassSelector(class_=State)
+    render_report = param.Callable(default=None, doc="report_html(adj, state=...) of baarda.dashboard.report, "
+                                   "given by the app (the report renders views: imported above them)")
 
     def __init__(self, **params):
         super().__init__(**params)
@@ -275,9 +277,9 @@ class FilePanel(pn.viewable.Viewer):
         return self._report()
 
     def _report(self):
-        from ..report import report_html
-
-        return io.StringIO(report_html(self.state.results, state=self.state))
+        if self.render_report is None:
+            raise RuntimeError("FilePanel: no report renderer (render_report) given")
+        return io.StringIO(self.render_report(self.state.results, state=self.state))
 
     def _table(self, name):
         if self.state.results is None:
