@@ -36,7 +36,7 @@ except ImportError:         # pragma: no cover - pandas comes with the dashboard
 from .adjust import Options, adjust
 from .build import read_problem
 from .datum import split_normal
-from .errors import BaardaError, DatumDefectError, InputError, OptionError
+from .errors import BaardaError, DatumDefectError, InputError, OptionError, UsageError
 from . import truth
 from .io import read_truth, results
 from .io.analysis_text import extras_text, summary_html
@@ -426,7 +426,7 @@ class Analysis:
         known = set(map(str, ids))
         unknown = [b for b in named + ([normal] if normal is not None else []) if b not in known]
         if unknown:
-            raise BaardaError(f"--sbase: unknown point id(s) {', '.join(unknown)}")
+            raise UsageError(f"--sbase: unknown point id(s) {', '.join(unknown)}")
         return self._cached(("precision", tuple(base)), lambda: precision.covariance(self.adjustment, sbase=base))
 
     def criterion(self, kind: str = "logarithmic", C0: float | None = None, sbase=None) -> dict:
@@ -434,7 +434,7 @@ class Analysis:
         the dict of :func:`baarda.stats.analyses.criterion_fit`."""
         reason = analyses.criterion_reason(self.adjustment)
         if reason:
-            raise BaardaError(f"--criterion: {reason}")
+            raise UsageError(f"--criterion: {reason}")
         cc = self.precision(sbase)
 
         def make():
@@ -442,7 +442,7 @@ class Analysis:
                 return analyses.criterion_fit(analyses.criterion_setup(self.adjustment, self._sbase(cc), cov=cc),
                                               kind=kind, C0=C0 if C0 is not None else 0.0)
             except BaardaError as err:
-                raise BaardaError(f"--criterion: {err}") from None
+                raise UsageError(f"--criterion: {err}") from None
         return self._cached(("criterion", kind, C0, id(cc)), make)
 
     @staticmethod
@@ -455,14 +455,14 @@ class Analysis:
         """Risk-minimising critical values per observation (M84 §3.3):
         :class:`baarda.stats.risk` ``per_observation``."""
         if (lambda_bar_tol is None) == (coordinate_tol is None):
-            raise BaardaError("--risk: give one tolerance, --risk-lambda-bar TOL or --risk-coordinate METRES")
+            raise UsageError("--risk: give one tolerance, --risk-lambda-bar TOL or --risk-coordinate METRES")
         key = ("risk", p, L1, L2, lambda_bar_tol, coordinate_tol)
         try:
             return self._cached(key, lambda: risk.per_observation(self.adjustment, p, L1, L2,
                                                                   lambda_bar_tol=lambda_bar_tol,
                                                                   coordinate_tol=coordinate_tol))
         except BaardaError as err:
-            raise BaardaError(f"--risk: {err}") from None
+            raise UsageError(f"--risk: {err}") from None
 
     def exchange(self, spec: str, both: bool = True):
         """The test of an exchange (``both``) or a misidentification of points A and B in an
@@ -470,12 +470,12 @@ class Analysis:
         option = "--exchange" if both else "--misidentified"
         parts = [x.strip() for x in str(spec).split(":")]
         if len(parts) != 3 or not all(parts):
-            raise BaardaError(f"{option}: expected IMAGE:A:B, got {spec!r}")
+            raise UsageError(f"{option}: expected IMAGE:A:B, got {spec!r}")
         try:
             return self._cached(("exchange", tuple(parts), both), lambda: misidentification.exchange_test(
                 self.adjustment, *parts, both=both, policy=self.policy))
         except BaardaError as err:
-            raise BaardaError(f"{option} {spec}: {err}") from None
+            raise UsageError(f"{option} {spec}: {err}") from None
 
     def planted(self, truth_path) -> list:
         """The planted errors of a ``.truth.json`` (:mod:`baarda.simulate`) and whether the tests
@@ -492,7 +492,7 @@ class Analysis:
             doc["snooping"] = [s.__dict__ for s in self.snooping().steps]
         if ex.risk is not None or ex.risk_lambda_bar is not None or ex.risk_coordinate is not None:
             if ex.risk is None:
-                raise BaardaError("--risk-lambda-bar / --risk-coordinate need --risk P,L1,L2")
+                raise UsageError("--risk-lambda-bar / --risk-coordinate need --risk P,L1,L2")
             r = self.risk(*ex.risk, lambda_bar_tol=ex.risk_lambda_bar, coordinate_tol=ex.risk_coordinate)
             doc["risk"] = {"p": r.p, "L1": r.L1, "L2": r.L2, "tolerance": r.tolerance, "rejected": int(r.rejected.sum())}
 

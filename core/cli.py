@@ -22,7 +22,7 @@ from pathlib import Path
 
 from . import __version__
 from .analysis import Extras, SolverOptions, analyze
-from .errors import BaardaError, HypothesisError, InputError, NotFoundError, SingularError
+from .errors import BaardaError, HypothesisError, InputError, NotFoundError, SingularError, UsageError
 from .io import read_model, results
 from .io.analysis_text import robust_lines
 from .io.control import add_control
@@ -293,11 +293,9 @@ def cmd_analyze(args) -> int:
     matrix found while computing reliability, ...) is reported against the file."""
     try:
         return _analyze(args)
-    except InputError:
+    except (InputError, UsageError):          # the file's or the options' own message
         raise
     except BaardaError as err:
-        if str(err).startswith("--"):          # a bad option value (--sbase, --criterion)
-            raise
         raise InputError(args.input, 0, str(err)) from None
 
 
@@ -310,11 +308,11 @@ def _extras(args) -> Extras:
         except ValueError:
             risk = ()
         if len(risk) != 3:
-            raise BaardaError(f"--risk: expected P,L1,L2 (three numbers), got {args.risk!r}")
+            raise UsageError(f"--risk: expected P,L1,L2 (three numbers), got {args.risk!r}")
     elif args.risk_lambda_bar is not None or args.risk_coordinate is not None:
-        raise BaardaError("--risk-lambda-bar / --risk-coordinate need --risk P,L1,L2")
+        raise UsageError("--risk-lambda-bar / --risk-coordinate need --risk P,L1,L2")
     if risk is not None and (args.risk_lambda_bar is None) == (args.risk_coordinate is None):
-        raise BaardaError("--risk: give one tolerance, --risk-lambda-bar TOL or --risk-coordinate METRES")
+        raise UsageError("--risk: give one tolerance, --risk-lambda-bar TOL or --risk-coordinate METRES")
     truth_path = args.truth
     if truth_path is None:
         guess = Path(args.input).with_suffix(".truth.json")
@@ -410,7 +408,7 @@ def cmd_test(args) -> int:
         except InputError:
             raise
         except (NotFoundError, HypothesisError) as err:
-            raise BaardaError(f"--hypothesis {text!r}: {err}") from None
+            raise UsageError(f"--hypothesis {text!r}: {err}") from None
         if "ap_test" in t:
             tests.append({"hypothesis": text, "spec": spec, "ap_test": t["ap_test"]})
             continue

@@ -153,3 +153,9 @@ class NotFoundError(BaardaError, KeyError):
 
     def __reduce__(self):
         return (type(self), (self.what, self.ids, self.message))
+
+
+class UsageError(BaardaError, ValueError):
+    """A request the command line or a caller made that cannot be met as asked (an option value:
+    ``--sbase`` naming an unknown point, ``--risk`` without a tolerance, a malformed
+    ``--exchange``): the caller's mistake, not the file's. ``str(err)`` starts with the option."""

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import BaardaError, InputError
+from ..errors import InputError, UsageError
 
 FIELDS = ("observation", "column", "value")
 
@@ -92,10 +92,10 @@ def parse_hypothesis(text: str) -> dict:
     kind, _, rest = text.partition(":")
     forms = {spec.split(":", 1)[0]: spec for spec in HYPOTHESIS_SPECS}
     if kind not in forms:
-        raise BaardaError(f"--hypothesis {text!r}: unknown kind {kind!r} (one of {', '.join(forms)})")
+        raise UsageError(f"--hypothesis {text!r}: unknown kind {kind!r} (one of {', '.join(forms)})")
     if kind == "file":
         if not rest:
-            raise BaardaError(f"--hypothesis {text!r}: expected file:PATH")
+            raise UsageError(f"--hypothesis {text!r}: expected file:PATH")
         return {"kind": "file", "path": rest}
     names = {"observation": ["index"], "group": ["group"], "image-point": ["image", "point"],
              "control": ["point"], "transfer": ["point", "images"], "ap-group": ["camera", "group"],
@@ -104,14 +104,14 @@ def parse_hypothesis(text: str) -> dict:
     if kind == "image-point" and len(parts) == 3:          # a COLMAP image's keypoint on the point
         names = names + ["keypoint"]
     if len(parts) != len(names) or not all(parts):
-        raise BaardaError(f"--hypothesis {text!r}: expected {forms[kind]}")
+        raise UsageError(f"--hypothesis {text!r}: expected {forms[kind]}")
     spec = {"kind": kind, **dict(zip(names, parts))}
     if kind in ("observation", "group"):
         key = names[0]
         try:
             spec[key] = int(spec[key])
         except ValueError:
-            raise BaardaError(f"--hypothesis {text!r}: {key.upper()} must be an integer, not {spec[key]!r}") from None
+            raise UsageError(f"--hypothesis {text!r}: {key.upper()} must be an integer, not {spec[key]!r}") from None
     if kind == "transfer":
         spec["images"] = [im for im in spec["images"].split(",") if im]
     return spec
