@@ -4,8 +4,10 @@ The files are UTF-8 with a byte-order mark, so that spreadsheets (Excel, LibreOf
 with the right characters (σ, ∇, ids in any script). Every text cell that a spreadsheet would
 take for a formula (starting with ``= + - @``, a tab or a carriage return: CSV injection) is
 written with a leading apostrophe, so a hostile id stays text there too; numbers are written as
-numbers. The columns are those of the app's tables (:meth:`State.frames`,
-:func:`baarda.dashboard.suspects.suspects`).
+numbers. The observations and points are the core's tables (:meth:`baarda.analysis.Analysis.records`:
+the columns and names of ``baarda analyze --csv`` and of the JSON document, one table of one thing),
+with ``index`` the observation's index in the problem (excluded observations are not in the file);
+the suspects are the app's (:func:`baarda.dashboard.suspects.suspects`).
 """
 
 from __future__ import annotations
@@ -18,10 +20,22 @@ from .state import State
 from .suspects import suspects
 from .text import plain
 
+def core_table(state: State, table: str) -> pd.DataFrame:
+    """The core's ``table`` ("observations" or "points") of ``state``'s analysis as a DataFrame,
+    as ``baarda analyze --csv`` writes it (lists joined by ';'); observation ``index`` in the problem."""
+    df = state.analysis.records(table, frame=True)
+    if table == "observations" and len(df):
+        df["index"] = state.kept[df["index"].to_numpy(dtype=int)]
+    for col in df.columns:
+        if df[col].dtype == object:
+            df[col] = df[col].map(lambda v: ";".join(map(str, v)) if isinstance(v, list) else v)
+    return df
+
+
 #: what each download holds: its file name and how to make its table from a state
 TABLES = {
-    "observations": lambda st: st.frames()[0],
-    "points": lambda st: st.frames()[1],
+    "observations": lambda st: core_table(st, "observations"),
+    "points": lambda st: core_table(st, "points"),
     "suspects": suspects,
 }
 
