@@ -134,7 +134,7 @@ def network(n_points: int, seed: int = 1):
 
 def worker_network(n_points: int) -> None:
     from baarda.adjust import Options, adjust
-    from baarda.observations.geodetic import build_problem
+    from baarda.model.network_problem import build_problem
 
     st = Stages()
     net = network(n_points)

@@ -18,7 +18,7 @@ import numpy as np
 
 from baarda.adjust import adjust
 from baarda.model.network import Cluster, NetObservation, NetPoint, Network
-from baarda.observations.geodetic import build_problem
+from baarda.model.network_problem import build_problem
 from tests.oracle import redundancy          # the tests' dense oracle, F80 §5
 
 

@@ -15,7 +15,7 @@ from .approx import approximate_coordinates
 from .defects import LocalDefect, adjust_setting_aside
 from .model.network import Network
 from .model.problem import Problem
-from .observations.geodetic import AXES, NEEDS, build_problem, point_axes
+from .model.network_problem import AXES, NEEDS, build_problem, point_axes
 
 
 def build_network(net: Network, strict: bool = False) -> Problem:

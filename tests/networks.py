@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 
 from baarda.model.network import Cluster, NetObservation, NetPoint, Network
-from baarda.observations.geodetic import build_problem
+from baarda.model.network_problem import build_problem
 
 
 def grid_network(nx=3, ny=3, spacing=100.0, sigma_d=0.002, sigma_r=1e-5, datum="fixed",

@@ -25,7 +25,7 @@ from baarda.build import read_problem
 from baarda.errors import InputError
 from baarda.io.gama import UndefinedPointsWarning, read_gama
 from baarda.model.problem import subset
-from baarda.observations.geodetic import build_problem
+from baarda.model.network_problem import build_problem
 from baarda.stats.reliability import Reliability
 
 from tests.extdata import GAMA, gama_cases, require_extdata

@@ -1,7 +1,7 @@
 """Geodetic networks as read from a file: points, observations, covariance clusters.
 
 This is the file-level description of a local geodetic network (levelling, 2D, 3D). It holds
-no adjustment logic: :func:`baarda.observations.geodetic.build_problem` turns a :class:`Network` into the
+no adjustment logic: :func:`baarda.model.network_problem.build_problem` turns a :class:`Network` into the
 generic :class:`baarda.model.problem.Problem` that the adjustment works on.
 
 Conventions
