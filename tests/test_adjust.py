@@ -144,7 +144,7 @@ def test_trafalgar_reaches_ceres_optimum_in_cost_and_parameters():
 def _step_factor_takes_the_reference_steps(st, Ar, P, v, monkeypatch):
     """StepFactor against SchurFactor (square-root elimination), damped and undamped: the same
     diag(N) and steps; and the same numbers, bit for bit, whether the factor keeps every E_c for
-    its solves or makes them again from the design matrix (schur.KEEP_E_BYTES)."""
+    its solves or makes them again from the design matrix (schur.factor.KEEP_E_BYTES)."""
     from baarda.solve import schur
 
     assert schur.StepFactor.applicable(st, P)
@@ -157,7 +157,7 @@ def _step_factor_takes_the_reference_steps(st, Ar, P, v, monkeypatch):
         x_ref, x_fast = ref.solve(g) * d, fast.solve(g) * d        # in conditional σ
         assert np.abs(x_fast - x_ref).max() <= 1e-6 * max(np.abs(x_ref).max(), 1.0)
         with monkeypatch.context() as m:
-            m.setattr(schur, "KEEP_E_BYTES", 0)
+            m.setattr(schur.factor, "KEEP_E_BYTES", 0)
             again = schur.StepFactor(st, Ar, P, damping=lam)
         assert again._Et.shape[0] == 0
         assert np.array_equal(again.solve(g), fast.solve(g))

@@ -14,12 +14,13 @@ from baarda.model.bundle import build_block_problem
 from baarda.model.problem import subset
 from baarda.simulate import simulate_block
 from baarda.solve import schur
+from baarda.solve.compiled import NUMBA
 from baarda.solve.linalg import LowRankUpdate
 from baarda.stats.hypotheses import h_point_transfer
 
 from tests.oracle import nuisance_share, redundancy
 
-BACKENDS = ["numpy"] + (["numba"] if schur.numba is not None else [])
+BACKENDS = ["numpy"] + (["numba"] if NUMBA else [])
 QUANTITIES = ("r", "u_k", "u_t")
 SCALED = ("w", "mdb", "external", "external_all", "tau")
 
@@ -248,8 +249,8 @@ def test_memory_bounds_keep_the_numbers(monkeypatch):
     B = np.random.default_rng(0).standard_normal((f.m, 9))
     ref = f.solve(B)
     ref_cov = adj.point_cov.copy()
-    monkeypatch.setattr(schur, "SOLVE_BYTES", 1)
-    monkeypatch.setattr(schur, "KEEP_E_BYTES", 0)
+    monkeypatch.setattr(schur.factor, "SOLVE_BYTES", 1)
+    monkeypatch.setattr(schur.factor, "KEEP_E_BYTES", 0)
     f2 = schur.SchurFactor(adj.schur_structure, adj.Ar, adj.P)
     assert np.allclose(f2.solve(B), ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
     assert f2._E is None                                          # made for each solve, not kept
