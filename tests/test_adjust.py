@@ -21,6 +21,7 @@ from tests.extdata import EXTDATA, require_extdata
 BAL = EXTDATA / "bal"
 DEMO = str(Path(__file__).resolve().parents[1] / "data" / "demo-block.json")
 adjust_mod = importlib.import_module("baarda.adjust")
+iteration_mod = importlib.import_module("baarda.iteration")
 
 
 def test_radius_update_is_ceres_rule():
@@ -241,19 +242,19 @@ def test_gauge_switches_reuse_small_layouts(monkeypatch):
     block, _ = simulate_block(strips=2, images_per_strip=5, seed=4, datum="free")
     problem = build_block_problem(block)
     calls = []
-    real = adjust_mod.schur_structure
+    real = iteration_mod.schur_structure
 
     def counted(*a, **k):
         calls.append(a[2].size)
         return real(*a, **k)
 
-    monkeypatch.setattr(adjust_mod, "schur_structure", counted)
+    monkeypatch.setattr(iteration_mod, "schur_structure", counted)
     x0 = problem.params.x0.copy()
     x0[problem.params.kind == "k"] += 0.5                 # far enough from the solution to damp
     kept = adjust(problem, Options(solver="schur"), x0=x0)
     n_kept = len(calls)
     calls.clear()
-    monkeypatch.setattr(adjust_mod, "KEEP_LAYOUTS_BYTES", 0)
+    monkeypatch.setattr(iteration_mod, "KEEP_LAYOUTS_BYTES", 0)
     one = adjust(problem, Options(solver="schur"), x0=x0)
     assert kept.damped and len(set(calls)) == 2                 # both gauges were used
     assert n_kept < len(calls)

@@ -6,14 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from ...errors import OptionError, SingularError
+from ...errors import OptionError
 from ...model.problem import by_size
 from ..compiled import NUMBA
 from ..linalg import SPDFactor
 from .kernels import SCATTER_CHUNKS, compiled_kernels, find_block, gather_np, scatter_np, uniform6
-from .ordering import Permuted, camera_order
+from .ordering import Permuted, factor_reduced, point_places, singular_error, unknown_diagonal
 from .points import bmm, mT, point_roots, segment_sum, upper3_inverse
 from .structure import Structure, canonical, weights
 
@@ -76,7 +75,7 @@ class SchurFactor:
                                   min(pivot_tol, POINT_PIVOT_TOL), self.backend, diagonal)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
-            raise self._singular(int(st.ent_cols[e, bad[e]]))
+            raise singular_error(st, int(st.ent_cols[e, bad[e]]))
         # point unknowns p̃ = R_j p: the point blocks become I, b_c becomes b_c R_j⁻¹
         self.R, self.Ri = R, upper3_inverse(R)
         if self.fused:
@@ -115,23 +114,13 @@ class SchurFactor:
             S = S.copy()
             S[dsel0] += damping * U[dsel0]
         self.Svals, self.Uvals = S, U
-        nc_ = st.cam.size
-        Smat = sp.csr_matrix((S, (st.flat_r, st.flat_c)), shape=(nc_, nc_))
-        self._check_dense(Smat)
-        try:
-            self.S = SPDFactor(Smat, labels=None if st.labels is None else st.labels[st.cam],
-                               pivot_tol=pivot_tol, perm=camera_order(Smat, st))
-        except SingularError as err:
-            raise self._singular(int(st.cam[err.index])) from None
+        self.S = factor_reduced(st, S, pivot_tol, DENSE_LIMIT)
         self.bandwidth = getattr(self.S, "bandwidth", 0)
-        diag = np.empty(st.u)
         dsel = st.flat_r == st.flat_c
-        diag[st.cam[st.flat_r[dsel]]] = U[dsel]
-        okc = st.ent_cols >= 0
-        diag[st.ent_cols[okc]] = dC[okc]
-        self.diagonal = diag
-        pflat = np.flatnonzero(st.ent_cols.ravel() >= 0)
-        self._pflat, self._pcols = pflat, st.ent_cols.ravel()[pflat]
+        diag_c = np.empty(st.cam.size)
+        diag_c[st.flat_r[dsel]] = U[dsel]
+        self.diagonal = unknown_diagonal(st, diag_c, dC)
+        self._pflat, self._pcols = point_places(st)
         self._blocks = None
         self._nuisance = None
 
@@ -154,23 +143,6 @@ class SchurFactor:
         if E.nbytes <= KEEP_E_BYTES:
             self._E = E
         return E
-
-    def _singular(self, col):
-        name = self.labels[col] if self.labels is not None else f"unknown {col}"
-        return SingularError(unknown=name, index=col)
-
-    def _check_dense(self, Smat):
-        nc_ = Smat.shape[0]
-        if nc_ <= DENSE_LIMIT:
-            return
-        perm = reverse_cuthill_mckee(Smat, symmetric_mode=True)
-        iperm = np.empty_like(perm)
-        iperm[perm] = np.arange(nc_)
-        Cm = Smat.tocoo()
-        band = int(np.abs(iperm[Cm.row] - iperm[Cm.col]).max(initial=0))
-        if 2 * band >= nc_:
-            raise MemoryError(f"the reduced camera system ({nc_} unknowns) has a band of {band}: "
-                              f"its factor would be dense beyond DENSE_LIMIT = {DENSE_LIMIT}")
 
     # -- solves -------------------------------------------------------------------------------
     def solve(self, b: np.ndarray) -> np.ndarray:

@@ -8,13 +8,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ...errors import SingularError
 from ..compiled import NUMBA, compiled, njit
-from ..linalg import SPDFactor
 from . import factor
 from .factor import PIVOT_TOL, POINT_PIVOT_TOL
 from .kernels import find_block, uniform6
-from .ordering import camera_order
+from .ordering import factor_reduced, point_places, singular_error, unknown_diagonal
 from .structure import Structure, canonical, weights
 
 def _load_cluster(data, src_a, src_b, c, ac, bc):
@@ -306,7 +304,7 @@ class StepFactor:
                                 min(pivot_tol, POINT_PIVOT_TOL), S, Et, keep, Z, Ci, dC, dU, bad)
         if (bad >= 0).any():
             e = int(np.flatnonzero(bad >= 0)[0])
-            raise self._singular(int(st.ent_cols[e, bad[e]]))
+            raise singular_error(st, int(st.ent_cols[e, bad[e]]))
         diag_c = self._camera_diagonal(st, dU)              # diag(U) by S index
         if damping:
             dsel = st.flat_r == st.flat_c
@@ -314,20 +312,9 @@ class StepFactor:
         self.Ci, self._data, self._Pd = Ci, Ar.data, Pd
         self._Et = Et if keep else np.zeros((0, 3, K))     # (else E_c is made again by the solves)
         del Et, Z
-        nc_ = st.cam.size
-        Smat = sp.csr_matrix((S, (st.flat_r, st.flat_c)), shape=(nc_, nc_))
-        try:
-            self.S = SPDFactor(Smat, labels=None if st.labels is None else st.labels[st.cam],
-                               pivot_tol=pivot_tol, perm=camera_order(Smat, st))
-        except SingularError as err:
-            raise self._singular(int(st.cam[err.index])) from None
-        diag = np.empty(st.u)
-        diag[st.cam] = diag_c
-        okc = st.ent_cols >= 0
-        diag[st.ent_cols[okc]] = dC[okc]
-        self.diagonal = diag
-        pflat = np.flatnonzero(st.ent_cols.ravel() >= 0)
-        self._pflat, self._pcols = pflat, st.ent_cols.ravel()[pflat]
+        self.S = factor_reduced(st, S, pivot_tol)
+        self.diagonal = unknown_diagonal(st, diag_c, dC)
+        self._pflat, self._pcols = point_places(st)
 
     @staticmethod
     def applicable(st: Structure, P) -> bool:
@@ -355,10 +342,6 @@ class StepFactor:
         """diag(U) per S index (supernodes in order, K each)."""
         return dU.ravel()[: st.cam.size] if dU.shape[1] * dU.shape[0] == st.cam.size else \
             np.concatenate([dU[g, : st.sn_ptr[g + 1] - st.sn_ptr[g]] for g in range(dU.shape[0])])
-
-    def _singular(self, col):
-        name = self.labels[col] if self.labels is not None else f"unknown {col}"
-        return SingularError(unknown=name, index=col)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """(N + λ diag N)⁻¹ b for a vector b over the reduced unknowns."""
