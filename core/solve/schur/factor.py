@@ -57,7 +57,7 @@ class SchurFactor:
         self.st, self.m, self.labels = st, st.u, st.labels
         K = st.K
         # the common case (numba, one supernode per cluster) reads a_c, b_c from Ar's data in its
-        # kernels and makes b̃_c and E_c per point (:func:`_entity_blocks`): no stack of a, b, b̃
+        # kernels and makes b̃_c and E_c per point (:mod:`.kernels`): no stack of a, b, b̃
         # or E over all clusters is held (216 + 192 bytes per image point of a bundle block);
         # E is made for the solves only when one is asked for (:attr:`E`). The other paths
         # keep the padded stacks a, b̃ and E.

@@ -46,7 +46,7 @@ def _cluster_E(data, src_a, src_b, Pd, c, a, b, Ec):
 
 def _step_factor_kernel(ent_ptr, ent_cols, cl_sn, bptr, bcol, bstart, sn_diag, data, src_a, src_b, Pd, lam,
                         pivot_tol, S, Et, keep, Z, Ci, dC, dU, bad):
-    """One pass over the entities for N + λ diag(N) (the module docstring's formulas in normal-
+    """One pass over the entities for N + λ diag(N) (the package docstring's formulas in normal-
     equation form, every cluster seeing one supernode of K unknowns, diagonal P_c):
     U = Σ a_cᵀP_c a_c into the diagonal blocks of S (its diagonal into dU), E_c = a_cᵀP_c b_c
     (into Et transposed, 3 × K: at cluster position c when ``keep``, else at rows 0, 1, ... for

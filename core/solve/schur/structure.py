@@ -56,7 +56,7 @@ class StructureCache:
 
 @dataclass(frozen=True, eq=False)
 class Structure:
-    """The elimination layout of one design-matrix pattern (see the module docstring).
+    """The elimination layout of one design-matrix pattern (see the package docstring).
 
     Positions p number the covariance clusters grouped by entity (an eliminated point, or a
     cluster that sees none); S indices number the camera unknowns supernode by supernode.
