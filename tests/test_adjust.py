@@ -21,6 +21,7 @@ from tests.extdata import EXTDATA, require_extdata
 BAL = EXTDATA / "bal"
 DEMO = str(Path(__file__).resolve().parents[1] / "data" / "demo-block.json")
 adjust_mod = importlib.import_module("baarda.adjust")
+iteration_mod = importlib.import_module("baarda.iteration")
 
 
 def test_radius_update_is_ceres_rule():
@@ -144,7 +145,7 @@ def test_trafalgar_reaches_ceres_optimum_in_cost_and_parameters():
 def _step_factor_takes_the_reference_steps(st, Ar, P, v, monkeypatch):
     """StepFactor against SchurFactor (square-root elimination), damped and undamped: the same
     diag(N) and steps; and the same numbers, bit for bit, whether the factor keeps every E_c for
-    its solves or makes them again from the design matrix (schur.KEEP_E_BYTES)."""
+    its solves or makes them again from the design matrix (schur.factor.KEEP_E_BYTES)."""
     from baarda.solve import schur
 
     assert schur.StepFactor.applicable(st, P)
@@ -157,7 +158,7 @@ def _step_factor_takes_the_reference_steps(st, Ar, P, v, monkeypatch):
         x_ref, x_fast = ref.solve(g) * d, fast.solve(g) * d        # in conditional σ
         assert np.abs(x_fast - x_ref).max() <= 1e-6 * max(np.abs(x_ref).max(), 1.0)
         with monkeypatch.context() as m:
-            m.setattr(schur, "KEEP_E_BYTES", 0)
+            m.setattr(schur.factor, "KEEP_E_BYTES", 0)
             again = schur.StepFactor(st, Ar, P, damping=lam)
         assert again._Et.shape[0] == 0
         assert np.array_equal(again.solve(g), fast.solve(g))
@@ -241,19 +242,19 @@ def test_gauge_switches_reuse_small_layouts(monkeypatch):
     block, _ = simulate_block(strips=2, images_per_strip=5, seed=4, datum="free")
     problem = build_block_problem(block)
     calls = []
-    real = adjust_mod.schur_structure
+    real = iteration_mod.schur_structure
 
     def counted(*a, **k):
         calls.append(a[2].size)
         return real(*a, **k)
 
-    monkeypatch.setattr(adjust_mod, "schur_structure", counted)
+    monkeypatch.setattr(iteration_mod, "schur_structure", counted)
     x0 = problem.params.x0.copy()
     x0[problem.params.kind == "k"] += 0.5                 # far enough from the solution to damp
     kept = adjust(problem, Options(solver="schur"), x0=x0)
     n_kept = len(calls)
     calls.clear()
-    monkeypatch.setattr(adjust_mod, "KEEP_LAYOUTS_BYTES", 0)
+    monkeypatch.setattr(iteration_mod, "KEEP_LAYOUTS_BYTES", 0)
     one = adjust(problem, Options(solver="schur"), x0=x0)
     assert kept.damped and len(set(calls)) == 2                 # both gauges were used
     assert n_kept < len(calls)

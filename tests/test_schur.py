@@ -14,12 +14,13 @@ from baarda.model.bundle import build_block_problem
 from baarda.model.problem import subset
 from baarda.simulate import simulate_block
 from baarda.solve import schur
+from baarda.solve.compiled import NUMBA
 from baarda.solve.linalg import LowRankUpdate
 from baarda.stats.hypotheses import h_point_transfer
 
 from tests.oracle import nuisance_share, redundancy
 
-BACKENDS = ["numpy"] + (["numba"] if schur.numba is not None else [])
+BACKENDS = ["numpy"] + (["numba"] if NUMBA else [])
 QUANTITIES = ("r", "u_k", "u_t")
 SCALED = ("w", "mdb", "external", "external_all", "tau")
 
@@ -153,6 +154,32 @@ def test_datum_coordinates_make_smaller_point_blocks():
     assert sizes.sum() + st.n_cameras == s.keep.size
 
 
+def test_structure_caches_live_in_its_cache_field():
+    """The structure stays frozen: what the factors keep with it (the order of S, the cluster
+    weights of P, the step factor's diagonal blocks and applicability, col_S) is in its
+    StructureCache, no attribute is added to it; nbytes counts the cached arrays too."""
+    _, pr = _block(datum="free")
+    s = adjust(pr, Options(solver="schur"))
+    st = s.schur_structure
+    s.factor.solve(np.ones(st.u))
+    fields = {f.name for f in dataclasses.fields(st)}
+    assert set(vars(st)) == fields
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        st.M = 3
+    cache = st.cache
+    assert isinstance(cache, schur.StructureCache)
+    assert cache.order is not None and cache.weights is not None and cache.col_S is not None
+    assert st.col_S is cache.col_S
+    assert st.nbytes() >= sum(a.nbytes for a in cache.arrays()) + st.src_a.nbytes
+    if NUMBA:
+        cache.sn_diag = None
+        before = st.nbytes()
+        assert schur.StepFactor.applicable(st, s.P) and cache.step_applicable[0] is s.P
+        schur.StepFactor(st, s.Ar, s.P)
+        assert cache.sn_diag is not None and st.nbytes() == before + cache.sn_diag.nbytes
+        assert set(vars(st)) == fields
+
+
 def test_solve_and_entries_match_the_dense_inverse():
     _, pr = _block(control="dense")
     s = adjust(pr, Options(solver="schur"))
@@ -248,8 +275,8 @@ def test_memory_bounds_keep_the_numbers(monkeypatch):
     B = np.random.default_rng(0).standard_normal((f.m, 9))
     ref = f.solve(B)
     ref_cov = adj.point_cov.copy()
-    monkeypatch.setattr(schur, "SOLVE_BYTES", 1)
-    monkeypatch.setattr(schur, "KEEP_E_BYTES", 0)
+    monkeypatch.setattr(schur.factor, "SOLVE_BYTES", 1)
+    monkeypatch.setattr(schur.factor, "KEEP_E_BYTES", 0)
     f2 = schur.SchurFactor(adj.schur_structure, adj.Ar, adj.P)
     assert np.allclose(f2.solve(B), ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
     assert f2._E is None                                          # made for each solve, not kept
