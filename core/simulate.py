@@ -213,6 +213,9 @@ def simulate_block(**recipe) -> tuple[Block, dict]:
     obs_i, obs_p = np.array(obs_i), np.array(obs_p)
     count = np.bincount(obs_p, minlength=len(P))
     keep_pts = np.flatnonzero(count >= 2)
+    if keep_pts.size == 0:
+        raise OptionError("images_per_strip", m_n, (), "no point is seen in two images: simulate more images "
+                                                       "(images_per_strip, strips) or more overlap")
     newp = np.full(len(P), -1)
     newp[keep_pts] = np.arange(keep_pts.size)
     sel = newp[obs_p] >= 0

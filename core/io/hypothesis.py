@@ -31,9 +31,11 @@ def read_hypothesis(path, n: int) -> sp.csc_matrix:
     the file, line and field at fault."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(path, 0, f"cannot read the hypothesis file: {err}") from None
+        text = path.read_bytes().decode("utf-8")
+    except OSError as err:
+        raise InputError(path, 0, f"cannot read the hypothesis file: {err.strerror or err}") from None
+    except UnicodeDecodeError as err:
+        raise InputError(path, 0, f"the hypothesis file is not UTF-8 text (byte {err.start})") from None
     rows, cols, vals, seen = [], [], [], {}
     for lineno, raw in enumerate(text.splitlines(), 1):
         line = raw.split("#", 1)[0].replace(",", " ").split()
