@@ -45,7 +45,7 @@ from .io.gama import UndefinedPointsWarning
 from .io.geojson import write_geojson
 from .io.hypothesis import read_hypothesis
 from .io.native import write_native
-from .io.output import OutputError, check_outputs
+from .io.output import OutputError, check_outputs, write_text
 from .model.sfm import SfmBlock, to_block
 from .network_defects import adjust_network
 from .sfm_defects import adjust_block
@@ -731,7 +731,7 @@ def cmd_test(args) -> int:
     doc = {"schema": f"baarda-test/{results.SCHEMA_VERSION}", "summary": results.summary(adj, rel),
            "tests": tests, "inseparable": [{"hypotheses": list(g.members), "rho": g.rho} for g in apart]}
     if args.json:
-        Path(args.json).write_text(json.dumps(results.finite(doc), indent=1, allow_nan=False))
+        write_text(args.json, json.dumps(results.finite(doc), indent=1, allow_nan=False))
     if not args.quiet:
         print(printable_lines(results.tests_text(adj, rel, tests, top=args.top)))
         for g in apart:
@@ -780,6 +780,9 @@ def _parse_error(spec: str) -> dict:
         k, eq, v = kv.partition("=")
         if not (k and eq):
             raise BaardaError(f"--error {spec!r}: expected KIND:SIZE[:K=V...], not {kv!r}")
+        if k in ("image", "point", "component", "axis", "strip"):      # ids, even when they look like numbers
+            d[k] = v
+            continue
         try:
             d[k] = int(v)
         except ValueError:

@@ -299,3 +299,27 @@ def _is_number(s: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+WRITERS = [["analyze", "a.json", "--json", "old.out"], ["analyze", "a.json", "--geojson", "old.out"],
+           ["analyze", "a.json", "--csv", "csv"], ["test", "a.json", "-H", "observation:0", "--json", "old.out"],
+           ["convert", "a.gkf", "old.out"], ["convert", "bal.txt", "old.out"], ["report", "a.json", "-o", "old.out"],
+           ["simulate", "old.out", "--strips", "1", "--images", "3"]]
+
+
+@pytest.mark.parametrize("argv", WRITERS, ids=[" ".join(a) for a in WRITERS])
+def test_every_writer_interrupted_leaves_the_previous_files(argv, inputs, capsys, monkeypatch):
+    """Ctrl-C at the last moment of a write (the file complete, not yet renamed) in each writer:
+    exit 130 with one line, the previous output unchanged, no temporary file left."""
+    monkeypatch.chdir(inputs)
+    (inputs / "old.out").write_text("previous")
+    (inputs / "csv").mkdir()
+    (inputs / "csv" / "points.csv").write_text("previous")
+    before = snapshot(inputs)
+
+    def interrupted(fd):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(output.os, "fsync", interrupted)
+    assert main([*argv, "-q"]) == 130
+    assert capsys.readouterr().err == "baarda: interrupted\n"
+    assert snapshot(inputs) == before
