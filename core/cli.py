@@ -923,10 +923,12 @@ def main(argv=None) -> int:
     if getattr(args, "beta", None) is not None and not args.beta > args.alpha:
         ap.error(f"--beta ({args.beta:g}) must be larger than --alpha ({args.alpha:g}): the power of a test "
                  f"exceeds its size")
-    try:
-        previous = signal.signal(signal.SIGTERM, _terminate)
-    except ValueError:                 # not the main thread (main() called from a thread)
-        previous = None
+    previous = None
+    if args.command != "serve":        # (the server keeps its own way of ending)
+        try:
+            previous = signal.signal(signal.SIGTERM, _terminate)
+        except ValueError:             # not the main thread (main() called from a thread)
+            pass
     try:
         code = _run(args)
         sys.stdout.flush()             # a broken pipe shows here, not at exit
