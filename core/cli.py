@@ -920,9 +920,6 @@ def cmd_serve(args) -> int:
 def main(argv=None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    if getattr(args, "beta", None) is not None and not args.beta > args.alpha:
-        ap.error(f"--beta ({args.beta:g}) must be larger than --alpha ({args.alpha:g}): the power of a test "
-                 f"exceeds its size")
     previous = None
     if args.command != "serve":        # (the server keeps its own way of ending)
         try:
@@ -963,6 +960,9 @@ def main(argv=None) -> int:
 
 def _run(args) -> int:
     """The command of ``args``, its outputs checked first (never an input, writable)."""
+    if getattr(args, "beta", None) is not None and not args.beta > args.alpha:
+        raise BaardaError(f"{args.command}: --beta ({args.beta:g}) must be larger than --alpha ({args.alpha:g}): "
+                          f"the power of a test exceeds its size")
     inputs, outputs, folders = _io_paths(args)
     check_outputs(inputs, outputs, folders)
     commands = {"analyze": cmd_analyze, "simulate": cmd_simulate, "test": cmd_test, "convert": cmd_convert,
