@@ -1,12 +1,21 @@
 """The ``baarda`` command.
 
 Exit status: 0 success; 1 the analysis ran but a check asked for failed (none yet);
-2 bad input or usage (one line ``baarda: error: FILE:LINE: what is wrong``, no traceback
-unless ``--debug``); 3 an internal error; 4 (:data:`NOT_CONVERGED`) the adjustment did not
-converge within ``--max-iter`` iterations (or stalled): the results are written, marked as
-not converged (JSON ``summary.converged`` false and ``summary.termination``, a column
-``adjustment`` in every CSV, a banner in the report), and one line ``baarda: FILE: NOT
-converged: ...`` goes to stderr.
+2 bad input or usage (one line ``baarda: error: FILE:LINE: what is wrong`` or ``baarda: error:
+COMMAND: what is wrong with the options``, no traceback unless ``--debug``): also an output that
+names an input or cannot be written; 3 an internal error; 4 (:data:`NOT_CONVERGED`) the
+adjustment did not converge within ``--max-iter`` iterations (or stalled): the results are
+written, marked as not converged (JSON ``summary.converged`` false and ``summary.termination``,
+a column ``adjustment`` in every CSV, a banner in the report), and one line ``baarda: FILE: NOT
+converged: ...`` goes to stderr — unless the normal equations are singular at the last iterate,
+when nothing is written and the line says so; 130 interrupted (SIGINT, Ctrl-C) and 143
+terminated (SIGTERM), with one line ``baarda: interrupted`` / ``baarda: terminated``; 141 the
+reader of the output went away (a broken pipe, ``baarda ... | head``), quietly, as other
+commands do.
+
+Outputs are checked before anything is read (:func:`baarda.io.output.check_outputs`: never
+an input, also through a link; writable) and written atomically (:func:`baarda.io.output.atomic_write`):
+an interrupted run leaves the previous file as it was.
 """
 
 from __future__ import annotations
@@ -14,7 +23,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
+import signal
 import sys
 import time
 import warnings
@@ -22,7 +33,7 @@ from pathlib import Path
 
 from . import __version__
 from .analysis import Extras, SolverOptions, analyze
-from .errors import BaardaError, HypothesisError, InputError, NotFoundError, SingularError, UsageError
+from .errors import BaardaError, HypothesisError, InputError, NotFoundError, OptionError, SingularError, UsageError
 from .io import read_model, results
 from .io.analysis_text import robust_lines
 from .io.control import add_control
@@ -30,8 +41,9 @@ from .io.gama import UndefinedPointsWarning
 from .io.geojson import write_geojson
 from .io.hypothesis import HYPOTHESIS_SPECS, parse_hypothesis
 from .io.native import write_native
+from .io.output import OutputError, check_outputs, write_text
 from .model.sfm import SfmBlock, to_block
-from .simulate import simulate_to_files
+from .simulate import CAMERAS, RANGES as RECIPE_RANGES, check_recipe, simulate_to_files
 from .stats import analyses, separability
 from .text import number, printable, printable_lines, shorten
 
@@ -39,11 +51,42 @@ from .text import number, printable, printable_lines, shorten
 NOT_CONVERGED = 4
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its usage errors in one line, ``baarda: error: COMMAND: what`` (exit 2)."""
+
+    def error(self, message):
+        command = self.prog.removeprefix("baarda").strip()
+        where = f"{command}: " if command else ""
+        self.exit(2, f"baarda: error: {where}{shorten(printable(message))} (see {self.prog} --help)\n")
+
+
+def _in_range(low, high, integer=False):
+    """An argparse type: a finite number (an integer if ``integer``) from ``low`` to ``high``."""
+    kind = "an integer" if integer else "a number"
+
+    def parse(text: str):
+        try:
+            value = int(text) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not {kind}: {text!r}") from None
+        if not (math.isfinite(value) and low <= value <= high):
+            raise argparse.ArgumentTypeError(f"must be {kind} from {low:g} to {high:g} (got {text!r})")
+        return value
+    return parse
+
+
+#: the ranges of α0 and β0 that the test's critical values and δ0 are computed in (and β0 > α0)
+ALPHA_RANGE = (1e-12, 0.5)
+BETA_RANGE = (0.05, 0.9999)
+
+
 def _add_test_options(p):
-    p.add_argument("--alpha", type=float, default=0.001,
-                   help="size α0 of the one-dimensional tests (data snooping), default 0.001")
-    p.add_argument("--beta", type=float, default=0.80,
-                   help="power β0 at which minimal detectable biases are computed, default 0.80")
+    p.add_argument("--alpha", type=_in_range(*ALPHA_RANGE), default=0.001,
+                   help="size α0 of the one-dimensional tests (data snooping), default 0.001 "
+                        f"(from {ALPHA_RANGE[0]:g} to {ALPHA_RANGE[1]:g})")
+    p.add_argument("--beta", type=_in_range(*BETA_RANGE), default=0.80,
+                   help="power β0 at which minimal detectable biases are computed, default 0.80 "
+                        f"(from {BETA_RANGE[0]:g} to {BETA_RANGE[1]:g}, above α0)")
     p.add_argument("--b-method", action="store_true",
                    help="Baarda's B-method: multi-dimensional tests get the δ0 and β0 of the 1D test")
     p.add_argument("--global-test", choices=["one-sided", "two-sided"], default="one-sided",
@@ -65,26 +108,17 @@ def _policy(args) -> dict:
 
 
 def _add_iteration_option(p):
-    p.add_argument("--max-iter", type=_positive_int, default=200, metavar="N",
+    p.add_argument("--max-iter", type=_in_range(1, 100_000, integer=True), default=200, metavar="N",
                    help="at most N iterations of the adjustment (default 200); a run that does not "
                         "converge writes its results marked as such and exits with status 4")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
-    return value
 
 
 def _add_input_options(p):
     p.add_argument("--format", default="auto",
                    help="input format: auto (default), gama, native, bal, bundler, colmap")
-    p.add_argument("--sigma-px", type=float, default=None, metavar="S",
-                   help="σ of image coordinates in pixels for BAL, Bundler and COLMAP input (default 1)")
+    p.add_argument("--sigma-px", type=_in_range(1e-6, 1e6), default=None, metavar="S",
+                   help="σ of image coordinates in pixels for BAL, Bundler and COLMAP input (default 1; "
+                        "from 1e-06 to 1e+06)")
     p.add_argument("--refine-intrinsics", action=argparse.BooleanOptionalAction, default=None,
                    help="estimate the cameras' focal lengths and distortion (default: yes for BAL and "
                         "Bundler, as they define; no for COLMAP)")
@@ -117,13 +151,21 @@ def _read_quietly(fn, *a, **kw):
         return fn(*a, **kw)
 
 
+def _recipe_range(key: str):
+    """The argparse type of a simulate option: the range of its recipe key (baarda.simulate.RANGES)."""
+    low, high, integer = RECIPE_RANGES[key]
+    return _in_range(low, high, integer)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    ap = _Parser(
         prog="baarda",
         description="Reliability of geodetic networks and photogrammetric blocks: global test, "
                     "data snooping, redundancy numbers, MDB, external reliability.",
-        epilog="Exit status: 0 ok, 2 bad input or usage, 3 internal error, 4 the adjustment did not "
-               "converge (results written and marked as not converged).")
+        epilog="Exit status: 0 ok, 2 bad input or usage (also an output that names an input or cannot be "
+               "written), 3 internal error, 4 the adjustment did not converge (results written and marked as "
+               "not converged, unless its normal equations are singular: then nothing is written), 130 "
+               "interrupted, 143 terminated, 141 broken pipe.")
     ap.add_argument("--version", action="version", version=f"baarda {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     an = sub.add_parser("analyze", help="adjust a network or block and test it",
@@ -153,9 +195,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="risk minimisation (M84 §3.3): a critical value C_i and risk r_C per observation from "
                          "the error rate P and the costs L1 (rejecting a good one), L2 (missing a bad one), "
                          "with a tolerance --risk-lambda-bar or --risk-coordinate")
-    an.add_argument("--risk-lambda-bar", type=float, metavar="TOL",
+    an.add_argument("--risk-lambda-bar", type=_in_range(1e-12, 1e12), metavar="TOL",
                     help="tolerance λ̄tol of Baarda's datum-invariant λ̄ (general purpose, M84 §3.2-3.3)")
-    an.add_argument("--risk-coordinate", type=float, metavar="METRES",
+    an.add_argument("--risk-coordinate", type=_in_range(1e-12, 1e12), metavar="METRES",
                     help="tolerance for every point coordinate in the datum, metres (special purpose, M84 §3.3)")
     an.add_argument("--robust", choices=["huber", "danish", "r84"],
                     help="robust estimation (IRLS) with this weight function; its suspects are listed with "
@@ -169,7 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="compare the coordinate covariance with a fitted chaotic criterion matrix (M84 §2): "
                          "prints λmax/λmin and C1, C2 (in the --sbase, default the first two points); planimetric "
                          "networks, heights (with point positions) and 3D blocks and networks")
-    an.add_argument("--criterion-c0", type=float, default=0.0, metavar="C0",
+    an.add_argument("--criterion-c0", type=_in_range(0.0, 1e12), default=0.0, metavar="C0",
                     help="the constant part of the criterion, chosen first from the precision of the "
                          "measurements (M84 §2.3): m² (linear, logarithmic) or m (exponential); default 0")
     an.add_argument("--variance-components", nargs="?", const="families",
@@ -181,7 +223,8 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--strict", action="store_true",
                     help="local defects (points, images, cameras or coordinates the observations do not "
                          "determine) are an error instead of being named and left out")
-    an.add_argument("--top", type=int, default=8, help="how many entries each summary list shows")
+    an.add_argument("--top", type=_in_range(0, 10**6, integer=True), default=8,
+                    help="how many entries each summary list shows")
     an.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
     an.add_argument("--debug", action="store_true", help="show tracebacks of errors")
 
@@ -197,7 +240,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_test_options(ts)
     _add_iteration_option(ts)
     ts.add_argument("--json", metavar="OUT", help="write the tests as JSON (docs/json-schema.md, 'baarda test')")
-    ts.add_argument("--top", type=int, default=10, help="how many points of each deformation field to print")
+    ts.add_argument("--top", type=_in_range(0, 10**6, integer=True), default=10,
+                    help="how many points of each deformation field to print")
     ts.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
     ts.add_argument("--debug", action="store_true", help="show tracebacks of errors")
 
@@ -206,25 +250,31 @@ def build_parser() -> argparse.ArgumentParser:
                                      "it in baarda's native format, with a truth file of what was planted.")
     sim.add_argument("out", help="the block file to write (.json)")
     sim.add_argument("--truth", metavar="FILE", help="truth file (default: OUT with .truth.json)")
-    sim.add_argument("--strips", type=int, default=3, help="number of strips (default 3)")
-    sim.add_argument("--images", type=int, default=8, help="images per strip (default 8)")
-    sim.add_argument("--camera", default="aerial", help="aerial (153 mm, 230 mm format) or drone")
-    sim.add_argument("--flying-height", type=float, default=1500.0, help="metres above ground (default 1500)")
-    sim.add_argument("--forward-overlap", type=float, default=0.6, help="default 0.6")
-    sim.add_argument("--side-overlap", type=float, default=0.25, help="default 0.25")
-    sim.add_argument("--pattern", type=int, nargs=2, default=[3, 3], metavar=("NX", "NY"),
-                     help="tie points per image (default 3 3, von Gruber)")
+    sim.add_argument("--strips", type=_recipe_range("strips"), default=3, help="number of strips (default 3)")
+    sim.add_argument("--images", type=_recipe_range("images_per_strip"), default=8,
+                     help="images per strip (default 8)")
+    sim.add_argument("--camera", default="aerial", choices=sorted(CAMERAS),
+                     help="aerial (153 mm, 230 mm format) or drone")
+    sim.add_argument("--flying-height", type=_recipe_range("flying_height"), default=1500.0,
+                     help="metres above ground (default 1500)")
+    sim.add_argument("--forward-overlap", type=_recipe_range("forward_overlap"), default=0.6, help="default 0.6")
+    sim.add_argument("--side-overlap", type=_recipe_range("side_overlap"), default=0.25, help="default 0.25")
+    sim.add_argument("--pattern", type=_in_range(3, 5, integer=True), nargs=2, default=[3, 3], metavar=("NX", "NY"),
+                     help="tie points per image (default 3 3, von Gruber; or 5 3)")
     sim.add_argument("--control", default="perimeter",
                      help="control configuration: corners, perimeter, dense, minimal, none (free block)")
-    sim.add_argument("--control-spacing", type=int, default=2, help="perimeter control every k base lengths")
-    sim.add_argument("--check", type=int, default=0, help="number of check points")
-    sim.add_argument("--sigma-image", type=float, default=None, help="σ of image coordinates, mm (default 0.005)")
-    sim.add_argument("--radial", type=float, default=0.0, help="planted radial distortion at the image corner, mm")
+    sim.add_argument("--control-spacing", type=_recipe_range("control_spacing"), default=2,
+                     help="perimeter control every k base lengths")
+    sim.add_argument("--check", type=_recipe_range("check"), default=0, help="number of check points")
+    sim.add_argument("--sigma-image", type=_recipe_range("sigma_image"), default=None,
+                     help="σ of image coordinates, mm (default 0.005)")
+    sim.add_argument("--radial", type=_recipe_range("radial"), default=0.0,
+                     help="planted radial distortion at the image corner, mm")
     sim.add_argument("--error", action="append", default=[], metavar="KIND:SIZE[:K=V...]",
                      help="plant an error, e.g. image:20, transfer:10:images=3, control:20:axis=z, "
                           "image-point:6, misidentification:1, exchange:1 (size in σ; repeatable)")
     sim.add_argument("--design", action="store_true", help="design mode: exact observations (no noise)")
-    sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    sim.add_argument("--seed", type=_recipe_range("seed"), default=0, help="random seed (default 0)")
     sim.add_argument("--title", default="", help="a title stored in the block")
     sim.add_argument("--recipe", metavar="FILE",
                      help="take the whole recipe from a JSON file (a recipe object, or a truth file, whose "
@@ -238,7 +288,10 @@ def build_parser() -> argparse.ArgumentParser:
                                     "language with the key numbers and the map of the tests; the reliability maps; "
                                     "the suspects and the rejected group tests. The full tables: analyze --csv.")
     rp.add_argument("input", help="the network or block file")
-    rp.add_argument("--out", "-o", metavar="HTML", help="the report to write (default: INPUT with .html)")
+    rp.add_argument("--out", "-o", metavar="HTML",
+                    help="the report to write (default: INPUT with .html, which must not exist yet unless "
+                         "--force is given)")
+    rp.add_argument("--force", action="store_true", help="replace an existing INPUT.html (the default --out)")
     rp.add_argument("--format", default="auto", help="input format (see analyze)")
     _add_drop_option(rp)
     _add_test_options(rp)
@@ -249,10 +302,12 @@ def build_parser() -> argparse.ArgumentParser:
     rk = sub.add_parser("risk", help="risk-minimising critical value of a test (M84 §3.3)",
                         description="Critical value C minimising (1−p) α L1 + p (1−β) L2 for a one-sided "
                                     "normal test against an error of tolerance λtol.")
-    rk.add_argument("--p", type=float, required=True, help="probability that an observation is erroneous")
-    rk.add_argument("--L1", type=float, default=1.0, help="cost of rejecting a good observation")
-    rk.add_argument("--L2", type=float, default=10.0, help="cost of missing a bad one")
-    rk.add_argument("--lambda-tol", type=float, default=17.07, help="tolerance λtol (non-centrality)")
+    rk.add_argument("--p", type=_in_range(1e-12, 1 - 1e-12), required=True,
+                    help="probability that an observation is erroneous")
+    rk.add_argument("--L1", type=_in_range(1e-12, 1e12), default=1.0, help="cost of rejecting a good observation")
+    rk.add_argument("--L2", type=_in_range(1e-12, 1e12), default=10.0, help="cost of missing a bad one")
+    rk.add_argument("--lambda-tol", type=_in_range(1e-12, 1e6), default=17.07,
+                    help="tolerance λtol (non-centrality)")
     rk.add_argument("--debug", action="store_true")
 
     cv = sub.add_parser("convert", help="convert any readable network or block to the native JSON format",
@@ -315,8 +370,8 @@ def _extras(args) -> Extras:
         raise UsageError("--risk: give one tolerance, --risk-lambda-bar TOL or --risk-coordinate METRES")
     truth_path = args.truth
     if truth_path is None:
-        guess = Path(args.input).with_suffix(".truth.json")
-        truth_path = guess if guess.exists() else None
+        guess = _truth_beside(args.input)
+        truth_path = guess if guess is not None and guess.exists() else None
     sbase = tuple(b.strip() for b in args.sbase.split(",")) if args.sbase else None
     return Extras(snooping=bool(args.snoop), risk=risk, risk_lambda_bar=args.risk_lambda_bar,
                   risk_coordinate=args.risk_coordinate,
@@ -420,7 +475,7 @@ def cmd_test(args) -> int:
     doc = {"schema": f"baarda-test/{results.SCHEMA_VERSION}", "summary": analysis.summary(),
            "tests": tests, "inseparable": [{"hypotheses": list(g.members), "rho": g.rho} for g in apart]}
     if args.json:
-        Path(args.json).write_text(json.dumps(results.finite(doc), indent=1, allow_nan=False))
+        write_text(args.json, json.dumps(results.finite(doc), indent=1, allow_nan=False))
     if not args.quiet:
         print(printable_lines(results.tests_text(adj, rel, tests, top=args.top)))
         for g in apart:
@@ -450,8 +505,6 @@ def cmd_convert(args) -> int:
             raise BaardaError(f"{args.input}:0: cannot convert: {err}") from None
         note = " (camera intrinsics written as fixed calibrations)"
     out = Path(args.out)
-    if out.resolve() == Path(args.input).resolve():
-        raise BaardaError(f"{args.out}:0: refusing to overwrite the input file")
     write_native(model, out)
     if not args.quiet:
         print(printable(f"wrote {out}{note}"))
@@ -459,12 +512,21 @@ def cmd_convert(args) -> int:
 
 
 def _parse_error(spec: str) -> dict:
+    """A --error KIND:SIZE[:K=V...] as a recipe's error (its numbers checked by check_recipe)."""
     parts = spec.split(":")
     d = {"kind": parts[0]}
     if len(parts) > 1 and parts[1]:
-        d["size"] = float(parts[1])
+        try:
+            d["size"] = float(parts[1])
+        except ValueError:
+            raise BaardaError(f"--error {spec!r}: SIZE must be a number, not {parts[1]!r}") from None
     for kv in parts[2:]:
-        k, _, v = kv.partition("=")
+        k, eq, v = kv.partition("=")
+        if not (k and eq):
+            raise BaardaError(f"--error {spec!r}: expected KIND:SIZE[:K=V...], not {kv!r}")
+        if k in ("image", "point", "component", "axis", "strip"):      # ids, even when they look like numbers
+            d[k] = v
+            continue
         try:
             d[k] = int(v)
         except ValueError:
@@ -484,20 +546,35 @@ def cmd_simulate(args) -> int:
               "errors": [_parse_error(e) for e in args.error], "design": args.design,
               "seed": args.seed, "title": args.title,
               "datum": "free" if args.control == "none" else "control"}
+    where = "simulate"
     if args.recipe:
+        where = f"{args.recipe}:0"
         try:
-            doc = json.loads(Path(args.recipe).read_text())
-        except (OSError, json.JSONDecodeError) as err:
-            raise BaardaError(f"{args.recipe}:0: cannot read the recipe: {err}") from None
+            doc = json.loads(Path(args.recipe).read_bytes().decode("utf-8"))
+        except OSError as err:
+            raise InputError(args.recipe, 0, f"cannot read the recipe: {err.strerror or err}") from None
+        except UnicodeDecodeError as err:
+            raise InputError(args.recipe, 0, f"the recipe is not UTF-8 text (byte {err.start})") from None
+        except json.JSONDecodeError as err:
+            raise InputError(args.recipe, err.lineno, f"the recipe is not JSON: {err.msg}") from None
+        except RecursionError:
+            raise InputError(args.recipe, 0, "the recipe is nested too deeply") from None
         recipe = doc.get("recipe", doc) if isinstance(doc, dict) else None
         if not isinstance(recipe, dict):
             raise BaardaError(f"{args.recipe}:1: a recipe must be a JSON object")
+    try:
+        recipe = check_recipe(recipe)
+    except OptionError as err:
+        raise BaardaError(f"{where}: {err}") from None
     out = Path(args.out)
-    truth = Path(args.truth) if args.truth else out.with_suffix(".truth.json")
+    truth = Path(args.truth) if args.truth else _truth_beside(out)
     try:
         block, t = simulate_to_files(recipe, out, truth)
-    except (ValueError, KeyError, TypeError) as err:
-        raise BaardaError(f"simulate: {err}") from None
+    except OptionError as err:
+        raise BaardaError(f"{where}: {err}") from None
+    except (ValueError, KeyError, TypeError, IndexError, ZeroDivisionError, OverflowError, StopIteration):
+        raise BaardaError(f"{where}: cannot simulate this recipe (check its camera and the planted errors' "
+                          f"points, images and sizes)") from None
     if not args.quiet:
         print(f"wrote {out} ({len(block.images)} images, {len(block.points)} points, "
               f"{len(t.get('errors', []))} planted errors) and {truth}")
@@ -505,15 +582,13 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_report(args) -> int:
-    out = Path(args.out) if args.out else Path(args.input).with_suffix(".html")
-    if out.resolve() == Path(args.input).resolve():
-        raise BaardaError(f"{out}: refusing to overwrite the input file")
     try:
         analysis = _analysis(args, strict=False)
     except InputError:
         raise
     except BaardaError as err:         # a singular normal matrix ...: the file's fault, name it
         raise InputError(args.input, 0, str(err)) from None
+    out = _report_path(args)
 
     logging.getLogger("bokeh").setLevel(logging.ERROR)   # static export warns about server callbacks
     from .dashboard.report import write_analysis_report
@@ -522,6 +597,58 @@ def cmd_report(args) -> int:
     if not args.quiet:
         print(printable(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)"))
     return _convergence_status(args.input, analysis.adjustment)
+
+
+def _truth_beside(path) -> Path | None:
+    """NAME.truth.json beside ``path`` (a simulated block's truth file), None for a path
+    without a name (``.``)."""
+    try:
+        return Path(path).with_suffix(".truth.json")
+    except ValueError:
+        return None
+
+
+def _report_path(args) -> Path:
+    """The report's file: --out, or INPUT with .html, which must not exist unless --force."""
+    if args.out:
+        return Path(args.out)
+    try:
+        out = Path(args.input).with_suffix(".html")
+    except ValueError:
+        raise BaardaError(f"{args.input}:0: name the report with --out") from None
+    if out.exists() and not args.force:
+        raise OutputError(out, "exists: name the report with --out, or give --force to replace it")
+    return out
+
+
+def _io_paths(args) -> tuple[list, list, list]:
+    """The files a command reads, the files it writes and the folders it writes into (for
+    :func:`baarda.io.output.check_outputs`)."""
+    command = args.command
+    if command == "simulate":
+        out = Path(args.out)
+        return [args.recipe], [out, Path(args.truth) if args.truth else _truth_beside(out)], []
+    if command == "convert":
+        return [args.input, args.control], [args.out], []
+    if command == "report":
+        return [args.input], [_report_path(args)], []
+    if command == "test":
+        files = [t.partition(":")[2] for t in args.hypothesis if t.startswith("file:")]
+        return [args.input, args.control, *files], [args.json], []
+    if command == "analyze":
+        guess = _truth_beside(args.input)
+        truth_file = args.truth or (guess if guess is not None and guess.exists() else None)
+        csv = [Path(args.csv) / f"{name}.csv" for name in ("observations", "points", "groups")] if args.csv else []
+        return [args.input, args.control, truth_file], [args.json, args.geojson, *csv], [args.csv] if args.csv else []
+    return [], [], []
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread as SIGINT raises KeyboardInterrupt (exit status 143)."""
+
+
+def _terminate(signum, frame):
+    raise Terminated
 
 
 def cmd_serve(args) -> int:
@@ -534,40 +661,27 @@ def cmd_serve(args) -> int:
 def main(argv=None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    for name in ("alpha", "beta"):
-        val = getattr(args, name, None)
-        if val is not None and not 0 < val < 1:
-            ap.error(f"--{name} must lie between 0 and 1 (got {val})")
-    sigma_px = getattr(args, "sigma_px", None)
-    if sigma_px is not None and not (0 < sigma_px < float("inf")):
-        ap.error(f"--sigma-px must be a positive number (got {sigma_px})")
+    previous = None
+    if args.command != "serve":        # (the server keeps its own way of ending)
+        try:
+            previous = signal.signal(signal.SIGTERM, _terminate)
+        except ValueError:             # not the main thread (main() called from a thread)
+            pass
     try:
-        if args.command == "analyze":
-            return cmd_analyze(args)
-        if args.command == "simulate":
-            return cmd_simulate(args)
-        if args.command == "test":
-            return cmd_test(args)
-        if args.command == "convert":
-            return cmd_convert(args)
-        if args.command == "serve":
-            return cmd_serve(args)
-        if args.command == "report":
-            return cmd_report(args)
-        if args.command == "risk":
-            try:
-                rc = analyses.risk_analysis(args.p, args.L1, args.L2, args.lambda_tol)
-            except ValueError as err:
-                raise BaardaError(f"risk: {err}") from None
-            print(f"critical value C = {rc['C']:.4f} (α = {rc['alpha']:.3g}), risk r_C = {rc['r_C']:.4g}")
-            return 0
+        code = _run(args)
+        sys.stdout.flush()             # a broken pipe shows here, not at exit
+        return code
     except BaardaError as err:
         if getattr(args, "debug", False):
             raise
         print(f"baarda: error: {shorten(printable(err))}", file=sys.stderr)   # one line, whatever the file holds
         return 2
     except KeyboardInterrupt:
+        print("baarda: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("baarda: terminated", file=sys.stderr)
+        return 143
     except BrokenPipeError:            # the reader of our output went away (`baarda ... | head`)
         try:
             sys.stdout = open(os.devnull, "w")   # no second error when Python flushes at exit
@@ -580,6 +694,33 @@ def main(argv=None) -> int:
         print(f"baarda: internal error: {type(err).__name__}: {shorten(printable(err))} (run with --debug for details)",
               file=sys.stderr)
         return 3
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args) -> int:
+    """The command of ``args``, its outputs checked first (never an input, writable)."""
+    if getattr(args, "beta", None) is not None and not args.beta > args.alpha:
+        raise BaardaError(f"{args.command}: --beta ({args.beta:g}) must be larger than --alpha ({args.alpha:g}): "
+                          f"the power of a test exceeds its size")
+    inputs, outputs, folders = _io_paths(args)
+    check_outputs(inputs, outputs, folders)
+    commands = {"analyze": cmd_analyze, "simulate": cmd_simulate, "test": cmd_test, "convert": cmd_convert,
+                "serve": cmd_serve, "report": cmd_report, "risk": cmd_risk}
+    return commands[args.command](args)
+
+
+def cmd_risk(args) -> int:
+    """``baarda risk``: the risk-minimising critical value (M84 §3.3)."""
+    try:
+        rc = analyses.risk_analysis(args.p, args.L1, args.L2, args.lambda_tol)
+    except ValueError as err:
+        raise BaardaError(f"risk: {err}") from None
+    if not all(math.isfinite(rc[k]) for k in ("C", "alpha", "r_C")):
+        raise BaardaError(f"risk: no finite critical value for p = {args.p:g}, L1 = {args.L1:g}, L2 = {args.L2:g}, "
+                          f"λtol = {args.lambda_tol:g} (the costs or the tolerance are too extreme)")
+    print(f"critical value C = {rc['C']:.4f} (α = {rc['alpha']:.3g}), risk r_C = {rc['r_C']:.4g}")
     return 0
 
 

@@ -35,12 +35,13 @@ give the same block on every machine with the same numpy.
 from __future__ import annotations
 
 import json
-from pathlib import Path
+import math
 
 import numpy as np
 
 from .errors import OptionError
 from .io.native import write_native
+from .io.output import write_text
 from .model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint
 from .observations.collinearity import project
 from .model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
@@ -59,6 +60,78 @@ DEFAULTS = {
     "radial": 0.0, "ap": [], "errors": [], "design": False, "approx_sigma": 0.5,
     "datum": "control", "seed": 0, "title": "",
 }
+
+
+#: the range of each numeric recipe key: (low, high, integer); a recipe outside them is refused
+#: before anything is simulated (a block of 10⁹ strips, an overlap of 1, a height of 10²⁰ m)
+RANGES = {
+    "strips": (1, 100, True), "images_per_strip": (1, 100, True), "flying_height": (1.0, 1e5, False),
+    "forward_overlap": (0.0, 0.95, False), "side_overlap": (0.0, 0.95, False), "relief": (0.0, 1.0, False),
+    "attitude_sigma": (0.0, 1.0, False), "position_sigma": (0.0, 1e3, False), "control_spacing": (1, 1000, True),
+    "check": (0, 10_000, True), "sigma_image": (1e-9, 1e3, False), "rho": (-0.99, 0.99, False),
+    "sigma_control_h": (1e-9, 1e3, False), "sigma_control_v": (1e-9, 1e3, False), "radial": (-1e3, 1e3, False),
+    "approx_sigma": (0.0, 1e3, False), "seed": (0, 2**63 - 1, True),
+}
+#: the ranges of the numbers of a planted error (``errors[k]``)
+ERROR_RANGES = {"size": (0.0, 1e6, False), "size_base": (0.0, 1e3, False), "images": (1, 100, True),
+                "direction": (-1e4, 1e4, False), "sign": (-1.0, 1.0, False)}
+
+
+def check_number(name: str, value, low, high, integer: bool = False):
+    """``value`` if it is a number (an integer if ``integer``) in [low, high], else OptionError
+    naming ``name`` and the range."""
+    kind = "an integer" if integer else "a number"
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and integer:
+        ok = float(value).is_integer()
+    if not ok or not low <= value <= high:
+        raise OptionError(name, value, (), f"{name} must be {kind} from {low:g} to {high:g} (got {value!r})")
+    return int(value) if integer else float(value)
+
+
+def check_recipe(recipe: dict) -> dict:
+    """``recipe`` with every key known and every number within :data:`RANGES` (OptionError
+    naming the key otherwise), its integers as int: what :func:`simulate_block` accepts."""
+    if not isinstance(recipe, dict):
+        raise OptionError("recipe", recipe, (), "a recipe must be a JSON object")
+    unknown = set(recipe) - set(DEFAULTS)
+    if unknown:
+        raise OptionError("recipe", sorted(unknown), tuple(DEFAULTS), f"unknown recipe keys: {', '.join(sorted(unknown))}")
+    r = dict(recipe)
+    for key, (low, high, integer) in RANGES.items():
+        if key in r and not (key == "sigma_image" and r[key] is None):
+            r[key] = check_number(key, r[key], low, high, integer)
+    for key in ("control", "datum", "title"):
+        if key in r and not isinstance(r[key], str):
+            raise OptionError(key, r[key], (), f"{key} must be a string (got {r[key]!r})")
+    if "camera" in r and not (r["camera"] in CAMERAS if isinstance(r["camera"], str) else isinstance(r["camera"], dict)):
+        raise OptionError("camera", r["camera"], tuple(CAMERAS), f"camera must be one of {', '.join(CAMERAS)} "
+                                                                 f"or an object (got {r['camera']!r})")
+    for key in ("pattern", "ap", "errors"):
+        if key in r and not isinstance(r[key], (list, tuple)):
+            raise OptionError(key, r[key], (), f"{key} must be a list (got {r[key]!r})")
+    if "pattern" in r:
+        r["pattern"] = [check_number("pattern", v, 3, 5, True) for v in r["pattern"]]
+    errors = []
+    for k, spec in enumerate(r.get("errors", ())):
+        if not isinstance(spec, dict) or not isinstance(spec.get("kind"), str):
+            raise OptionError(f"errors[{k}]", spec, (), f"errors[{k}] must be an object with a kind (got {spec!r})")
+        spec = dict(spec)
+        for key, (low, high, integer) in ERROR_RANGES.items():
+            if key in spec:
+                spec[key] = check_number(f"errors[{k}].{key}", spec[key], low, high, integer)
+        for key in ("image", "point", "component", "axis", "strip"):
+            if key in spec and not isinstance(spec[key], str):
+                raise OptionError(f"errors[{k}].{key}", spec[key], (), f"errors[{k}].{key} must be a string")
+        for key, allowed in (("component", ("x", "y")), ("axis", ("x", "y", "z"))):
+            if spec.get(key) is not None and spec[key] not in allowed:
+                raise OptionError(f"errors[{k}].{key}", spec[key], allowed)
+        errors.append(spec)
+    if "errors" in r:
+        r["errors"] = errors
+    if "design" in r and not isinstance(r["design"], bool):
+        raise OptionError("design", r["design"], (), f"design must be true or false (got {r['design']!r})")
+    return r
 
 
 def error_class(size_sigma: float, size_base: float) -> str:
@@ -83,13 +156,17 @@ def simulate_block(**recipe) -> tuple[Block, dict]:
     "size_base"}], "radial": ..., "points": {id: [X, Y, Z]}, "images": {id: [X0, Y0, Z0,
     ω, φ, κ]}}. ``rows`` are the rows of the errors in :func:`baarda.model.bundle.build_block_problem`.
     """
-    unknown = set(recipe) - set(DEFAULTS)
-    if unknown:
-        raise OptionError("recipe", sorted(unknown), tuple(DEFAULTS), f"unknown recipe keys: {', '.join(sorted(unknown))}")
-    r = {**DEFAULTS, **recipe}
+    r = {**DEFAULTS, **check_recipe(recipe)}
     rng = np.random.default_rng(r["seed"])
-    cam = _camera(r["camera"])
-    cam = Camera(**{**cam.__dict__, "ap": tuple(r["ap"])})
+    try:
+        cam = _camera(r["camera"])
+        cam = Camera(**{**cam.__dict__, "ap": tuple(r["ap"])})
+        if not all(isinstance(v, (int, float)) and 0 < v < 1e7 for v in (cam.c, cam.width, cam.height)):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise OptionError("camera", r["camera"], tuple(CAMERAS),
+                          "camera must be one of " + ", ".join(CAMERAS) + " or an object with the fields of "
+                          "baarda.model.bundle.Camera (c, width, height > 0)") from None
     sigma = r["sigma_image"] if r["sigma_image"] is not None else (0.005 if cam.unit == "mm" else 0.5)
     H = float(r["flying_height"])
     s_n, m_n = int(r["strips"]), int(r["images_per_strip"])
@@ -136,6 +213,9 @@ def simulate_block(**recipe) -> tuple[Block, dict]:
     obs_i, obs_p = np.array(obs_i), np.array(obs_p)
     count = np.bincount(obs_p, minlength=len(P))
     keep_pts = np.flatnonzero(count >= 2)
+    if keep_pts.size == 0:
+        raise OptionError("images_per_strip", m_n, (), "no point is seen in two images: simulate more images "
+                                                       "(images_per_strip, strips) or more overlap")
     newp = np.full(len(P), -1)
     newp[keep_pts] = np.arange(keep_pts.size)
     sel = newp[obs_p] >= 0
@@ -254,10 +334,17 @@ def _plant(r, rng, images, pid, obs_i, obs_p, xy, ref, status, sigma, sh, sv, ca
                 return spec["size_base"] * b_img if kind != "control" else spec["size_base"] * B
             return spec.get("size", 20.0) * sig
 
+        def refuse(why):
+            raise OptionError("errors", kind, (), f"cannot plant the {kind} error: {why}")
+
         def pick_point(candidates):
             cand = [p for p in candidates if p not in used_points]
             if "point" in spec:
+                if spec["point"] not in pid:
+                    refuse(f"no point {spec['point']!r} in the block")
                 p = pid.index(spec["point"])
+            elif not cand:
+                refuse("no point left for it (the block is too small for the errors asked)")
             else:
                 p = int(rng.choice(cand))
             used_points.add(p)
@@ -267,6 +354,8 @@ def _plant(r, rng, images, pid, obs_i, obs_p, xy, ref, status, sigma, sh, sv, ca
             ks = track[p]
             if image is not None:
                 ks = [k for k in ks if images[obs_i[k]].id == image]
+                if not ks:
+                    refuse(f"point {pid[p]} is not measured in image {image!r}")
             return int(ks[0] if image is not None else rng.choice(ks))
 
         ties = [p for p in range(len(pid)) if status[p] == "tie"]
@@ -300,8 +389,12 @@ def _plant(r, rng, images, pid, obs_i, obs_p, xy, ref, status, sigma, sh, sv, ca
                         break
             p = pick_point(cands)
             strips = strip[obs_i[track[p]]]
-            s = spec.get("strip") or next(s for s in sorted(set(strips)) if (strips == s).sum() >= nimg)
+            s = spec.get("strip") or next((s for s in sorted(set(strips)) if (strips == s).sum() >= nimg), None)
+            if s is None:
+                refuse(f"point {pid[p]} is not measured {nimg} times in one strip")
             ks = sorted(track[p][strips == s], key=lambda k: images[obs_i[k]].id)[:nimg]
+            if not ks:
+                refuse(f"point {pid[p]} is not measured in strip {s!r}")
             t = rng.uniform(0, 2 * np.pi) if "direction" not in spec else np.radians(spec["direction"])
             sz = size_of(sigma)
             d = sz * np.array([np.cos(t), np.sin(t)])
@@ -310,9 +403,13 @@ def _plant(r, rng, images, pid, obs_i, obs_p, xy, ref, status, sigma, sh, sv, ca
             ids = {"point": pid[p], "images": [images[obs_i[k]].id for k in ks]}
         elif kind == "exchange":
             k_img = int(rng.integers(len(images))) if "image" not in spec else \
-                next(i for i, im in enumerate(images) if im.id == spec["image"])
+                next((i for i, im in enumerate(images) if im.id == spec["image"]), None)
+            if k_img is None:
+                refuse(f"no image {spec['image']!r} in the block")
             ks_img = np.flatnonzero(obs_i == k_img)
             ks_img = [k for k in ks_img if obs_p[k] not in used_points and status[obs_p[k]] == "tie"]
+            if len(ks_img) < 2:
+                refuse(f"image {images[k_img].id} has fewer than two tie points left to exchange")
             a = ks_img[int(rng.integers(len(ks_img)))]
             dist = np.linalg.norm(xy[ks_img] - xy[a], axis=1)
             dist[ks_img.index(a)] = np.inf
@@ -372,7 +469,7 @@ def simulate_to_files(recipe: dict, out_path, truth_path=None) -> tuple[Block, d
     block, truth = simulate_block(**recipe)
     write_native(block, out_path)
     if truth_path is not None:
-        Path(truth_path).write_text(json.dumps(truth, indent=1, default=_json_default) + "\n")
+        write_text(truth_path, json.dumps(truth, indent=1, default=_json_default) + "\n")
     return block, truth
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import BaardaError
 from .stats import hypotheses
 
 
@@ -23,7 +24,7 @@ def _hypothesis(adj, e):
             return "control point", hypotheses.h_control_point(adj.problem, ids.get("point", ids.get("id")))
         if "image" in ids and "point" in ids:
             return "image point", hypotheses.h_image_point(adj.problem, ids["image"], ids["point"])
-    except (KeyError, ValueError, IndexError):
+    except (KeyError, ValueError, IndexError, TypeError):
         return None, None
     return None, None
 
@@ -35,8 +36,11 @@ def compare(adj, truth: dict, reliability=None) -> list[dict]:
     rel = adj.reliability if reliability is None else reliability
     kept = adj.problem.extra.get("kept_rows")
     out = []
-    for e in truth.get("errors", []):
+    for k, e in enumerate(truth.get("errors", [])):
         rows = np.asarray(e.get("rows", []), dtype=np.int64)
+        if kept is None and rows.size and rows.max() >= adj.n:
+            raise BaardaError(f"truth file: errors[{k}].rows: {int(rows.max())} is not an observation of this "
+                              f"block ({adj.n} observations)")
         if kept is not None:
             pos = {int(r): i for i, r in enumerate(kept)}
             rows = np.array([pos[int(r)] for r in rows if int(r) in pos], dtype=np.int64)

@@ -28,6 +28,8 @@ import holoviews as hv
 import numpy as np
 from bokeh.resources import Resources
 
+from baarda.io.output import write_text
+
 from . import geometry, render
 from .frames import R_UNCONTROLLED
 from .state import State
@@ -314,7 +316,7 @@ def _bokeh_js() -> str:
 def write_report(adj, path, state: State | None = None) -> Path:
     """Write the client report of ``adj`` to ``path`` (UTF-8) and return the path."""
     path = Path(path)
-    path.write_text(report_html(adj, state=state), encoding="utf-8")
+    write_text(path, report_html(adj, state=state))
     return path
 
 

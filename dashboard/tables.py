@@ -3,7 +3,8 @@
 The files are UTF-8 with a byte-order mark, so that spreadsheets (Excel, LibreOffice) open them
 with the right characters (σ, ∇, ids in any script). Every text cell that a spreadsheet would
 take for a formula (starting with ``= + - @``, a tab or a carriage return: CSV injection) is
-written with a leading apostrophe, so a hostile id stays text there too; numbers are written as
+written with a leading apostrophe (:func:`baarda.io.output.csv_cell`, which the command line's
+``analyze --csv`` uses too), so a hostile id stays text there too; numbers are written as
 numbers. The observations and points are the core's tables (:meth:`baarda.analysis.Analysis.records`:
 the columns and names of ``baarda analyze --csv`` and of the JSON document, one table of one thing),
 with ``index`` the observation's index in the problem (excluded observations are not in the file);
@@ -16,9 +17,10 @@ import io
 
 import pandas as pd
 
+from baarda.io.output import csv_cell
+
 from .state import State
 from .suspects import suspects
-from .text import plain
 
 def core_table(state: State, table: str) -> pd.DataFrame:
     """The core's ``table`` ("observations" or "points") of ``state``'s analysis as a DataFrame,
@@ -39,23 +41,14 @@ TABLES = {
     "suspects": suspects,
 }
 
-_FORMULA = ("=", "+", "-", "@", "\t", "\r")
-
-
-def _cell(x):
-    if isinstance(x, str):
-        x = plain(x)
-        return "'" + x if x.startswith(_FORMULA) else x
-    return x
-
 
 def safe_frame(df: pd.DataFrame) -> pd.DataFrame:
     """``df`` with every text cell made plain (no control characters) and formula-safe."""
     out = df.copy()
     for col in out.columns:
         if out[col].dtype == object or pd.api.types.is_string_dtype(out[col]):
-            out[col] = out[col].map(_cell)
-    out.columns = [_cell(str(c)) for c in out.columns]
+            out[col] = out[col].map(csv_cell)
+    out.columns = [csv_cell(str(c)) for c in out.columns]
     return out
 
 

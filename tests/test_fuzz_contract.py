@@ -27,10 +27,12 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import random
 import re
 import shutil
 import struct
+import time
 import warnings
 from pathlib import Path
 
@@ -333,6 +335,146 @@ def test_fuzz_contract_with_snooping_robust_and_variance_components(name, tmp_pa
     assert run_case(name, SEEDS[name]["files"], tmp_path / "valid", extra=ANALYSES) == 0
     counts = fuzz(name, 15, tmp_path, base_seed=3, extra=ANALYSES)
     assert sum(counts.values()) == 15
+
+
+# --------------------------------------------------------------------------------------------
+# edge classes (issue 25): outputs naming inputs, option values at and beyond their ranges,
+# malformed truth files beside the input, encodings, hypothesis columns, recipes. Each case is
+# refused with exit status 2 and one line, leaves every file as it was and ends in bounded time.
+# --------------------------------------------------------------------------------------------
+EDGE_SECONDS = 20.0
+# text that is Python's, not ours: a message must say what is wrong in the user's terms
+RAW = re.compile(r"invalid literal|could not convert|dtype|NoneType|object of type|not subscriptable|"
+                 r"unsupported operand|Errno|<class|cannot be empty unless", re.IGNORECASE)
+USAGE_LINE = re.compile(r"baarda: error: [^\n]+\n")
+
+
+def edge_files(tmp: Path) -> None:
+    """The valid inputs the edge cases start from."""
+    shutil.copy(REPO / "data" / "demo-levelling.gkf", tmp / "a.gkf")
+    shutil.copy(VALID / "levelling-valid.json", tmp / "a.json")
+    shutil.copy(VALID / "bal-valid.txt", tmp / "bal.txt")
+    shutil.copy(VALID / "control-valid.csv", tmp / "c.csv")
+    shutil.copytree(VALID / "colmap-valid", tmp / "model")
+    (tmp / "h.txt").write_text("0 0 1\n")
+    (tmp / "hard.json").hardlink_to(tmp / "a.json")
+    (tmp / "sym.json").symlink_to("a.gkf")
+    (tmp / "r.json").write_text(json.dumps({"strips": 2, "images_per_strip": 3}))
+
+
+TRUTHS = [b"\xff\xfe{\x00", b"[]", b"{", b"[" * 100_000, json.dumps({"format": "baarda-truth", "errors": 5}).encode()] + [
+    json.dumps({"format": "baarda-truth", "errors": [e]}).encode() for e in
+    (1, {"kind": 5}, {"kind": None}, {"kind": "image", "rows": [1e9]}, {"kind": "image", "rows": [-1]},
+     {"kind": "image", "rows": [10**9]}, {"kind": "image", "rows": "0"}, {"kind": "image", "ids": []},
+     {"kind": "image", "ids": {"a": {}}}, {"kind": "image", "size_sigma": "x"}, {"kind": "image", "class": 5})
+]
+RECIPES = [b"\xff\xfe", b"[1, 2]", b"{", b"[" * 100_000] + [json.dumps(r).encode() for r in (
+    {"strips": 1e9}, {"strips": 10**9}, {"strips": 1.5}, {"strips": "3"}, {"forward_overlap": 1},
+    {"flying_height": 1e20, "strips": 1}, {"sigma_image": 1e300}, {"seed": -1}, {"pattern": [4, 3]},
+    {"pattern": 3}, {"camera": "x"}, {"camera": {"c": -1}}, {"camera": {"id": "c", "c": 1, "bogus": 1}},
+    {"errors": [{"kind": "image", "size": "x"}]}, {"errors": [{"kind": "nope"}]}, {"errors": [5]},
+    {"errors": [{"kind": "image", "point": "nope"}]}, {"errors": [{"kind": "image", "image": "nope"}]},
+    {"errors": [{"kind": "exchange", "image": "nope"}]}, {"errors": [{"kind": "image", "component": "q"}]},
+    {"errors": [{"kind": "transfer", "images": 50}]}, {"errors": [{"kind": "image", "size": 1e300}]},
+    {"strips": 1, "images_per_strip": 1, "errors": [{"kind": "transfer"}]}, {"design": "yes"}, {"nope": 1})]
+
+
+def edge_cases() -> list[tuple[str, list[str], dict[str, bytes]]]:
+    """(name, argv relative to the case folder, extra files) of every edge case."""
+    cases = []
+
+    def add(name, argv, files=None):
+        cases.append((name, argv, files or {}))
+
+    # an output that names an input (also through a link, inside a model folder, the truth beside it)
+    add("json=input", ["analyze", "a.json", "--json", "a.json"])
+    add("geojson=input", ["analyze", "a.json", "--geojson", "a.json"])
+    add("json=hard link", ["analyze", "a.json", "--json", "hard.json"])
+    add("json=symlink", ["analyze", "a.gkf", "--json", "sym.json"])
+    add("json in model", ["analyze", "model", "--json", "model/points3D.txt"])
+    add("json=control", ["analyze", "bal.txt", "--control", "c.csv", "--json", "c.csv"])
+    add("csv=control", ["analyze", "bal.txt", "--control", "points.csv", "--csv", "."],
+        {"points.csv": (VALID / "control-valid.csv").read_bytes()})
+    add("test json=input", ["test", "a.json", "-H", "observation:0", "--json", "a.json"])
+    add("test json=H file", ["test", "a.json", "-H", "file:h.txt", "--json", "h.txt"])
+    add("json=truth", ["analyze", "a.json", "--json", "a.truth.json"], {"a.truth.json": b"{}"})
+    add("convert=link", ["convert", "a.gkf", "sym.json"])
+    add("report=link", ["report", "a.json", "-o", "hard.json"])
+    add("report exists", ["report", "a.json"], {"a.html": b"old"})
+    add("simulate=recipe", ["simulate", "r.json", "--recipe", "r.json"])
+    add("json unwritable", ["analyze", "a.json", "--json", "/nonexistent/x.json"])
+    add("json folder", ["analyze", "a.json", "--json", "model"])
+    add("json /proc", ["analyze", "a.json", "--json", "/proc/x.json"])
+    # option values at and beyond their ranges
+    for opt, vals in {"--alpha": ["0", "1", "0.9", "1e-21", "nan", "inf", "-0.1", "x", ""],
+                      "--beta": ["0.001", "0", "1", "nan", "x"], "--max-iter": ["0", "-1", "1e9", "x"],
+                      "--top": ["-1", "x", "1e99"], "--sigma-px": ["0", "-1", "1e300", "nan", "inf"],
+                      "--criterion-c0": ["-1", "nan"], "--risk-lambda-bar": ["0", "inf"]}.items():
+        inp = "bal.txt" if opt == "--sigma-px" else "a.json"
+        for v in vals:
+            add(f"analyze {opt} {v!r}", ["analyze", inp, opt, v])
+    add("beta below alpha", ["analyze", "a.json", "--alpha", "0.3", "--beta", "0.2"])
+    for opt, vals in {"--forward-overlap": ["1", "-0.1", "nan"], "--side-overlap": ["1"],
+                      "--flying-height": ["1e20", "0", "-5"], "--strips": ["1e9", "0", "1000000000", "x"],
+                      "--images": ["0", "100000"], "--seed": ["-1", "x"], "--check": ["-1"],
+                      "--sigma-image": ["0", "1e300"], "--radial": ["1e300"], "--camera": ["x"],
+                      "--error": ["image:x", "image:20:bogus", "image:1e300", "nope:1", "image:20:point=nope"],
+                      "--control-spacing": ["0"]}.items():
+        for v in vals:
+            add(f"simulate {opt} {v!r}", ["simulate", "s.json", opt, v])
+    add("simulate strips 1 height 1e20", ["simulate", "s.json", "--strips", "1", "--flying-height", "1e20"])
+    add("simulate pattern 4 3", ["simulate", "s.json", "--pattern", "4", "3"])
+    for opt, vals in {"--p": ["0", "1", "nan", "x"], "--L1": ["0", "-1", "inf"], "--L2": ["0"],
+                      "--lambda-tol": ["0", "1e300"]}.items():
+        for v in vals:
+            add(f"risk {opt} {v!r}", ["risk", *(["--p", "0.1"] if opt != "--p" else []), opt, v])
+    for argv in ([], ["analyze"], ["nope"], ["analyze", "a.json", "--nope"], ["analyze", "a.json", "--alpha"],
+                 ["test", "a.json"], ["analyze", "a.json", "--statistic", "x"]):
+        add(f"usage {' '.join(argv)!r}", argv)
+    # malformed truth files beside the input (and given with --truth)
+    for k, data in enumerate(TRUTHS):
+        add(f"truth beside {k}", ["analyze", "a.json"], {"a.truth.json": data})
+    add("truth given", ["analyze", "a.json", "--truth", "t.json"], {"t.json": TRUTHS[0]})
+    # encodings
+    add("xml unknown encoding", ["analyze", "e.gkf"],
+        {"e.gkf": b'<?xml version="1.0" encoding="x-no-such"?>\n<gama-local/>'})
+    add("xml utf-16 declared, utf-8 given", ["analyze", "e.gkf"],
+        {"e.gkf": b'<?xml version="1.0" encoding="utf-16"?>\n<gama-local/>'})
+    add("hypothesis not utf-8", ["test", "a.json", "-H", "file:hx.txt"], {"hx.txt": b"0 0 \xff\n"})
+    # hypothesis columns far beyond the entries (each column needs one: never a q of 10^12)
+    for col in ("100000000", "1000000000000", "9" * 30, "1e8", "-1"):
+        add(f"hypothesis column {col[:12]}", ["test", "a.json", "-H", "file:hc.txt"], {"hc.txt": f"0 {col} 1\n".encode()})
+    # recipes
+    for k, data in enumerate(RECIPES):
+        add(f"recipe {k}", ["simulate", "s.json", "--recipe", "rx.json"], {"rx.json": data})
+    return cases
+
+
+EDGE_CASES = edge_cases()
+
+
+def _tree(folder: Path) -> dict:
+    return {str(p): (os.readlink(p) if p.is_symlink() else p.read_bytes() if p.is_file() else None)
+            for p in sorted(folder.rglob("*"))}
+
+
+@pytest.mark.parametrize("name, argv, files", EDGE_CASES, ids=[c[0] for c in EDGE_CASES])
+def test_edge_case_is_one_line_exit_2(name, argv, files, tmp_path, monkeypatch):
+    edge_files(tmp_path)
+    for rel, data in files.items():
+        (tmp_path / rel).write_bytes(data)
+    monkeypatch.chdir(tmp_path)
+    before = _tree(tmp_path)
+    t0 = time.monotonic()
+    code, out, err, caught = run_cli(argv)
+    seconds = time.monotonic() - t0
+    where = f"{name}: exit {code}, stderr {err!r}"
+    assert code == 2, where
+    assert USAGE_LINE.fullmatch(err), where
+    assert not CONTROL.search(err[:-1]) and not RAW.search(err), where
+    assert not caught, f"{where}; warnings {caught}"
+    assert seconds < EDGE_SECONDS, f"{where}; {seconds:.1f} s"
+    assert _tree(tmp_path) == before, f"{where}: a file changed"
 
 
 @pytest.mark.slow

@@ -101,16 +101,48 @@ def read_model(path, fmt: str = "auto", sigma_px: float | None = None,
 
 
 def read_truth(path) -> dict | None:
-    """The truth file of a simulated block (``baarda-truth``), or None if ``path`` is None."""
+    """The truth file of a simulated block (``baarda-truth``), or None if ``path`` is None;
+    InputError naming the file and the entry at fault unless it is UTF-8 JSON whose ``errors``
+    are objects with a ``kind`` (text), ``ids`` (an object of texts, numbers or lists of them),
+    ``rows`` (observation indices) and optional ``class`` (text) and ``size_sigma`` (a number)."""
     if path is None:
         return None
     p = Path(path)
     try:
-        doc = json.loads(p.read_text())
+        doc = json.loads(p.read_bytes().decode("utf-8"))
     except OSError as err:
         raise InputError(path, 0, f"cannot read: {err.strerror}") from None
+    except UnicodeDecodeError as err:
+        raise InputError(path, 0, f"not UTF-8 text (byte {err.start})") from None
     except json.JSONDecodeError as err:
         raise InputError(path, err.lineno, f"JSON syntax error: {err.msg}") from None
+    except RecursionError:
+        raise InputError(path, 0, "JSON nested too deeply") from None
     if not isinstance(doc, dict) or doc.get("format") != "baarda-truth":
         raise InputError(path, 1, "not a baarda-truth file")
+    errors = doc.get("errors", [])
+    if not isinstance(errors, list):
+        raise InputError(path, 0, "errors: must be a list", field="errors")
+    for k, e in enumerate(errors):
+        what = f"errors[{k}]"
+        if not isinstance(e, dict):
+            raise InputError(path, 0, f"{what}: must be an object", field=what)
+        if not isinstance(e.get("kind"), str):
+            raise InputError(path, 0, f"{what}.kind: must be a text", field=f"{what}.kind")
+        if not isinstance(e.get("class", ""), (str, type(None))):
+            raise InputError(path, 0, f"{what}.class: must be a text", field=f"{what}.class")
+        size = e.get("size_sigma")
+        if size is not None and not (isinstance(size, (int, float)) and not isinstance(size, bool)):
+            raise InputError(path, 0, f"{what}.size_sigma: must be a number", field=f"{what}.size_sigma")
+        ids = e.get("ids", {})
+        scalar = (str, int, float)
+        if not isinstance(ids, dict) or not all(
+                isinstance(v, scalar) or (isinstance(v, list) and all(isinstance(x, scalar) for x in v))
+                for v in ids.values()):
+            raise InputError(path, 0, f"{what}.ids: must be an object of texts, numbers or lists of them",
+                             field=f"{what}.ids")
+        rows = e.get("rows", [])
+        if not isinstance(rows, list) or not all(type(r) is int and 0 <= r < 2**62 for r in rows):
+            raise InputError(path, 0, f"{what}.rows: must be a list of observation indices (integers ≥ 0)",
+                             field=f"{what}.rows")
     return doc

@@ -29,6 +29,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ..errors import ConversionError, InputError
 from ..model.sfm import SfmBlock, SfmCamera, SfmImage
+from .output import write_text
 from .source import Numbers, Truncated, open_binary
 from .source import read_text as _read_text
 
@@ -300,5 +301,5 @@ def write_bal(block: SfmBlock, path) -> None:
     for im in block.images:
         out += [f"{v:.17g}" for v in (*im.rodrigues, *im.t, *cams[im.camera].params)]
     out += [f"{v:.17g}" for v in block.X.ravel()]
-    Path(path).write_text("\n".join(out) + "\n")
+    write_text(path, "\n".join(out) + "\n")
 

@@ -169,6 +169,8 @@ def _parse_xml(path: Path) -> _Node:
     except xml.parsers.expat.ExpatError as exc:
         msg = xml.parsers.expat.errors.messages.get(exc.code, str(exc))
         raise InputError(path, exc.lineno, f"malformed XML: {msg} (column {exc.offset + 1})") from exc
+    except (LookupError, UnicodeError) as exc:      # <?xml encoding="..."?> unknown, or not that encoding
+        raise InputError(path, 1, f"cannot decode the XML: {exc}") from None
     if not root:
         raise InputError(path, 1, "empty XML document")
     return root[0]

@@ -28,6 +28,8 @@ import scipy.sparse as sp
 
 from baarda.model.network import east_north_matrix
 
+from .output import write_text
+
 
 def _num(x):
     x = float(x)
@@ -90,4 +92,4 @@ def write_geojson(adj, path) -> None:
     doc = {"type": "FeatureCollection",
            "name": adj.problem.title or Path(adj.problem.source).name,
            "features": features(adj)}
-    Path(path).write_text(json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8")
+    write_text(path, json.dumps(doc, indent=1, allow_nan=False))

@@ -31,9 +31,11 @@ def read_hypothesis(path, n: int) -> sp.csc_matrix:
     the file, line and field at fault."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(path, 0, f"cannot read the hypothesis file: {err}") from None
+        text = path.read_bytes().decode("utf-8")
+    except OSError as err:
+        raise InputError(path, 0, f"cannot read the hypothesis file: {err.strerror or err}") from None
+    except UnicodeDecodeError as err:
+        raise InputError(path, 0, f"the hypothesis file is not UTF-8 text (byte {err.start})") from None
     rows, cols, vals, seen = [], [], [], {}
     for lineno, raw in enumerate(text.splitlines(), 1):
         line = raw.split("#", 1)[0].replace(",", " ").split()
@@ -62,10 +64,12 @@ def read_hypothesis(path, n: int) -> sp.csc_matrix:
     if not rows:
         raise InputError(path, 0, "no entries: a hypothesis file lists 'observation column value' lines")
     q = max(cols) + 1
-    empty = sorted(set(range(q)) - set(cols))
-    if empty:
-        raise InputError(path, 0, f"column(s) {', '.join(map(str, empty))} have no entry (columns are 0 … {q - 1})",
-                         field="column")
+    used = set(cols)
+    if len(used) < q:            # (found among the first len(used) + 1 columns: a column 10¹² lists no 10¹²)
+        empty = [j for j in range(min(q, len(used) + 11)) if j not in used][:10]
+        more = " …" if q - len(used) > len(empty) else ""
+        raise InputError(path, 0, f"column(s) {', '.join(map(str, empty))}{more} have no entry (columns are "
+                         f"0 … {q - 1}: every column needs an entry)", field="column")
     return sp.csc_matrix((np.array(vals), (np.array(rows), np.array(cols))), shape=(n, q))
 
 

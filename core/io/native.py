@@ -23,6 +23,7 @@ from ..model.bundle import AP_GROUPS, Block, Camera, Image, ImageObservations, O
 from ..model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
 from ..model.network import Cluster, NetObservation, NetPoint, Network
 from ..validate import SIGMA0_MAX, SIGMA0_MIN, SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
+from .output import write_text
 from .source import read_text
 
 FORMAT = "baarda-block"
@@ -453,7 +454,7 @@ def write_native(block, path) -> None:
                               f"only, and {why}; keep this network in GNU Gama's format")
         doc = _levelling_doc(block)
         lists = ("points", "observations")
-    Path(path).write_text(_dump(doc, lists), encoding="utf-8")
+    write_text(path, _dump(doc, lists))
 
 
 def _plane_observation_docs(b, owner: str, owners, index) -> list[dict]:

@@ -18,6 +18,7 @@ import numpy as np
 from ..datum import far_points
 from ..stats.ap_tests import ap_tests
 from ..text import number, printable
+from .output import OutputError, atomic_write, csv_cell
 
 SCHEMA_VERSION = "1.0"
 
@@ -254,7 +255,7 @@ def dump_json(doc: dict, path) -> None:
     encoder is pure Python, ~6 µs per value: 40 s for BAL Dubrovnik's 167,000 observations; the
     compact one per record is compiled.)"""
     compact = json.JSONEncoder(allow_nan=False, ensure_ascii=True, separators=(", ", ": "))
-    with open(path, "w", encoding="utf-8") as fh:
+    with atomic_write(path) as fh:
         fh.write("{")
         for k, (key, val) in enumerate(doc.items()):
             fh.write(("," if k else "") + "\n " + json.dumps(str(key)) + ": ")
@@ -269,10 +270,15 @@ def dump_json(doc: dict, path) -> None:
 
 
 def write_csv(adj, directory, doc=None) -> list[Path]:
-    """observations.csv, points.csv and groups.csv in ``directory`` (created if needed)."""
+    """observations.csv, points.csv and groups.csv in ``directory`` (created if needed), each
+    written atomically; text cells are made safe for spreadsheets (:func:`csv_cell`: no formula,
+    no raw control, bidi or zero-width character), as the dashboard's CSVs."""
     doc = doc if doc is not None else to_dict(adj)
     d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(directory, f"cannot create the folder: {err.strerror or err}") from None
     # an adjustment that did not converge marks every row (a column, so the files stay CSV)
     mark = {} if doc["summary"]["converged"] else {"adjustment": "NOT converged"}
     written = []
@@ -283,12 +289,14 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
         for row in rows:
             keys.update(dict.fromkeys(row))
         keys.update(dict.fromkeys(mark))
-        with path.open("w", newline="") as fh:
-            wr = csv.DictWriter(fh, fieldnames=list(keys) or ["empty"])
-            wr.writeheader()
+        with atomic_write(path, newline="") as fh:
+            wr = csv.writer(fh)
+            names = list(keys) or ["empty"]
+            wr.writerow([csv_cell(k) for k in names])
             for row in rows:
-                wr.writerow({k: (";".join(map(str, v)) if isinstance(v, list) else v)
-                             for k, v in {**row, **mark}.items()})
+                row = {**row, **mark}
+                wr.writerow([csv_cell(";".join(map(str, v)) if isinstance(v, list) else v)
+                             for v in (row.get(k, "") for k in names)])
         written.append(path)
     return written
 

@@ -104,7 +104,8 @@ def huber(u, k=2.0):
 def danish(u, c=3.0):
     """Danish method (Krarup, Kubik): 1 for u ≤ c, exp(1 − (u/c)²) above."""
     u = np.asarray(u, dtype=float)
-    return np.where(u <= c, 1.0, np.exp(np.minimum(0.0, 1.0 - (u / c) ** 2)))
+    t = np.minimum(u / c, 1e10)           # exp(1 − 10²⁰) is 0 already; (10²⁰⁰)² would overflow
+    return np.where(u <= c, 1.0, np.exp(np.minimum(0.0, 1.0 - t * t)))
 
 
 def error_class(size_sigma: float, size_base: float | None = None, medium_base: float = 2.5) -> str:
