@@ -37,6 +37,28 @@ can leave a point on one ray):
   centroid. γ is the intersection angle atan2(|u×v|, |u·v|) of the rays' lines: accurate near
   0, and 0 for opposite rays (a point between two centres on their baseline), which fix no
   depth either.
+* **points at a projection centre**: a point whose distance ρ from the centre of an image
+  that observes it is within round-off of zero, relative to that image's mean distance s to
+  its points:
+
+  .. math:: ρ < \\sqrt{ε}\\, s \\qquad (ε = 2^{-52},\\ \\sqrt{ε} ≈ 1.5·10^{-8})
+
+  (:data:`CENTRE_TOL`).
+  Its projection stays finite (x/z as z → 0), but the Jacobian of its image point with respect
+  to the image's pose grows like 1/ρ (HZ04, §6.2: ∂(x/z) ∝ 1/z, and z ≤ ρ), so its share of
+  the image's 6 × 6 block of the normal equations grows like 1/ρ² against 1/s² for every other
+  point: beyond (s/ρ)² > 1/ε the other points' share is lost to rounding and the block looks
+  singular — the pose test below would blame the image (and its rotation-only twin) although
+  only the point is at fault. Such a point is typically triangulated from two images taken
+  from one position (its rays meet at their common centre). It is named with the image and left
+  out alone (all its image points); the images keep every other point. s is the geometric
+  mean of the image's ρ (a few far points do not inflate it).
+
+  Farther out its share still dominates the image's pose block after scaling (its relative
+  smallest eigenvalue falls like (ρ/s)²), and the pose test below may find the block singular.
+  So when an image fails the pose test, the points within :data:`NEAR_TOL` × s of its centre
+  are taken out of its block and the test repeated: if the block is regular then, those points
+  are named and left out instead of the image.
 * **images**: fewer than 3 distinct points (6 pose unknowns need at least 6 equations), or
   points that do not fix the pose although there are enough of them (all on one line: the
   camera can turn about it): the image's own 6 × 6 block of the normal equations, its points
@@ -74,6 +96,8 @@ DEPTH_FACTOR = 1e6   # K: a depth σ beyond K × the block extent is "not determ
 MIN_POINTS = 3       # points an image needs to fix its 6 pose unknowns
 MAX_ROUNDS = 4       # retries of the safety net in adjust_block
 POSE_TOL = 1e-10     # an image's equilibrated pose block with a smaller eigenvalue is singular
+CENTRE_TOL = math.sqrt(np.finfo(float).eps)   # a point nearer a centre than this × s is at it
+NEAR_TOL = 1e-2      # a point this near a centre is blamed for a singular pose block it causes
 POSE_SFM = ("rho1", "rho2", "rho3", "tx", "ty", "tz")
 POSE_BLOCK = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 
@@ -267,6 +291,41 @@ def _pose_conditions(v: _View, obs: np.ndarray, ni: int) -> np.ndarray:
     return lam[:, 0] / np.maximum(lam[:, -1], 1e-300)
 
 
+def _relative_depths(v: _View) -> tuple[np.ndarray, np.ndarray]:
+    """Per image point, the distance ρ of its point from its image's centre and ρ / s, s the
+    geometric mean of ρ over the image's points (robust against a few far points; module
+    docstring). Linear in the observations."""
+    ni = len(v.image_ids)
+    d = v.X[v.obs_point] - v.centres[v.obs_image]
+    rho = np.sqrt(np.einsum("ij,ij->i", d, d))
+    del d
+    ok = np.isfinite(rho) & (rho > 0)
+    cnt = np.bincount(v.obs_image[ok], minlength=ni)
+    logs = np.bincount(v.obs_image[ok], weights=np.log(rho[ok]), minlength=ni)
+    s = np.where(cnt > 0, np.exp(logs / np.maximum(cnt, 1)), v.extent())[v.obs_image]
+    with np.errstate(invalid="ignore"):
+        rel = np.where(np.isfinite(rho), rho / s, np.inf)
+    return rho, rel
+
+
+def _at_centre(v: _View, rho, rel, obs, tol: float):
+    """The points of the observations ``obs`` within ``tol`` × s of the centre of an image that
+    observes them: [(point, image, ρ, ρ/s)], one per point (its nearest centre relative to s)."""
+    hit = obs[rel[obs] < tol]
+    if hit.size == 0:
+        return []
+    hit = hit[np.lexsort((rel[hit], v.obs_point[hit]))]        # per point, its nearest first
+    first = np.ones(hit.size, dtype=bool)
+    first[1:] = v.obs_point[hit[1:]] != v.obs_point[hit[:-1]]
+    return [(int(v.obs_point[o]), int(v.obs_image[o]), float(rho[o]), float(rel[o])) for o in hit[first]]
+
+
+def _centre_defect(v: _View, p, k, rho, rel, why) -> LocalDefect:
+    return LocalDefect("point", str(v.point_ids[p]), ("x", "y", "z"),
+                       f"at the projection centre of image {v.image_ids[k]}: {rho:.2g} from it, {rel:.1g} of "
+                       f"the image's distance to its points ({why})")
+
+
 def _distinct(key: np.ndarray) -> np.ndarray:
     """The distinct values of an integer array, sorted (a sort and a comparison: faster than
     np.unique's hashing on millions of keys)."""
@@ -296,6 +355,13 @@ def find_defects(model, factor: float = DEPTH_FACTOR):
     left_images: list[str] = []
     defects: list[LocalDefect] = []
     sig_theta = v.obs_sigma / np.maximum(v.focal[v.image_camera[v.obs_image]], 1e-300)
+    # points at a projection centre (module docstring): fixed by the geometry, found once
+    rho, rel = _relative_depths(v)
+    for p, k, r, q in _at_centre(v, rho, rel, np.arange(rho.size), CENTRE_TOL):
+        point_on[p] = False
+        defects.append(_centre_defect(v, p, k, r, q, "within round-off of zero: its Jacobian, ∝ 1/depth, "
+                                                     "would swamp the image's pose"))
+    obs_on &= point_on[v.obs_point]
     while True:
         changed = False
         idx = np.flatnonzero(obs_on)
@@ -348,8 +414,28 @@ def find_defects(model, factor: float = DEPTH_FACTOR):
                                        f"sees {pts[k]} point{'' if pts[k] == 1 else 's'}; at least "
                                        f"{MIN_POINTS} are needed to fix its pose"))
         # enough points, but in a configuration that does not fix the pose (e.g. on one line)
-        lam = _pose_conditions(v, np.flatnonzero(obs_on & image_on[v.obs_image]), ni)
+        use = np.flatnonzero(obs_on & image_on[v.obs_image])
+        lam = _pose_conditions(v, use, ni)
         weak = np.flatnonzero(image_on & (pts >= MIN_POINTS) & (lam < POSE_TOL))
+        if weak.size:
+            # a point near a centre may be what makes the pose block look singular: blame it,
+            # not the image, when the block is regular without it (module docstring)
+            near = _at_centre(v, rho, rel, use[np.isin(v.obs_image[use], weak)], NEAR_TOL)
+            if near:
+                gone = np.zeros(npt, dtype=bool)
+                gone[[p for p, *_ in near]] = True
+                lam2 = _pose_conditions(v, use[~gone[v.obs_point[use]]], ni)
+                cured = weak[lam2[weak] >= POSE_TOL]
+                for p, k, r, q in near:
+                    if np.isin(v.obs_image[use][v.obs_point[use] == p], cured).any():
+                        point_on[p] = False
+                        defects.append(_centre_defect(
+                            v, p, k, r, q, "its share of the image's pose block makes it look singular; "
+                                           "without it the image's points fix its pose"))
+                if cured.size:
+                    obs_on &= point_on[v.obs_point]
+                    changed = True
+                    weak = np.setdiff1d(weak, cured)
         for k in weak:
             defects.append(LocalDefect("image", str(v.image_ids[k]), v.pose_names,
                                        f"its {pts[k]} points do not fix its pose (they lie on one line "
