@@ -110,8 +110,11 @@ def _add_drop_option(p):
 
 
 def _warn_dropped(path, model_or_problem, quiet=False):
-    """One warning line on stderr listing the observations dropped by --drop-undefined."""
+    """One warning line on stderr listing the observations dropped by --drop-undefined, and
+    one per note of the reader on what it set aside or repaired (``extra["reader_notes"]``)."""
     extra = getattr(model_or_problem, "extra", {}) or {}
+    for note in extra.get("reader_notes", ()) if not quiet else ():
+        print(printable(f"baarda: warning: {path}: {note}"), file=sys.stderr)
     dropped = extra.get("dropped_observations", extra.get("dropped", []))
     if dropped and not quiet:
         ids = sorted({pid for d in dropped for pid in d.get("undefined", ())})
