@@ -161,3 +161,14 @@ def test_cli_names_the_point(tmp_path, capsys):
     doc = json.loads(out.read_text())
     assert [(d["entity"], d["id"]) for d in doc["summary"]["local_defects"]] == [("point", str(AT_CENTRE))]
     assert doc["summary"]["converged"]
+
+
+def test_bench_ceres_row_when_a_projection_is_undefined(tmp_path):
+    """Issue 26.6: bench_solve's Ceres run on a model with a point exactly at a centre gives a
+    row saying the projection is undefined (no cost), not a crash."""
+    pytest.importorskip("pycolmap")
+    from bench.bench_solve import ceres_colmap
+
+    _, cost, _, n, term = ceres_colmap(write_model(tmp_path / "m", offset=0.0))
+    assert cost is None and n == 6 * 41 - 2
+    assert "projection of 2 image point(s) is undefined" in term
