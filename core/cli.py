@@ -35,7 +35,7 @@ from .io.hypothesis import read_hypothesis
 from .io.native import write_native
 from .model.sfm import SfmBlock, to_block
 from .network_defects import adjust_network
-from .sfm_defects import adjust_block
+from .sfm_defects import adjust_block, degenerate_geometry
 from .simulate import simulate_to_files
 from .stats import (analyses, hypotheses, misidentification, precision, risk, robust, separability, snooping,
                     variance)
@@ -559,7 +559,8 @@ def _diverged(args, problem, options, adj, err) -> int:
     :data:`NOT_CONVERGED`), and run the robust estimation if asked — it is what finds the gross
     error that makes least squares diverge (R84 §6: a large error)."""
     why = (adj.termination or "not converged").removeprefix("not converged: ")
-    hint = ("" if args.robust else
+    geometry = degenerate_geometry(problem.extra.get("local_model"))     # the cause, when it is the geometry
+    hint = (f"; {geometry}" if geometry else "" if args.robust else
             f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
     print(printable(f"baarda: {args.input}: NOT converged after {adj.iterations} iterations ({why}) and the normal "
                     f"equations at the last iterate are singular ({err}): no reliability computed, no JSON/CSV "
@@ -576,8 +577,9 @@ def _convergence_status(path, adj) -> int:
     if adj.converged:
         return 0
     why = getattr(adj, "termination", "") or "not converged"
+    geometry = degenerate_geometry(getattr(getattr(adj, "problem", None), "extra", {}).get("local_model"))
     print(f"baarda: {printable(str(path))}: NOT converged after {adj.iterations} iterations: "
-          f"{why.removeprefix('not converged: ')}", file=sys.stderr)
+          f"{why.removeprefix('not converged: ')}{f'; {geometry}' if geometry else ''}", file=sys.stderr)
     return NOT_CONVERGED
 
 

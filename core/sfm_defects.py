@@ -550,6 +550,69 @@ def remove(model, points=(), images=(), cameras=()):
 
 
 # --------------------------------------------------------------------------------------------
+# degenerate geometry (the message of an adjustment that does not converge)
+# --------------------------------------------------------------------------------------------
+DEGENERATE_RATIO = 1e3   # centres spread beyond this × the points' spread: degenerate geometry
+NARROW_ANGLE = 5e-3      # images that see their points within this (rad, median): degenerate
+
+
+def degenerate_geometry(model, ratio: float = DEGENERATE_RATIO, narrow: float = NARROW_ANGLE) -> str | None:
+    """Words naming a degenerate block geometry, or None.
+
+    Two signs, each enough (either makes the normal equations ill-conditioned whatever the
+    observations, so that an adjustment that does not converge says more about the geometry —
+    often images registered far off — than about gross errors):
+
+    * the projection centres spread over more than ``ratio`` × the spread of the points (the
+      diagonal of the centres' bounding box against the median distance of the points from
+      their median): images that far see the points at intersection angles near zero (the depth
+      σ of the module docstring grows like d/γ);
+    * the images see their points within a narrow angle: the median over the images of
+      α = (RMS distance of the image's points from their centroid) / (their mean distance from
+      its centre) is below ``narrow`` (rad). A bundle of rays that narrow does not tell a turn of
+      the camera from a shift (the pose block of :func:`_pose_conditions` tends to singular as α → 0:
+      the affine-camera limit, HZ04 §6.3).
+
+    Used by ``baarda analyze`` when the adjustment does not converge (Ceres does not converge on
+    such blocks either). None for anything that is not a bundle block."""
+    if model is None or not hasattr(model, "images"):
+        return None
+    v = _View(model)
+    good = np.isfinite(v.X).all(axis=1)
+    X, c = v.X[good], v.centres[np.isfinite(v.centres).all(axis=1)]
+    if len(X) < 2 or len(c) < 1 or v.obs_image.size == 0:
+        return None
+    mid = np.median(X, axis=0)
+    centres = float(np.linalg.norm(c.max(axis=0) - c.min(axis=0)))
+    points = float(np.median(np.linalg.norm(X - mid, axis=1)))
+    ni = len(v.image_ids)
+    ok = good[v.obs_point]
+    oi, P = v.obs_image[ok], v.X[v.obs_point[ok]] - mid
+    cnt = np.maximum(np.bincount(oi, minlength=ni), 1)
+    mean = np.stack([np.bincount(oi, weights=P[:, a], minlength=ni) for a in range(3)], 1) / cnt[:, None]
+    rms = np.sqrt(np.maximum(np.bincount(oi, weights=np.einsum("ij,ij->i", P, P), minlength=ni) / cnt
+                             - np.einsum("ij,ij->i", mean, mean), 0.0))
+    dist = np.bincount(oi, weights=np.linalg.norm(P + mid - v.centres[oi], axis=1), minlength=ni) / cnt
+    seen = np.bincount(oi, minlength=ni) > 0
+    alpha = rms[seen] / np.maximum(dist[seen], 1e-300)
+    spread = centres > ratio * points
+    thin = alpha.size and float(np.median(alpha)) < narrow
+    if not (spread or thin):
+        return None
+    parts = []
+    if spread:
+        parts.append(f"its projection centres spread over {centres:.2g} units, its points over {points:.2g} "
+                     f"(ratio {centres / max(points, 1e-300):.2g}, beyond {ratio:.0e})")
+    if thin:
+        ids = np.asarray(v.image_ids, dtype=object)[seen]
+        k = int(np.argmin(alpha))
+        parts.append(f"{int((alpha < narrow).sum())} of {alpha.size} images see their points within less than "
+                     f"{narrow:.0e} rad (median {float(np.median(alpha)):.2g}; image {ids[k]}: {alpha[k]:.2g} rad)")
+    return ("the block's geometry is degenerate: " + "; ".join(parts)
+            + ": check the poses (images registered far off?) rather than the observations")
+
+
+# --------------------------------------------------------------------------------------------
 # building and adjusting
 # --------------------------------------------------------------------------------------------
 def strict_error(model, defects) -> InputError:

@@ -40,9 +40,12 @@ def _quat(R):
     return np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)])
 
 
-def write_model(folder: Path, offset: float = 1e-12, with_point: bool = True, seed: int = 3) -> Path:
+def write_model(folder: Path, offset: float = 1e-12, with_point: bool = True, seed: int = 3,
+                centres=CENTRES) -> Path:
     """The six-image COLMAP text model of the module docstring in ``folder`` (without_point:
-    the same model with the point's keypoints not linked to a 3D point and the point removed)."""
+    the same model with the point's keypoints not linked to a 3D point and the point removed;
+    centres: the six projection centres)."""
+    CENTRES = np.asarray(centres, dtype=float)  # noqa: N806
     rng = np.random.default_rng(seed)
     rots = [_rot([0, 1, 0], 0.0), _rot([0, 1, 0], 8.0), _rot([1, 0, 0], 2.0), _rot([0, 1, 0], -3.0),
             _rot([1, 1, 0], 2.5), _rot([1, -1, 0], -2.0)]
@@ -172,3 +175,55 @@ def test_bench_ceres_row_when_a_projection_is_undefined(tmp_path):
     _, cost, _, n, term = ceres_colmap(write_model(tmp_path / "m", offset=0.0))
     assert cost is None and n == 6 * 41 - 2
     assert "projection of 2 image point(s) is undefined" in term
+
+
+#: issue 26.5: three images 2500-3500 from a scene 8 units wide, three more 4.6e6 away
+DEGENERATE = np.vstack([CENTRES[:3] * 250, [[2.1e6, -1.3e6, -4.6e6], [-1.7e6, 2.9e6, -4.6e6], [0.4e6, 1.1e6, -4.6e6]]])
+
+
+def test_degenerate_geometry_is_named_not_a_gross_error(tmp_path, capsys):
+    """Images far from a small scene: baarda does not converge and Ceres does not either
+    (NO_CONVERGENCE); the message names the geometry and does not suggest --robust."""
+    pytest.importorskip("pycolmap")
+    from baarda.cli import main
+    from bench.bench_solve import ceres_colmap
+
+    model_dir = write_model(tmp_path / "m", with_point=False, centres=DEGENERATE)
+    assert ceres_colmap(model_dir)[4].startswith("NO_CONVERGENCE")
+    assert main(["analyze", str(model_dir), "--quiet"]) == 4
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "NOT converged" in err
+    assert "the block's geometry is degenerate" in err and "images see their points within" in err
+    assert "--robust" not in err
+
+
+def test_degenerate_geometry_signs():
+    """Both signs on their own, and none on a sound block (the six-image model)."""
+    from baarda.sfm_defects import degenerate_geometry
+
+    with_far = read_model(write_model(Path(tmp := __import__("tempfile").mkdtemp()) / "far", with_point=False,
+                                      centres=np.vstack([CENTRES[:4], [[4.6e6, 0, -10], [0, 4.6e6, -10]]])))
+    text = degenerate_geometry(with_far)
+    assert "projection centres spread over 6.5e+06 units" in text and "within" not in text
+    narrow = read_model(write_model(Path(tmp) / "narrow", with_point=False, centres=CENTRES * 250))
+    text = degenerate_geometry(narrow)
+    assert "images see their points within" in text and "spread over" not in text
+    assert degenerate_geometry(read_model(write_model(Path(tmp) / "sound", with_point=False))) is None
+    __import__("shutil").rmtree(tmp)
+
+
+def test_diverged_message_names_the_geometry(tmp_path, capsys):
+    """The other not-converged message (singular at the last iterate, cli._diverged) names the
+    geometry instead of suggesting --robust r84 on the same block; on a sound block it keeps the hint."""
+    from types import SimpleNamespace
+
+    from baarda import cli
+
+    adj = SimpleNamespace(termination="not converged: the maximum number of iterations was reached", iterations=200)
+    for centres, degenerate in ((DEGENERATE, True), (CENTRES, False)):
+        model_dir = write_model(tmp_path / str(degenerate), with_point=False, centres=centres)
+        args = SimpleNamespace(input=str(model_dir), robust=None, quiet=True)
+        assert cli._diverged(args, read_problem(model_dir), None, adj, "singular") == 4
+        err = capsys.readouterr().err
+        assert ("the block's geometry is degenerate" in err) is degenerate
+        assert ("--robust r84" in err) is not degenerate
