@@ -484,3 +484,21 @@ def test_dms_overflow_is_one_line_from_the_cli(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"baarda: error: {f}:10:"), err
     assert "<direction val>" in err and "digits of degrees" in err
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("nan"), -1e300])
+def test_absurd_angle_from_any_reader_is_refused_before_the_approximation(tmp_path, value):
+    """The class of issue 26.4 whatever the reader: a network whose observed angle is not
+    finite or beyond ±1e20 is an InputError at its line (validate.check_model_range), before
+    approx._circular_mean would meet it."""
+    from dataclasses import replace
+
+    from baarda.validate import check_model_range
+
+    f = tmp_path / "net.gkf"
+    f.write_text(HEAD + GOOD + TAIL)
+    net = read_gama(f)
+    bad = replace(net, observations=(net.observations[0], replace(net.observations[1], value=value)))
+    with pytest.raises(InputError, match="direction A C: value") as e:
+        check_model_range(bad, f)
+    assert e.value.line == 8
