@@ -291,10 +291,11 @@ def _pose_conditions(v: _View, obs: np.ndarray, ni: int) -> np.ndarray:
     return lam[:, 0] / np.maximum(lam[:, -1], 1e-300)
 
 
-def _relative_depths(v: _View) -> tuple[np.ndarray, np.ndarray]:
-    """Per image point, the distance ρ of its point from its image's centre and ρ / s, s the
-    geometric mean of ρ over the image's points (robust against a few far points; module
-    docstring). Linear in the observations."""
+def _near_centres(v: _View, tol: float = NEAR_TOL):
+    """The image points whose point is within ``tol`` × s of their image's centre, s the geometric
+    mean of the distances ρ of the image's points (robust against a few far points; module
+    docstring): (observation indices, ρ, ρ/s) — few, whatever the size of the block. Linear in
+    the observations."""
     ni = len(v.image_ids)
     d = v.X[v.obs_point] - v.centres[v.obs_image]
     rho = np.sqrt(np.einsum("ij,ij->i", d, d))
@@ -302,22 +303,24 @@ def _relative_depths(v: _View) -> tuple[np.ndarray, np.ndarray]:
     ok = np.isfinite(rho) & (rho > 0)
     cnt = np.bincount(v.obs_image[ok], minlength=ni)
     logs = np.bincount(v.obs_image[ok], weights=np.log(rho[ok]), minlength=ni)
-    s = np.where(cnt > 0, np.exp(logs / np.maximum(cnt, 1)), v.extent())[v.obs_image]
-    with np.errstate(invalid="ignore"):
-        rel = np.where(np.isfinite(rho), rho / s, np.inf)
-    return rho, rel
+    s = np.where(cnt > 0, np.exp(logs / np.maximum(cnt, 1)), v.extent())
+    idx = np.flatnonzero(np.isfinite(rho) & (rho < tol * s[v.obs_image]))
+    return idx, rho[idx], rho[idx] / s[v.obs_image[idx]]
 
 
-def _at_centre(v: _View, rho, rel, obs, tol: float):
-    """The points of the observations ``obs`` within ``tol`` × s of the centre of an image that
-    observes them: [(point, image, ρ, ρ/s)], one per point (its nearest centre relative to s)."""
-    hit = obs[rel[obs] < tol]
-    if hit.size == 0:
+def _at_centre(v: _View, near, allowed: np.ndarray, tol: float):
+    """Of the image points ``near`` (:func:`_near_centres`) those ``allowed`` (a mask over all
+    observations) within ``tol`` × s: [(point, image, ρ, ρ/s)], one per point (its nearest
+    centre relative to s)."""
+    idx, rho, rel = near
+    sel = np.flatnonzero(allowed[idx] & (rel < tol))
+    if sel.size == 0:
         return []
-    hit = hit[np.lexsort((rel[hit], v.obs_point[hit]))]        # per point, its nearest first
-    first = np.ones(hit.size, dtype=bool)
-    first[1:] = v.obs_point[hit[1:]] != v.obs_point[hit[:-1]]
-    return [(int(v.obs_point[o]), int(v.obs_image[o]), float(rho[o]), float(rel[o])) for o in hit[first]]
+    sel = sel[np.lexsort((rel[sel], v.obs_point[idx[sel]]))]        # per point, its nearest first
+    pts = v.obs_point[idx[sel]]
+    first = np.ones(sel.size, dtype=bool)
+    first[1:] = pts[1:] != pts[:-1]
+    return [(int(v.obs_point[idx[j]]), int(v.obs_image[idx[j]]), float(rho[j]), float(rel[j])) for j in sel[first]]
 
 
 def _centre_defect(v: _View, p, k, rho, rel, why) -> LocalDefect:
@@ -356,8 +359,8 @@ def find_defects(model, factor: float = DEPTH_FACTOR):
     defects: list[LocalDefect] = []
     sig_theta = v.obs_sigma / np.maximum(v.focal[v.image_camera[v.obs_image]], 1e-300)
     # points at a projection centre (module docstring): fixed by the geometry, found once
-    rho, rel = _relative_depths(v)
-    for p, k, r, q in _at_centre(v, rho, rel, np.arange(rho.size), CENTRE_TOL):
+    near = _near_centres(v)
+    for p, k, r, q in _at_centre(v, near, obs_on, CENTRE_TOL):
         point_on[p] = False
         defects.append(_centre_defect(v, p, k, r, q, "within round-off of zero: its Jacobian, ∝ 1/depth, "
                                                      "would swamp the image's pose"))
@@ -420,13 +423,15 @@ def find_defects(model, factor: float = DEPTH_FACTOR):
         if weak.size:
             # a point near a centre may be what makes the pose block look singular: blame it,
             # not the image, when the block is regular without it (module docstring)
-            near = _at_centre(v, rho, rel, use[np.isin(v.obs_image[use], weak)], NEAR_TOL)
-            if near:
+            in_weak = np.zeros(ni, dtype=bool)
+            in_weak[weak] = True
+            suspects = _at_centre(v, near, obs_on & in_weak[v.obs_image], NEAR_TOL)
+            if suspects:
                 gone = np.zeros(npt, dtype=bool)
-                gone[[p for p, *_ in near]] = True
+                gone[[p for p, *_ in suspects]] = True
                 lam2 = _pose_conditions(v, use[~gone[v.obs_point[use]]], ni)
                 cured = weak[lam2[weak] >= POSE_TOL]
-                for p, k, r, q in near:
+                for p, k, r, q in suspects:
                     if np.isin(v.obs_image[use][v.obs_point[use] == p], cured).any():
                         point_on[p] = False
                         defects.append(_centre_defect(
