@@ -105,13 +105,20 @@ def ceres_colmap(model: Path, threads: int = 1):
 
     rec = pycolmap.Reconstruction(str(model))
     t, its, term = _ceres_solve(rec, False, threads)
-    cost, n = 0.0, 0
+    cost, n, undefined = 0.0, 0, 0
     for im in rec.images.values():
         cam, pose = rec.cameras[im.camera_id], im.cam_from_world()
         for p2 in im.points2D:
             if p2.has_point3D():
-                r = cam.img_from_cam(pose * rec.points3D[p2.point3D_id].xyz) - p2.xy
+                x = cam.img_from_cam(pose * rec.points3D[p2.point3D_id].xyz)
+                if x is None:             # at or behind the centre after Ceres's solve: no cost
+                    undefined += 1
+                    continue
+                r = x - p2.xy
                 cost, n = cost + 0.5 * float(r @ r), n + 1
+    if undefined:
+        return t, None, its, n, f"{term}, but the projection of {undefined} image point(s) is undefined " \
+            "at its solution (a point at or behind a projection centre): no cost"
     return t, cost, its, n, term
 
 
@@ -184,17 +191,21 @@ def main():
                 try:
                     t_c, cost_c, its_c, kept, term = (ceres_colmap(path, args.threads) if colmap
                                                       else ceres(block, args.threads))
-                    note = f"; Ceres {term}" + (f" over {kept} of {problem.n // 2} image points" if kept != problem.n // 2
-                                                 else "")
+                    note = f"; Ceres {term}" + (f" over {kept} of {problem.n // 2} image points"
+                                                 if kept != problem.n // 2 and cost_c is not None else "")
                 except ImportError:
                     pass
+                except Exception as err:       # a peer's failure is a row, not the end of the table
+                    note = f"; Ceres failed: {type(err).__name__}: {str(err)[:120]}"
             t_a = rss = None
             if not args.no_analyze:
                 with tempfile.TemporaryDirectory() as out:
                     t_a, rss = analyze_run(path, Path(out) / "r.json")
 
             def fmt(v, spec):
-                return format(v, spec) if v is not None else "-"
+                return format(v, spec) if v is not None else "-".rjust(int(spec[1:].split(".")[0].strip(",")))
+            if problem.extra.get("local_defects"):
+                note += f"; baarda left out {len(problem.extra['local_defects'])} local defect(s)"
             ratio = t_b / t_c if t_c else None
             rel = abs(cost_b - cost_c) / cost_c if cost_c else None
             print(f"{path.name:<28} {t_b:>8.2f} {adj.iterations:>4} {cost_b:>16,.6f} {fmt(t_c, '>8.2f')} "

@@ -43,6 +43,7 @@ from .io.hypothesis import HYPOTHESIS_SPECS, parse_hypothesis
 from .io.native import write_native
 from .io.output import OutputError, check_outputs, write_text
 from .model.sfm import SfmBlock, to_block
+from .sfm_defects import degenerate_geometry
 from .simulate import CAMERAS, RANGES as RECIPE_RANGES, check_recipe, simulate_to_files
 from .stats import analyses, separability
 from .text import number, printable, printable_lines, shorten
@@ -134,8 +135,11 @@ def _add_drop_option(p):
 
 
 def _warn_dropped(path, model_or_problem, quiet=False):
-    """One warning line on stderr listing the observations dropped by --drop-undefined."""
+    """One warning line on stderr listing the observations dropped by --drop-undefined, and
+    one per note of the reader on what it set aside or repaired (``extra["reader_notes"]``)."""
     extra = getattr(model_or_problem, "extra", {}) or {}
+    for note in extra.get("reader_notes", ()) if not quiet else ():
+        print(printable(f"baarda: warning: {path}: {note}"), file=sys.stderr)
     dropped = extra.get("dropped_observations", extra.get("dropped", []))
     if dropped and not quiet:
         ids = sorted({pid for d in dropped for pid in d.get("undefined", ())})
@@ -431,7 +435,8 @@ def _diverged(args, analysis, err) -> int:
     error that makes least squares diverge (R84 §6: a large error)."""
     adj = analysis.adjustment
     why = (adj.termination or "not converged").removeprefix("not converged: ")
-    hint = ("" if args.robust else
+    geometry = degenerate_geometry(analysis.problem.extra.get("local_model"))     # the cause, when it is the geometry
+    hint = (f"; {geometry}" if geometry else "" if args.robust else
             f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
     print(printable(f"baarda: {args.input}: NOT converged after {adj.iterations} iterations ({why}) and the normal "
                     f"equations at the last iterate are singular ({err}): no reliability computed, no JSON/CSV "
@@ -446,8 +451,9 @@ def _convergence_status(path, adj) -> int:
     if adj.converged:
         return 0
     why = getattr(adj, "termination", "") or "not converged"
+    geometry = degenerate_geometry(getattr(getattr(adj, "problem", None), "extra", {}).get("local_model"))
     print(f"baarda: {printable(str(path))}: NOT converged after {adj.iterations} iterations: "
-          f"{why.removeprefix('not converged: ')}", file=sys.stderr)
+          f"{why.removeprefix('not converged: ')}{f'; {geometry}' if geometry else ''}", file=sys.stderr)
     return NOT_CONVERGED
 
 

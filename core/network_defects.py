@@ -38,6 +38,7 @@ def build_network(net: Network, strict: bool = False) -> Problem:
     for one no observation involves. A defect of the whole network (its datum) is diagnosed by
     the adjustment as before.
     """
+    net = set_aside_heightless(net)
     if any(getattr(p, a) is None for p in net.points for a in "xyz"
            if a in (p.adjusted + p.constrained).lower()):
         net = approximate_coordinates(net, missing="error" if strict else "keep")
@@ -49,6 +50,52 @@ def build_network(net: Network, strict: bool = False) -> Problem:
     if defects:
         problem.extra["local_defects"] = list(problem.extra.get("local_defects", ())) + defects
     return problem
+
+
+#: what the observations that need heights are called in the note of set_aside_heightless
+_HEIGHT_KINDS = {"zenith-angle": "zenith angle", "slope-distance": "slope distance",
+                 "height-diff": "height difference", "coordinate-z": "observed height"}
+
+
+def set_aside_heightless(net: Network) -> Network:
+    """The network without the observations that need a height no point can have, as gama-local
+    reads a 2-D network.
+
+    A point with no z coordinate whose z is neither adjusted nor constrained (``adj="xy"``
+    without a height) can get no height: gama-local's revision of the observations makes every
+    observation that needs its z passive — zenith angles, slope distances, height differences
+    (GNU Gama, ``LocalNetwork::revision_observations``; a 2-D survey observed with directions,
+    horizontal distances and zenith angles per set is adjusted from its directions and distances
+    alone). baarda does the same and says so: ``net.extra["reader_notes"]`` gets one line (the
+    counts by kind, the points, the first lines), which ``baarda analyze`` prints as a warning;
+    ``net.extra["set_aside"]`` lists them (line, kind, points). Vectors (Δx, Δy, Δz together)
+    are left to the usual checks. Returns ``net`` itself when nothing is set aside.
+    """
+    no_z = {p.id for p in net.points if p.z is None and "z" not in (p.adjusted + p.constrained).lower()}
+    if not no_z:
+        return net
+    keep, gone = [], []
+    for o in net.observations:
+        drop = o.kind in _HEIGHT_KINDS and any(pid in no_z for pid in o.points)
+        keep.append(not drop)
+        if drop:
+            gone.append(o)
+    if not gone:
+        return net
+    counts: dict[str, int] = {}
+    for o in gone:
+        counts[o.kind] = counts.get(o.kind, 0) + 1
+    pts = sorted({pid for o in gone for pid in o.points if pid in no_z})
+    lines = sorted({o.line for o in gone})
+    what = ", ".join(f"{n} {_HEIGHT_KINDS[k]}{'s' if n > 1 else ''}" for k, n in counts.items())
+    note = (f"{what} set aside, as gama-local does: they need heights that point(s) "
+            f"{', '.join(pts[:10])}{' ...' if len(pts) > 10 else ''} do not have (no z, not adjusted in z); "
+            f"the network is adjusted from its other observations (line(s) "
+            f"{', '.join(map(str, lines[:10]))}{' ...' if len(lines) > 10 else ''})")
+    extra = dict(net.extra)
+    extra["reader_notes"] = list(extra.get("reader_notes", ())) + [note]
+    extra["set_aside"] = [{"line": o.line, "kind": o.kind, "points": list(o.points)} for o in gone]
+    return _keep_observations(replace(net, extra=extra), keep)
 
 
 #: rounds of the safety net in :func:`adjust_network`

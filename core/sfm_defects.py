@@ -37,6 +37,28 @@ can leave a point on one ray):
   centroid. γ is the intersection angle atan2(|u×v|, |u·v|) of the rays' lines: accurate near
   0, and 0 for opposite rays (a point between two centres on their baseline), which fix no
   depth either.
+* **points at a projection centre**: a point whose distance ρ from the centre of an image
+  that observes it is within round-off of zero, relative to that image's mean distance s to
+  its points:
+
+  .. math:: ρ < \\sqrt{ε}\\, s \\qquad (ε = 2^{-52},\\ \\sqrt{ε} ≈ 1.5·10^{-8})
+
+  (:data:`CENTRE_TOL`).
+  Its projection stays finite (x/z as z → 0), but the Jacobian of its image point with respect
+  to the image's pose grows like 1/ρ (HZ04, §6.2: ∂(x/z) ∝ 1/z, and z ≤ ρ), so its share of
+  the image's 6 × 6 block of the normal equations grows like 1/ρ² against 1/s² for every other
+  point: beyond (s/ρ)² > 1/ε the other points' share is lost to rounding and the block looks
+  singular — the pose test below would blame the image (and its rotation-only twin) although
+  only the point is at fault. Such a point is typically triangulated from two images taken
+  from one position (its rays meet at their common centre). It is named with the image and left
+  out alone (all its image points); the images keep every other point. s is the geometric
+  mean of the image's ρ (a few far points do not inflate it).
+
+  Farther out its share still dominates the image's pose block after scaling (its relative
+  smallest eigenvalue falls like (ρ/s)²), and the pose test below may find the block singular.
+  So when an image fails the pose test, the points within :data:`NEAR_TOL` × s of its centre
+  are taken out of its block and the test repeated: if the block is regular then, those points
+  are named and left out instead of the image.
 * **images**: fewer than 3 distinct points (6 pose unknowns need at least 6 equations), or
   points that do not fix the pose although there are enough of them (all on one line: the
   camera can turn about it): the image's own 6 × 6 block of the normal equations, its points
@@ -74,6 +96,8 @@ DEPTH_FACTOR = 1e6   # K: a depth σ beyond K × the block extent is "not determ
 MIN_POINTS = 3       # points an image needs to fix its 6 pose unknowns
 MAX_ROUNDS = 4       # retries of the safety net in adjust_block
 POSE_TOL = 1e-10     # an image's equilibrated pose block with a smaller eigenvalue is singular
+CENTRE_TOL = math.sqrt(np.finfo(float).eps)   # a point nearer a centre than this × s is at it
+NEAR_TOL = 1e-2      # a point this near a centre is blamed for a singular pose block it causes
 POSE_SFM = ("rho1", "rho2", "rho3", "tx", "ty", "tz")
 POSE_BLOCK = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 
@@ -267,6 +291,44 @@ def _pose_conditions(v: _View, obs: np.ndarray, ni: int) -> np.ndarray:
     return lam[:, 0] / np.maximum(lam[:, -1], 1e-300)
 
 
+def _near_centres(v: _View, tol: float = NEAR_TOL):
+    """The image points whose point is within ``tol`` × s of their image's centre, s the geometric
+    mean of the distances ρ of the image's points (robust against a few far points; module
+    docstring): (observation indices, ρ, ρ/s) — few, whatever the size of the block. Linear in
+    the observations."""
+    ni = len(v.image_ids)
+    d = v.X[v.obs_point] - v.centres[v.obs_image]
+    rho = np.sqrt(np.einsum("ij,ij->i", d, d))
+    del d
+    ok = np.isfinite(rho) & (rho > 0)
+    cnt = np.bincount(v.obs_image[ok], minlength=ni)
+    logs = np.bincount(v.obs_image[ok], weights=np.log(rho[ok]), minlength=ni)
+    s = np.where(cnt > 0, np.exp(logs / np.maximum(cnt, 1)), v.extent())
+    idx = np.flatnonzero(np.isfinite(rho) & (rho < tol * s[v.obs_image]))
+    return idx, rho[idx], rho[idx] / s[v.obs_image[idx]]
+
+
+def _at_centre(v: _View, near, allowed: np.ndarray, tol: float):
+    """Of the image points ``near`` (:func:`_near_centres`) those ``allowed`` (a mask over all
+    observations) within ``tol`` × s: [(point, image, ρ, ρ/s)], one per point (its nearest
+    centre relative to s)."""
+    idx, rho, rel = near
+    sel = np.flatnonzero(allowed[idx] & (rel < tol))
+    if sel.size == 0:
+        return []
+    sel = sel[np.lexsort((rel[sel], v.obs_point[idx[sel]]))]        # per point, its nearest first
+    pts = v.obs_point[idx[sel]]
+    first = np.ones(sel.size, dtype=bool)
+    first[1:] = pts[1:] != pts[:-1]
+    return [(int(v.obs_point[idx[j]]), int(v.obs_image[idx[j]]), float(rho[j]), float(rel[j])) for j in sel[first]]
+
+
+def _centre_defect(v: _View, p, k, rho, rel, why) -> LocalDefect:
+    return LocalDefect("point", str(v.point_ids[p]), ("x", "y", "z"),
+                       f"at the projection centre of image {v.image_ids[k]}: {rho:.2g} from it, {rel:.1g} of "
+                       f"the image's distance to its points ({why})")
+
+
 def _distinct(key: np.ndarray) -> np.ndarray:
     """The distinct values of an integer array, sorted (a sort and a comparison: faster than
     np.unique's hashing on millions of keys)."""
@@ -296,6 +358,13 @@ def find_defects(model, factor: float = DEPTH_FACTOR):
     left_images: list[str] = []
     defects: list[LocalDefect] = []
     sig_theta = v.obs_sigma / np.maximum(v.focal[v.image_camera[v.obs_image]], 1e-300)
+    # points at a projection centre (module docstring): fixed by the geometry, found once
+    near = _near_centres(v)
+    for p, k, r, q in _at_centre(v, near, obs_on, CENTRE_TOL):
+        point_on[p] = False
+        defects.append(_centre_defect(v, p, k, r, q, "within round-off of zero: its Jacobian, ∝ 1/depth, "
+                                                     "would swamp the image's pose"))
+    obs_on &= point_on[v.obs_point]
     while True:
         changed = False
         idx = np.flatnonzero(obs_on)
@@ -348,8 +417,30 @@ def find_defects(model, factor: float = DEPTH_FACTOR):
                                        f"sees {pts[k]} point{'' if pts[k] == 1 else 's'}; at least "
                                        f"{MIN_POINTS} are needed to fix its pose"))
         # enough points, but in a configuration that does not fix the pose (e.g. on one line)
-        lam = _pose_conditions(v, np.flatnonzero(obs_on & image_on[v.obs_image]), ni)
+        use = np.flatnonzero(obs_on & image_on[v.obs_image])
+        lam = _pose_conditions(v, use, ni)
         weak = np.flatnonzero(image_on & (pts >= MIN_POINTS) & (lam < POSE_TOL))
+        if weak.size:
+            # a point near a centre may be what makes the pose block look singular: blame it,
+            # not the image, when the block is regular without it (module docstring)
+            in_weak = np.zeros(ni, dtype=bool)
+            in_weak[weak] = True
+            suspects = _at_centre(v, near, obs_on & in_weak[v.obs_image], NEAR_TOL)
+            if suspects:
+                gone = np.zeros(npt, dtype=bool)
+                gone[[p for p, *_ in suspects]] = True
+                lam2 = _pose_conditions(v, use[~gone[v.obs_point[use]]], ni)
+                cured = weak[lam2[weak] >= POSE_TOL]
+                for p, k, r, q in suspects:
+                    if np.isin(v.obs_image[use][v.obs_point[use] == p], cured).any():
+                        point_on[p] = False
+                        defects.append(_centre_defect(
+                            v, p, k, r, q, "its share of the image's pose block makes it look singular; "
+                                           "without it the image's points fix its pose"))
+                if cured.size:
+                    obs_on &= point_on[v.obs_point]
+                    changed = True
+                    weak = np.setdiff1d(weak, cured)
         for k in weak:
             defects.append(LocalDefect("image", str(v.image_ids[k]), v.pose_names,
                                        f"its {pts[k]} points do not fix its pose (they lie on one line "
@@ -461,6 +552,69 @@ def remove(model, points=(), images=(), cameras=()):
     image_on = ~np.isin(np.array(v.image_ids, dtype=object), list(images)) & camera_on[v.image_camera]
     obs_on = point_on[v.obs_point] & image_on[v.obs_image]
     return _reduce(v, point_on, image_on, camera_on, obs_on)
+
+
+# --------------------------------------------------------------------------------------------
+# degenerate geometry (the message of an adjustment that does not converge)
+# --------------------------------------------------------------------------------------------
+DEGENERATE_RATIO = 1e3   # centres spread beyond this × the points' spread: degenerate geometry
+NARROW_ANGLE = 5e-3      # images that see their points within this (rad, median): degenerate
+
+
+def degenerate_geometry(model, ratio: float = DEGENERATE_RATIO, narrow: float = NARROW_ANGLE) -> str | None:
+    """Words naming a degenerate block geometry, or None.
+
+    Two signs, each enough (either makes the normal equations ill-conditioned whatever the
+    observations, so that an adjustment that does not converge says more about the geometry —
+    often images registered far off — than about gross errors):
+
+    * the projection centres spread over more than ``ratio`` × the spread of the points (the
+      diagonal of the centres' bounding box against the median distance of the points from
+      their median): images that far see the points at intersection angles near zero (the depth
+      σ of the module docstring grows like d/γ);
+    * the images see their points within a narrow angle: the median over the images of
+      α = (RMS distance of the image's points from their centroid) / (their mean distance from
+      its centre) is below ``narrow`` (rad). A bundle of rays that narrow does not tell a turn of
+      the camera from a shift (the pose block of :func:`_pose_conditions` tends to singular as α → 0:
+      the affine-camera limit, HZ04 §6.3).
+
+    Used by ``baarda analyze`` when the adjustment does not converge (Ceres does not converge on
+    such blocks either). None for anything that is not a bundle block."""
+    if model is None or not hasattr(model, "images"):
+        return None
+    v = _View(model)
+    good = np.isfinite(v.X).all(axis=1)
+    X, c = v.X[good], v.centres[np.isfinite(v.centres).all(axis=1)]
+    if len(X) < 2 or len(c) < 1 or v.obs_image.size == 0:
+        return None
+    mid = np.median(X, axis=0)
+    centres = float(np.linalg.norm(c.max(axis=0) - c.min(axis=0)))
+    points = float(np.median(np.linalg.norm(X - mid, axis=1)))
+    ni = len(v.image_ids)
+    ok = good[v.obs_point]
+    oi, P = v.obs_image[ok], v.X[v.obs_point[ok]] - mid
+    cnt = np.maximum(np.bincount(oi, minlength=ni), 1)
+    mean = np.stack([np.bincount(oi, weights=P[:, a], minlength=ni) for a in range(3)], 1) / cnt[:, None]
+    rms = np.sqrt(np.maximum(np.bincount(oi, weights=np.einsum("ij,ij->i", P, P), minlength=ni) / cnt
+                             - np.einsum("ij,ij->i", mean, mean), 0.0))
+    dist = np.bincount(oi, weights=np.linalg.norm(P + mid - v.centres[oi], axis=1), minlength=ni) / cnt
+    seen = np.bincount(oi, minlength=ni) > 0
+    alpha = rms[seen] / np.maximum(dist[seen], 1e-300)
+    spread = centres > ratio * points
+    thin = alpha.size and float(np.median(alpha)) < narrow
+    if not (spread or thin):
+        return None
+    parts = []
+    if spread:
+        parts.append(f"its projection centres spread over {centres:.2g} units, its points over {points:.2g} "
+                     f"(ratio {centres / max(points, 1e-300):.2g}, beyond {ratio:.0e})")
+    if thin:
+        ids = np.asarray(v.image_ids, dtype=object)[seen]
+        k = int(np.argmin(alpha))
+        parts.append(f"{int((alpha < narrow).sum())} of {alpha.size} images see their points within less than "
+                     f"{narrow:.0e} rad (median {float(np.median(alpha)):.2g}; image {ids[k]}: {alpha[k]:.2g} rad)")
+    return ("the block's geometry is degenerate: " + "; ".join(parts)
+            + ": check the poses (images registered far off?) rather than the observations")
 
 
 # --------------------------------------------------------------------------------------------

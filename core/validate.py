@@ -27,6 +27,7 @@ import numpy as np
 
 from .errors import InputError
 from .model.bundle import Block
+from .model.network import Network
 from .model.problem import by_size
 from .model.sfm import SfmBlock
 from .observations.projection import ProjectionSet
@@ -187,7 +188,10 @@ def _refuse_large(path, lines, values, what) -> None:
 def check_model_range(model, path) -> None:
     """Before a bundle block is built (its builder already squares coordinates to find local
     defects and far points): approximate coordinates, image coordinates and camera parameters
-    within ±VALUE_LIMIT. Networks are checked on their problem only (:func:`check_numeric_range`)."""
+    within ±VALUE_LIMIT. Networks: their observed values and given coordinates, finite and within
+    ±VALUE_LIMIT, before the approximate coordinates are computed from them (a reader that let
+    an infinite angle through would otherwise end in the approximation's trigonometry); the rest
+    on their problem (:func:`check_numeric_range`)."""
 
     if isinstance(model, SfmBlock):
         def part(name, lines):      # a COLMAP model directory: the file inside it (binary: no lines)
@@ -210,3 +214,10 @@ def check_model_range(model, path) -> None:
         _refuse_large(path, [getattr(im, "line", 0) for im in model.images],
                       [(im.X0, im.Y0, im.Z0) for im in model.images], lambda k: f"image {model.images[k].id}")
         _refuse_large(path, model.obs.line, model.obs.xy, lambda k: "image point")
+    elif isinstance(model, Network):
+        obs = model.observations
+        _refuse_large(path, [o.line for o in obs], [[o.value] for o in obs],
+                      lambda k: f"{obs[k].kind} {' '.join(map(str, obs[k].points))}: value (SI)")
+        _refuse_large(path, [p.line for p in model.points],
+                      [[0.0 if v is None else v for v in (p.x, p.y, p.z)] for p in model.points],
+                      lambda k: f"point {model.points[k].id}")

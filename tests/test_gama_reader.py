@@ -405,6 +405,15 @@ BAD = {
     "no-sigma": ('<obs from="A"> <angle bs="B" fs="C" val="50"/> </obs>\n', 8,
                  "no standard deviation"),
     "bad-dms": ('<obs from="A"> <direction to="B" val="10-70-00"/> </obs>\n', 8, "d-m-s"),
+    # angles no double can hold (issue 26.4): d-m-s degrees of 400 digits are inf, not a crash
+    "dms-degrees-overflow": ('<obs from="A"> <direction to="B" val="1' + "0" * 399 + '-52-12.0108"/> </obs>\n',
+                             8, "400 digits of degrees"),
+    "dms-degrees-huge": ('<obs from="A">\n <direction to="B" val="-' + "9" * 25 + '-0-0"/> </obs>\n',
+                         9, "outside ±1e+20"),
+    "dms-zenith-overflow": ('<obs from="A"> <z-angle to="B" val="' + "7" * 330 + '-00-00"/> </obs>\n', 8,
+                            "digits of degrees"),
+    "gon-overflow": ('<obs from="A"> <direction to="B" val="1' + "0" * 400 + '"/> </obs>\n', 8, "finite"),
+    "gon-inf": ('<obs from="A"> <angle bs="B" fs="C" val="-inf" stdev="3"/> </obs>\n', 8, "finite"),
     "no-standpoint": ('<obs> <distance to="B" val="100"/> </obs>\n', 8, "standpoint"),
     "empty-network": ("", 4, "no observations"),
     "fixed-without-coordinates": ('<point id="F" fix="xy"/>\n' + GOOD, 8, "fixed point F"),
@@ -461,3 +470,35 @@ def test_two_sets_at_one_station_and_cov_mat_units(tmp_path):
     assert len(set(keys)) == 2 and keys[0] == keys[2] != keys[3]
     dh = next(o for o in net.observations if o.kind == "height-diff")
     assert dh.sigma_file == pytest.approx(10 * math.sqrt(4))  # sigma-apr·√dist, mm
+
+
+def test_dms_overflow_is_one_line_from_the_cli(tmp_path, capsys):
+    """Issue 26.4 / 25.5: a d-m-s angle whose degrees overflow is exit 2 with one line naming
+    file, line and field — not an internal error in the approximate coordinates."""
+    from baarda.cli import main
+
+    f = tmp_path / "overflow.gkf"
+    f.write_text(HEAD + GOOD + '<obs from="C"> <direction to="A" val="0-0-0"/>\n <direction to="B" val="1'
+                 + "0" * 399 + '-52-12.0108"/> </obs>\n' + TAIL)
+    assert main(["analyze", str(f)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"baarda: error: {f}:10:"), err
+    assert "<direction val>" in err and "digits of degrees" in err
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("nan"), -1e300])
+def test_absurd_angle_from_any_reader_is_refused_before_the_approximation(tmp_path, value):
+    """The class of issue 26.4 whatever the reader: a network whose observed angle is not
+    finite or beyond ±1e20 is an InputError at its line (validate.check_model_range), before
+    approx._circular_mean would meet it."""
+    from dataclasses import replace
+
+    from baarda.validate import check_model_range
+
+    f = tmp_path / "net.gkf"
+    f.write_text(HEAD + GOOD + TAIL)
+    net = read_gama(f)
+    bad = replace(net, observations=(net.observations[0], replace(net.observations[1], value=value)))
+    with pytest.raises(InputError, match="direction A C: value") as e:
+        check_model_range(bad, f)
+    assert e.value.line == 8

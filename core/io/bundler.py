@@ -13,9 +13,31 @@ y up. ``key`` is the index of the SIFT feature and is not used. A camera Bundler
 reconstruct is written as all zeros; it is left out (its index stays its id), and a view of it
 is an error. Camera and point ids are the file's 0-based indices, as strings; f, k1, k2 are
 estimated per camera by default, as in BAL.
+
+Bundler files as they are written:
+
+- **Rotations printed to a few digits.** Files are often written with printf's ``%g`` (6
+  significant digits), and a rotation matrix so printed is orthonormal only to what 6 digits
+  hold. Each printed entry r carries an error δ with |δ| ≤ ½·10⁻⁵·10^⌊log₁₀|r|⌋ ≤ 5·10⁻⁷
+  (|r| ≤ 1), and (RᵀR − I)_ij = Σ_k (r_ki δ_kj + δ_ki r_kj) + O(δ²), so by Cauchy–Schwarz
+  (unit columns, ‖δ_j‖ ≤ √3·5·10⁻⁷)
+
+  .. math:: |RᵀR − I|_{max} ≤ 2√3 · 5·10^{-7} ≈ 1.73·10^{-6}  (:data:`PRINT_TOL`).
+
+  A matrix within that bound (and det > 0) is replaced by the nearest rotation, the orthogonal
+  polar factor U Vᵀ of its SVD U Σ Vᵀ (Higham 1986, "Computing the polar decomposition"), and
+  the number of cameras so treated is recorded (``block.extra["reader_notes"]``, a warning line
+  of ``baarda analyze``); a matrix farther from a rotation is refused at its line.
+- **One point under two keys of one image.** ``key`` is the feature index; a point listed twice
+  in one image under two keys is COLMAP's "two keypoints of one 3D point in one image" and is
+  read as :mod:`baarda.io.colmap` reads it: each an observation of its own, told apart by its key
+  (``block.extra["obs_keypoint"]``, counted in ``block.extra["duplicate_keypoints"]``). The same
+  key twice in one image is an error.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -23,9 +45,14 @@ from ..errors import InputError
 from ..model.sfm import SfmBlock
 from ..observations.rotation import rodrigues_from_R
 from .bal import bal_block, check_block, check_rotation
+from .colmap import duplicate_keypoints
 from .source import Numbers, open_binary
 
 HEADER = "# Bundle file v0.3"
+#: |RᵀR − I| a rotation printed to 6 significant digits may show (module docstring); the
+#: second-order term 3·(5·10⁻⁷)² is added for completeness
+PRINT_TOL = 2.0 * math.sqrt(3.0) * 5e-7 + 3.0 * (5e-7) ** 2
+EXACT_TOL = 1e-12    # |RᵀR − I| of a matrix written to (nearly) full precision: taken as it is
 
 
 def looks_like_bundler(head: str) -> bool:
@@ -112,10 +139,11 @@ def _bundler_block(path, num, vals, lines, sigma_px, refine_intrinsics) -> SfmBl
     valid = ~((fk[:, 0] == 0) & ~R.reshape(ncam, 9).any(axis=1))
     rho = np.zeros((ncam, 3))
     cams = np.zeros((ncam, 9))
+    fixed: list[int] = []
     for c in np.flatnonzero(valid):
         if fk[c, 0] <= 0:
             raise InputError(path, int(cam_line[c]), f"camera {c}: focal length f = {fk[c, 0]:g} must be > 0")
-        check_rotation(path, int(lines[2 + 15 * c + 3]), R[c], f"camera {c}")
+        R[c] = _rotation(path, int(lines[2 + 15 * c + 3]), R[c], f"camera {c}", fixed)
         rho[c] = rodrigues_from_R(R[c])
         cams[c] = np.r_[0.0, 0.0, 0.0, t[c], fk[c]]
     # points: X Y Z / R G B / n, then n × (camera key x y); one pass finds where each starts
@@ -159,6 +187,7 @@ def _bundler_block(path, num, vals, lines, sigma_px, refine_intrinsics) -> SfmBl
         t0 = num.text(stop, float(vals[stop]))
         raise InputError(path, int(lines[stop]), f"unexpected '{t0[:40]}' after the last point (the counts in "
                          "the header do not match the file)")
+    keys = vals[view_start + 1].astype(np.int64)
     X = vals[offs[:, None] + np.arange(3)]
     xy = np.c_[vals[view_start + 2], vals[view_start + 3]]
     obs_line = lines[view_start]
@@ -168,6 +197,12 @@ def _bundler_block(path, num, vals, lines, sigma_px, refine_intrinsics) -> SfmBl
     renumber[keep] = np.arange(keep.size)
     block = bal_block(cams[keep], X, np.c_[renumber[cam_of], obs_pt], xy, obs_line, cam_line[keep], pt_line,
                       "bundler", path, sigma_px, refine_intrinsics, rodrigues=rho[keep])
+    extra = {"obs_keypoint": keys, "duplicate_keypoints": duplicate_keypoints(block.obs_image, block.obs_point, npt)}
+    if fixed:
+        extra["reader_notes"] = [
+            f"{len(fixed)} rotation matrix(es) orthonormal only to the printed digits (|RᵀR − I| ≤ "
+            f"{PRINT_TOL:.2g}, e.g. camera {fixed[0]}) replaced by the nearest rotation"]
+    block = block.replace(extra={**block.extra, **extra})
     if keep.size < ncam:
         ids = [str(c) for c in keep]
         block = block.replace(cameras=tuple(c.__class__(ids[k], c.model, c.params, line=c.line)
@@ -175,6 +210,23 @@ def _bundler_block(path, num, vals, lines, sigma_px, refine_intrinsics) -> SfmBl
                               images=tuple(im.__class__(ids[k], ids[k], im.rodrigues, im.t, line=im.line)
                                            for k, im in enumerate(block.images)))
     return block
+
+
+def _rotation(path, line: int, R: np.ndarray, what: str, fixed: list) -> np.ndarray:
+    """R itself when orthonormal to rounding, its nearest rotation (the polar factor) when
+    within what printing to 6 digits allows (its camera appended to ``fixed``), else
+    InputError at ``line`` (module docstring)."""
+    if not np.isfinite(R).all() or np.abs(R).max() > 2.0:
+        check_rotation(path, line, R, what)                 # raises, saying which
+    err, det = float(np.abs(R.T @ R - np.eye(3)).max()), float(np.linalg.det(R))
+    if err > PRINT_TOL or det < 0:
+        raise InputError(path, line, f"{what}: not a rotation matrix (|RᵀR − I| = {err:.2g}, beyond the "
+                         f"{PRINT_TOL:.2g} that printing to 6 digits allows; det = {det:.3g})")
+    if err <= EXACT_TOL:
+        return R
+    U, _, Vt = np.linalg.svd(R)
+    fixed.append(what.split()[-1])
+    return U @ Vt
 
 
 def _ranks(counts: np.ndarray) -> np.ndarray:
@@ -202,10 +254,7 @@ def _point_offsets(vals, pos: int, npt: int, ncam: int):
         nv = vals[pos + 6]
         if not (nv < 1e17 and nv >= 0 and nv == np.floor(nv)):
             return offs[:p + 1], np.array(nviews, dtype=np.int64), pos + 6, (pos + 6, None)
-        nv = int(nv)
-        if nv > ncam:
-            return offs[:p + 1], np.array(nviews, dtype=np.int64), pos + 6, \
-                (pos + 6, f"point {p}: {nv} views but only {ncam} cameras")
+        nv = int(nv)              # may exceed the cameras: two keys of one image (module docstring)
         if pos + 7 + 4 * nv > n:
             have = n - pos - 7
             k, r = divmod(have, 4)

@@ -267,6 +267,11 @@ class _Reader:
                 raise self.error(node.line, f"<{node.tag} {attr}>: bad d-m-s angle {s!r} "
                                  "(minutes and seconds must not exceed 60)", attr)
             deg = sign * (d + mi / 60.0 + se / 3600.0)
+            if not math.isfinite(deg) or abs(deg) > VALUE_LIMIT:
+                # float() of a few hundred digits is inf: the same bound as a value in gon
+                raise self.error(node.line, f"<{node.tag} {attr}>: d-m-s angle {s[:40]!r}"
+                                 f"{'...' if len(s) > 40 else ''} has {len(m.group(2))} digits of degrees: "
+                                 f"outside ±{VALUE_LIMIT:g}, too large to adjust in double precision", attr)
             return deg * DEG, deg, "deg"
         if "-" in s[1:]:
             raise self.error(node.line, f"<{node.tag} {attr}>: bad d-m-s angle {s!r}", attr)

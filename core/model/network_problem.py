@@ -145,7 +145,8 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
                    source=net.source, title=net.description.strip().splitlines()[0] if net.description.strip() else "",
                    axes_xy=net.axes_xy,
                    extra={"tol_abs": net.tol_abs, "angles": net.angles,
-                          "dropped_observations": [dict(d) for d in net.extra.get("dropped", ())]},
+                          "dropped_observations": [dict(d) for d in net.extra.get("dropped", ())],
+                          "reader_notes": list(net.extra.get("reader_notes", ()))},
                    positions=np.array([[np.nan if p.x is None else p.x, np.nan if p.y is None else p.y]
                                        for p in net.points], dtype=float).reshape(-1, 2))
 

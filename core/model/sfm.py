@@ -280,7 +280,8 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     return Problem(params=params, sets=tuple(sets), l=l, cov=cov, info=info, points=pts, datum=datum,
                    sigma0=1.0, sigma_act="apriori", source=block.source, title=block.title,
                    geometry=sfm_geometry(block), extra={"image_names": {im.id: im.name for im in block.images},
-                          "duplicate_keypoints": block.extra.get("duplicate_keypoints")})
+                          "duplicate_keypoints": block.extra.get("duplicate_keypoints"),
+                          "reader_notes": list(block.extra.get("reader_notes", ()))})
 
 
 def sfm_geometry(block: SfmBlock) -> BlockGeometry:
