@@ -44,7 +44,7 @@ def test_map_view(tmp_path):
     out = _run(["examples/map_view.py", str(target)], tmp_path)
     assert out.returncode == 0, out.stderr
     html = target.read_text(encoding="utf-8")
-    assert "Bokeh" in html and "Redundancy" in html and "demo: 3 × 8 aerial block" in html
+    assert "Bokeh" in html and "Redundancy" in html and "aerial block, RC30" in html   # (the title JSON-escaped)
 
 
 def test_readme_python_session(tmp_path):
