@@ -37,12 +37,16 @@ class DatumDefectError(BaardaError):
     """The normal equations have a rank defect that the datum does not remove.
 
     ``defect`` is the number of missing datum conditions; ``undetermined`` lists the unknowns
-    (e.g. ``"P7.x"`` or orientation names) that the data cannot determine.
+    (e.g. ``"P7.x"`` or orientation names) that the data cannot determine; ``local``: the
+    adjustment found them undetermined by too few observations to them (singular normal
+    equations), not by a datum the block lacks as a whole.
     """
 
-    def __init__(self, defect: int, undetermined: list[str] | None = None, message: str = ""):
+    def __init__(self, defect: int, undetermined: list[str] | None = None, message: str = "",
+                 local: bool = False):
         self.defect = int(defect)
         self.undetermined = list(undetermined or [])
+        self.local = bool(local)
         if not message:
             message = f"datum defect {self.defect}"
             if self.undetermined:
@@ -51,7 +55,7 @@ class DatumDefectError(BaardaError):
         super().__init__(message)
 
     def __reduce__(self):
-        return (type(self), (self.defect, self.undetermined, self.message))
+        return (type(self), (self.defect, self.undetermined, self.message, self.local))
 
 
 class SingularError(BaardaError):

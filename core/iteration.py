@@ -544,7 +544,7 @@ def _defect_error(err, N, labels) -> DatumDefectError:
         len(undetermined) if len(undetermined) < 8 else 1, undetermined,
         "the observations do not determine " + ", ".join(undetermined[:20])
         + (" ..." if len(undetermined) > 20 else "")
-        + " (a local datum defect: too few observations to these unknowns)")
+        + " (a local datum defect: too few observations to these unknowns)", local=True)
 
 
 def diagnose(N, labels, max_dense: int = 6000) -> list[str]:

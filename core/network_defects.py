@@ -120,7 +120,7 @@ def adjust_network(problem: Problem, options=None, progress=None, strict: bool =
 def _set_aside(problem: Problem, err, first, strict: bool) -> Problem:
     """The network's problem without the coordinates ``err`` names (:func:`adjust_network`)."""
     net = problem.extra.get("network_model")
-    if (net is None or strict or "local datum defect" not in err.message
+    if (net is None or strict or not err.local
             or "kept_rows" in problem.extra or len(net.observations) != problem.n):
         raise first from None   # (a subset of the network's problem: not rebuilt from it)
     ids = {p.id for p in net.points}

@@ -116,3 +116,15 @@ def test_not_found_names_the_missing_item():
 def test_errors_pickle_with_their_fields(err):
     back = pickle.loads(pickle.dumps(err))
     assert type(back) is type(err) and str(back) == str(err) and vars(back) == vars(err)
+
+
+def test_datum_defect_error_says_whether_it_is_local():
+    """The network's safety net asks ``err.local`` (typed), not the message's words."""
+    import pickle
+
+    from baarda.errors import DatumDefectError
+
+    err = DatumDefectError(1, ["P7.x"], "the observations do not determine P7.x", local=True)
+    back = pickle.loads(pickle.dumps(err))
+    assert back.local is True and back.undetermined == ["P7.x"] and str(back) == str(err)
+    assert DatumDefectError(3, ["tx", "ty", "tz"]).local is False
