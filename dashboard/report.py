@@ -179,7 +179,8 @@ def _groups_html(state: State) -> str:
         members = np.asarray(g["members"], dtype=np.int64)
         names = sorted({str(obs.at[int(m), "ids"]) for m in members if int(m) in obs.index})
         rows.append(f"<tr><td>{html_text(', '.join(names[:3]) + (' …' if len(names) > 3 else ''))}</td>"
-                    f"<td>{g['dimension']}</td><td>{g['T']:.4g}</td><td>{g['critical']:.4g}</td></tr>")
+                    f"<td class='n'>{g['dimension']}</td><td class='n'>{g['T']:.4g}</td>"
+                    f"<td class='n'>{g['critical']:.4g}</td></tr>")
     more = f" (the 10 largest of {len(groups)})" if len(groups) > 10 else ""
     return (f"<h3>Rejected group tests{more}</h3><table class='t'><tr><th>observations of</th><th>q</th>"
             f"<th>T</th><th>critical</th></tr>{''.join(rows)}</table>")
@@ -225,7 +226,7 @@ figcaption {{ font-weight: 600; font-size: 12px; margin-bottom: 2px; overflow-wr
 .far {{ color: #555; font-size: 11px; }}
 table.t {{ border-collapse: collapse; width: 100%; font-size: 10.5px; }}
 table.t th {{ text-align: left; border-bottom: 1.5px solid #999; padding: 2px 4px; }}
-table.t td {{ border-bottom: 1px solid #e4e4e4; padding: 2px 4px; overflow-wrap: break-word; }}
+table.t td {{ border-bottom: 1px solid #e4e4e4; padding: 2px 4px; overflow-wrap: anywhere; }}
 table.t td.n {{ white-space: nowrap; }}
 td.bad, .bad {{ color: #b2182b; }} td.ok, .ok {{ color: #1a7f37; }}
 .foot {{ color: #666; font-size: 10.5px; margin-top: 8px; }}
