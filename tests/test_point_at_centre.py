@@ -223,7 +223,8 @@ def test_diverged_message_names_the_geometry(tmp_path, capsys):
     for centres, degenerate in ((DEGENERATE, True), (CENTRES, False)):
         model_dir = write_model(tmp_path / str(degenerate), with_point=False, centres=centres)
         args = SimpleNamespace(input=str(model_dir), robust=None, quiet=True)
-        assert cli._diverged(args, read_problem(model_dir), None, adj, "singular") == 4
+        analysis = SimpleNamespace(problem=read_problem(model_dir), adjustment=adj)
+        assert cli._diverged(args, analysis, "singular") == 4
         err = capsys.readouterr().err
         assert ("the block's geometry is degenerate" in err) is degenerate
         assert ("--robust r84" in err) is not degenerate

@@ -68,3 +68,26 @@ def test_client_report_prints_on_three_a4_pages(page, tmp_path, screenshots, nam
     assert 1 <= _pdf_pages(pdf) <= 3, _pdf_pages(pdf)
     (screenshots / f"client-report-{name}.pdf").write_bytes(pdf)
     page.screenshot(path=str(screenshots / f"client-report-{name}.png"), full_page=True)
+
+
+@pytest.mark.browser
+def test_a_long_id_does_not_push_the_tables_off_the_page(page, tmp_path, capsys):
+    """Issue 25, item 7: a 300-character point id wraps inside its cell; the suspects and the
+    rejected-groups tables keep their q, T and critical columns on the page."""
+    import json
+
+    doc = json.loads((DATA / "demo-block.json").read_text())
+    long_id = "P" + "x" * 299
+    text = json.dumps(doc).replace('"P05003"', json.dumps(long_id))
+    src = tmp_path / "long-id.json"
+    src.write_text(text)
+    out = tmp_path / "long-id.html"
+    assert main(["report", str(src), "-o", str(out), "--quiet"]) in (0, 4)
+    page.set_viewport_size({"width": 900, "height": 1200})
+    page.goto(out.as_uri())
+    expect(page.locator("table.t").first).to_be_visible()
+    assert page.get_by_text("Rejected group tests").count() == 1
+    widths = page.evaluate("""() => [...document.querySelectorAll('table.t')].map(t => {
+        const page = t.closest('section').getBoundingClientRect();
+        return [t.getBoundingClientRect().right, page.right]; })""")
+    assert widths and all(right <= limit + 1 for right, limit in widths), widths
