@@ -204,8 +204,8 @@ def main():
 
             def fmt(v, spec):
                 return format(v, spec) if v is not None else "-".rjust(int(spec[1:].split(".")[0].strip(",")))
-            if problem.extra.get("local_defects"):
-                note += f"; baarda left out {len(problem.extra['local_defects'])} local defect(s)"
+            if problem.notes.local_defects:
+                note += f"; baarda left out {len(problem.notes.local_defects)} local defect(s)"
             ratio = t_b / t_c if t_c else None
             rel = abs(cost_b - cost_c) / cost_c if cost_c else None
             print(f"{path.name:<28} {t_b:>8.2f} {adj.iterations:>4} {cost_b:>16,.6f} {fmt(t_c, '>8.2f')} "

@@ -147,7 +147,7 @@ def adjust_with_defects(problem, options: Options, progress=None, strict: bool =
     (:func:`baarda.network_defects.adjust_network`) or a block's
     (:func:`baarda.sfm_defects.adjust_block`). Returns ``(adjustment, problem adjusted)``;
     :class:`~baarda.errors.DatumDefectError` for a defect that is not local (or any, ``strict``)."""
-    if "network_model" in problem.extra:
+    if problem.notes.network_model is not None:
         return adjust_network(problem, options, progress=progress, strict=strict)
     return adjust_block(problem, options, progress=progress, strict=strict)
 
@@ -281,7 +281,7 @@ class Analysis:
     @property
     def local_defects(self) -> list:
         """The local defects set aside (:class:`baarda.defects.LocalDefect`)."""
-        return list(self.problem.extra.get("local_defects", ()))
+        return list(self.problem.notes.local_defects)
 
     def with_policy(self, policy: TestPolicy) -> "Analysis":
         """The same adjustment tested under ``policy``: nothing is adjusted again; what does not
@@ -371,7 +371,7 @@ class Analysis:
         if not isinstance(spec, dict):
             H = np.asarray(spec, dtype=float)
             return {"spec": {"kind": "matrix"}, **analyses.hypothesis_analysis(adj, H, reliability=rel)}
-        if spec["kind"] == "ap-group" and f"{spec['camera']}:{spec['group']}" in self.problem.extra.get("ap_groups", {}):
+        if spec["kind"] == "ap-group" and f"{spec['camera']}:{spec['group']}" in self.problem.notes.ap_groups:
             return {"spec": spec, "ap_test": ap_test(adj, str(spec["camera"]), str(spec["group"]),
                                                      policy=self.policy).as_dict()}
         H = self.matrix(spec)

@@ -23,7 +23,7 @@ def build(model, strict: bool = False):
     """The adjustment problem of a file-level model.
 
     Bundle blocks lose their local defects first (:mod:`baarda.sfm_defects`: points, images,
-    cameras the observations do not determine), listed in ``problem.extra["local_defects"]``;
+    cameras the observations do not determine), listed in ``problem.notes.local_defects``;
     strict: refuse them instead (InputError naming them all).
     """
     if isinstance(model, (SfmBlock, Block)):

@@ -136,11 +136,16 @@ def _add_drop_option(p):
 
 def _warn_dropped(path, model_or_problem, quiet=False):
     """One warning line on stderr listing the observations dropped by --drop-undefined, and
-    one per note of the reader on what it set aside or repaired (``extra["reader_notes"]``)."""
-    extra = getattr(model_or_problem, "extra", {}) or {}
-    for note in extra.get("reader_notes", ()) if not quiet else ():
+    one per note of the reader on what it set aside or repaired (a problem's ``notes``, a model's
+    ``extra``)."""
+    notes = getattr(model_or_problem, "notes", None)
+    if notes is not None:
+        reader_notes, dropped = notes.reader_notes, list(notes.dropped_observations)
+    else:
+        extra = getattr(model_or_problem, "extra", {}) or {}
+        reader_notes, dropped = extra.get("reader_notes", ()), list(extra.get("dropped", []))
+    for note in reader_notes if not quiet else ():
         print(printable(f"baarda: warning: {path}: {note}"), file=sys.stderr)
-    dropped = extra.get("dropped_observations", extra.get("dropped", []))
     if dropped and not quiet:
         ids = sorted({pid for d in dropped for pid in d.get("undefined", ())})
         lines = ", ".join(str(d["line"]) for d in dropped[:20]) + (" ..." if len(dropped) > 20 else "")
@@ -435,7 +440,7 @@ def _diverged(args, analysis, err) -> int:
     error that makes least squares diverge (R84 §6: a large error)."""
     adj = analysis.adjustment
     why = (adj.termination or "not converged").removeprefix("not converged: ")
-    geometry = degenerate_geometry(analysis.problem.extra.get("local_model"))     # the cause, when it is the geometry
+    geometry = degenerate_geometry(analysis.problem.notes.local_model)     # the cause, when it is the geometry
     hint = (f"; {geometry}" if geometry else "" if args.robust else
             f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
     print(printable(f"baarda: {args.input}: NOT converged after {adj.iterations} iterations ({why}) and the normal "
@@ -451,7 +456,8 @@ def _convergence_status(path, adj) -> int:
     if adj.converged:
         return 0
     why = getattr(adj, "termination", "") or "not converged"
-    geometry = degenerate_geometry(getattr(getattr(adj, "problem", None), "extra", {}).get("local_model"))
+    notes = getattr(getattr(adj, "problem", None), "notes", None)
+    geometry = degenerate_geometry(notes.local_model if notes is not None else None)
     print(f"baarda: {printable(str(path))}: NOT converged after {adj.iterations} iterations: "
           f"{why.removeprefix('not converged: ')}{f'; {geometry}' if geometry else ''}", file=sys.stderr)
     return NOT_CONVERGED

@@ -30,7 +30,7 @@ def build_network(net: Network, strict: bool = False) -> Problem:
       position or height).
 
     Each is named as a :class:`baarda.defects.LocalDefect` in
-    ``problem.extra["local_defects"]``; the point is adjusted in the components that are
+    ``problem.notes.local_defects``; the point is adjusted in the components that are
     determined (as gama-local does for points without height information), or left out when
     none is, with the observations that need an undetermined coordinate (their lines are
     named). ``strict`` keeps the former behaviour: an :class:`~baarda.errors.InputError` for a
@@ -46,10 +46,8 @@ def build_network(net: Network, strict: bool = False) -> Problem:
         return build_problem(net)
     net, defects = _set_aside_local_defects(net)
     problem = build_problem(net)
-    problem.extra["network_model"] = net     # for adjust_network's safety net
-    if defects:
-        problem.extra["local_defects"] = list(problem.extra.get("local_defects", ())) + defects
-    return problem
+    # the network kept for adjust_network's safety net
+    return problem.with_notes(network_model=net, local_defects=(*problem.notes.local_defects, *defects))
 
 
 #: what the observations that need heights are called in the note of set_aside_heightless
@@ -119,9 +117,9 @@ def adjust_network(problem: Problem, options=None, progress=None, strict: bool =
 
 def _set_aside(problem: Problem, err, first, strict: bool) -> Problem:
     """The network's problem without the coordinates ``err`` names (:func:`adjust_network`)."""
-    net = problem.extra.get("network_model")
+    net = problem.notes.network_model
     if (net is None or strict or not err.local
-            or "kept_rows" in problem.extra or len(net.observations) != problem.n):
+            or problem.notes.kept_rows is not None or len(net.observations) != problem.n):
         raise first from None   # (a subset of the network's problem: not rebuilt from it)
     ids = {p.id for p in net.points}
     named: dict[str, set] = {}
@@ -155,10 +153,9 @@ def _set_aside(problem: Problem, err, first, strict: bool) -> Problem:
         found.append(LocalDefect("point", p.id, tuple(a for a in "xyz" if a in named[p.id]),
                                  "the adjustment finds it undetermined (singular normal "
                                  "equations: too few observations to it)", action))
-    old = list(problem.extra.get("local_defects", ()))
+    old = problem.notes.local_defects
     problem = build_network(_keep_observations(replace(net, points=tuple(points)), keep))
-    problem.extra["local_defects"] = old + found + list(problem.extra.get("local_defects", ()))
-    return problem
+    return problem.with_notes(local_defects=(*old, *found, *problem.notes.local_defects))
 
 
 def _set_aside_local_defects(net: Network):

@@ -631,17 +631,15 @@ def strict_error(model, defects) -> InputError:
 def build(model, strict: bool = False):
     """The adjustment problem of a block without its local defects.
 
-    ``problem.extra["local_defects"]`` lists them (:class:`baarda.defects.LocalDefect`),
-    ``problem.extra["local_model"]`` holds the reduced block :func:`adjust_block` reduces further
+    ``problem.notes.local_defects`` lists them (:class:`baarda.defects.LocalDefect`),
+    ``problem.notes.local_model`` holds the reduced block :func:`adjust_block` reduces further
     if needed. strict: raise :class:`baarda.errors.InputError` naming all defects instead.
     """
     reduced, defects = find_defects(model)
     if defects and strict:
         raise strict_error(model, defects)
     problem = build_sfm_problem(reduced) if isinstance(reduced, SfmBlock) else build_block_problem(reduced)
-    problem.extra["local_defects"] = list(problem.extra.get("local_defects", [])) + defects
-    problem.extra["local_model"] = reduced
-    return problem
+    return problem.with_notes(local_defects=(*problem.notes.local_defects, *defects), local_model=reduced)
 
 
 def _entities(labels, model):
@@ -707,11 +705,10 @@ def _hold_intrinsics(model, problem, cameras):
                                      "the observations do not determine its intrinsics "
                                      "(singular normal equations with them estimated)",
                                      "intrinsics of all cameras held at the file's values"))
-    old = list(problem.extra.get("local_defects", []))
+    old = problem.notes.local_defects
     reduced, more = find_defects(held)
     problem = build(reduced)
-    problem.extra["local_defects"] = old + found + more
-    return reduced, problem
+    return reduced, problem.with_notes(local_defects=(*old, *found, *more))
 
 
 def adjust_block(problem, options=None, progress=None, strict: bool = False):
@@ -730,7 +727,7 @@ def adjust_block(problem, options=None, progress=None, strict: bool = False):
 def _set_aside(problem, err, first, strict: bool):
     """The block's problem without the points, images or cameras ``err`` names, or with the
     intrinsics held (:func:`adjust_block`)."""
-    model = problem.extra.get("local_model")
+    model = problem.notes.local_model
     if model is None or strict:
         raise err
     named = _entities(err.undetermined, model)
@@ -753,7 +750,5 @@ def _set_aside(problem, err, first, strict: bool):
                                      "left out" if kind != "camera" else "left out with its images"))
     reduced = remove(model, named["point"], named["image"], named["camera"])
     reduced, more = find_defects(reduced)
-    old = list(problem.extra.get("local_defects", []))
-    problem = build(reduced)
-    problem.extra["local_defects"] = old + found + more
-    return problem
+    old = problem.notes.local_defects
+    return build(reduced).with_notes(local_defects=(*old, *found, *more))

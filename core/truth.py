@@ -34,7 +34,7 @@ def compare(adj, truth: dict, reliability=None) -> list[dict]:
     snooping rejects one of them, and T/critical/decision of the matching hypothesis, under
     ``reliability``'s policy (default the adjustment's own)."""
     rel = adj.reliability if reliability is None else reliability
-    kept = adj.problem.extra.get("kept_rows")
+    kept = adj.problem.notes.kept_rows
     out = []
     for k, e in enumerate(truth.get("errors", [])):
         rows = np.asarray(e.get("rows", []), dtype=np.int64)

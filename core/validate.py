@@ -82,7 +82,7 @@ def check_numeric_range(problem, path, control=None) -> None:
     n = l.size
     n_free = int(np.count_nonzero(~np.asarray(problem.params.fixed, dtype=bool)))
     if n == 0 or n_free == 0:
-        left = len(problem.extra.get("local_defects", ()) or ())
+        left = len(problem.notes.local_defects)
         raise InputError(path, 0, f"nothing to adjust: {n} observations for {n_free} "
                          f"unknowns" + (f" after leaving out {left} undetermined points, images or "
                                         f"cameras" if left else ""))

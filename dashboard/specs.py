@@ -11,7 +11,7 @@ A specification is a plain dict, ``{"kind": ..., "active": bool, "label": str, .
   common to the image coordinates of point p in the images listed (F80 §2.2, H = (0 … I₂ … I₂ … 0)ᵀ);
 - ``{"kind": "ap-group", "camera": c, "group": g}`` — a group of additional parameters of a
   block's camera: tested by :func:`baarda.stats.ap_tests.ap_test` when the group is estimated
-  (``extra["ap_groups"]``), otherwise as the hypothesis H = ∂f/∂s of
+  (``problem.notes.ap_groups``), otherwise as the hypothesis H = ∂f/∂s of
   :func:`baarda.stats.hypotheses.h_ap_group` (F80 §7.2).
 
 Observation indices are those of the full problem as read; ``kept`` maps each observation of the
@@ -42,7 +42,7 @@ def rows(problem, spec: dict, index: dict) -> list[np.ndarray]:
 
 def ap_estimated(problem, spec: dict) -> bool:
     """True if the AP group of an ``ap-group`` hypothesis is estimated in the model."""
-    return f"{spec['camera']}:{spec['group']}" in problem.extra.get("ap_groups", {})
+    return f"{spec['camera']}:{spec['group']}" in problem.notes.ap_groups
 
 
 def matrix(problem, adj, kept, spec: dict, index: dict):

@@ -89,7 +89,7 @@ def test_six_digit_rotations_and_duplicate_keys_adjust_as_ceres(tmp_path):
         assert np.abs(R.T @ R - np.eye(3)).max() < 1e-14
         assert np.abs(R - printed[int(im.id)]).max() < 3e-6        # the nearest rotation: close
     problem = build(block)
-    assert not problem.extra.get("local_defects")
+    assert not problem.notes.local_defects
     adj = adjust(problem)
     assert adj.converged
     _, cost, _, n, _ = ceres(block)

@@ -51,7 +51,7 @@ def test_zenith_angles_of_a_2d_network_are_set_aside_as_gama_local_does(tmp_path
     path = tmp_path / "z2d.gkf"
     path.write_text(with_zenith_angles(SOURCE.read_text()))
     problem = read_problem(path)
-    note = problem.extra["reader_notes"][0]
+    note = problem.notes.reader_notes[0]
     assert note.startswith("98 zenith angles set aside, as gama-local does")
     adj = adjust(problem)
     ref = read_gama_result(SOURCE.with_suffix(".xml"))
@@ -106,7 +106,7 @@ def test_heights_that_can_be_computed_keep_their_zenith_angles(tmp_path):
     problem = read_problem(path)
     kinds = list(problem.info.kind)
     assert kinds.count("zenith-angle") == 2
-    assert problem.extra["reader_notes"] == ["1 zenith angle set aside, as gama-local does: they need heights that "
+    assert list(problem.notes.reader_notes) == ["1 zenith angle set aside, as gama-local does: they need heights that "
                                              "point(s) D do not have (no z, not adjusted in z); the network is "
                                              "adjusted from its other observations (line(s) 11)"]
 

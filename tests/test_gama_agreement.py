@@ -122,7 +122,7 @@ def test_dropped_observations_are_findings(path, cache):
     exceeds tol-abs are rejected by the w-test; a direction set of one direction has r = 0
     (uncontrolled). Observations to undefined points are an error unless asked to drop them."""
     problem, adj, ref, pairs, dropped, full = _get(cache, path)
-    tol_abs = full.problem.extra["tol_abs"]
+    tol_abs = full.problem.notes.tol_abs
     info = full.problem.info
     for i in dropped:
         if abs(full.v[i]) > tol_abs:

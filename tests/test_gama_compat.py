@@ -291,7 +291,7 @@ def test_traverse_without_heights_is_adjusted_in_xy(tmp_path, capsys):
     traverse, whose result gama-local gives."""
     f = _knin3d(tmp_path)
     p3 = read_problem(f)
-    defects = p3.extra["local_defects"]
+    defects = p3.notes.local_defects
     assert [(d.id, d.components) for d in defects] == [(i, ("z",)) for i in ("4261", "4262", "4263")]
     assert all(d.action == "adjusted in x, y" and "height" in d.reason for d in defects)
     a3 = adjust(p3)
@@ -329,7 +329,7 @@ def test_undetermined_points_are_left_out_and_the_rest_analysed(tmp_path, capsys
                           '<direction to="4261" val="0.0000"/>\n</obs>\n')
     line = next(k for k, s in enumerate(f.read_text().splitlines(), 1) if 'to="X9"' in s)
     p = read_problem(f)
-    d = {x.id: x for x in p.extra["local_defects"]}
+    d = {x.id: x for x in p.notes.local_defects}
     assert set(d) == {"4261", "4262", "4263", "X9", "Y9"}
     assert d["X9"].components == ("x", "y") and d["X9"].action.startswith("left out")
     assert f"line(s) {line}" in d["X9"].action
@@ -368,7 +368,7 @@ def test_railway_survey_without_approximate_xy(capsys):
     net = read_model(base / "railway-survey.gkf")
     t_approx = time.perf_counter() - t0
     p_without = read_problem(base / "railway-survey.gkf")
-    assert not p_without.extra.get("local_defects")
+    assert not p_without.notes.local_defects
     assert t_approx < 10.0 + 3 * t_with, (t_approx, t_with)
     assert sum(p.x is None for p in net.points) == 0
     a1, a2 = adjust(p_with), adjust(p_without)
@@ -405,7 +405,7 @@ def test_adjustment_safety_net_for_points_a_single_direction_leaves_open(tmp_pat
     with pytest.raises(DatumDefectError):
         adjust_network(p, strict=True)
     a, p2 = adjust_network(p)
-    d = {x.id: x for x in p2.extra["local_defects"]}
+    d = {x.id: x for x in p2.notes.local_defects}
     assert set(d) == {"4261", "4262", "4263", "X8"}
     assert d["X8"].components == ("x", "y") and f"line(s) {line}" in d["X8"].action
     ref = adjust(read_problem(GAMA / KNIN))

@@ -203,7 +203,7 @@ def test_collinear_points_and_the_safety_net(balbianello, monkeypatch):
     monkeypatch.setattr(sd, "POSE_TOL", -1.0)          # counting alone cannot see it
     assert find_defects(blk)[1] == []
     adj, used = adjust_block(build(blk))
-    named = {(d.entity, d.id) for d in used.extra["local_defects"]}
+    named = {(d.entity, d.id) for d in used.notes.local_defects}
     assert ("image", "lone") in named
     assert not any(e == "point" for e, _ in named)
     reference = adjust(build_sfm_problem(ref))
@@ -379,7 +379,7 @@ def test_undetermined_intrinsics_are_held_and_the_rest_adjusted(where, tmp_path,
     model = read_model(path)
     assert find_defects(model)[1] == []
     adj, problem = adjust_block(build(model), Options())
-    named = problem.extra["local_defects"]
+    named = problem.notes.local_defects
     assert {(d.entity, d.id) for d in named} == {("camera", "0"), ("camera", "1"), ("camera", "2")}
     assert all(d.components == ("f", "k1", "k2") for d in named)
     ref = adjust(build(read_model(path, refine_intrinsics=False)), Options())

@@ -116,7 +116,7 @@ def test_point_at_a_projection_centre_is_left_out_alone(tmp_path, kind):
     assert reduced.obs_image.size == block.obs_image.size - 6
     adj, used = adjust_block(read_problem(model_dir))
     assert adj.converged
-    assert [(d.entity, d.id) for d in used.extra["local_defects"]] == [("point", str(AT_CENTRE))]
+    assert [(d.entity, d.id) for d in used.notes.local_defects] == [("point", str(AT_CENTRE))]
     reference = _as(kind, write_model(tmp_path / "ref", with_point=False))
     assert 0.5 * adj.vPv == pytest.approx(ceres_cost(reference), rel=1e-9)
     # the same as baarda on the model without the point

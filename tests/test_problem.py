@@ -99,3 +99,23 @@ def test_problem_subset_is_the_rows_of_the_full_problem(net):
     C = pr.cov.matrix().toarray()
     np.testing.assert_array_equal(sub.cov.matrix().toarray(), C[np.ix_(keep, keep)])
     np.testing.assert_array_equal(np.asarray(sub.info.line), np.asarray(pr.info.line)[keep])
+
+
+def test_problem_notes_are_typed_and_never_changed_in_place():
+    """Issue 24: a Problem carries typed, immutable notes (no ``extra`` dict read by key in
+    twenty files); ``with_notes`` makes a new problem and leaves the old one as it was."""
+    import dataclasses
+
+    from baarda.defects import LocalDefect
+    from baarda.model.problem import Problem, ProblemNotes
+    from tests.networks import levelling_loop, problem as network_problem
+
+    assert "extra" not in {f.name for f in dataclasses.fields(Problem)}
+    problem = network_problem(levelling_loop())
+    defect = LocalDefect("point", "X", ("z",), "no height difference to it")
+    marked = problem.with_notes(local_defects=(defect,))
+    assert marked.notes.local_defects == (defect,) and problem.notes.local_defects == ()
+    assert marked.l is problem.l and marked.sets is problem.sets        # nothing else copied
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        marked.notes.local_defects = ()                                 # type: ignore[misc]
+    assert isinstance(ProblemNotes().ap_groups, dict)

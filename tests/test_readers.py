@@ -288,7 +288,7 @@ def test_colmap_refine_intrinsics_keeps_principal_point(tmp_path):
     free = {lab for lab in np.asarray(p.params.labels)[p.params.free] if lab.startswith("camera ")}
     assert free == {"camera 1.f", "camera 1.k"}
     assert np.allclose(p.cov.sigma(), 0.5)
-    assert p.extra["image_names"]["1"].endswith(".png")
+    assert p.notes.image_names["1"].endswith(".png")
 
 
 # --------------------------------------------------------------------------------------------

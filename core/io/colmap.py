@@ -28,7 +28,7 @@ SIMPLE_DIVISION, DIVISION, SIMPLE_FISHEYE, FISHEYE, EUCM (EQUIRECTANGULAR, not a
 perspective camera, is refused, naming the camera). Intrinsics are held fixed unless ``refine_intrinsics``; then, like
 COLMAP's bundle adjuster, the focal lengths and the distortion parameters of the first five
 models are estimated and the principal point stays fixed. Ids in the output are COLMAP's
-IMAGE_ID, POINT3D_ID and CAMERA_ID; the image names are kept in ``Problem.extra["image_names"]``.
+IMAGE_ID, POINT3D_ID and CAMERA_ID; the image names are kept in ``Problem.notes.image_names``.
 """
 
 from __future__ import annotations

@@ -67,7 +67,7 @@ def summary(adj, reliability=None) -> dict:
         "timings": {k: round(float(v), 6) for k, v in adj.timings.items()},
         "far_points": far_point_ids(adj),
         "local_defects": local_defects(p),
-        "dropped_observations": list(p.extra.get("dropped_observations", ())),
+        "dropped_observations": list(p.notes.dropped_observations),
         **duplicate_keypoints(p),
     }
 
@@ -76,15 +76,15 @@ def duplicate_keypoints(problem) -> dict:
     """``{"duplicate_keypoints": {"points": …, "observations": …}}`` for a COLMAP block in which
     some 3D points are observed by several keypoints of one image (each its own observation;
     ``observations`` counts those beyond the first per image and point), else {}."""
-    d = problem.extra.get("duplicate_keypoints")
+    d = problem.notes.duplicate_keypoints
     return {"duplicate_keypoints": dict(d)} if d and d.get("observations") else {}
 
 
 def local_defects(problem) -> list[dict]:
     """The local defects found before the adjustment (:class:`baarda.defects.LocalDefect`,
-    kept in ``problem.extra["local_defects"]`` by networks and blocks alike): points, images,
+    kept in ``problem.notes.local_defects`` by networks and blocks alike): points, images,
     cameras or coordinates the observations do not determine, left out or partly adjusted."""
-    return [d.as_dict() for d in problem.extra.get("local_defects", ())]
+    return [d.as_dict() for d in problem.notes.local_defects]
 
 
 def far_point_ids(adj) -> list[str]:
@@ -202,7 +202,7 @@ def to_dict(adj, reliability=None) -> dict:
     rel = adj.reliability if reliability is None else reliability
     doc = {"schema": f"baarda-analysis/{SCHEMA_VERSION}", "summary": summary(adj, rel),
            "observations": observations(adj, rel), "points": points(adj), "groups": groups(adj, rel)}
-    if adj.problem.extra.get("ap_groups"):
+    if adj.problem.notes.ap_groups:
         doc["ap_tests"] = finite(ap_tests(adj, rel.policy))
     return doc
 
@@ -326,7 +326,7 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
         lines.append(f"  {len(far)} point(s) near infinity (depth hardly determined, not in the default "
                      f"S-base): {', '.join(far[:10])}{' ...' if len(far) > 10 else ''}")
     if s["local_defects"]:
-        defects = adj.problem.extra["local_defects"]
+        defects = adj.problem.notes.local_defects
         lines.append(f"  {len(defects)} local defect(s): not determined by the observations "
                      f"(--strict makes them an error):")
         for d in defects[:50]:
@@ -360,7 +360,7 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
     for i in np.argsort(-ext)[:top]:
         lines.append(f"    {label(i):<48s} δ̄0 = {_unbounded(rel.external[i], '.3f')}  λ̄ = "
                      f"{_unbounded(rel.external[i] ** 2, '.3g')}  r = {number(adj.r[i], '.3f')}")
-    for a in (ap_tests(adj, rel.policy) if adj.problem.extra.get("ap_groups") else []):
+    for a in (ap_tests(adj, rel.policy) if adj.problem.notes.ap_groups else []):
         lines.append(f"  additional parameters {a['group']} of camera {a['camera']} (F80 §7.2-7.3): T = "
                      f"{number(a['T'], '.3f')} (crit {number(a['critical'], '.2f')}, q = {a['q']}) → "
                      f"{'SIGNIFICANT' if a['significant'] else 'not significant'};  δ0′max = "

@@ -36,7 +36,7 @@ from ..observations.geodetic import LinearSet
 from ..observations.collinearity import AP_GROUPS, EO_NAMES, CollinearitySet
 from ..observations.rotation import R_opk
 from .geometry import BlockGeometry, CameraGeometry, ImageGeometry
-from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem, image_point_index
+from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem, ProblemNotes, image_point_index
 
 POINT_STATUS = ("tie", "control", "check")
 
@@ -180,7 +180,7 @@ def build_block_problem(block: Block) -> Problem:
     Layout of parameters and observations, datum and units: see the module docstring.
     ``Problem.geometry`` holds the images with strip, EO and ground footprint at the mean
     terrain height, the cameras, image size and flying height (:func:`block_geometry`);
-    ``Problem.extra["ap_groups"]`` maps "camera:group" to the AP parameters' labels.
+    ``Problem.notes.ap_groups`` maps "camera:group" to the AP parameters' labels.
     """
     cams = {c.id: c for c in block.cameras}
     pl = ParameterList()
@@ -282,7 +282,7 @@ def build_block_problem(block: Block) -> Problem:
     return Problem(params=params, sets=tuple(sets), l=np.concatenate(l) if l else np.zeros(0),
                    cov=cov, info=info, points=pts, datum=datum, sigma0=block.sigma0,
                    sigma_act="apriori", source=block.source, title=block.title,
-                   geometry=block_geometry(block), extra={"ap_groups": ap_groups})
+                   geometry=block_geometry(block), notes=ProblemNotes(ap_groups=ap_groups))
 
 
 def block_geometry(block: Block) -> BlockGeometry:

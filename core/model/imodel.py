@@ -34,7 +34,7 @@ import numpy as np
 
 from ..datum import Datum
 from ..observations.geodetic import LinearSet
-from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem
+from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem, ProblemNotes
 
 SIM_NAMES = ("a", "b", "c", "d")
 
@@ -195,4 +195,4 @@ def build_imodel_problem(block: IModelBlock) -> Problem:
                            for j, mo in enumerate(block.models)], "unit": block.unit}
     return Problem(params=params, sets=tuple(sets), l=np.concatenate(l), cov=cov, info=info, points=pts,
                    datum=datum, sigma0=block.sigma0, sigma_act="apriori", source=block.source,
-                   title=block.title, extra={"imodel": geometry})
+                   title=block.title, notes=ProblemNotes(imodel=geometry))

@@ -12,7 +12,7 @@ from ..datum import Datum
 from ..errors import InputError
 from ..observations.geodetic import LinearSet, PlanarSet, SpatialSet
 from .network import Network
-from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem
+from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem, ProblemNotes
 
 AXES = "xyz"
 NEEDS = {
@@ -144,9 +144,9 @@ def build_problem(net: Network, jacobian_at_marks: bool = False) -> Problem:
                    datum=datum, sigma0=net.sigma0, sigma_act=net.sigma_act, conf_pr=net.conf_pr,
                    source=net.source, title=net.description.strip().splitlines()[0] if net.description.strip() else "",
                    axes_xy=net.axes_xy,
-                   extra={"tol_abs": net.tol_abs, "angles": net.angles,
-                          "dropped_observations": [dict(d) for d in net.extra.get("dropped", ())],
-                          "reader_notes": list(net.extra.get("reader_notes", ()))},
+                   notes=ProblemNotes(tol_abs=net.tol_abs, angles=net.angles,
+                                      dropped_observations=tuple(dict(d) for d in net.extra.get("dropped", ())),
+                                      reader_notes=tuple(net.extra.get("reader_notes", ()))),
                    positions=np.array([[np.nan if p.x is None else p.x, np.nan if p.y is None else p.y]
                                        for p in net.points], dtype=float).reshape(-1, 2))
 

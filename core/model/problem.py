@@ -588,6 +588,38 @@ class PointInfo:
 
 
 @dataclass(frozen=True, eq=False)
+class ProblemNotes:
+    """What a problem carries beyond its equations: where it came from and what was done to it
+    on the way (typed, immutable; :meth:`Problem.with_notes` makes a problem with other notes).
+
+    local_defects: the :class:`baarda.defects.LocalDefect` set aside (networks and blocks);
+    local_model: the block model the local-defect analysis reduces further (:mod:`baarda.sfm_defects`);
+    network_model: the :class:`~baarda.model.network.Network` a network's problem was built from
+    (:mod:`baarda.network_defects`); kept_rows: for a subset (:func:`subset`), the rows of the
+    problem it was taken from; ap_groups: "camera:group" → labels of the additional parameters a
+    bundle block estimates; image_names: image id → file name (SfM blocks); duplicate_keypoints:
+    COLMAP/Bundler points observed by several keypoints of one image (``{"points", "observations"}``);
+    dropped_observations: Gama observations to undefined points dropped (``--drop-undefined``);
+    reader_notes: lines of the reader on what it set aside or repaired; tol_abs, angles: a Gama
+    network's ``tol-abs`` (mm) and angular unit (400 gon, 360 degrees); imodel: an
+    independent-model block's geometry.
+    """
+
+    local_defects: tuple = ()
+    local_model: object = None
+    network_model: object = None
+    kept_rows: np.ndarray | None = None
+    ap_groups: dict = field(default_factory=dict)
+    image_names: dict = field(default_factory=dict)
+    duplicate_keypoints: dict | None = None
+    dropped_observations: tuple = ()
+    reader_notes: tuple = ()
+    tol_abs: float | None = None
+    angles: object = None
+    imodel: object = None
+
+
+@dataclass(frozen=True, eq=False)
 class Problem:
     """An adjustment problem (see the module docstring)."""
 
@@ -603,7 +635,7 @@ class Problem:
     conf_pr: float = 0.95
     source: str = ""
     title: str = ""
-    extra: dict = field(default_factory=dict)
+    notes: ProblemNotes = field(default_factory=ProblemNotes)
     geometry: BlockGeometry | None = None     # a photogrammetric block's images and cameras
     axes_xy: str | None = None                # a geodetic network's axes (Gama's axes-xy, "ne": x north)
     #: a geodetic network's planimetric positions as the file gives them (points × 2, metres, NaN
@@ -613,6 +645,10 @@ class Problem:
     @property
     def n(self) -> int:
         return self.l.size
+
+    def with_notes(self, **changes) -> "Problem":
+        """This problem with ``changes`` to its :class:`ProblemNotes` (nothing else copied)."""
+        return dataclasses.replace(self, notes=dataclasses.replace(self.notes, **changes))
 
     @property
     def convention(self) -> str | None:
@@ -728,10 +764,9 @@ def subset(problem: Problem, keep, observed: np.ndarray | None = None) -> Proble
     orphan = (params.kind == "t") & ~params.fixed & ~observed
     if orphan.any():
         params = dataclasses.replace(params, fixed=params.fixed | orphan)
-    extra = dict(problem.extra)
-    extra["kept_rows"] = idx if "kept_rows" not in problem.extra else problem.extra["kept_rows"][idx]
+    kept = idx if problem.notes.kept_rows is None else problem.notes.kept_rows[idx]
     return dataclasses.replace(problem, params=params, sets=sets, l=problem.l[idx], cov=problem.cov.subset(idx),
-                               info=info2, extra=extra)
+                               info=info2, notes=dataclasses.replace(problem.notes, kept_rows=kept))
 
 
 def without(problem: Problem, excluded) -> tuple[Problem, np.ndarray]:

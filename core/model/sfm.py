@@ -51,7 +51,7 @@ from ..observations.rotation import R_from_rodrigues, opk_from_R
 from .bundle import Block, Camera, Image, ImageObservations, ObjectPoint
 from .geometry import BlockGeometry, CameraGeometry, ImageGeometry
 from .problem import (Categorical, Covariance, JoinedLabels, ObservationInfo, ParameterList, Parameters, PointInfo,
-                      Problem, RecordIds)
+                      Problem, ProblemNotes, RecordIds)
 
 
 # model name → (parameter names in file order, the parameter feeding each of INTRINSICS or None)
@@ -167,7 +167,7 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
 
     Layout, datum and units: see the module docstring. ``Problem.geometry`` holds the images
     with their projection centres X0, Y0, Z0 (no footprints) and the cameras
-    (:func:`sfm_geometry`); ``extra["image_names"]`` maps image ids to file names.
+    (:func:`sfm_geometry`); ``problem.notes.image_names`` maps image ids to file names.
     """
     # parameters: the (few) image and camera parameters one by one, the points as arrays
     pl = ParameterList()
@@ -279,9 +279,10 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     datum = Datum("fixed") if block.control else Datum("free", ())
     return Problem(params=params, sets=tuple(sets), l=l, cov=cov, info=info, points=pts, datum=datum,
                    sigma0=1.0, sigma_act="apriori", source=block.source, title=block.title,
-                   geometry=sfm_geometry(block), extra={"image_names": {im.id: im.name for im in block.images},
-                          "duplicate_keypoints": block.extra.get("duplicate_keypoints"),
-                          "reader_notes": list(block.extra.get("reader_notes", ()))})
+                   geometry=sfm_geometry(block),
+                   notes=ProblemNotes(image_names={im.id: im.name for im in block.images},
+                                      duplicate_keypoints=block.extra.get("duplicate_keypoints"),
+                                      reader_notes=tuple(block.extra.get("reader_notes", ()))))
 
 
 def sfm_geometry(block: SfmBlock) -> BlockGeometry:

@@ -62,10 +62,10 @@ class APTest:
 
 
 def ap_tests(adj, policy=None) -> list[dict]:
-    """:func:`ap_test` of every AP group the model estimates (``extra["ap_groups"]``), each as
+    """:func:`ap_test` of every AP group the model estimates (``problem.notes.ap_groups``), each as
     :meth:`APTest.as_dict` with its ``camera`` and ``group`` (F80 §7.2-7.3)."""
     out = []
-    for key in adj.problem.extra.get("ap_groups", {}):
+    for key in adj.problem.notes.ap_groups:
         camera, _, group = key.rpartition(":")
         out.append({"camera": camera, "group": group, **ap_test(adj, camera, group, policy=policy).as_dict()})
     return out
@@ -83,7 +83,7 @@ def ap_test(adj, camera: str, group: str, policy=None) -> APTest:
     """
     policy = adj.policy if policy is None else policy
     problem = adj.problem
-    labels = problem.extra["ap_groups"][f"{camera}:{group}"]
+    labels = problem.notes.ap_groups[f"{camera}:{group}"]
     # the group's parameters found by one pass over the labels (no array of every label)
     all_labels, want = problem.params.labels, set(labels)
     where = {all_labels[j]: j for j in range(len(all_labels)) if all_labels[j] in want}

@@ -154,8 +154,8 @@ class HypothesisPanel(pn.viewable.Viewer):
         return {int(k): int(i) for k, i in zip(groups[keep][order], first[keep][order])}
 
     def _ap_options(self) -> dict:
-        """AP groups: the estimated ones (``extra["ap_groups"]``) first, then the others."""
-        est = self.state.problem.extra.get("ap_groups", {})
+        """AP groups: the estimated ones (``problem.notes.ap_groups``) first, then the others."""
+        est = self.state.problem.notes.ap_groups
         out = {}
         for g in AP_GROUPS:
             if f"{self.camera.value}:{g}" in est:
