@@ -210,3 +210,23 @@ def test_gross_control_error_ends_with_a_status_and_one_line(tmp_path):
     assert "Traceback" not in res.stderr
     if res.returncode == 4:
         assert len(res.stderr.strip().splitlines()) == 1 and "NOT converged" in res.stderr
+
+
+def test_the_command_line_limits_blas_threads(monkeypatch, capsys):
+    """The CLI (and the server it starts) runs BLAS on BAARDA_BLAS_THREADS threads, default 1;
+    a bad value is a one-line usage error."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    with threadpool_limits(limits=2, user_api="blas"):          # restored after the test
+        monkeypatch.delenv("BAARDA_BLAS_THREADS", raising=False)
+        assert main(["risk", "--p", "0.1"]) == 0
+        blas = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+        assert blas and set(blas) == {1}
+        monkeypatch.setenv("BAARDA_BLAS_THREADS", "2")
+        assert main(["risk", "--p", "0.1"]) == 0
+        assert {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"} == {2}
+        monkeypatch.setenv("BAARDA_BLAS_THREADS", "many")
+        capsys.readouterr()
+        assert main(["risk", "--p", "0.1"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "BAARDA_BLAS_THREADS" in err[0]
