@@ -53,10 +53,15 @@ def _add_test_options(p):
                    help="power β0 at which minimal detectable biases are computed, default 0.80")
     p.add_argument("--b-method", action="store_true",
                    help="Baarda's B-method: multi-dimensional tests get the δ0 and β0 of the 1D test")
-    p.add_argument("--global-test", choices=["one-sided", "two-sided"], default="one-sided",
-                   help="the global test of vᵀPv = Ω/σ0²: one-sided at the B-method's α_r, the λ0 and β0 of "
-                        "the 1D test (F80 §4.1, §7.2; default), or gama-local's two-sided interval at the "
-                        "file's conf-pr (default 0.95)")
+    p.add_argument("--global-test", choices=["one-sided", "two-sided", "b-method"], default="one-sided",
+                   help="the global test of vᵀPv = Ω/σ0² ~ χ²(r) (F80 §4.1): one-sided (default), rejected when "
+                        "σ0 a priori lies below the conf-pr confidence interval of σ̂0, size (1 − conf-pr)/2 = "
+                        "2.5 %% at 0.95, for any redundancy; two-sided, gama-local's interval at conf-pr; or "
+                        "b-method, one-sided at the B-method's α_r (the λ0 and β0 of the 1D test, F80 §7.2; "
+                        "α_r exceeds 50 %% once r ≳ 200)")
+    p.add_argument("--conf-pr", type=float, default=None, metavar="P",
+                   help="confidence level of the global test and of σ̂0's interval (default: the file's "
+                        "conf-pr, else 0.95)")
     p.add_argument("--statistic", choices=["w", "tau"], default=None,
                    help="the statistic that flags observations and that --snoop removes by: Baarda's w "
                         "(σ0 a priori) or Pope's τ (σ0 a posteriori); default: τ where the file asks for "
@@ -71,7 +76,7 @@ def _options(args, problem) -> Options:
     else:
         sigma0 = "aposteriori" if args.statistic == "tau" else "apriori"
     return Options(alpha0=args.alpha, beta0=args.beta, b_method=args.b_method, max_iter=args.max_iter,
-                   sigma0=sigma0, global_test=args.global_test)
+                   sigma0=sigma0, global_test=args.global_test, conf_pr=args.conf_pr)
 
 
 def _add_iteration_option(p):
@@ -792,10 +797,10 @@ def cmd_serve(args) -> int:
 def main(argv=None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    for name in ("alpha", "beta"):
+    for name in ("alpha", "beta", "conf_pr"):
         val = getattr(args, name, None)
         if val is not None and not 0 < val < 1:
-            ap.error(f"--{name} must lie between 0 and 1 (got {val})")
+            ap.error(f"--{name.replace('_', '-')} must lie between 0 and 1 (got {val})")
     sigma_px = getattr(args, "sigma_px", None)
     if sigma_px is not None and not (0 < sigma_px < float("inf")):
         ap.error(f"--sigma-px must be a positive number (got {sigma_px})")
