@@ -320,9 +320,8 @@ def cluster_tests(adj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         W = 0.5 * (W + np.swapaxes(W, 1, 2))
         lam, V = np.linalg.eigh(W)
         tol = 1e-10 * np.maximum(np.abs(np.diagonal(Pc, axis1=1, axis2=2)).max(axis=1), 1e-300)
-        pos = lam > tol[:, None]
-        g = np.einsum("kji,kj->ki", V, Pv[members])
-        T.append(np.where(pos, g * g / np.where(pos, lam, 1.0), 0.0).sum(axis=1))
+        pos, Tj = hypotheses.counted_directions(lam, V, Pv[members], tol, adj.vPv)   # q = rank W_s
+        T.append(Tj.sum(axis=1))
         q.append(pos.sum(axis=1))
         first.append(members[:, 0])
         Wd = np.diagonal(W, axis1=1, axis2=2)
