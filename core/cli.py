@@ -721,6 +721,10 @@ def cmd_convert(args) -> int:
     return 0
 
 
+#: keys of a --error spec that name things by id: kept as text, as the reader keeps ids
+_ID_KEYS = ("point", "image", "strip")
+
+
 def _parse_error(spec: str) -> dict:
     parts = spec.split(":")
     d = {"kind": parts[0]}
@@ -728,6 +732,9 @@ def _parse_error(spec: str) -> dict:
         d["size"] = float(parts[1])
     for kv in parts[2:]:
         k, _, v = kv.partition("=")
+        if k in _ID_KEYS:
+            d[k] = v
+            continue
         try:
             d[k] = int(v)
         except ValueError:

@@ -327,7 +327,7 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
     for i in np.argsort(-w)[:top]:
         flag = "  REJECTED" if rel.rejected[i] else ""
         wi = (f"{number(adj.w[i], '+8.3f'):>8s}" if np.isfinite(adj.w[i])
-              else f"{'—':>8s}  ({'r = 0, ' if not adj.r[i] > 1e-12 else ''}not testable)")
+              else f"{'—':>8s}  ((P C_vv P)_ii = 0: not testable)")       # the criterion of uncontrolled
         lines.append(f"    {label(i):<48s} w = {wi}  r = {number(adj.r[i], '.3f')}{flag}")
     lines.append("  weakest redundancy numbers:")
     for i in np.argsort(adj.r)[:top]:
