@@ -527,7 +527,7 @@ def _analyze(args) -> int:
             _print_robust(rob)
         if vc is not None:
             print(f"  variance components (F80 eq. 9, {vc.iterations} iterations"
-                  f"{'' if vc.converged else ', NOT converged'}):")
+                  f"{f', factors within {vc.tolerance:g} of the fixed point' if vc.converged else ', NOT converged'}):")
             for d in vc.as_dict():
                 print(f"    {d['group']:<20s} σ̂²/σ² = {number(d['factor'], '8.4f')} ± {number(d['std_error'], '.4f')}   "
                       f"redundancy {d['redundancy']:.2f}")
