@@ -201,6 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "family (default), or the radial model σ_r² = a² + b²c²/cos⁴α of image "
                          "observations (F80 §2.1, blocks; b acts on the radial component, "
                          "radial-isotropic: on x and y alike)")
+    an.add_argument("--merge-groups", default=None, metavar="A+B[,C+D]",
+                    help="with --variance-components families: estimate one factor for the groups joined "
+                         "by + (e.g. control+image for a group with too little redundancy of its own)")
     an.add_argument("--strict", action="store_true",
                     help="local defects (points, images, cameras or coordinates the observations do not "
                          "determine) are an error instead of being named and left out")
@@ -479,7 +482,7 @@ def _analyze(args) -> int:
                 prec_lines += [f"    {note}" for note in est.notes]
                 vc = None
             else:
-                vc = variance.estimate(problem, options=options)
+                vc = variance.estimate(problem, variance.merge_groups(variance.groups_by_kind(problem), args.merge_groups or ""), options=options)
                 doc["variance_components"] = vc.as_dict()
                 doc["variance_estimate"] = vc.summary()
         except BaardaError as err:
