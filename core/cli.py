@@ -683,8 +683,12 @@ def cmd_test(args) -> int:
                 adj, str(spec["image"]), str(spec["a"]), str(spec["b"]), policy=rel.policy).as_dict()
     # hypotheses the data cannot tell apart (F80 §7.4, M84 §3.3): their statistics correlate |ρ| ≥ 0.99
     apart = separability.inseparable_pairs(adj, matrices) if len(matrices) > 1 else []
+    partly = separability.partly_inseparable(adj, matrices) if len(matrices) > 1 else []
     doc = {"schema": f"baarda-test/{results.SCHEMA_VERSION}", "summary": results.summary(adj, rel),
            "tests": tests, "inseparable": [{"hypotheses": list(g.members), "rho": g.rho} for g in apart]}
+    if partly:
+        doc["partly_inseparable"] = [{"hypotheses": list(g.members), "largest": g.largest, "smallest": g.smallest,
+                                      "direction": list(g.direction)} for g in partly]
     if args.json:
         Path(args.json).write_text(json.dumps(results.finite(doc), indent=1, allow_nan=False))
     if not args.quiet:
@@ -692,6 +696,10 @@ def cmd_test(args) -> int:
         for g in apart:
             print(printable(f"the data cannot tell these hypotheses apart (test statistics correlated, "
                             f"ρ ≥ {g.rho:.4f}; F80 §7.4): {', '.join(g.members)}"))
+        for g in partly:
+            print(printable(f"partly inseparable (canonical correlations {g.largest:.4f} … {g.smallest:.4f}; F80 §7.4): "
+                            f"{', '.join(g.members)} — an error along ({', '.join(f'{x:+.3f}' for x in g.direction)}) "
+                            f"of the first is seen by both tests alike and cannot be attributed"))
         for t in tests:
             if "exchange_test" in t:
                 e = t["exchange_test"]
