@@ -559,6 +559,11 @@ def _print_robust(rob) -> None:
     if rob.final is not None:
         print(f"    least squares without them: {int(rob.final.rejected.sum())} rejected by data snooping, "
               f"σ̂0 = {number(rob.final.sigma0_post)}")
+        if not rob.cleaned["complete"]:
+            g = rob.final.global_test
+            print(f"    the robust step did NOT clean the block: without its suspects least squares still fails the "
+                  f"global test (vᵀPv = {number(g['statistic'])} > {number(g['upper'])}, σ̂0 = "
+                  f"{number(rob.final.sigma0_post)}): gross errors remain, or σ0 a priori is too optimistic")
 
 
 def _diverged(args, problem, options, adj, err) -> int:

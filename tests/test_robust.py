@@ -114,3 +114,23 @@ def test_weight_functions():
     np.testing.assert_allclose(robust.huber(u, 2.0), [1, 1, 2 / 3, 1 / 3, 2 / 30])
     d = robust.danish(u, 3.0)
     assert (d[:3] == 1).all() and d[3] == pytest.approx(np.exp(-3)) and d[4] < 1e-40
+
+
+def test_cleaned_fit_that_still_fails_the_global_test_is_said(capsys):
+    """Issue 27 item 10: a cleaned adjustment with σ̂0 far above σ0 was printed without a word. A
+    block with a strong unmodelled radial deformation (a1 = 2, σ̂0 = 80 in least squares): the least
+    squares without the robust suspects still fails the global test (F80 §4.1), ``cleaned.complete``
+    is False and the text says the robust step did not clean the block; on the same block without the
+    deformation it is complete."""
+    from baarda.cli import _print_robust
+
+    blk, _ = simulate_block(seed=5, strips=2, images_per_strip=4)
+    ok = robust.estimate(build_block_problem(blk), "r84")
+    assert ok.cleaned["complete"] and ok.cleaned["global_test_passed"]
+    blk, _ = simulate_block(seed=5, strips=2, images_per_strip=4, radial=2.0)
+    res = robust.estimate(build_block_problem(blk), "r84")
+    c = res.as_dict()["cleaned"]
+    assert c["complete"] is False and c["global_test_passed"] is False and c["sigma0_aposteriori"] > 2
+    assert res.final.vPv > res.final.global_test["upper"]
+    _print_robust(res)
+    assert "the robust step did NOT clean the block" in capsys.readouterr().out

@@ -150,10 +150,22 @@ class RobustResult:
     candidates: int = 0          # clusters the robust fit put forward (before step 3)
     readmitted: tuple = ()       # candidates the least-squares test cleared (observation indices)
 
+    @property
+    def cleaned(self) -> dict | None:
+        """The least-squares fit without the suspects judged by the global test (F80 §4.1): σ̂0, the
+        test's verdict and ``complete`` — False where that fit still fails high, i.e. the robust step
+        did not take out every gross error (or σ0 a priori is too optimistic). None without it."""
+        if self.final is None:
+            return None
+        g = self.final.global_test
+        return {"sigma0_aposteriori": float(self.final.sigma0_post), "global_test_passed": g["passed"],
+                "complete": not (g["passed"] is False and g["side"] == "high")}
+
     def as_dict(self) -> dict:
         return {"method": self.method, "iterations": self.iterations, "converged": self.converged,
                 "suspects": self.suspects, "candidates": self.candidates,
-                "readmitted": [list(m) for m in self.readmitted], "floored": list(self.floored)}
+                "readmitted": [list(m) for m in self.readmitted], "floored": list(self.floored),
+                "cleaned": self.cleaned}
 
 
 def _bases(problem) -> tuple[float | None, float | None]:
