@@ -553,6 +553,8 @@ def _print_robust(rob) -> None:
         base = "" if sp["size_base"] is None else f" = {number(sp['size_base'], '.3g')} base lengths"
         print(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {number(sp['size_sigma'], '6.1f')}σ"
               f"{base} ({sp['class']}), T = {number(sp['T'], '.1f')}, robust weight {sp['weight']:.3g}")
+        if sp.get("kept_in"):
+            print(f"           {sp['note']}")
     for fl in rob.floored:
         print(f"    weight floor raised to {fl['floor']:.0e} for {', '.join(fl['unknowns']) or 'all'} "
               f"(down-weighted, they would leave unknowns undetermined)")
