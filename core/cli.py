@@ -382,7 +382,7 @@ def _analyze(args) -> int:
     try:
         doc = results.to_dict(adj)
     except SingularError as err:
-        if adj.converged:
+        if adj.converged and not args.robust:
             raise
         return _diverged(args, problem, options, adj, err)
     adj.timings["read"] = t_read
@@ -572,18 +572,40 @@ def _diverged(args, problem, options, adj, err) -> int:
     """An adjustment that did not converge and whose normal equations are singular at its last
     iterate: no reliability can be computed there. Say so in one line (exit status
     :data:`NOT_CONVERGED`), and run the robust estimation if asked — it is what finds the gross
-    error that makes least squares diverge (R84 §6: a large error)."""
+    error that makes least squares diverge (R84 §6: a medium or large error). Where the least
+    squares without its suspects converges, that adjustment's results are written (JSON, CSV, the
+    text), with the suspects left out named (``robust`` and ``summary.robust_left_out``), exit 0."""
     why = (adj.termination or "not converged").removeprefix("not converged: ")
-    hint = ("" if args.robust else
-            f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
-    print(printable(f"baarda: {args.input}: NOT converged after {adj.iterations} iterations ({why}) and the normal "
-                    f"equations at the last iterate are singular ({err}): no reliability computed, no JSON/CSV "
-                    f"written{hint}"), file=sys.stderr)
-    if args.robust:
-        rob = robust.estimate(problem, args.robust, options)
-        if not args.quiet:
+    head = (f"baarda: {args.input}: {'converged' if adj.converged else 'NOT converged'} after {adj.iterations} "
+            f"iterations ({why}) and the normal equations at the last iterate are singular ({err})")
+    rob = robust.estimate(problem, args.robust, options) if args.robust else None
+    final = rob.final if rob is not None else None
+    doc = None
+    if final is not None and final.converged:
+        try:
+            doc = results.to_dict(final)
+        except SingularError:
+            doc = None
+    if doc is None:
+        hint = ("" if args.robust else
+                f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
+        print(printable(f"{head}: no reliability computed, no JSON/CSV written{hint}"), file=sys.stderr)
+        if rob is not None and not args.quiet:
             _print_robust(rob)
-    return NOT_CONVERGED
+        return NOT_CONVERGED
+    left = [sp["ids"] for sp in rob.suspects]
+    print(printable(f"{head}; without the {len(left)} suspect(s) of the robust estimation the adjustment "
+                    f"converged: its results are written"), file=sys.stderr)
+    doc["robust"] = rob.as_dict()
+    doc["summary"]["robust_left_out"] = left
+    if args.json:
+        results.write_json(final, args.json, doc)
+    if args.csv:
+        results.write_csv(final, args.csv, doc)
+    if not args.quiet:
+        print(results.text_summary(final, top=args.top))
+        _print_robust(rob)
+    return 0
 
 
 def _convergence_status(path, adj) -> int:

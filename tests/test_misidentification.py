@@ -172,3 +172,25 @@ def test_planted_exchange_is_found_with_s_hat_one(seed):
     t = exchange_test(adj, ids["image"], ids["point_a"], ids["point_b"])
     assert t.iterated and t.rejected and t.s_hat == pytest.approx(1.0, abs=1e-3)
     assert t.omega1 < 3 * adj.dof                   # the refit is the clean block: Ω1 ~ χ²(r)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_planted_exchange_block_is_analysed_robustly(tmp_path, seed, capsys):
+    """Issue 27 item 4: ``baarda simulate x.json --strips 3 --images 6 --seed N --error exchange:1``
+    (R84 "medium", 0.9 base lengths) ended in "NOT converged … singular … no JSON/CSV written" with
+    and without ``--robust r84`` (seed 1: 200 iterations; seed 2: converged with the exchanged point
+    held at infinity, singular). With ``--robust r84`` the least squares without its suspects
+    converges and its results are written (exit 0), the suspects left out named in the JSON, the
+    exchanged image point among them; without --robust the one-line message and exit 4 stay."""
+    path = tmp_path / "x.json"
+    assert main(["simulate", str(path), "--strips", "3", "--images", "6", "--seed", str(seed),
+                 "--error", "exchange:1"]) == 0
+    ids = json.loads(path.with_suffix(".truth.json").read_text())["errors"][0]["ids"]
+    out = tmp_path / "x.out.json"
+    assert main(["analyze", str(path), "--robust", "r84", "--json", str(out), "--top", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "its results are written" in err
+    doc = json.loads(out.read_text())
+    assert doc["summary"]["converged"] and doc["robust"]["cleaned"]["complete"]
+    left = doc["summary"]["robust_left_out"]
+    assert any(d.get("image") == ids["image"] and d.get("point") in (ids["point_a"], ids["point_b"]) for d in left)
