@@ -91,8 +91,9 @@ class Options:
     ``"generic"`` (one sparse Cholesky of N). backend: the pair loops of the Schur path,
     ``"numba"`` or ``"numpy"`` (None: numba when installed). Every choice gives the same
     numbers to round-off.
-    sigma0, global_test: the test policy's σ0 of the decisions (``"apriori"``: w,
-    ``"aposteriori"``: τ) and its global test (``"one-sided"``, ``"two-sided"``;
+    sigma0, global_test, conf_pr: the test policy's σ0 of the decisions (``"apriori"``: w,
+    ``"aposteriori"``: τ), its global test (``"one-sided"``, ``"two-sided"``, ``"b-method"``) and
+    the confidence level of that test and of σ̂0's interval (None: the file's conf-pr, else 0.95;
     :class:`baarda.stats.policy.TestPolicy`).
     """
 
@@ -106,6 +107,7 @@ class Options:
     method: str = "auto"
     sigma0: str = "apriori"
     global_test: str = "one-sided"
+    conf_pr: float | None = None
 
 
 def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None, progress=None):

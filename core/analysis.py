@@ -103,7 +103,7 @@ class SolverOptions:
         """The :class:`baarda.adjust.Options` of these solver options and ``policy``."""
         return Options(alpha0=policy.alpha0, beta0=policy.beta0, b_method=policy.b_method, tol=float(self.tol),
                        max_iter=int(self.max_iter), solver=self.solver, backend=self.backend, method=self.method,
-                       sigma0=policy.sigma0, global_test=policy.global_test)
+                       sigma0=policy.sigma0, global_test=policy.global_test, conf_pr=policy.conf_pr)
 
 
 @dataclass(frozen=True)
@@ -114,7 +114,8 @@ class Extras:
     ``risk_coordinate``; exchanges: ``(spec "IMAGE:A:B", both)`` pairs (``both`` False: one
     point misidentified); sbase: point ids of an S-base (the precision transformed into it);
     criterion / criterion_c0: a criterion-matrix fit in that S-base (M84 §2.3); robust: a robust
-    method ("r84", "huber", "danish"); variance_components: one of :data:`VARIANCE_KINDS`;
+    method ("r84", "huber", "danish"); variance_components: one of :data:`VARIANCE_KINDS`, with
+    merge_groups ``"A+B[,C+D]"`` families given one factor together;
     truth: a ``.truth.json`` with planted errors to compare with.
     """
 
@@ -128,6 +129,7 @@ class Extras:
     criterion_c0: float | None = None
     robust: str | None = None
     variance_components: str | None = None
+    merge_groups: str | None = None
     truth: str | None = None
 
 
@@ -402,19 +404,22 @@ class Analysis:
         :class:`baarda.stats.robust.RobustResult`."""
         return self._cached(("robust", method), lambda: robust.estimate(self.adjustment.problem, method, self.options))
 
-    def variance_components(self, kind: str = "families"):
+    def variance_components(self, kind: str = "families", merge: str | None = None):
         """Variance components (F80 eq. 9; F79): ``"families"`` — one factor per observation
-        family (:func:`baarda.stats.variance.estimate`) — or the radial model of a block,
-        ``"radial"`` / ``"radial-isotropic"`` (F80 §2.1)."""
+        family (:func:`baarda.stats.variance.estimate`; ``merge`` "A+B[,C+D]" gives families one
+        factor together, :func:`baarda.stats.variance.merge_groups`) — or the radial model of a
+        block, ``"radial"`` / ``"radial-isotropic"`` (F80 §2.1)."""
         if kind not in VARIANCE_KINDS:
             raise OptionError("variance_components", kind, VARIANCE_KINDS)
 
         def make():
             if kind == "families":
-                return variance.estimate(self.adjustment.problem, options=self.options)
+                problem = self.adjustment.problem
+                groups = variance.merge_groups(variance.groups_by_kind(problem), merge) if merge else None
+                return variance.estimate(problem, groups, options=self.options)
             structure = "isotropic" if kind == "radial-isotropic" else "radial"
             return analyses.radial_variance(self.adjustment.problem, self.options, structure)
-        return self._cached(("variance", kind), make)
+        return self._cached(("variance", kind, merge or ""), make)
 
     def precision(self, sbase=None):
         """The coordinates' covariance in the S-base ``sbase`` (point ids; a free network's
@@ -521,7 +526,7 @@ class Analysis:
             doc["robust"] = self.robust(ex.robust).as_dict()
         if ex.variance_components:
             try:
-                est = self.variance_components(ex.variance_components)
+                est = self.variance_components(ex.variance_components, ex.merge_groups)
             except BaardaError as err:
                 doc["variance_components"] = {"error": str(err)}
             else:

@@ -31,8 +31,6 @@ import time
 import warnings
 from pathlib import Path
 
-from threadpoolctl import threadpool_limits
-
 from . import __version__
 from .analysis import Extras, SolverOptions, analyze
 from .errors import BaardaError, HypothesisError, InputError, NotFoundError, OptionError, SingularError, UsageError
@@ -49,6 +47,7 @@ from .sfm_defects import degenerate_geometry
 from .simulate import CAMERAS, RANGES as RECIPE_RANGES, check_recipe, simulate_to_files
 from .stats import analyses, separability
 from .text import number, printable, printable_lines, shorten
+from .threads import limit_native_threads
 
 #: exit status of a run whose adjustment did not converge (module docstring)
 NOT_CONVERGED = 4
@@ -92,10 +91,15 @@ def _add_test_options(p):
                         f"(from {BETA_RANGE[0]:g} to {BETA_RANGE[1]:g}, above α0)")
     p.add_argument("--b-method", action="store_true",
                    help="Baarda's B-method: multi-dimensional tests get the δ0 and β0 of the 1D test")
-    p.add_argument("--global-test", choices=["one-sided", "two-sided"], default="one-sided",
-                   help="the global test of vᵀPv = Ω/σ0²: one-sided at the B-method's α_r, the λ0 and β0 of "
-                        "the 1D test (F80 §4.1, §7.2; default), or gama-local's two-sided interval at the "
-                        "file's conf-pr (default 0.95)")
+    p.add_argument("--global-test", choices=["one-sided", "two-sided", "b-method"], default="one-sided",
+                   help="the global test of vᵀPv = Ω/σ0² ~ χ²(r) (F80 §4.1): one-sided (default), rejected when "
+                        "σ0 a priori lies below the conf-pr confidence interval of σ̂0, size (1 − conf-pr)/2 = "
+                        "2.5 %% at 0.95, for any redundancy; two-sided, gama-local's interval at conf-pr; or "
+                        "b-method, one-sided at the B-method's α_r (the λ0 and β0 of the 1D test, F80 §7.2; "
+                        "α_r exceeds 50 %% once r ≳ 200)")
+    p.add_argument("--conf-pr", type=_in_range(1e-9, 1 - 1e-9), default=None, metavar="P",
+                   help="confidence level of the global test and of σ̂0's interval (default: the file's "
+                        "conf-pr, else 0.95)")
     p.add_argument("--statistic", choices=["w", "tau"], default=None,
                    help="the statistic that flags observations and that --snoop removes by: Baarda's w "
                         "(σ0 a priori) or Pope's τ (σ0 a posteriori); default: τ where the file asks for "
@@ -107,7 +111,7 @@ def _policy(args) -> dict:
     decisions use the σ0 the file asks for (:func:`baarda.analysis.analyze`)."""
     sigma0 = None if args.statistic is None else ("aposteriori" if args.statistic == "tau" else "apriori")
     return {"alpha0": args.alpha, "beta0": args.beta, "b_method": args.b_method, "sigma0": sigma0,
-            "global_test": args.global_test}
+            "global_test": args.global_test, "conf_pr": args.conf_pr}
 
 
 def _add_iteration_option(p):
@@ -231,6 +235,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "family (default), or the radial model σ_r² = a² + b²c²/cos⁴α of image "
                          "observations (F80 §2.1, blocks; b acts on the radial component, "
                          "radial-isotropic: on x and y alike)")
+    an.add_argument("--merge-groups", default=None, metavar="A+B[,C+D]",
+                    help="with --variance-components families: estimate one factor for the groups joined "
+                         "by + (e.g. control+image for a group with too little redundancy of its own)")
     an.add_argument("--strict", action="store_true",
                     help="local defects (points, images, cameras or coordinates the observations do not "
                          "determine) are an error instead of being named and left out")
@@ -389,7 +396,7 @@ def _extras(args) -> Extras:
                   exchanges=tuple((spec, True) for spec in args.exchange or ())
                   + tuple((spec, False) for spec in args.misidentified or ()),
                   sbase=sbase, criterion=args.criterion, criterion_c0=args.criterion_c0, robust=args.robust,
-                  variance_components=args.variance_components,
+                  variance_components=args.variance_components, merge_groups=args.merge_groups,
                   truth=None if truth_path is None else str(truth_path))
 
 
@@ -418,7 +425,7 @@ def _analyze(args) -> int:
     try:
         doc = analysis.to_dict()
     except SingularError as err:
-        if adj.converged:
+        if adj.converged and not args.robust:
             raise
         return _diverged(args, analysis, err)
     adj.timings["reliability"] = time.perf_counter() - t1
@@ -436,21 +443,46 @@ def _analyze(args) -> int:
 
 
 def _diverged(args, analysis, err) -> int:
-    """An adjustment that did not converge and whose normal equations are singular at its last
-    iterate: no reliability can be computed there. Say so in one line (exit status
-    :data:`NOT_CONVERGED`), and run the robust estimation if asked — it is what finds the gross
-    error that makes least squares diverge (R84 §6: a large error)."""
+    """An adjustment whose normal equations are singular at its last iterate (not converged, or
+    converged and asked for ``--robust``): no reliability can be computed there. Say so in one
+    line (exit status :data:`NOT_CONVERGED`), and run the robust estimation if asked — it is what
+    finds the gross error that makes least squares diverge (R84 §6: a medium or large error).
+    Where the least squares without its suspects converges, that adjustment's results are written
+    (JSON, CSV, the text), with the suspects left out named (``robust`` and
+    ``summary.robust_left_out``), exit 0."""
     adj = analysis.adjustment
     why = (adj.termination or "not converged").removeprefix("not converged: ")
-    geometry = degenerate_geometry(analysis.problem.notes.local_model)     # the cause, when it is the geometry
-    hint = (f"; {geometry}" if geometry else "" if args.robust else
-            f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
-    print(printable(f"baarda: {args.input}: NOT converged after {adj.iterations} iterations ({why}) and the normal "
-                    f"equations at the last iterate are singular ({err}): no reliability computed, no JSON/CSV "
-                    f"written{hint}"), file=sys.stderr)
-    if args.robust and not args.quiet:
-        print("\n".join(robust_lines(analysis.robust(args.robust))))
-    return NOT_CONVERGED
+    head = (f"baarda: {args.input}: {'converged' if adj.converged else 'NOT converged'} after {adj.iterations} "
+            f"iterations ({why}) and the normal equations at the last iterate are singular ({err})")
+    rob = analysis.robust(args.robust) if args.robust else None
+    final = rob.final if rob is not None else None
+    doc = None
+    if final is not None and final.converged:
+        try:
+            doc = results.to_dict(final)
+        except SingularError:
+            doc = None
+    if doc is None:
+        geometry = degenerate_geometry(analysis.problem.notes.local_model)     # the cause, when it is the geometry
+        hint = (f"; {geometry}" if geometry else "" if args.robust else
+                f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
+        print(printable(f"{head}: no reliability computed, no JSON/CSV written{hint}"), file=sys.stderr)
+        if rob is not None and not args.quiet:
+            print("\n".join(robust_lines(rob)))
+        return NOT_CONVERGED
+    left = [sp["ids"] for sp in rob.suspects]
+    print(printable(f"{head}; without the {len(left)} suspect(s) of the robust estimation the adjustment "
+                    f"converged: its results are written"), file=sys.stderr)
+    doc["robust"] = rob.as_dict()
+    doc["summary"]["robust_left_out"] = left
+    if args.json:
+        results.write_json(final, args.json, doc)
+    if args.csv:
+        results.write_csv(final, args.csv, doc)
+    if not args.quiet:
+        print(results.text_summary(final, top=args.top))
+        print("\n".join(robust_lines(rob)))
+    return 0
 
 
 def _convergence_status(path, adj) -> int:
@@ -486,8 +518,12 @@ def cmd_test(args) -> int:
         tests.append({"hypothesis": text, "spec": spec, **t})
     # hypotheses the data cannot tell apart (F80 §7.4, M84 §3.3): their statistics correlate |ρ| ≥ 0.99
     apart = separability.inseparable_pairs(adj, matrices) if len(matrices) > 1 else []
+    partly = separability.partly_inseparable(adj, matrices) if len(matrices) > 1 else []
     doc = {"schema": f"baarda-test/{results.SCHEMA_VERSION}", "summary": analysis.summary(),
            "tests": tests, "inseparable": [{"hypotheses": list(g.members), "rho": g.rho} for g in apart]}
+    if partly:
+        doc["partly_inseparable"] = [{"hypotheses": list(g.members), "largest": g.largest, "smallest": g.smallest,
+                                      "direction": list(g.direction)} for g in partly]
     if args.json:
         write_text(args.json, json.dumps(results.finite(doc), indent=1, allow_nan=False))
     if not args.quiet:
@@ -495,6 +531,10 @@ def cmd_test(args) -> int:
         for g in apart:
             print(printable(f"the data cannot tell these hypotheses apart (test statistics correlated, "
                             f"ρ ≥ {g.rho:.4f}; F80 §7.4): {', '.join(g.members)}"))
+        for g in partly:
+            print(printable(f"partly inseparable (canonical correlations {g.largest:.4f} … {g.smallest:.4f}; F80 §7.4): "
+                            f"{', '.join(g.members)} — an error along ({', '.join(f'{x:+.3f}' for x in g.direction)}) "
+                            f"of the first is seen by both tests alike and cannot be attributed"))
         for t in tests:
             if "exchange_test" in t:
                 e = t["exchange_test"]
@@ -525,6 +565,10 @@ def cmd_convert(args) -> int:
     return 0
 
 
+#: keys of a --error spec that name things by id: kept as text, as the reader keeps ids
+_ID_KEYS = ("point", "image", "strip", "component", "axis")
+
+
 def _parse_error(spec: str) -> dict:
     """A --error KIND:SIZE[:K=V...] as a recipe's error (its numbers checked by check_recipe)."""
     parts = spec.split(":")
@@ -538,7 +582,7 @@ def _parse_error(spec: str) -> dict:
         k, eq, v = kv.partition("=")
         if not (k and eq):
             raise BaardaError(f"--error {spec!r}: expected KIND:SIZE[:K=V...], not {kv!r}")
-        if k in ("image", "point", "component", "axis", "strip"):      # ids, even when they look like numbers
+        if k in _ID_KEYS:                  # ids, even when they look like numbers
             d[k] = v
             continue
         try:
@@ -670,23 +714,6 @@ def cmd_serve(args) -> int:
 
     serve(args.input, port=args.port, address=args.address, show=args.show, webgl=args.webgl)
     return 0
-
-
-def limit_native_threads() -> int:
-    """Limit the BLAS thread pool of this process (the command line, the server it starts) to
-    ``BAARDA_BLAS_THREADS`` threads, default 1: the analysis is sparse and its dense BLAS calls
-    are small, so OpenBLAS's default (one thread per core) only spins — a plain ``baarda analyze``
-    of Ladybug ran 1.7× slower with it on a quiet 2-core machine and 7.5× with one other job
-    running. Returns the limit."""
-    text = os.environ.get("BAARDA_BLAS_THREADS", "1").strip()
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise UsageError(f"BAARDA_BLAS_THREADS must be a positive integer (got {text!r})")
-    threadpool_limits(limits=n, user_api="blas")
-    return n
 
 
 def main(argv=None) -> int:

@@ -644,14 +644,15 @@ class Adjustment:
     def _cluster_group_stacks(self):
         """Tests of the groups that are exactly one covariance cluster (an image point, a GNSS
         vector), all at once from the cluster blocks of C_vv: W = P_c C_vv P_c, T = gᵀW⁺g with
-        g = (Pv)_c, ∇ŝ = −W⁺g — the formulas of :func:`baarda.stats.hypotheses.test` with H the
+        g = (Pv)_c, ∇ŝ = −W⁺g, q = rank W (:func:`baarda.stats.hypotheses.counted_directions`: the
+        eigenvalues above round-off whose statistic stays within vᵀPv) — the formulas of :func:`baarda.stats.hypotheses.test` with H the
         selection of the cluster, without a solve per group. Yields, per cluster size and chunk of
         at most :data:`GROUP_CHUNK` clusters (their temporaries are a chunk's), stacks (members (k, m) sorted per row, T (k,), q (k,), ∇ŝ (k, m) and σ∇ŝ (k, m) in the order of
         the sorted members, the eigenvalues of W (k, m) ascending with NaN for those not counted,
         μmax (k,) of the pencil (P_c, W), inf where q < m) — HᵀPH = P_c for the cluster's selection.
         """
         gid = self.problem.info.group
-        Pv = self.Pv
+        Pv, vPv = self.Pv, self.vPv
         counts = np.bincount(gid[gid >= 0])
         H, _ = self.hat_blocks
         for (_, members, C, Hc), Pall in zip(_cluster_blocks(self.problem.cov, H), size_weights(self.problem.cov)):
@@ -671,7 +672,8 @@ class Adjustment:
                 lam, V = np.linalg.eigh(W)
                 del W
                 tol = 1e-10 * np.maximum(np.maximum(lam.max(axis=1), np.abs(np.diagonal(Pc, axis1=1, axis2=2)).max(axis=1)), 1e-300)
-                pos = lam > tol[:, None]
+                g = Pv[mem]
+                pos, Tj = hypotheses.counted_directions(lam, V, g, tol, vPv)   # q = rank W_s, T ≤ vᵀPv
                 inv = np.where(pos, 1.0 / np.where(pos, lam, 1.0), 0.0)
                 Winv = np.einsum("kij,kj,klj->kil", V, inv, V)
                 U = V * np.sqrt(inv)[:, None, :]              # Uᵀ W U = I on the counted directions
@@ -680,11 +682,10 @@ class Adjustment:
                 mu = np.where(q == mem.shape[1], mu, np.inf)
                 lam = np.where(pos, lam, np.nan)
                 del V, inv, U
-                g = Pv[mem]
                 nabla = -np.einsum("kij,kj->ki", Winv, g)
                 sig = np.sqrt(np.maximum(np.diagonal(Winv, axis1=1, axis2=2), 0.0))
                 del Winv
-                T = np.einsum("ki,ki->k", g, -nabla)
+                T = Tj.sum(axis=1)
                 srt = np.argsort(mem, axis=1)
                 yield (np.take_along_axis(mem, srt, 1), T, q, np.take_along_axis(nabla, srt, 1),
                        np.take_along_axis(sig, srt, 1), lam, mu)

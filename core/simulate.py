@@ -325,9 +325,17 @@ def _plant(r, rng, images, pid, obs_i, obs_p, xy, ref, status, sigma, sh, sv, ca
     used_points = set()
     track = {p: np.flatnonzero(obs_p == p) for p in range(len(pid))}
     strip = np.array([im.strip for im in images])
+    image_ids = [im.id for im in images]
     for spec in r["errors"]:
         spec = dict(spec)
         kind = spec.pop("kind")
+        for key in ("point", "image", "strip"):          # ids are text, as the readers keep them
+            if key in spec and spec[key] is not None:
+                spec[key] = str(spec[key])
+        if "point" in spec and spec["point"] not in pid:
+            raise OptionError("point", spec["point"], (), f"error {kind}: no point {spec['point']!r} in the block")
+        if "image" in spec and spec["image"] not in image_ids:
+            raise OptionError("image", spec["image"], (), f"error {kind}: no image {spec['image']!r} in the block")
 
         def size_of(sig):
             if "size_base" in spec:

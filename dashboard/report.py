@@ -29,6 +29,7 @@ import numpy as np
 from bokeh.resources import Resources
 
 from baarda.io.output import write_text
+from baarda.stats.distributions import STRICT
 
 from . import geometry, render
 from .frames import R_UNCONTROLLED
@@ -81,8 +82,10 @@ def verdict(s: dict, obs) -> tuple[str, str, list[str]]:
     """(level, headline, sentences) of the summary ``s`` (:meth:`State.summary`) and the
     observations table ``obs`` (:meth:`State.frames`) in plain language (plain text, not HTML).
     level is ``ok`` (the observations agree with their precision and no test rejects), ``warn``
-    (weakly controlled observations or a pessimistic σ0) or ``bad`` (not converged, the global
-    test failed high, rejections)."""
+    (weakly controlled observations, σ0 a priori too pessimistic, or the global test failed high
+    with no observation rejected: σ̂0 above σ0, said with its confidence interval) or ``bad``
+    (not converged, rejections). A B-method rejection that σ̂0's interval does not confirm is
+    said as such, not as a failure (F80 §4.1, §7.2)."""
     g = s["global_test"]
     live = obs[~obs["excluded"]]
     stat = "τ" if s["statistic"] == "tau" else "w"
@@ -95,21 +98,30 @@ def verdict(s: dict, obs) -> tuple[str, str, list[str]]:
                  f"({s['termination']}). Every number below belongs to the last iterate, not to the "
                  "least-squares solution."])
     rejected = int(s["n_rejected"])
-    high = g["passed"] is False and g.get("side") != "low"
-    low = g["passed"] is False and g.get("side") == "low"
+    strict = g.get("verdict") == STRICT          # a B-method rejection σ̂0's interval does not confirm
+    high = g["passed"] is False and g.get("side") != "low" and not strict
+    low = g.get("side") == "low"
+    iv = g.get("sigma0_interval") or {}
+    sig = (f"σ̂0 = {_fmt(s['sigma0_aposteriori'], '.3g')}"
+           + (f" ({100 * iv['confidence']:.3g} % interval {_fmt(iv['lower'], '.3g')} to {_fmt(iv['upper'], '.3g')})"
+              if iv.get("lower") is not None and iv.get("upper") is not None else "")
+           + f" against σ0 = {s['sigma0_apriori']:.3g} a priori")
     if g["passed"] is None:
         said.append("There is no redundancy (r = 0): nothing can be tested.")
     elif high:
-        said.append(f"The observations do not agree with their stated precision: the global test fails "
-                    f"(vᵀPv = {g['statistic']:.4g} for r = {g['dof']}, critical {g['upper']:.4g}; "
-                    f"σ̂0 = {_fmt(s['sigma0_aposteriori'], '.3g')} against σ0 = {s['sigma0_apriori']:.3g}).")
+        said.append(f"The observations scatter more than their stated precision: the global test fails "
+                    f"(vᵀPv = {g['statistic']:.4g} for r = {g['dof']}, critical {g['upper']:.4g}); {sig}."
+                    + ("" if rejected else " No single observation is rejected, so the excess is spread over "
+                       "many: σ0 a priori is too optimistic or there are small systematic errors (all model "
+                       "errors accumulate in σ̂0, F80 §4)."))
     elif low:
-        said.append(f"The observations are better than their stated precision (σ̂0 = "
-                    f"{_fmt(s['sigma0_aposteriori'], '.3g')} against σ0 = {s['sigma0_apriori']:.3g}): "
-                    "σ0 a priori is too pessimistic; this is not an error in the data.")
+        said.append(f"The observations are better than their stated precision ({sig}): σ0 a priori is too "
+                    "pessimistic; this is not an error in the data.")
+    elif strict:
+        said.append(f"The observations agree with their stated precision ({sig}, σ0 inside the interval); "
+                    f"only the B-method's strict bound (α = {100 * g['alpha']:.3g} %, F80 §7.2) is exceeded.")
     else:
-        said.append(f"The observations agree with their stated precision: the global test passes "
-                    f"(σ̂0 = {_fmt(s['sigma0_aposteriori'], '.3g')}).")
+        said.append(f"The observations agree with their stated precision: the global test passes ({sig}).")
     if rejected:
         v = live[col].abs()
         worst = int(v.idxmax()) if v.notna().any() else None
@@ -135,10 +147,11 @@ def verdict(s: dict, obs) -> tuple[str, str, list[str]]:
     if s["n_excluded"]:
         said.append(f"{s['n_excluded']} observation{'s were' if s['n_excluded'] != 1 else ' was'} excluded "
                     "from the adjustment by the reviewer.")
-    if high or rejected:
-        head = ("Not acceptable as it stands: " + (f"{rejected} rejected observation{'s' if rejected != 1 else ''}"
-                                                     if rejected else "the global test fails") + ".")
-        return "bad", head, said
+    if rejected:
+        return "bad", f"Not acceptable as it stands: {rejected} rejected observation{'s' if rejected != 1 else ''}.", said
+    if high:
+        return ("warn", f"Less precise than stated: σ̂0 = {_fmt(s['sigma0_aposteriori'], '.3g')} against σ0 = "
+                        f"{s['sigma0_apriori']:.3g}; no single observation is rejected.", said)
     if low or weak:
         return ("warn", "Consistent, with reservations: " + ("σ0 a priori too pessimistic" if low else
                                                             f"{weak} weakly controlled observations") + ".", said)

@@ -65,9 +65,10 @@ class State(param.Parameterized):
     b_method = param.Boolean(default=False, doc="Baarda's B-method for multi-dimensional tests.")
     sigma0_mode = param.Selector(default="apriori", objects=["apriori", "aposteriori"],
                                  doc="σ0 used for covariances and the decision (w or τ).")
-    global_test = param.Selector(default="one-sided", objects=["one-sided", "two-sided"],
-                                 doc="The global test: F80's one-sided test at the B-method's α_r, or "
-                                     "gama-local's two-sided interval at conf-pr (TestPolicy).")
+    global_test = param.Selector(default="one-sided", objects=["one-sided", "two-sided", "b-method"],
+                                 doc="The global test (TestPolicy): F80 §4.1's one-sided test at (1 − conf-pr)/2, "
+                                     "gama-local's two-sided interval at conf-pr, or one-sided at the B-method's "
+                                     "α_r (F80 §7.2).")
     excluded = param.Parameter(default=frozenset(), doc="Excluded observations (full indices).")
     hypotheses = param.List(default=[], doc="Hypothesis specifications (module docstring).")
     hyp_results = param.List(default=[], doc="Per hypothesis: HypothesisTest, an error text or None.")

@@ -166,7 +166,7 @@ def test_uncontrolled_observation_is_shown_as_not_testable(tmp_path, capsys):
     assert main(["analyze", str(f), "--json", str(js), "--top", "8"]) == 0
     out = capsys.readouterr().out
     assert "nan" not in out.lower() and "inf" not in out.replace("infinity", "").lower()
-    assert "(r = 0, not testable)" in out
+    assert "((P C_vv P)_ii = 0: not testable)" in out         # the criterion of "uncontrolled"
     assert "∞ (uncontrolled)" in out
     spur = [o for o in json.loads(js.read_text(), parse_constant=float)["observations"] if o.get("to") == "D"]
     assert spur[0]["w"] is None and abs(spur[0]["redundancy"]) < 1e-9

@@ -1,5 +1,6 @@
-"""The global test (F80 §4.1, §7.2; B68): one-sided at the B-method's α_r by default, gama-local's
-two-sided interval at conf-pr on request; a low value is σ0 a priori too pessimistic.
+"""The global test (F80 §4.1, §7.2; B68): one-sided at (1 − conf-pr)/2 by default (σ0 a priori
+below σ̂0's conf-pr interval), the B-method's α_r and gama-local's two-sided interval at conf-pr on
+request; a low value is σ0 a priori too pessimistic.
 
 The critical values are computed here from the paper's definitions with scipy's χ² and
 non-central χ² and a root finder of this file, not through baarda's distributions module:
@@ -47,9 +48,9 @@ def alpha_r(alpha0: float, beta0: float, r: int) -> float:
 def test_b_method_alpha_of_the_global_test_from_the_definition():
     a14 = alpha_r(0.001, 0.80, 14)
     assert a14 == pytest.approx(0.0664, abs=5e-5)            # issue 14: α₁₄ = 6.64 %
-    g = distributions.global_test(2.33, 14, test="one-sided", alpha=a14)
+    g = distributions.global_test(2.33, 14, test="b-method", alpha=a14)
     assert g["upper"] == pytest.approx(sps.chi2.isf(a14, 14), rel=1e-12)
-    assert g["lower"] == pytest.approx(sps.chi2.ppf(a14, 14), rel=1e-12)
+    assert g["lower"] == pytest.approx(sps.chi2.ppf(0.025, 14), rel=1e-12)     # the 95 % interval's, a note
 
 
 def test_one_sided_rejects_only_the_high_side():
@@ -69,17 +70,20 @@ def test_one_sided_rejects_only_the_high_side():
 
 
 def test_wolf_free_network_passes_one_sided_and_fails_two_sided_low(tmp_path, capsys):
-    """Wolf's free network: Ω/σ0² = 2.33, r = 14. One-sided at α₁₄ = 6.64 % it passes; gama-local's
-    interval at 0.95 starts at 5.63, so two-sided it fails — on the low side: σ0 a priori is too
-    pessimistic, not an error in the data."""
+    """Wolf's free network: Ω/σ0² = 2.33, r = 14. One-sided at 2.5 % (and at the B-method's α₁₄ =
+    6.64 %) it passes; gama-local's interval at 0.95 starts at 5.63, so two-sided it fails — on the
+    low side: σ0 a priori is too pessimistic, not an error in the data."""
     require_extdata(WOLF)
     adj = adjust(read_problem(WOLF))
     assert adj.dof == 14 and adj.vPv == pytest.approx(2.33, abs=0.005)
     a14 = alpha_r(0.001, 0.80, 14)
     g = adj.global_test
     assert (g["test"], g["passed"], g["side"]) == ("one-sided", True, "low")
-    assert g["alpha"] == pytest.approx(a14, rel=1e-8)
-    assert g["upper"] == pytest.approx(sps.chi2.isf(a14, 14), rel=1e-8)
+    assert g["alpha"] == pytest.approx(0.025, rel=1e-12)
+    assert g["upper"] == pytest.approx(sps.chi2.isf(0.025, 14), rel=1e-12)
+    b = Reliability(adj, replace(adj.policy, global_test="b-method")).global_test
+    assert (b["passed"], b["side"]) == (True, "low") and b["alpha"] == pytest.approx(a14, rel=1e-8)
+    assert b["upper"] == pytest.approx(sps.chi2.isf(a14, 14), rel=1e-8)
     two = Reliability(adj, replace(adj.policy, global_test="two-sided")).global_test
     assert two["lower"] == pytest.approx(sps.chi2.ppf(0.025, 14), rel=1e-12)
     assert round(two["lower"], 2) == 5.63
@@ -87,7 +91,10 @@ def test_wolf_free_network_passes_one_sided_and_fails_two_sided_low(tmp_path, ca
     out = tmp_path / "w.json"
     assert main(["analyze", str(WOLF), "--json", str(out), "--top", "1"]) == 0
     text = capsys.readouterr().out
-    assert "one-sided" in text and "6.64 %" in text and "σ0 a priori too pessimistic" in text
+    assert "one-sided (F80 §4.1) at α = 2.5 %" in text and "σ0 a priori too pessimistic" in text
+    assert "σ0 a priori above it (σ̂0 significantly smaller)" in text
+    assert main(["analyze", str(WOLF), "--global-test", "b-method", "--top", "1"]) == 0
+    assert "B-method's α_14 = 6.64 %" in capsys.readouterr().out
     doc = json.loads(out.read_text())["summary"]["global_test"]
     assert (doc["test"], doc["passed"], doc["side"]) == ("one-sided", True, "low")
     assert main(["analyze", str(WOLF), "--global-test", "two-sided", "--json", str(out), "--top", "1"]) == 0
@@ -99,17 +106,21 @@ def test_wolf_free_network_passes_one_sided_and_fails_two_sided_low(tmp_path, ca
 
 
 def test_demo_levelling_verdict(tmp_path):
-    """The demo levelling network (r = 5, α0 = 0.1 %, β0 = 80 %): the one-sided test at α₅ and the
-    two-sided interval at 0.95 both reject vᵀPv on the high side (the planted 1 cm error)."""
+    """The demo levelling network (r = 5, α0 = 0.1 %, β0 = 80 %): the one-sided test at 2.5 %, the
+    B-method's at α₅ and the two-sided interval at 0.95 all reject vᵀPv on the high side (the
+    planted 1 cm error)."""
     adj = adjust(read_problem(DATA / "demo-levelling.gkf"))
     r, T = adj.dof, adj.vPv
     a5 = alpha_r(0.001, 0.80, r)
     assert r == 5
     g = adj.global_test
-    assert g["alpha"] == pytest.approx(a5, rel=1e-8)
-    assert g["upper"] == pytest.approx(sps.chi2.isf(a5, r), rel=1e-8)
-    assert T > sps.chi2.isf(a5, r)
+    assert g["alpha"] == pytest.approx(0.025, rel=1e-12) and g["upper"] == pytest.approx(sps.chi2.isf(0.025, r), rel=1e-12)
+    assert T > sps.chi2.isf(0.025, r)
     assert (g["passed"], g["side"]) == (False, "high") and "too large" in g["verdict"]
+    b = Reliability(adj, replace(adj.policy, global_test="b-method")).global_test
+    assert b["alpha"] == pytest.approx(a5, rel=1e-8)
+    assert b["upper"] == pytest.approx(sps.chi2.isf(a5, r), rel=1e-8) and T > b["upper"]
+    assert (b["passed"], b["side"]) == (False, "high") and "too large" in b["verdict"]
     two = Reliability(adj, replace(adj.policy, global_test="two-sided")).global_test
     assert two["upper"] == pytest.approx(sps.chi2.isf(0.025, r), rel=1e-12)
     assert (two["passed"], two["side"]) == (T <= sps.chi2.isf(0.025, r), "high")
@@ -127,8 +138,10 @@ def test_dashboard_summary_says_which_test(tmp_path):
     adj = adjust(read_problem(DATA / "demo-levelling.gkf"))
     s = {**summary(adj), "n_uncontrolled": 0, "n_weak": 0, "n_excluded": 0, "n_points": 8}
     html = summary_html(s)
-    assert adj.global_test["statistic"] > adj.global_test["upper"]       # 14.98 > 14.44: failed
-    assert "one-sided, B-method α = 1.3 %" in html and f"> {adj.global_test['upper']:.4g}" in html
+    assert adj.global_test["statistic"] > adj.global_test["upper"]       # 14.98 > 12.83: failed
+    assert "one-sided, α = 2.5 %" in html and f"> {adj.global_test['upper']:.4g}" in html
+    iv = summary(adj)["global_test"]["sigma0_interval"]
+    assert f"95 % interval [{iv['lower']:.4g}, {iv['upper']:.4g}]" in html
     low = {**s, "global_test": distributions.global_test(0.5, 5, 0.95)}
     html = summary_html(low)
     assert "two-sided at conf-pr 0.95" in html and "FAILED: σ0 a priori too pessimistic" in html
@@ -153,8 +166,10 @@ def test_report_follows_the_command_lines_global_test(tmp_path):
     out = tmp_path / "r.html"
     assert main(["report", str(DATA / "demo-levelling.gkf"), "-o", str(out), "--quiet", "--global-test", "two-sided"]) == 0
     html = out.read_text()
-    assert "two-sided at conf-pr 0.95" in html and "one-sided, B-method" not in html
+    assert "two-sided at conf-pr 0.95" in html and "one-sided, " not in html
     assert main(["report", str(DATA / "demo-levelling.gkf"), "-o", str(out), "--quiet"]) == 0
+    assert "one-sided, α = 2.5 %" in out.read_text()
+    assert main(["report", str(DATA / "demo-levelling.gkf"), "-o", str(out), "--quiet", "--global-test", "b-method"]) == 0
     assert "one-sided, B-method α = 1.3 %" in out.read_text()
 
 

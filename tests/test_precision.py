@@ -252,3 +252,60 @@ def test_cli_criterion_on_fixed_points_and_on_a_singular_covariance(capsys):
     assert main(["analyze", str(bug / "test-linearization-angle.gkf"), "--criterion", "logarithmic"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("baarda: error: --criterion: the coordinate covariance is singular")
+
+
+def dense_lam_max(G, H, Gnull):
+    """λmax of |G − λH| = 0 on the complement of the null space (the projector and pseudo-inverse
+    of :func:`dense_ratio`, numpy alone; M84 eq. 3)."""
+    Q, _ = np.linalg.qr(Gnull)
+    P = np.eye(G.shape[0]) - Q @ Q.T
+    lam = np.linalg.eigvals(np.linalg.pinv(P @ H @ P, rcond=1e-12, hermitian=True) @ (P @ G @ P)).real
+    return float(np.sort(lam)[-1])
+
+
+def exponential_H(xy, C0, C1, C2):
+    """M84 eq. 2 written out: d_ij² = C0² + C1 (1 − exp(−C2² l_ij)) for i ≠ j, 0 for i = j;
+    cov(x_i, x_j) = cov(y_i, y_j) = d² − ½ d_ij² (d² = max d_ij², cancels in the S-base)."""
+    L = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    D2 = np.where(L > 0, C0 ** 2 + C1 * (1 - np.exp(-C2 ** 2 * L)), 0.0)
+    return np.kron(D2.max() - 0.5 * D2, np.eye(2))
+
+
+@pytest.mark.parametrize("directions_only", [False, True], ids=["d=3", "d=4"])
+def test_exponential_fit_with_c0_meets_lambda_max_one_or_says_why_not(directions_only):
+    """Issue 27 item 5 (M84 §2.3): ``--criterion exponential --criterion-c0 C0`` was an internal
+    error (the root of λmax(C1) = 1 was bracketed by λmax at C1 = 1 *with* C0). C0_crit: the C0
+    whose nugget alone gives λmax = 1. Below it the fit has C1 > 0 and λmax = 1 in a dense
+    reference H (M84 eq. 2 written out); above it C1 = 0, λmax < 1, ``C1_zero`` and a note."""
+    adj = free_network(directions_only)
+    cc, Gk, in_base, xy = first_two_points_base(adj)
+    lam_unit = dense_lam_max(cc.cov, precision.sbase_transform(exponential_H(xy, 1.0, 0.0, 1.0), Gk, in_base), Gk)
+    c0_crit = np.sqrt(lam_unit)                     # H of the nugget scales with C0²
+    for f in (0.2, 0.7, 0.95):
+        fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind="exponential", C0=f * c0_crit)
+        assert fit["C1"] > 0 and not fit["C1_zero"] and fit["note"] == ""
+        H = precision.sbase_transform(exponential_H(xy, f * c0_crit, fit["C1"], fit["C2"]), Gk, in_base)
+        assert dense_lam_max(cc.cov, H, Gk) == pytest.approx(1.0, rel=1e-7)
+        assert fit["lam_max"] == pytest.approx(1.0, rel=1e-9)
+    fit = precision.fit_criterion(cc.cov, xy, in_base, Gk, kind="exponential", C0=1.5 * c0_crit)
+    assert fit["C1"] == 0.0 and fit["C1_zero"] and "cannot be met" in fit["note"]
+    assert fit["lam_max"] == pytest.approx(1 / 1.5 ** 2, rel=1e-7)
+
+
+def test_cli_exponential_with_c0_on_wolf(tmp_path, capsys):
+    """Wolf's free network: every C0 gives a fit (it was exit 3, "f(a) and f(b) must have different
+    signs"); a C0 that alone bounds G is named in the text and the JSON."""
+    import json
+
+    from baarda.cli import main
+    from tests.extdata import GAMA, require_extdata
+
+    wolf = require_extdata(GAMA / "krumm" / "2D" / "Wolf_DistanceDirectionAngle_free.gkf")
+    out = tmp_path / "w.json"
+    for c0, zero in ((0.001, False), (0.01, False), (1.0, True), (30.0, True)):
+        assert main(["analyze", str(wolf), "--criterion", "exponential", "--criterion-c0", str(c0), "--top", "1",
+                     "--json", str(out)]) == 0
+        text = capsys.readouterr().out
+        fit = json.loads(out.read_text())["criterion"]
+        assert fit["C1_zero"] is zero and (fit["lam_max"] == pytest.approx(1.0, rel=1e-9)) is (not zero)
+        assert ("C0 alone bounds the covariance" in text) is zero and f"C0 = {c0:.4g} m (given)" in text

@@ -151,3 +151,52 @@ def test_baarda_test_names_inseparable_hypotheses(tmp_path, capsys):
     jsonschema.validate(doc, json.loads(resources.files("baarda").joinpath("schema/test.schema.json").read_text()))
     (g,) = doc["inseparable"]
     assert g["hypotheses"] == specs[:2] and g["rho"] > 0.999
+
+
+def test_partly_inseparable_image_points_of_a_three_ray_point(tmp_path, capsys):
+    """Issue 27 item 8 (F80 §7.4, M84 §3.3): two image points of a 3-ray point have canonical
+    correlations (1, ~0.6): inseparable along one direction, separable along the other. The
+    smallest alone (what :func:`inseparable_pairs` judges) hid it. Reference: the canonical
+    correlations of the dense P C_vv P (tests.oracle.pcp); ``baarda test`` names the pair."""
+    import json
+
+    from baarda.cli import main
+    from baarda.io.native import write_native
+    from baarda.model.bundle import build_block_problem
+    from baarda.simulate import simulate_block
+    from baarda.stats.hypotheses import h_image_point
+    from tests.oracle import pcp
+
+    blk, _ = simulate_block(seed=3, strips=2, images_per_strip=4)
+    p = build_block_problem(blk)
+    adj = adjust(p)
+    hs = [(im, h_image_point(p, im, "P00003")) for im in ("102", "103", "104")]
+    S = pcp(adj)
+
+    def dense_cc(H1, H2):
+        H1, H2 = H1.toarray(), H2.toarray()
+        W11, W12, W22 = H1.T @ S @ H1, H1.T @ S @ H2, H2.T @ S @ H2
+        r1 = np.linalg.inv(np.linalg.cholesky(W11))
+        r2 = np.linalg.inv(np.linalg.cholesky(W22))
+        return np.linalg.svd(r1 @ W12 @ r2.T, compute_uv=False)
+
+    partly = separability.partly_inseparable(adj, hs)
+    flagged = {g.members for g in partly}
+    for a in range(3):
+        for b in range(a + 1, 3):
+            c = dense_cc(hs[a][1], hs[b][1])
+            expect = bool(c.max() >= separability.THRESHOLD > c.min())
+            assert ((hs[a][0], hs[b][0]) in flagged) is expect
+    assert partly and not separability.inseparable_pairs(adj, hs)
+    g = partly[0]
+    c = dense_cc(dict(hs)[g.members[0]], dict(hs)[g.members[1]])
+    assert (g.largest, g.smallest) == pytest.approx((c.max(), c.min()), abs=1e-6)
+    assert np.linalg.norm(g.direction) == pytest.approx(1.0)
+    path = tmp_path / "b.json"
+    write_native(blk, path)
+    out = tmp_path / "t.json"
+    assert main(["test", str(path), "-H", "image-point:102:P00003", "-H", "image-point:103:P00003",
+                 "--json", str(out)]) == 0
+    assert "partly inseparable" in capsys.readouterr().out
+    (pp,) = json.loads(out.read_text())["partly_inseparable"]
+    assert pp["largest"] > 0.99 > pp["smallest"]

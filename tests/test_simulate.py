@@ -120,3 +120,24 @@ def test_drone_camera_in_pixels():
 def test_unknown_recipe_key():
     with pytest.raises(ValueError, match="unknown recipe keys"):
         simulate_block(strip=3)
+
+
+def test_cli_error_ids_are_text(tmp_path, capsys):
+    """Issue 27 item 11: ``--error image:40:point=P00005:image=104`` was an internal IndexError (the
+    image id parsed as the number 104); ids are text, as the readers keep them. A point not measured
+    in the image named, or an unknown id, is a one-line error (exit 2), nothing written."""
+    from baarda.cli import main
+
+    out = tmp_path / "s.json"
+    args = ["simulate", str(out), "--strips", "2", "--images", "5", "--seed", "1"]
+    assert main(args + ["--error", "image:40:point=P00005:image=104"]) == 0
+    capsys.readouterr()
+    err, = json.loads(out.with_suffix(".truth.json").read_text())["errors"]
+    assert err["ids"]["image"] == "104" and err["ids"]["point"] == "P00005"
+    bad = tmp_path / "b.json"
+    for spec, what in (("image:40:point=P00005:image=101", "not measured in image '101'"),
+                       ("image:40:point=NOPE", "no point 'NOPE'"), ("exchange:1:image=999", "no image '999'")):
+        assert main(["simulate", str(bad), "--strips", "2", "--images", "5", "--error", spec]) == 2
+        line = capsys.readouterr().err.strip()
+        assert line.startswith("baarda: error:") and what in line and "\n" not in line
+        assert not bad.exists()

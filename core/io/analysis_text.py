@@ -88,19 +88,27 @@ def robust_lines(rob) -> list[str]:
         base = "" if sp["size_base"] is None else f" = {number(sp['size_base'], '.3g')} base lengths"
         out.append(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {number(sp['size_sigma'], '6.1f')}σ"
                    f"{base} ({sp['class']}), T = {number(sp['T'], '.1f')}, robust weight {sp['weight']:.3g}")
+        if sp.get("kept_in"):
+            out.append(printable(f"           {sp['note']}"))
     for fl in rob.floored:
         out.append(f"    weight floor raised to {fl['floor']:.0e} for {printable(', '.join(fl['unknowns'])) or 'all'} "
                    f"(down-weighted, they would leave unknowns undetermined)")
     if rob.final is not None:
         out.append(f"    least squares without them: {int(rob.final.rejected.sum())} rejected by data snooping, "
                    f"σ̂0 = {number(rob.final.sigma0_post)}")
+        if not rob.cleaned["complete"]:
+            g = rob.final.global_test
+            out.append(f"    the robust step did NOT clean the block: without its suspects least squares still fails "
+                       f"the global test (vᵀPv = {number(g['statistic'])} > {number(g['upper'])}, σ̂0 = "
+                       f"{number(rob.final.sigma0_post)}): gross errors remain, or σ0 a priori is too optimistic")
     return out
 
 
-def variance_lines(analysis, kind: str) -> list[str]:
-    """Variance components by family (F80 eq. 9) or the radial model (F80 §2.1)."""
+def variance_lines(analysis, kind: str, merge: str | None = None) -> list[str]:
+    """Variance components by family (F80 eq. 9; ``merge`` families estimated together) or the
+    radial model (F80 §2.1)."""
     try:
-        est = analysis.variance_components(kind)
+        est = analysis.variance_components(kind, merge)
     except BaardaError as err:
         return [printable(f"  {err}")]
     if kind != "families":
@@ -111,7 +119,8 @@ def variance_lines(analysis, kind: str) -> list[str]:
             se = "held at 0" if d["std_error"] is None else f"± {number(d['std_error'], '.2g')}"
             out.append(f"    {d['component']:<8s} θ = {number(d['theta'])} {se}   redundancy {d['redundancy']:.2f}")
         return out + [printable(f"    {note}") for note in est.notes]
-    out = [f"  variance components (F80 eq. 9, {est.iterations} iterations{'' if est.converged else ', NOT converged'}):"]
+    out = [f"  variance components (F80 eq. 9, {est.iterations} iterations"
+           f"{f', factors within {est.tolerance:g} of the fixed point' if est.converged else ', NOT converged'}):"]
     for d in est.as_dict():
         out.append(printable(f"    {d['group']:<20s} σ̂²/σ² = {number(d['factor'], '8.4f')} ± "
                              f"{number(d['std_error'], '.4f')}   redundancy {d['redundancy']:.2f}"))
@@ -137,7 +146,7 @@ def extras_text(analysis, ex, top: int = 8) -> list[str]:
     if ex.robust:
         out += robust_lines(analysis.robust(ex.robust))
     if ex.variance_components:
-        out += variance_lines(analysis, ex.variance_components)
+        out += variance_lines(analysis, ex.variance_components, ex.merge_groups)
     if ex.truth is not None:
         out.append(printable_lines(truth.text(analysis.planted(ex.truth))))
     return out

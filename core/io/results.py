@@ -63,6 +63,7 @@ def summary(adj, reliability=None) -> dict:
             "statistic": _num(g["statistic"]), "dof": g["dof"], "test": g["test"], "alpha": g["alpha"],
             "lower": _num(g["lower"]), "upper": _num(g["upper"]), "conf_pr": g["conf_pr"],
             "passed": g["passed"], "side": g["side"], "verdict": g["verdict"],
+            "sigma0_interval": sigma0_interval(g, adj.sigma0),
         },
         "timings": {k: round(float(v), 6) for k, v in adj.timings.items()},
         "far_points": far_point_ids(adj),
@@ -70,6 +71,16 @@ def summary(adj, reliability=None) -> dict:
         "dropped_observations": list(p.notes.dropped_observations),
         **duplicate_keypoints(p),
     }
+
+
+def sigma0_interval(g: dict, sigma0: float) -> dict | None:
+    """σ̂0's confidence interval at the global test's conf-pr (:func:`baarda.stats.distributions.sigma0_interval`,
+    F80 §4.1): ``{"confidence", "lower", "upper"}`` in the units of σ0 a priori, or None when r = 0.
+    σ0 a priori below it: the one-sided test fails; above it: σ0 a priori is too pessimistic."""
+    iv = g.get("ratio_interval")
+    if not iv:
+        return None
+    return {"confidence": g["conf_pr"], "lower": _num(iv[0] * sigma0), "upper": _num(iv[1] * sigma0)}
 
 
 def duplicate_keypoints(problem) -> dict:
@@ -335,6 +346,7 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
             rest = ", ".join(f"{d.entity} {d.id}" for d in defects[50:])
             lines.append(f"    and {len(defects) - 50} more: {rest}")
     lines.append(global_test_text(g, s))
+    lines.append(f"  {sigma0_text(g, s)}")
     stat = "τ" if s["statistic"] == "tau" else "w"
     lines.append(f"  α0 = {s['alpha0']}, β0 = {s['beta0']}: δ0 = {number(s['delta0'], '.3f')}, critical |w| = "
                  f"{number(s['critical_w'], '.3f')}, |τ| = {number(s['critical_tau'], '.3f')}; "
@@ -349,7 +361,7 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
     for i in np.argsort(-w)[:top]:
         flag = "  REJECTED" if rel.rejected[i] else ""
         wi = (f"{number(adj.w[i], '+8.3f'):>8s}" if np.isfinite(adj.w[i])
-              else f"{'—':>8s}  ({'r = 0, ' if not adj.r[i] > 1e-12 else ''}not testable)")
+              else f"{'—':>8s}  ((P C_vv P)_ii = 0: not testable)")       # the criterion of uncontrolled
         lines.append(f"    {label(i):<48s} w = {wi}  r = {number(adj.r[i], '.3f')}{flag}")
     lines.append("  weakest redundancy numbers:")
     for i in np.argsort(adj.r)[:top]:
@@ -385,23 +397,38 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
 
 
 def global_test_text(g: dict, s: dict) -> str:
-    """The global test in one line: which test, its α, the critical value(s), the verdict."""
+    """The global test in one line: which test, its α, the critical value(s), the verdict (F80
+    §4.1, §7.2); :func:`sigma0_text` says σ̂0 with its confidence interval."""
     if g["passed"] is None:
         return "  global test: not applicable (no redundancy)"
-    sig = f"σ0 a priori {number(s['sigma0_apriori'])}, a posteriori {number(s['sigma0_aposteriori'])}"
     T = g["statistic"]              # the relation to the bound(s) as it is: "> bound" when failed
-    if g["test"] == "one-sided":
-        rel = "≤" if T <= g["upper"] else ">"
-        how = (f"one-sided (F80 §4.1), B-method α_{g['dof']} = {number(100 * g['alpha'], '.3g')} %: "
-               f"vᵀPv = {number(T)} {rel} {number(g['upper'])} (χ², r = {g['dof']})")
-    else:
+    if g["test"] == "two-sided":
         rel = "in" if g["lower"] <= T <= g["upper"] else "not in"
         how = (f"two-sided at conf-pr {number(g['conf_pr'], '.3g')} (gama-local): vᵀPv = {number(T)} "
                f"{rel} [{number(g['lower'])}, {number(g['upper'])}] (χ², r = {g['dof']})")
+    else:
+        rel = "≤" if T <= g["upper"] else ">"
+        what = (f"one-sided (F80 §4.1) at α = {number(100 * g['alpha'], '.3g')} %" if g["test"] == "one-sided" else
+                f"one-sided at the B-method's α_{g['dof']} = {number(100 * g['alpha'], '.3g')} % (F80 §7.2)")
+        how = f"{what}: vᵀPv = {number(T)} {rel} {number(g['upper'])} (χ², r = {g['dof']})"
     verdict = "passed" if g["passed"] else "FAILED"
     if g["side"] is not None:
         verdict += f": {g['verdict']}" + (", not an error in the data" if g["side"] == "low" else "")
-    return f"  global test {how} → {verdict};  {sig}"
+    return f"  global test {how} → {verdict}"
+
+
+def sigma0_text(g: dict, s: dict) -> str:
+    """"σ0 a priori 1, a posteriori σ̂0 = 1.01, 95 % interval [0.99, 1.03]: σ0 a priori inside":
+    what the global test says about the precision, in the numbers' own terms."""
+    iv = (s.get("global_test") or {}).get("sigma0_interval") or sigma0_interval(g, s["sigma0_apriori"] or 1.0)
+    post, pri = s["sigma0_aposteriori"], s["sigma0_apriori"]
+    if not iv or iv["lower"] is None or iv["upper"] is None:
+        return f"σ0 a priori {number(pri)}, a posteriori {number(post)}"
+    where = ("below it (σ̂0 significantly larger)" if pri < iv["lower"] else
+             "above it (σ̂0 significantly smaller)" if pri > iv["upper"] else "inside it")
+    return (f"σ0 a priori {number(pri)}, a posteriori σ̂0 = {number(post, '.4g')}, "
+            f"{number(100 * iv['confidence'], '.3g')} % interval [{number(iv['lower'], '.4g')}, "
+            f"{number(iv['upper'], '.4g')}]: σ0 a priori {where}")
 
 
 def _unbounded(x, spec: str) -> str:

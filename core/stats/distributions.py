@@ -83,47 +83,86 @@ def alpha_b_method(alpha1: float, beta: float, q: int) -> float:
     return float(np.exp(optimize.brentq(gap, np.log(1e-15), np.log(0.999999), xtol=1e-13)))
 
 
-#: The global tests: F80's one-sided test at the B-method's α_r (default), or gama-local's
-#: two-sided interval at its confidence level ``conf-pr``.
-GLOBAL_TESTS = ("one-sided", "two-sided")
+#: The global tests (F80 §4.1): ``one-sided`` (default) rejects Ω/σ0² above the upper end of the
+#: conf-pr interval, size (1 − conf-pr)/2; ``two-sided`` (gama-local) rejects outside that interval,
+#: size 1 − conf-pr; ``b-method`` is one-sided at the B-method's α_r (F80 §7.2, Baarda 1968).
+GLOBAL_TESTS = ("one-sided", "two-sided", "b-method")
 
 #: What a value of Ω/σ0² below the lower bound means: the a priori variances are too large,
 #: not an error in the data.
 TOO_PESSIMISTIC = "σ0 a priori too pessimistic (Ω/r far below σ0²)"
 #: What a value above the upper bound means (F80 §4.1: model errors accumulate in Ω).
 TOO_LARGE = "Ω/σ0² too large: errors in the model or σ0 a priori too optimistic"
+#: A B-method rejection that the conf-pr interval of σ̂0 does not confirm (α_r is large).
+STRICT = ("above the B-method's bound only: σ0 a priori lies within σ̂0's confidence interval, the "
+          "excess of Ω is not significant at conf-pr")
+
+
+def sigma0_interval(statistic: float, dof: int, conf_pr: float = 0.95) -> tuple[float, float]:
+    """Confidence interval of σ/σ0 (the true standard deviation of unit weight in units of σ0 a
+    priori) at level ``conf_pr``: Ω/σ² ~ χ²(r) under H0 (F80 eq. 3, §4.1), so
+    [√(Ω/σ0² / χ²_{1−γ/2}(r)), √(Ω/σ0² / χ²_{γ/2}(r))], γ = 1 − conf_pr. σ̂0/σ0 = √(Ω/σ0²/r)
+    lies inside; σ0 a priori (ratio 1) lies below the interval exactly when Ω/σ0² exceeds
+    χ²_{1−γ/2}(r), the bound of the one-sided test."""
+    if dof <= 0:
+        return (float("nan"), float("nan"))
+    tail = (1.0 - conf_pr) / 2.0
+    t = max(float(statistic), 0.0)
+    return (float(np.sqrt(t / stats.chi2.isf(tail, dof))), float(np.sqrt(t / stats.chi2.ppf(tail, dof))))
 
 
 def global_test(statistic: float, dof: int, conf_pr: float = 0.95, test: str = "two-sided",
                 alpha: float | None = None) -> dict:
     """Global test of Ω/σ0² ~ χ²(r) under H0 (F80 §4.1, §7.2).
 
-    ``test="one-sided"`` (F80): reject only a value above χ²_{1−α}(r), size ``alpha`` (with the
-    B-method α_r, :func:`alpha_b_method` for q = r, F80 §7.2); ``lower`` = χ²_α(r) is given for
-    the note only: a value below it says σ0 a priori is too pessimistic, the test still passes.
-    ``test="two-sided"`` (gama-local): accept within [χ²_{α/2}(r), χ²_{1−α/2}(r)], α = 1 − conf_pr;
-    a value below the interval fails the test, reported as σ0 a priori too pessimistic
-    (``side`` "low"), not as an error in the data.
+    Model errors only enlarge Ω (T ~ χ'²(r, δ²), F80 eq. 10-11), so F80's test is one-sided;
+    its size is free (F80 §4.1: "depending on the significance level 1 − α").
 
-    Returns statistic, dof, test, alpha, conf_pr, lower, upper, passed (None with r = 0, the test
-    not applicable), side (None, "low" or "high") and verdict (words).
+    - ``test="one-sided"`` (default): reject above χ²_{1−α}(r) with α = (1 − conf_pr)/2 unless
+      ``alpha`` is given, i.e. when
+      σ0 a priori lies below the conf_pr confidence interval of σ (:func:`sigma0_interval`); every
+      error-free block, of any redundancy, fails at rate α (2.5 % at conf_pr 0.95).
+    - ``test="b-method"``: one-sided at ``alpha`` = the B-method's α_r (:func:`alpha_b_method`
+      with q = r): the λ0 = δ0² and β0 of the one-dimensional test (F80 §7.2, Baarda 1968).
+      α_r grows with r towards β0 (52 % at r = 216 for α0 = 0.1 %, β0 = 80 %), so an error-free
+      large block fails more often than not; a rejection the interval does not confirm is said so
+      (:data:`STRICT`).
+    - ``test="two-sided"`` (gama-local): accept within [χ²_{γ/2}(r), χ²_{1−γ/2}(r)], γ = α =
+      1 − conf_pr; a value below fails, reported as σ0 a priori too pessimistic (``side`` "low").
+
+    In the one-sided tests ``lower`` = χ²_{γ/2}(r) (the interval's) marks a low value for the note
+    only (σ0 a priori too pessimistic; the test passes); ``lower`` < ``upper`` always (None when it
+    would not be). Returns statistic, dof, test, alpha, conf_pr, lower, upper, passed (None with
+    r = 0), side (None, "low", "high"), verdict (words), ratio σ̂0/σ0 and ratio_interval (the
+    conf_pr interval of σ/σ0).
     """
     if test not in GLOBAL_TESTS:
         raise OptionError("global-test", test, GLOBAL_TESTS, f"the global test is one of {', '.join(GLOBAL_TESTS)}")
+    if not 0 < conf_pr < 1:
+        raise OptionError("conf-pr", conf_pr, (), f"need 0 < conf-pr < 1 for the global test (conf-pr={conf_pr})")
+    gamma = 1.0 - conf_pr
     if test == "two-sided":
-        alpha = 1.0 - conf_pr
+        alpha = gamma
+    elif test == "one-sided" and alpha is None:
+        alpha = gamma / 2.0
     if alpha is None or not 0 < alpha < 1:
         raise OptionError("alpha", alpha, (), f"need 0 < alpha < 1 for the global test (alpha={alpha})")
     out = {"statistic": float(statistic), "dof": int(dof), "test": test, "alpha": float(alpha),
            "conf_pr": float(conf_pr), "lower": None, "upper": None, "passed": None, "side": None,
-           "verdict": "not applicable (no redundancy)"}
+           "verdict": "not applicable (no redundancy)", "ratio": None, "ratio_interval": None}
     if dof <= 0:
         return out
-    tail = alpha / 2.0 if test == "two-sided" else alpha
-    lower = float(stats.chi2.ppf(tail, dof))
-    upper = float(stats.chi2.isf(tail, dof))
-    side = "high" if statistic > upper else "low" if statistic < lower else None
-    passed = side is None or (side == "low" and test == "one-sided")
+    lower = float(stats.chi2.ppf(gamma / 2.0, dof))
+    upper = float(stats.chi2.isf(gamma / 2.0 if test == "two-sided" else alpha, dof))
+    if not lower < upper:             # the B-method with β0 above (1 + conf_pr)/2: no low note
+        lower = None
+    side = "high" if statistic > upper else "low" if lower is not None and statistic < lower else None
+    passed = side is None or (side == "low" and test != "two-sided")
     verdict = {None: "accepted", "high": TOO_LARGE, "low": TOO_PESSIMISTIC}[side]
-    out.update(lower=lower, upper=upper, passed=bool(passed), side=side, verdict=verdict)
+    beyond_interval = statistic > float(stats.chi2.isf(gamma / 2.0, dof))
+    if side == "high" and not beyond_interval:
+        verdict = STRICT
+    out.update(lower=lower, upper=upper, passed=bool(passed), side=side,
+               verdict=verdict, ratio=float(np.sqrt(max(float(statistic), 0.0) / dof)),
+               ratio_interval=list(sigma0_interval(statistic, dof, conf_pr)))
     return out

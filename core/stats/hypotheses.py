@@ -37,6 +37,27 @@ from ..observations.collinearity import AP_GROUPS, BASES, CollinearitySet
 from ..solve.linalg import SPDFactor
 
 
+#: slack of the bound T_j ≤ vᵀPv of :func:`counted_directions` (relative, absolute)
+T_BOUND_SLACK = (1e-6, 1e-9)
+
+
+def counted_directions(lam: np.ndarray, V: np.ndarray, g: np.ndarray, tol, vPv: float):
+    """The eigen-directions of W_s that a test counts, its rank q (F80 eq. 10-12): λ_j above the
+    round-off floor ``tol`` and the direction's own statistic T_j = (v_jᵀg)²/λ_j (g = HᵀPv) within
+    what the data hold, T_j ≤ vᵀPv. An exact W_s holds g in its range and every test of a subspace
+    is a part of Ω/σ0² (R's denominator Ω0 − T ≥ 0, F80 eq. 12), so a direction claiming more is
+    the round-off eigenvalue of a rank-deficient W_s (e.g. two keypoints of one far point in one
+    image: their tests perfectly correlated, λ ≈ 1e-10, T ≈ 1e10). Works on stacks: ``lam``
+    (..., m), ``V`` (..., m, m), ``g`` (..., m), ``tol`` scalar or (...,). Returns (mask, T_j)."""
+    lam = np.asarray(lam, dtype=float)
+    proj = np.einsum("...ji,...j->...i", V, g)
+    pos = lam > np.asarray(tol, dtype=float)[..., None]
+    Tj = np.where(pos, proj * proj / np.where(pos, lam, 1.0), 0.0)
+    rel, ab = T_BOUND_SLACK
+    pos &= Tj <= max(float(vPv), 0.0) * (1.0 + rel) + ab
+    return pos, np.where(pos, Tj, 0.0)
+
+
 def selection(n: int, members, weights=None) -> sp.csc_matrix:
     """H that adds an independent error to each listed observation (columns e_i)."""
     members = np.asarray(members, dtype=np.int64)
@@ -142,14 +163,14 @@ def test(adj, H, label: str = "", policy=None) -> HypothesisTest:
     W = 0.5 * (W + W.T)
     lam, V = la.eigh(W)
     tol = 1e-10 * max(lam.max(initial=0.0), np.abs(np.diag(HPH)).max(initial=0.0), 1e-300)
-    pos = lam > tol
-    q = int(pos.sum())
-    Winv = (V[:, pos] / lam[pos]) @ V[:, pos].T
     g = np.asarray(H.T @ adj.Pv).ravel()
-    nabla = -Winv @ g
-    T = float(g @ Winv @ g)
     dof = adj.dof
     vPv = adj.vPv
+    pos, Tj = counted_directions(lam, V, g, tol, vPv)      # q = rank W_s, T within vᵀPv
+    q = int(pos.sum())
+    Winv = (V[:, pos] / lam[pos]) @ V[:, pos].T
+    nabla = -Winv @ g
+    T = float(Tj.sum())
     R = float((T / q) / ((vPv - T) / (dof - q))) if (q and dof > q and vPv > T) else float("nan")
     policy = adj.policy if policy is None else policy
     alpha = policy.alpha(q)

@@ -20,11 +20,16 @@ eq. 10-12) takes h at the adjustment and gives ∇ŝ and T. Two things can go wr
 - the exchange is a large error: points tens of millimetres apart are ~10⁴ σ, far beyond the
   "small" gross errors (< 50 σ, R84 §6) for which the adjustment with the error stays in the linear
   range. Then the alternative is evaluated exactly: the adjustment is repeated with the exchange
-  undone (the two measurements swapped back; for a one-sided misidentification the measurement of
-  a left out), Ω1 = vᵀPv there, and the model is linearised again at that solution (test T1, ∇ŝ1
-  of the same hypothesis, which now undoes the swap). The extended model's statistic
-  T = Ω0 − min_s Ω(s) (F80 eq. 12 at its solution) is then max(T_lin, Ω0 − Ω1 + T1), with
-  ŝ = 0 + ∇ŝ or 1 − ∇ŝ1 from the branch that attains it.
+  undone (the two measurements swapped back), Ω1 = vᵀPv there, and the model is linearised again
+  at that solution (test T1, ∇ŝ1 of the same hypothesis, which now undoes the swap). The extended
+  model's statistic T = Ω0 − min_s Ω(s) (F80 eq. 12 at its solution) is then max(T_lin,
+  Ω0 − Ω1 + T1), with ŝ = 0 + ∇ŝ or 1 − ∇ŝ1 from the branch that attains it — the step from s = 1
+  only where it stays in its own linear range (|∇ŝ1| × size ≤ 50 σ), else Ω0 − Ω1 alone (exact at
+  s = 1). Where the swapped-back block cannot be adjusted or tested (a 2-ray point left
+  undetermined) the linear test is the result, said so.
+- a one-sided misidentification beyond the linear range: the refit leaves the measurement of a out;
+  s is not identifiable there and D = Ω0 − Ω1 is the 2-D deletion test of a's measurement (χ²(2)),
+  reported beside the linear test, which stays the decision on s (q = 1).
 """
 
 from __future__ import annotations
@@ -114,6 +119,24 @@ def _undone(adj, ra, rb, both: bool):
     return subset(p, np.setdiff1d(np.arange(p.n), ra))
 
 
+def _refit(problem1, adj):
+    """Adjust ``problem1`` (the exchange undone) from the solution of ``adj`` where it converged,
+    else — or where that start fails (a point the exchange drove towards infinity stays there:
+    a local defect) — from the problem's own approximations. Returns (adjustment or None,
+    converged, why not)."""
+    why = "did not converge"
+    for x0 in ((adj.x, None) if adj.converged else (None,)):
+        try:
+            adj1 = adjust(problem1, adj.options, x0=x0)
+        except BaardaError as err:
+            why = str(err)
+            continue
+        if adj1.converged:
+            return adj1, True, ""
+        why = getattr(adj1, "termination", "") or "did not converge"
+    return None, False, why
+
+
 def _far_from_one(test: ExchangeTest) -> ExchangeTest:
     """Add to the message of a rejected test whose ŝ is far from 1 that the data show an error in
     these measurements, but not this exchange."""
@@ -159,28 +182,46 @@ def exchange_test(adj, image: str, point_a: str, point_b: str, both: bool = True
             f"(≤ {LINEAR_LIMIT_SIGMA:g} σ, R84 §6)"), **common)
     why_iterate = failed or f"the hypothesised error is {size:.3g} σ, beyond the linear range (> {LINEAR_LIMIT_SIGMA:g} σ, R84 §6)"
     problem1 = _undone(adj, ra, rb, both)
-    try:
-        adj1 = adjust(problem1, adj.options, x0=adj.x if adj.converged else None)
-        ok = bool(adj1.converged)
-    except BaardaError as err:
-        adj1, ok, why = None, False, str(err)
-    else:
-        why = getattr(adj1, "termination", "did not converge")
+    adj1, ok, why = _refit(problem1, adj)
     if not ok:
         return _far_from_one(ExchangeTest(linear=h, testable=h is not None, T=T_lin, s_hat=nabla, omega0=adj.vPv,
-                                          message=(f"{why_iterate}; the adjustment with the exchange undone failed "
-                                                   f"({why}): only the linear test, which may misjudge so large an "
-                                                   "error"), **common))
-    if both:
-        h1 = test(adj1, h_exchanged(adj1, image, point_a, point_b, both=True), policy=policy)   # s' = 1 − s
-        T1, s1 = (h1.T, 1.0 - float(h1.nabla[0])) if h1.q else (0.0, 1.0)
-    else:
-        T1, s1 = 0.0, 1.0                  # a's measurement left out: nothing left to linearise
-    T_exact = adj.vPv - adj1.vPv + T1
-    T, s = (T_exact, s1) if not T_exact <= T_lin else (T_lin, nabla)
+                                          message=(f"{why_iterate}; the adjustment with "
+                                                   f"{'the exchange undone' if both else f'the measurement of {point_a} left out'}"
+                                                   f" failed ({why}): only the linear test, which may misjudge so "
+                                                   "large an error"), **common))
     what = "swapped back" if both else f"of {point_a} left out"
+    if not both:
+        # a's measurement left out: the refit has no measurement whose factor s could be estimated, and
+        # D = Ω0 − Ω1 is the deletion statistic of a's image point — the 2-D test of that measurement
+        # (F80 eq. 12 with q = 2, exact for a linear model), not a test of s. The decision on s stays
+        # the linear test's (q = 1); D is reported with its own χ²(2) critical value.
+        D = adj.vPv - adj1.vPv
+        crit2 = policy.critical_T(2)
+        return _far_from_one(ExchangeTest(linear=h, testable=True, refit=adj1, omega0=adj.vPv, omega1=adj1.vPv,
+                                          T=T_lin, s_hat=nabla, message=(
+                                              f"{why_iterate}: readjusted with the measurement {what} (vᵀPv "
+                                              f"{adj.vPv:.4g} → {adj1.vPv:.4g}): D = Ω0 − Ω1 = {D:.4g} is the 2-D test "
+                                              f"of that measurement (critical {crit2:.4g}, q = 2: "
+                                              f"{'rejected' if D > crit2 else 'accepted'}); s is not identifiable "
+                                              "without it, so T and ŝ are the linear test's (q = 1)"), **common))
+    try:
+        h1 = test(adj1, h_exchanged(adj1, image, point_a, point_b, both=True), policy=policy)   # s' = 1 − s
+    except BaardaError as err:      # the swapped-back block leaves an unknown undetermined (a 2-ray point)
+        return _far_from_one(ExchangeTest(linear=h, testable=h is not None, T=T_lin, s_hat=nabla, omega0=adj.vPv,
+                                          message=(f"{why_iterate}; the adjustment with the exchange undone has no "
+                                                   f"test ({err}): only the linear test, which may misjudge so "
+                                                   "large an error"), **common))
+    T1, d1 = (h1.T, float(h1.nabla[0])) if h1.q else (0.0, 0.0)
+    # the linear step from s = 1 holds within its own linear range (R84 §6): a step of |∇ŝ1| full
+    # exchanges moves the measurements by |∇ŝ1| × size σ. Beyond it the minimum of Ω(s) is not near
+    # s = 1, and only the exact Ω0 − Ω1 (a lower bound of Ω0 − min Ω(s)) is used
+    if abs(d1) * size <= LINEAR_LIMIT_SIGMA:
+        T_exact, s1, step = adj.vPv - adj1.vPv + T1, 1.0 - d1, "Ω0 − Ω1 + T1"
+    else:
+        T_exact, s1, step = adj.vPv - adj1.vPv, 1.0, "Ω0 − Ω1 (the step from s = 1 leaves its linear range)"
+    T, s = (T_exact, s1) if not T_exact <= T_lin else (T_lin, nabla)
     return _far_from_one(ExchangeTest(linear=h, testable=True, refit=adj1, omega0=adj.vPv, omega1=adj1.vPv, T1=T1, T=T,
                         s_hat=s, message=(
                             f"{why_iterate}: iterated — readjusted with the measurements {what} "
-                            f"(vᵀPv {adj.vPv:.4g} → {adj1.vPv:.4g}); T = max(T_linear, Ω0 − Ω1 + T1)"),
+                            f"(vᵀPv {adj.vPv:.4g} → {adj1.vPv:.4g}); T = max(T_linear, {step})"),
                         **common))

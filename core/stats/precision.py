@@ -358,24 +358,33 @@ def fit_criterion(G: np.ndarray, xy: np.ndarray, in_base: np.ndarray, Gnull: np.
     C2 is searched on a grid of 61 values over :func:`c2_bounds` and refined by Brent's method
     around the best grid value; ``C2_at_bound`` says the smallest ratio lies at the end of that
     range (for the plateau where d² is the same for every pair, the end of the plateau is given). With C0 = 0, H scales with C1 and C1 = λmax(C1 = 1); otherwise
-    λmax falls as C1 grows and C1 is its root (0 when C0 alone already bounds G). C1 is in m²/m
+    λmax falls as C1 grows and C1 is its root in [0, λmax of the C1 part alone at C1 = 1]; when C0
+    alone already bounds G (λmax < 1 at C1 = 0) the condition λmax = 1 cannot be met: C1 = 0,
+    ``C1_zero`` true and ``note`` says so (``lam_max``, ``lam_min`` of the fit). C1 is in m²/m
     (linear, logarithmic) or m² (exponential), C2 in m (logarithmic) or m^-½ (exponential), C0 in
     m² (linear, logarithmic) or m (exponential: d² = C0² + …).
     """
     null = np.asarray(Gnull, dtype=float)
 
-    def lam(C1, C2):
-        H = criterion_matrix(xy, kind, C0, C1, C2, axes=axes)
+    def lam(C1, C2, c0=C0):
+        H = criterion_matrix(xy, kind, c0, C1, C2, axes=axes)
         return compare(G, sbase_transform(H, null, in_base), null, in_base)
 
     def fitted(C2):
-        c1 = lam(1.0, C2)
+        # the C1 part alone: H scales with C1, λmax(C1) = λmax(1)/C1, so at C1 = λmax(1) it alone
+        # reaches λmax = 1, and with the C0 part added (positive semidefinite: a nugget, d_ij² = C0
+        # or C0² for i ≠ j) λmax ≤ 1 there — the root lies in [0, λmax(1)]
+        c1 = lam(1.0, C2, 0.0)
         if C0 == 0.0:
             return c1.lam_max, c1
         c0 = lam(0.0, C2)
-        if c0.lam_max <= 1.0:               # C0 alone bounds G
+        if c0.lam_max <= 1.0:               # C0 alone bounds G: C1 = 0, λmax < 1 (see "C1_zero")
             return 0.0, c0
-        hi = max(c1.lam_max, 1e-300)        # at C1 = λmax(1) the C1 part alone reaches λmax = 1
+        hi = max(c1.lam_max, 1e-300)
+        for _ in range(60):                 # round-off at the end of the bracket: widen it
+            if lam(hi, C2).lam_max <= 1.0:
+                break
+            hi *= 2.0
         C1 = optimize.brentq(lambda c: lam(c, C2).lam_max - 1.0, 0.0, hi, xtol=1e-14 * hi, rtol=1e-12)
         return C1, lam(C1, C2)
 
@@ -405,6 +414,11 @@ def fit_criterion(G: np.ndarray, xy: np.ndarray, in_base: np.ndarray, Gnull: np.
     if C0 == 0.0:
         C1 = c.lam_max          # H scales with C1 when C0 = 0: λ(C1) = λ(1) / C1
         c = lam(C1, C2)
+    zero = bool(C0 != 0.0 and C1 == 0.0)
+    note = (f"C0 alone bounds the covariance (λmax = {c.lam_max:.4g} < 1 at C1 = 0): the fit's condition "
+            "λmax = 1 (M84 §2.3) cannot be met with this C0, so C1 = 0 and C2 is not determined; a smaller C0 "
+            "leaves room for C1" if zero else "")
     return {"kind": kind, "C0": float(C0), "C1": float(C1), "C2": float(C2),
             "ratio": float(c.lam_max / c.lam_min), "C2_range": [float(bounds[0]), float(bounds[1])],
-            "C2_at_bound": bool(at_bound)}
+            "C2_at_bound": bool(at_bound), "lam_max": float(c.lam_max), "lam_min": float(c.lam_min),
+            "C1_zero": zero, "note": note}

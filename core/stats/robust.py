@@ -52,7 +52,10 @@ The strategy of R84, in three steps:
    and with the same two tests (:func:`snoop_clusters`), finds what the robust fit missed (small errors whose weight
    the function hardly changed); readmission and snooping are repeated until neither changes
    the set (at most ``MAX_CONFIRM_PASSES``). A point keeps its control or two rays: of its
-   left-out clusters the least suspect go back in rather than leave it undetermined. The
+   left-out clusters the least suspect go back in rather than leave it undetermined. A cluster
+   snooping rejects but cannot leave out for that reason (a ray of a 2-ray point) is tested in the
+   final fit that includes it (F80 eq. 10-12) and reported as a suspect kept in, inseparable from
+   the point's other ray(s) (it was "readmitted", and an error of 40σ at a 2-ray point missed). The
    suspects are reported with their tests against the final fit.
 
 Separability (M84 §3.3, F80 §7.4): where two hypotheses change the observations alike — the two
@@ -151,10 +154,22 @@ class RobustResult:
     candidates: int = 0          # clusters the robust fit put forward (before step 3)
     readmitted: tuple = ()       # candidates the least-squares test cleared (observation indices)
 
+    @property
+    def cleaned(self) -> dict | None:
+        """The least-squares fit without the suspects judged by the global test (F80 §4.1): σ̂0, the
+        test's verdict and ``complete`` — False where that fit still fails high, i.e. the robust step
+        did not take out every gross error (or σ0 a priori is too optimistic). None without it."""
+        if self.final is None:
+            return None
+        g = self.final.global_test
+        return {"sigma0_aposteriori": float(self.final.sigma0_post), "global_test_passed": g["passed"],
+                "complete": not (g["passed"] is False and g["side"] == "high")}
+
     def as_dict(self) -> dict:
         return {"method": self.method, "iterations": self.iterations, "converged": self.converged,
                 "suspects": self.suspects, "candidates": self.candidates,
-                "readmitted": [list(m) for m in self.readmitted], "floored": list(self.floored)}
+                "readmitted": [list(m) for m in self.readmitted], "floored": list(self.floored),
+                "cleaned": self.cleaned}
 
 
 def _bases(problem) -> tuple[float | None, float | None]:
@@ -321,9 +336,8 @@ def cluster_tests(adj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         W = 0.5 * (W + np.swapaxes(W, 1, 2))
         lam, V = np.linalg.eigh(W)
         tol = 1e-10 * np.maximum(np.abs(np.diagonal(Pc, axis1=1, axis2=2)).max(axis=1), 1e-300)
-        pos = lam > tol[:, None]
-        g = np.einsum("kji,kj->ki", V, Pv[members])
-        T.append(np.where(pos, g * g / np.where(pos, lam, 1.0), 0.0).sum(axis=1))
+        pos, Tj = hypotheses.counted_directions(lam, V, Pv[members], tol, adj.vPv)   # q = rank W_s
+        T.append(Tj.sum(axis=1))
         q.append(pos.sum(axis=1))
         first.append(members[:, 0])
         Wd = np.diagonal(W, axis1=1, axis2=2)
@@ -367,7 +381,7 @@ def _fit(problem, keep, options, x0):
     return adjust(subset(problem, keep), options, x0=x0)
 
 
-def snoop_clusters(problem, keep, options, x0=None, point_of=None):
+def snoop_clusters(problem, keep, options, x0=None, point_of=None, held=None):
     """Iterative data snooping over covariance clusters (M84 §3.1): each image point, control
     point or single observation is tested as a whole (T of F80 eq. 12 against T_crit(q)) and per
     member (Baarda's w against the w-test's critical value); the cluster with the largest ratio
@@ -389,6 +403,8 @@ def snoop_clusters(problem, keep, options, x0=None, point_of=None):
         if point_of is not None and point_of[c]:
             left = [m_ for m_ in removed if point_of[int(cluster[m_[0]])] == point_of[c]] + [m]
             if _determined(problem, left, point_of)[1]:
+                if held is not None:           # rejected, but it cannot leave: tested in the fit
+                    held.append(np.asarray(m))
                 return adj, keep, removed      # the point would be undetermined: stop here
         new_keep = np.setdiff1d(keep, m)
         try:
@@ -481,12 +497,22 @@ def _confirm(problem, candidates, options, x0):
         readmitted += back
         keep = np.setdiff1d(np.arange(problem.n), np.concatenate(kept_out)) if kept_out else np.arange(problem.n)
         # data snooping on the cleaned set: what the robust weights missed
-        final, keep, found = snoop_clusters(problem, keep, options, x0, point_of)
+        held = []
+        final, keep, found = snoop_clusters(problem, keep, options, x0, point_of, held)
         out = kept_out + found
         if not found and not back:
             break
         x0 = final.x
     tested = [(m, *_test_cluster(problem, m, final, keep, options)) for m in out]
+    # the cluster snooping rejected but could not leave out (its point would be undetermined):
+    # tested in the final fit that includes it (F80 eq. 10-12)
+    for m in held:
+        if not np.isin(m, keep).all():
+            continue
+        h = hypotheses.test(final, hypotheses.selection(final.n, _rows_in(keep, m)))
+        if h.q and h.T > h.critical_T:
+            tested.append((m, np.asarray(h.nabla, dtype=float), float(h.T), h.q, float(h.critical_T), True,
+                           "kept in"))
     return tested, final, readmitted
 
 
@@ -514,7 +540,7 @@ def estimate(problem, method: str = "r84", options: Options | None = None, tol: 
     kinds = problem.info.kind
     sigma_c = problem.cov.blocks
     suspects = []
-    for m, nabla, T, q, crit_T, _ in tested:
+    for m, nabla, T, q, crit_T, _, *kept_in in tested:
         c = int(problem.cov.cluster[m[0]])
         C = np.asarray(sigma_c[c])
         size = float(np.sqrt(max(nabla @ np.linalg.solve(C, nabla), 0.0)))
@@ -530,6 +556,12 @@ def estimate(problem, method: str = "r84", options: Options | None = None, tol: 
                          "nabla": [float(v) for v in nabla], "T": T, "q": int(q), "critical_T": crit_T,
                          "size_sigma": size, "size_base": size_base,
                          "class": error_class(size, size_base, medium_base)})
+        if kept_in:
+            suspects[-1]["kept_in"] = True
+            suspects[-1]["note"] = ("kept in the adjustment (its point would be undetermined without it) and "
+                                    "rejected by its test there (F80 eq. 10-12): ∇̂ is seen only along the "
+                                    "directions that test sees, and the error may lie in another ray of the "
+                                    "point (inseparable, F80 §7.4)")
     suspects.sort(key=lambda d: -d["size_sigma"])
     return RobustResult(method, w_obs, adj, it, converged, suspects, final, history, floored,
                         len(candidates), tuple(tuple(int(j) for j in m) for m in readmitted))

@@ -41,6 +41,20 @@ THRESHOLD = 0.99
 
 
 @dataclass(frozen=True)
+class PartialPair:
+    """Two hypotheses whose test spaces share a direction (largest canonical correlation ≥ the
+    threshold) but not all (smallest below it): along that direction the data cannot tell them
+    apart — an error there is seen by both tests alike — while the other directions separate them
+    (F80 §7.4, M84 §3.3). ``members``: the two labels; ``largest``, ``smallest``: the canonical
+    correlations; ``direction``: the shared direction in the first hypothesis' parameters (unit)."""
+
+    members: tuple
+    largest: float
+    smallest: float
+    direction: tuple
+
+
+@dataclass(frozen=True)
 class InseparableGroup:
     """Hypotheses whose test statistics are pairwise linked by |ρ| ≥ threshold (connected
     components of that graph). ``members``: observation indices (w-tests) or the labels of the given
@@ -308,3 +322,34 @@ def inseparable_pairs(adj, tests=None, threshold: float = THRESHOLD) -> list[Ins
                 I.append(a), J.append(b), R.append(rho)
     comps = _components(len(red), np.asarray(I, dtype=np.int64), np.asarray(J, dtype=np.int64), np.asarray(R))
     return [InseparableGroup(tuple(items[k][0] for k in m), float(r)) for m, r in comps]
+
+
+def partly_inseparable(adj, tests, threshold: float = THRESHOLD) -> list[PartialPair]:
+    """Pairs of the hypotheses ``tests`` (as :func:`inseparable_pairs` takes them) that are partly
+    inseparable: their largest canonical correlation reaches ``threshold``, their smallest does not
+    (module docstring; :func:`inseparable_pairs` reports the pairs where every one does). Two image
+    points of one 3-ray point, say, with canonical correlations (1.0, 0.52): an error along the shared
+    direction cannot be attributed to either image."""
+    if not 0 < threshold <= 1:
+        raise OptionError("threshold", threshold, (), "the threshold on |ρ| must lie in (0, 1]")
+    items = [_hypothesis(adj, t, k) for k, t in enumerate(tests)]
+    red = [_Reduced(adj, H) for _, H in items]
+    W = [x.w_with(x) for x in red]
+    support = [set(np.flatnonzero(np.asarray(abs(adj.Ar[x.H.indices]).sum(axis=0)).ravel()).tolist())
+               | {("row", i) for i in x.H.indices.tolist()} for x in red]
+    out = []
+    for a in range(len(red)):
+        for b in range(a + 1, len(red)):
+            if not support[a] & support[b] or (W[a].shape == (1, 1) and W[b].shape == (1, 1)):
+                continue
+            X1, X2 = _inverse_sqrt(W[a]), _inverse_sqrt(W[b])
+            if X1.shape[1] == 0 or X2.shape[1] == 0:
+                continue
+            U, c, _ = np.linalg.svd(X1.T @ red[a].w_with(red[b]) @ X2)
+            c = np.clip(c, 0.0, 1.0)
+            if c.size and c.max() >= threshold and c.min() < threshold:
+                d = X1 @ U[:, 0]
+                d = d / np.linalg.norm(d)
+                out.append(PartialPair((items[a][0], items[b][0]), float(c.max()), float(c.min()),
+                                       tuple(float(x) for x in d)))
+    return out

@@ -6,8 +6,10 @@ adjustment's P and C_vv, the estimate of each factor is
     σ̂0j² = vᵀ P C_j P v / tr(C_vv P C_j P) = v_jᵀ P_j v_j / Σ_{i∈j} r_i
 
 (the second form for groups made of whole covariance clusters). The covariance of group j is
-rescaled by σ̂0j², the problem readjusted, and this repeated until every new estimate is 1 within
-``tol`` (Förstner's iterated estimator). At convergence the standard error of a factor is
+rescaled by σ̂0j², the problem readjusted, and this repeated until every factor is within ``tol``
+(relative) of the iteration's fixed point (Förstner's iterated estimator): the iteration contracts
+linearly, by ρ per step, so the distance left after a step δ is about δ ρ/(1 − ρ), ρ estimated
+from the last two steps — a step below ``tol`` alone left Niemeier's network 3e-4 short. At convergence the standard error of a factor is
 σ̂0j² √(2 (S⁻¹)_jj) with S_jk = tr(W C_j W C_k), W = P Q_vv P and C_j the group's covariance as it
 stands (Förstner 1979); σ̂0j² √(2 / r_j), r_j = Σ_{i∈j} r_i, is its diagonal approximation, used
 above :data:`RIGOROUS_MAX_N` observations.
@@ -53,16 +55,40 @@ class VarianceComponents:
     adjustment: object
     #: "rigorous": f_j √(2 (S⁻¹)_jj); "approximate": f_j √(2 / r_j) (problems above RIGOROUS_MAX_N)
     std_error_method: str = "rigorous"
+    #: the stated tolerance: every factor within it (relative) of the iteration's fixed point
+    tolerance: float = 1e-4
+    #: the estimated relative distance of the factors from the fixed point at the end
+    distance: float = float("nan")
 
     def summary(self) -> dict:
-        """How the estimate ended: ``converged``, ``iterations`` and the standard errors' method."""
+        """How the estimate ended: ``converged``, ``iterations``, the standard errors' method, the
+        ``tolerance`` and the estimated ``distance`` from the fixed point."""
         return {"kind": "families", "converged": bool(self.converged), "iterations": int(self.iterations),
-                "std_error": self.std_error_method}
+                "std_error": self.std_error_method, "tolerance": float(self.tolerance),
+                "distance": float(self.distance) if np.isfinite(self.distance) else None}
 
     def as_dict(self) -> list[dict]:
         return [{"group": n, "factor": float(f), "sigma_factor": float(np.sqrt(f)),
                  "redundancy": float(r), "std_error": float(s)}
                 for n, f, r, s in zip(self.names, self.factors, self.redundancy, self.std_error)]
+
+
+def merge_groups(groups: dict[str, np.ndarray], spec: str) -> dict[str, np.ndarray]:
+    """``groups`` with the sets of ``spec`` merged: "control+image" (or several, comma-separated,
+    "angles+distances,control+image") makes one group "control+image" of both, estimated with one
+    factor (F80 eq. 9) — for a group with too little redundancy of its own. Unknown names are a
+    BaardaError listing the groups there are."""
+    out = dict(groups)
+    for part in (x.strip() for x in spec.split(",") if x.strip()):
+        names = [n.strip() for n in part.split("+") if n.strip()]
+        unknown = [n for n in names if n not in out]
+        if unknown or len(names) < 2:
+            raise BaardaError(f"--merge-groups {spec!r}: " + (f"no group {', '.join(map(repr, unknown))}"
+                                                               if unknown else f"{part!r} names one group")
+                              + f" (the groups: {', '.join(out)})")
+        merged = np.sort(np.concatenate([out.pop(n) for n in names]))
+        out["+".join(names)] = merged
+    return out
 
 
 def groups_by_kind(problem) -> dict[str, np.ndarray]:
@@ -103,6 +129,7 @@ def estimate(problem, groups: dict[str, np.ndarray] | None = None, options: Opti
     converged = False
     adj = None
     it = 0
+    prev, remaining = 0.0, float("inf")
     for it in range(1, max_iter + 1):
         cov = problem.cov.scaled(_cluster_factors(problem, groups, factors))
         p = dataclasses.replace(problem, cov=cov)
@@ -115,10 +142,20 @@ def estimate(problem, groups: dict[str, np.ndarray] | None = None, options: Opti
             red[j] = adj.r[ix].sum()
             if red[j] <= MIN_GROUP_REDUNDANCY:
                 raise BaardaError(f"variance components: group '{list(groups)[j]}' has no redundancy "
-                                  f"to estimate from (Σ r_i = {red[j]:.2g}): merge it with another group")
+                                  f"to estimate from (Σ r_i = {red[j]:.2g}): merge it with another group "
+                                  f"(--merge-groups {list(groups)[j]}+{next(n for n in groups if n != list(groups)[j])})"
+                                  if len(groups) > 1 else
+                                  f"variance components: group '{list(groups)[j]}' has no redundancy to estimate "
+                                  f"from (Σ r_i = {red[j]:.2g})")
             new[j] = float(adj.v[ix] @ Pv[ix]) / red[j]
         factors = factors * new
-        if np.abs(new - 1.0).max() < tol:
+        step = float(np.abs(new - 1.0).max())
+        # the iteration contracts linearly, factor ρ per step (estimated from the last two steps):
+        # the fixed point is about step · ρ/(1 − ρ) away — stop when that, not the step, is below tol
+        rho = step / prev if prev > 0 else 1.0
+        remaining = step * rho / (1.0 - rho) if rho < 0.95 else step / 0.05
+        prev = step
+        if max(step, remaining) < tol:
             converged = True
             break
     red_final = np.array([adj.r[ix].sum() for ix in groups.values()])
@@ -129,7 +166,8 @@ def estimate(problem, groups: dict[str, np.ndarray] | None = None, options: Opti
         se, method = factors * np.sqrt(2.0 * np.diag(np.linalg.inv(S))), "rigorous"
     else:
         se, method = factors * np.sqrt(2.0 / red_final), "approximate"
-    return VarianceComponents(tuple(groups), factors, red_final, se, it, converged, adj, method)
+    return VarianceComponents(tuple(groups), factors, red_final, se, it, converged, adj, method, float(tol),
+                              float(max(prev, remaining)) if it else float("nan"))
 
 
 # -- additive components: the radial model of F80 §2.1 ---------------------------------------------
@@ -171,21 +209,26 @@ def _trace_matrix(adj, Cj: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return np.array([[np.sum(X * Y.T) for Y in RC] for X in RC]), np.array([np.trace(X) for X in RC])
 
 
-def _helmert_step(adj, components, names, problem):
+def _helmert_step(adj, components, names, problem, fixed=None):
     """One step of the full estimator: S θ = q with S_jk = tr(R C_j P R C_k P), R = C_vv P,
-    q_j = vᵀ P C_j P v (Förstner 1979; F80 eq. 9 is its diagonal form). Dense in n."""
+    q_j = vᵀ P C_j P v (Förstner 1979; F80 eq. 9 is its diagonal form). Dense in n. ``fixed``
+    (name → θ) are components held at a value, not estimated: their part S_jk θ_k is taken from q_j."""
+    fixed = {k: v for k, v in (fixed or {}).items() if v != 0.0}
     Pv = adj.Pv
     Cj = []
-    for n in names:
+    for n in list(names) + list(fixed):
         M = np.zeros((problem.n, problem.n))
         for idx, b in zip(problem.cov.members, components[n]):
             M[np.ix_(idx, idx)] = b
         Cj.append(M)
-    S, red = _trace_matrix(adj, Cj)
-    q = np.array([Pv @ Cm @ Pv for Cm in Cj])
+    S_all, red_all = _trace_matrix(adj, Cj)
+    q = np.array([Pv @ Cm @ Pv for Cm in Cj[:len(names)]])
+    m = len(names)
+    S = S_all[:m, :m]
+    if fixed:
+        q = q - S_all[:m, m:] @ np.array(list(fixed.values()))
     theta = np.linalg.solve(S, q)
-    return theta, np.sqrt(2.0 * np.diag(np.linalg.inv(S))), red
-
+    return theta, np.sqrt(2.0 * np.diag(np.linalg.inv(S))), red_all[:m]
 
 
 #: a component whose estimate is ≤ 0 this many steps in a row is held at 0
@@ -214,8 +257,10 @@ def estimate_components(problem, components: dict[str, tuple], theta0=None, opti
 
     A component whose full estimate stays ≤ 0 for :data:`NONPOSITIVE_STEPS` steps is held at 0
     and the others are estimated without it (the estimate constrained to θ_j ≥ 0; ``at_zero``
-    and ``notes`` of the result say so), as long as the remaining components keep every cluster's
-    covariance positive definite; otherwise a BaardaError says which estimate is not positive.
+    and ``notes`` of the result say so); where 0 would leave some cluster without a positive
+    definite covariance (the only component of the control points) it is held at its starting
+    value instead, not estimated, which ``notes`` says. Otherwise a BaardaError says which
+    estimate is not positive.
     """
     names = tuple(components)
     ncl = len(problem.cov.members)
@@ -223,6 +268,7 @@ def estimate_components(problem, components: dict[str, tuple], theta0=None, opti
         if len(blocks) != ncl:
             raise BaardaError(f"variance component '{name}': {len(blocks)} blocks for {ncl} clusters")
     theta = np.ones(len(names)) if theta0 is None else np.asarray(theta0, dtype=float).copy()
+    start = theta.copy()
     x0 = None
     adj = None
     converged = False
@@ -239,7 +285,8 @@ def estimate_components(problem, components: dict[str, tuple], theta0=None, opti
         x0 = adj.x
         if problem.n <= dense_max:
             act = [names[j] for j in active]
-            est, se_a, red_a = _helmert_step(adj, components, act, problem)
+            held_at = {names[j]: float(theta[j]) for j in range(len(names)) if j not in active}
+            est, se_a, red_a = _helmert_step(adj, components, act, problem, held_at)
             new_theta = theta.copy()
             new_theta[active] = est
             se = np.full(len(names), np.nan)
@@ -251,15 +298,30 @@ def estimate_components(problem, components: dict[str, tuple], theta0=None, opti
             nonpositive[[j for j in active if j not in bad]] = 0
             stuck = [j for j in bad if nonpositive[j] >= NONPOSITIVE_STEPS]
             if stuck and len(active) > len(stuck):
+                # a component that alone gives some cluster its covariance cannot be 0: kept at its start
+                kept = []
+                for j in stuck:
+                    alone = theta.copy()
+                    alone[j] = 0.0
+                    if not _positive_definite(components, names, alone, ncl):
+                        kept.append(j)
                 held = theta.copy()
-                held[stuck] = 0.0
+                for j in stuck:
+                    held[j] = start[j] if j in kept else 0.0
                 if _positive_definite(components, names, held, ncl):
                     # the constrained estimate: a component whose estimate stays ≤ 0 is held at
-                    # 0 (the data show none of it under this model) and the others re-estimated
+                    # 0 (the data show none of it under this model) — or, where 0 would leave some
+                    # observations without covariance, at its starting value — and the others
+                    # re-estimated
                     for j in stuck:
-                        notes.append(f"{names[j]} = {new_theta[j]:.3g} is not positive in {nonpositive[j]} "
-                                     f"steps: held at 0 (the data show none of it under this model)")
-                        at_zero.append(names[j])
+                        if j in kept:
+                            notes.append(f"{names[j]} = {new_theta[j]:.3g} is not positive in {nonpositive[j]} steps "
+                                         f"and 0 would leave observations without variance: held at its a priori "
+                                         f"value {start[j]:.3g}, not estimated")
+                        else:
+                            notes.append(f"{names[j]} = {new_theta[j]:.3g} is not positive in {nonpositive[j]} "
+                                         f"steps: held at 0 (the data show none of it under this model)")
+                            at_zero.append(names[j])
                         active.remove(j)
                     theta = held
                     continue

@@ -48,8 +48,9 @@ class Controls(pn.viewable.Viewer):
                                                                    "σ̂0 a posteriori (τ)": "aposteriori"},
                                                  value=s.sigma0_mode, sizing_mode="stretch_width")
         self.global_test = pn.widgets.Select(label="Global test (F80 §4.1)",
-                                             options={"one-sided, B-method α_r (F80)": "one-sided",
-                                                      "two-sided at conf-pr (gama-local)": "two-sided"},
+                                             options={"one-sided at (1 − conf-pr)/2 (F80)": "one-sided",
+                                                      "two-sided at conf-pr (gama-local)": "two-sided",
+                                                      "one-sided, B-method α_r (F80 §7.2)": "b-method"},
                                              value=s.global_test, css_classes=["global-test-select"],
                                              sizing_mode="stretch_width")
         self.robust = pn.widgets.Select(label="Robust reweighting (M84 §3.1, R84)", options=list(ROBUST_METHODS),

@@ -23,19 +23,23 @@ def summary_html(s: dict) -> str:
         if g.get("side") == "low":        # not an error in the data (F80 §4.1)
             gt, cls = gt + ": σ0 a priori too pessimistic", "na"
     # the relation the statistic has to its bound(s), as it is (a failed test reads "> bound")
-    if g.get("test") == "one-sided" and g["upper"] is not None:
+    if g.get("test") in ("one-sided", "b-method") and g["upper"] is not None:
         rel = "≤" if g["statistic"] <= g["upper"] else ">"
-        how = f" {rel} {g['upper']:.4g}<br>one-sided, B-method α = {100 * g['alpha']:.3g} %"
+        bm = "B-method " if g["test"] == "b-method" else ""
+        how = f" {rel} {g['upper']:.4g}<br>one-sided, {bm}α = {100 * g['alpha']:.3g} %"
     elif g["lower"] is not None:
         rel = "∈" if g["lower"] <= g["statistic"] <= g["upper"] else "∉"
         how = f" {rel} [{g['lower']:.4g}, {g['upper']:.4g}]<br>two-sided at conf-pr {g['conf_pr']:.3g}"
     else:
         how = ""
     post = s["sigma0_aposteriori"]
+    iv = g.get("sigma0_interval")
+    interval = (f"<br>{100 * iv['confidence']:.3g} % interval [{iv['lower']:.4g}, {iv['upper']:.4g}]"
+                if iv and iv.get("lower") is not None and iv.get("upper") is not None else "")
     cards = [
         ("Global test", f"<b class='{cls}'>{gt}</b><br>vᵀPv = {g['statistic']:.4g}{how}"),
         ("σ0", f"a priori {s['sigma0_apriori']:.4g}<br>σ̂0 = " + ("–" if post is None else f"{post:.4g}")
-         + f" (uses {s['sigma0_used']})"),
+         + interval + f" (uses {s['sigma0_used']})"),
         ("Model", f"n = {s['n_observations']}, u = {s['n_unknowns']}, r = {s['dof']}<br>{html_text(s['datum'])}"),
         ("Tests", f"α0 = {s['alpha0']:g}, β0 = {s['beta0']:g}, δ0 = {s['delta0']:.3f}<br>"
          f"<b class='{'bad' if s['n_rejected'] else 'ok'}'>{s['n_rejected']} rejected</b>"),
