@@ -37,9 +37,13 @@ from .views import (MAP_VIEWS, AnalysisPanel, Controls, CriterionView, FilePanel
                     InjectPanel)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
-#: The server's websocket message limit: above the upload limit of the app (uploads come in
-#: chunks far smaller anyway), so that a large file gets the app's own message.
-WEBSOCKET_MAX_MB = 2 * MAX_UPLOAD_MB
+#: The server's websocket message limit, checked by Tornado from each frame's header before its
+#: payload is read: uploads come in chunks of 4 MB (``UPLOAD_CHUNK``), the largest message a page
+#: sends otherwise (a selection of 10⁶ points) is a few MB.
+WEBSOCKET_MAX_MB = 16
+#: The most binary data one Bokeh message may carry in all its buffers (Bokeh assembles them all
+#: before it looks at the message): :func:`baarda.dashboard.guard.bound_messages`.
+MESSAGE_MAX_MB = 32
 TAB_NAMES = {"layout": "Layout", "redundancy": "Redundancy", "residuals": "w",
              "external": "External", "mdb": "MDB", "precision": "Precision"}
 
@@ -622,7 +626,7 @@ def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = 
     """
     from baarda.errors import BaardaError
 
-    from .guard import HostCheck, guard_hosts, is_loopback
+    from .guard import HostCheck, bound_messages, guard_hosts, is_loopback
 
     global WEBGL
     WEBGL = bool(webgl)
@@ -650,6 +654,7 @@ def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = 
     server = pn.serve({"/": lambda: create_app(path)}, port=port, address=address, show=show,
                       websocket_origin=list(dict.fromkeys(origins)), title="baarda", start=False, **kwargs)
     guard_hosts(server, HostCheck(allow_hosts, remote=remote))
+    bound_messages(MESSAGE_MAX_MB * 1024 * 1024)
     server.start()
     try:
         server.io_loop.start()

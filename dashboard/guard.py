@@ -89,3 +89,36 @@ def guard_hosts(server, check: HostCheck) -> None:
         return find(request, **kwargs)
 
     app.find_handler = find_handler
+
+
+def bound_messages(max_bytes: int) -> None:
+    """Let a Bokeh message carry at most ``max_bytes`` in its binary buffers: Bokeh's
+    :class:`bokeh.protocol.receiver.Receiver` keeps every buffer of a message until the number
+    its header announces has arrived; past the bound the message is a protocol error and the
+    connection is closed (what was held is dropped). Tornado bounds each frame
+    (``websocket_max_message_size``). Process-wide; idempotent (the tighter bound stays)."""
+    from bokeh.protocol.exceptions import ValidationError
+    from bokeh.protocol.receiver import Receiver
+
+    current = getattr(Receiver, "_baarda_max_bytes", None)
+    Receiver._baarda_max_bytes = int(max_bytes) if current is None else min(current, int(max_bytes))
+    if current is not None:
+        return
+    header, payload = Receiver._HEADER, Receiver._BUFFER_PAYLOAD
+
+    def _HEADER(self, fragment):
+        self._baarda_held = 0
+        return header(self, fragment)
+
+    def _BUFFER_PAYLOAD(self, fragment):
+        held = getattr(self, "_baarda_held", 0) + (len(fragment) if isinstance(fragment, bytes) else 0)
+        if held > Receiver._baarda_max_bytes:
+            self._partial = None
+            self._fragments = []
+            self._current_consumer = self._HEADER
+            raise ValidationError(f"a message of more than {Receiver._baarda_max_bytes} bytes of buffers")
+        self._baarda_held = held
+        return payload(self, fragment)
+
+    _HEADER.__name__, _BUFFER_PAYLOAD.__name__ = "_HEADER", "_BUFFER_PAYLOAD"
+    Receiver._HEADER, Receiver._BUFFER_PAYLOAD = _HEADER, _BUFFER_PAYLOAD

@@ -37,6 +37,7 @@ from baarda.adjust import Options
 from baarda.errors import BaardaError
 from baarda.stats import precision, robust
 from baarda.stats.policy import TestPolicy
+from baarda.io.source import checking
 from baarda.stats.reliability import Reliability
 
 from . import frames as tables
@@ -163,7 +164,8 @@ class State(param.Parameterized):
 
         def run():
             try:
-                return fn(*args)
+                with checking(self._stop_if_closed):       # a closed page's file is read no further
+                    return fn(*args)
             except Cancelled:
                 self.progress = "cancelled"
                 return False
@@ -177,6 +179,11 @@ class State(param.Parameterized):
         """``fn()`` on the session's event loop when called from a worker thread of a served
         session, here otherwise (:meth:`baarda.dashboard.jobs.Jobs.on_loop`)."""
         return self.jobs.on_loop(fn)
+
+    def _stop_if_closed(self) -> None:
+        """Raise :class:`Cancelled` once the session has ended (its page closed)."""
+        if self.jobs.closed:
+            raise Cancelled()
 
     def cancel(self) -> None:
         """Ask the running background computation to stop: snooping stops within its current
@@ -348,6 +355,7 @@ class State(param.Parameterized):
     def _iteration(self, it: int, step: float) -> None:
         """The adjustment's progress, shown while a background computation runs (``progress``)."""
         sink = self._progress_to or self
+        sink._stop_if_closed()              # a closed page's adjustment stops at its next iteration
         if sink.task:
             sink.progress = f"adjusting: iteration {it}, largest step {step:.2g} σ"
 

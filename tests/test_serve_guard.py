@@ -208,3 +208,68 @@ def test_host_check(host, remote, ok):
     from baarda.dashboard.guard import HostCheck
 
     assert HostCheck(["Proxy.LAN"], remote=remote)(host) is ok
+
+
+# --------------------------------------------------------------------------------------------
+# limits the server keeps, whatever the page sends (issue 25 item 8)
+# --------------------------------------------------------------------------------------------
+def _rss_mb(pid: int) -> float:
+    """Resident memory of the server process and its children (MB)."""
+    total = 0.0
+    pids = [pid] + [int(p) for p in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    for p in pids:
+        for line in Path(f"/proc/{p}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                total += int(line.split()[1]) / 1024
+    return total
+
+
+async def _send_raw(port: int, token: str, fragments):
+    """Open a session's websocket, send ``fragments`` (str or bytes): ("closed", close code, None
+    when the server dropped the connection without a close frame) or ("open", None)."""
+    from tornado.httpclient import HTTPRequest
+    from tornado.websocket import WebSocketClosedError, websocket_connect
+
+    req = HTTPRequest(f"ws://127.0.0.1:{port}/ws", headers={"Origin": f"http://127.0.0.1:{port}"})
+    conn = await websocket_connect(req, subprotocols=["bokeh", token], max_message_size=1 << 30)
+    await asyncio.wait_for(conn.read_message(), 60)                  # the server's ACK
+    try:
+        for frag in fragments:
+            await conn.write_message(frag, binary=isinstance(frag, bytes))
+    except (WebSocketClosedError, OSError):
+        pass
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        msg = await asyncio.wait_for(conn.read_message(), 60)
+        if msg is None:
+            return "closed", conn.close_code
+    conn.close()
+    return "open", None
+
+
+def test_oversize_websocket_message_refused_while_streaming(served):
+    """A 200 MB message (a page script sending a file around the upload widget) is refused from
+    its frame header: the connection is closed and the server does not buffer it."""
+    page = _get(served.url)[1]
+    before = _rss_mb(served.proc.pid)
+    state, code = asyncio.run(_send_raw(served.port, _token(page), [b"\0" * (200 << 20)]))
+    assert state == "closed" and code in (1009, None)      # Tornado closes (1009) and drops the stream
+    assert _rss_mb(served.proc.pid) - before < 100, (before, _rss_mb(served.proc.pid))
+    assert _get(served.url)[0] == 200                      # the server serves on
+
+
+def test_message_of_many_buffers_refused(served):
+    """A Bokeh message announcing 40 buffers of 8 MB (each frame under the frame limit) is
+    refused once its buffers pass 32 MB: Bokeh would hold them all before looking at it."""
+    import json
+
+    page = _get(served.url)[1]
+    before = _rss_mb(served.proc.pid)
+    head = json.dumps({"msgid": "x1", "msgtype": "PATCH-DOC", "num_buffers": 40})
+    frags = [head, "{}", json.dumps({"events": []})]
+    for k in range(40):
+        frags += [json.dumps({"id": f"b{k}"}), b"\1" * (8 << 20)]
+    state, code = asyncio.run(_send_raw(served.port, _token(page), frags))
+    assert (state, code) == ("closed", 10001)
+    assert _rss_mb(served.proc.pid) - before < 150, (before, _rss_mb(served.proc.pid))
+    assert _get(served.url)[0] == 200

@@ -60,6 +60,7 @@ MAX_TOKEN_BYTES = 1 << 20
 #: the longest line of number text with comments (a COLMAP points3D.txt line)
 MAX_LINE_BYTES = 64 << 20
 _CEILING = contextvars.ContextVar("baarda_input_ceiling", default=None)
+_CHECK = contextvars.ContextVar("baarda_read_check", default=None)
 _PIPES: dict = {}                   # (device, inode) of a pipe -> its bytes, read once
 
 
@@ -100,6 +101,18 @@ def ceiling(nbytes: int):
         yield
     finally:
         _CEILING.reset(token)
+
+
+@contextlib.contextmanager
+def checking(check):
+    """Within the block (this thread or task), ``check()`` is called before each piece of an
+    input is read; what it raises ends the reading (the served app stops reading the file of a
+    page that was closed)."""
+    token = _CHECK.set(check)
+    try:
+        yield
+    finally:
+        _CHECK.reset(token)
 
 
 def _size_text(n: int) -> str:
@@ -199,6 +212,7 @@ class Source(io.RawIOBase):
         self.nread = 0
         self.limit = max_input_bytes() if limit is None else int(limit)
         self.limit_name = limit_name
+        self._check = _CHECK.get()
         raw, size = _open_raw(path)
         self.size = None if kind else size
         self._f = raw if kind is None else _OPENERS[kind](raw, mode="rb")
@@ -208,6 +222,8 @@ class Source(io.RawIOBase):
         return True
 
     def readinto(self, b):
+        if self._check is not None:
+            self._check()
         try:
             n = self._f.readinto(b)
         except _CORRUPT as err:
