@@ -343,7 +343,15 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("input", nargs="?", help="the network or block file (default: data/demo-block.json)")
     sv.add_argument("--port", type=int, default=5006, help="port (default 5006)")
     sv.add_argument("--address", default="127.0.0.1",
-                    help="address to listen on (default 127.0.0.1; 0.0.0.0 exposes it to the network)")
+                    help="address to listen on (default 127.0.0.1; another address, such as 0.0.0.0, serves the "
+                         "network and needs --token or --allow-remote)")
+    sv.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                    help="also answer requests for the host NAME (a proxy's or the machine's DNS name); "
+                         "others than localhost and loopback addresses are refused (DNS rebinding)")
+    sv.add_argument("--token", metavar="TOKEN",
+                    help="require signing in with TOKEN as the password (any user name)")
+    sv.add_argument("--allow-remote", action="store_true",
+                    help="serve a non-loopback --address without authentication")
     sv.add_argument("--show", action="store_true", help="open a browser (only where there is a display)")
     sv.add_argument("--webgl", action="store_true",
                     help="draw the maps with WebGL: smoother on a GPU for blocks of 10^5 and more image points, "
@@ -712,7 +720,8 @@ def _terminate(signum, frame):
 def cmd_serve(args) -> int:
     from .dashboard.app import serve
 
-    serve(args.input, port=args.port, address=args.address, show=args.show, webgl=args.webgl)
+    serve(args.input, port=args.port, address=args.address, show=args.show, webgl=args.webgl,
+          allow_hosts=args.allow_host, token=args.token, allow_remote=args.allow_remote)
     return 0
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import secrets
 import sys
 import threading
 import time
@@ -26,20 +27,26 @@ from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 from tornado.ioloop import IOLoop
 
+from baarda.errors import BaardaError
+
 from . import geometry
+from .guard import HostCheck, bound_messages, guard_hosts, is_loopback
 from .jobs import TASKS, Cancelled, next_tick
 from .report import report_html
 from .state import State
 from .text import html_text
-from .views.controls import MAX_UPLOAD_MB
 from .views import (MAP_VIEWS, AnalysisPanel, Controls, CriterionView, FilePanel, HypothesisPanel, ImageResidualView,
                     RiskView, SelectionPanel, SummaryHeader, SuspectsView, TaskPanel, TeachingView, TestsTable,
                     InjectPanel)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
-#: The server's websocket message limit: above the upload limit of the app (uploads come in
-#: chunks far smaller anyway), so that a large file gets the app's own message.
-WEBSOCKET_MAX_MB = 2 * MAX_UPLOAD_MB
+#: The server's websocket message limit, checked by Tornado from each frame's header before its
+#: payload is read: uploads come in chunks of 4 MB (``UPLOAD_CHUNK``), the largest message a page
+#: sends otherwise (a selection of 10⁶ points) is a few MB.
+WEBSOCKET_MAX_MB = 16
+#: The most binary data one Bokeh message may carry in all its buffers (Bokeh assembles them all
+#: before it looks at the message): :func:`baarda.dashboard.guard.bound_messages`.
+MESSAGE_MAX_MB = 32
 TAB_NAMES = {"layout": "Layout", "redundancy": "Redundancy", "residuals": "w",
              "external": "External", "mdb": "MDB", "precision": "Precision"}
 
@@ -610,20 +617,46 @@ def warm(path):
 
 
 def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = False, webgl: bool = False,
-          **kwargs):
+          allow_hosts=(), token: str | None = None, allow_remote: bool = False, **kwargs):
     """Serve the dashboard on ``address:port`` (loopback by default) and print its URL.
 
     show: open a browser (only if asked; there may be no display). webgl: draw the maps with
-    WebGL (:data:`WEBGL`). Blocks until stopped.
+    WebGL (:data:`WEBGL`). Every request whose Host header names a host the server does not
+    serve is refused (:mod:`baarda.dashboard.guard`; ``allow_hosts``: more names to serve).
+    A non-loopback ``address`` serves the network: it needs ``token`` (a password to sign in
+    with, any user name) or ``allow_remote`` (no authentication, said in a printed line);
+    otherwise BaardaError. Blocks until stopped.
     """
     global WEBGL
     WEBGL = bool(webgl)
-    url = f"http://{address}:{port}/"
+    remote = not is_loopback(address)
+    if token is not None and not token.strip():
+        raise BaardaError("--token must not be empty")
+    if remote and token is None and not allow_remote:
+        raise BaardaError(f"--address {address} serves the dashboard to the network: give --token TOKEN "
+                          "(a password to sign in with) or --allow-remote (no authentication)")
+    host = f"[{address}]" if ":" in address else address
+    url = f"http://{host}:{port}/"
     print(f"baarda dashboard: {url}", flush=True)
+    if remote and token is None:
+        print(f"baarda dashboard: served to the network on {host}:{port} without authentication "
+              "(--allow-remote): anyone who can reach it can read the file and upload files", flush=True)
+    elif token is not None:
+        print("baarda dashboard: sign in with any user name and the token as password", flush=True)
     if (path or default_path()) is not None:
         warm(path or default_path())
     kwargs.setdefault("websocket_max_message_size", WEBSOCKET_MAX_MB * 1024 * 1024)
-    return pn.serve({"/": lambda: create_app(path)}, port=port, address=address, show=show,
-                    websocket_origin=[f"{address}:{port}", f"localhost:{port}"] if address in
-                    ("127.0.0.1", "localhost") else [f"{address}:{port}"],
-                    title="baarda", **kwargs)
+    if token is not None:
+        kwargs.setdefault("basic_auth", token)
+        kwargs.setdefault("cookie_secret", secrets.token_hex(32))
+    origins = [f"{host}:{port}", f"localhost:{port}", f"127.0.0.1:{port}"] + [f"{n}:{port}" for n in allow_hosts]
+    server = pn.serve({"/": lambda: create_app(path)}, port=port, address=address, show=show,
+                      websocket_origin=list(dict.fromkeys(origins)), title="baarda", start=False, **kwargs)
+    guard_hosts(server, HostCheck(allow_hosts, remote=remote))
+    bound_messages(MESSAGE_MAX_MB * 1024 * 1024)
+    server.start()
+    try:
+        server.io_loop.start()
+    except RuntimeError:
+        pass
+    return server

@@ -38,6 +38,7 @@ from baarda.analysis import Analysis, analyze
 from baarda.build import read_problem
 from baarda.errors import BaardaError
 from baarda.io.results import summary as core_summary
+from baarda.io.source import checking
 from baarda.stats import precision, robust
 from baarda.stats.policy import TestPolicy
 
@@ -185,7 +186,8 @@ class State(param.Parameterized):
 
         def run():
             try:
-                return fn(*args)
+                with checking(self._stop_if_closed):       # a closed page's file is read no further
+                    return fn(*args)
             except Cancelled:
                 self.progress = "cancelled"
                 return False
@@ -199,6 +201,11 @@ class State(param.Parameterized):
         """``fn()`` on the session's event loop when called from a worker thread of a served
         session, here otherwise (:meth:`baarda.dashboard.jobs.Jobs.on_loop`)."""
         return self.jobs.on_loop(fn)
+
+    def _stop_if_closed(self) -> None:
+        """Raise :class:`Cancelled` once the session has ended (its page closed)."""
+        if self.jobs.closed:
+            raise Cancelled()
 
     def cancel(self) -> None:
         """Ask the running background computation to stop: snooping stops within its current
@@ -368,6 +375,7 @@ class State(param.Parameterized):
     def _iteration(self, it: int, step: float) -> None:
         """The adjustment's progress, shown while a background computation runs (``progress``)."""
         sink = self._progress_to or self
+        sink._stop_if_closed()              # a closed page's adjustment stops at its next iteration
         if sink.task:
             sink.progress = f"adjusting: iteration {it}, largest step {step:.2g} σ"
 

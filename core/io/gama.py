@@ -41,7 +41,7 @@ import numpy as np
 from baarda.errors import InputError, OptionError
 from baarda.model.network import AXIS_NORTH_EAST, Cluster, NetObservation, NetPoint, Network
 from baarda.validate import SIGMA0_MAX, SIGMA0_MIN, VALUE_LIMIT
-from .source import read_bytes
+from .source import open_binary
 
 __all__ = ["read_gama", "bearing_convention", "UndefinedPointsWarning", "GON", "CC", "DEG", "ARCSEC", "MM"]
 
@@ -115,8 +115,13 @@ def bearing_convention(axes_xy: str, angles: str) -> tuple[float, float]:
 # ----------------------------------------------------------------------------------------
 # A minimal DOM with line numbers (expat reports them; ElementTree does not).
 
+#: The deepest nesting of elements read (gama-local's own files nest 4 deep); checked while parsing.
+MAX_XML_DEPTH = 64
+#: The most elements a file may hold (about 0.5 KB of memory each); checked while parsing.
+MAX_XML_ELEMENTS = 2_000_000
 
-@dataclass
+
+@dataclass(slots=True)
 class _Node:
     tag: str
     attrs: dict
@@ -138,14 +143,25 @@ def _local(name: str) -> str:
 
 
 def _parse_xml(path: Path) -> _Node:
-    """Parse the file with expat into :class:`_Node` objects carrying 1-based line numbers."""
-    data = read_bytes(path)             # plain or compressed (gzip, bzip2, xz)
+    """Parse the file with expat into :class:`_Node` objects carrying 1-based line numbers.
+
+    The file (plain or compressed) is fed to expat in pieces as it is read, at most
+    :func:`baarda.io.source.max_document_bytes` of it; nesting deeper than
+    :data:`MAX_XML_DEPTH` or more than :data:`MAX_XML_ELEMENTS` elements are refused at the
+    element where the bound is passed."""
     parser = xml.parsers.expat.ParserCreate()
     parser.buffer_text = False  # each chunk then reports its own starting line
     stack: list[_Node] = []
     root: list[_Node] = []
+    count = [0]
 
     def start(name, attrs):
+        count[0] += 1
+        if len(stack) >= MAX_XML_DEPTH:
+            raise InputError(path, parser.CurrentLineNumber,
+                             f"elements nested more than {MAX_XML_DEPTH} deep")
+        if count[0] > MAX_XML_ELEMENTS:
+            raise InputError(path, parser.CurrentLineNumber, f"more than {MAX_XML_ELEMENTS:,} elements")
         node = _Node(_local(name), {_local(k): v for k, v in attrs.items()
                                     if not k.startswith("xmlns")}, parser.CurrentLineNumber)
         if stack:
@@ -165,7 +181,12 @@ def _parse_xml(path: Path) -> _Node:
     parser.EndElementHandler = end
     parser.CharacterDataHandler = chars
     try:
-        parser.Parse(data, True)
+        with open_binary(path, whole=True) as f:
+            while True:
+                piece = f.read(1 << 20)
+                parser.Parse(piece, not piece)
+                if not piece:
+                    break
     except xml.parsers.expat.ExpatError as exc:
         msg = xml.parsers.expat.errors.messages.get(exc.code, str(exc))
         raise InputError(path, exc.lineno, f"malformed XML: {msg} (column {exc.offset + 1})") from exc

@@ -8,6 +8,15 @@ a file whose extension says compressed but whose content is not is refused. Erro
 file as the user gave it (``problem.txt.bz2:12: ...``) with the line of the decompressed text;
 corrupt or truncated compressed data is an :class:`~baarda.errors.InputError`.
 
+Bounds, checked while reading (never after): the content of an input, decompressed, may hold at
+most :func:`max_input_bytes` (``BAARDA_MAX_INPUT_BYTES``, default 4 GiB); a file read as a whole
+(Gama XML, native JSON, COLMAP text and binary, control CSV) or arriving through a pipe at most
+:func:`max_document_bytes` (``BAARDA_MAX_DOCUMENT_BYTES``, default 1 GiB). Whitespace-separated
+number text allows a token (a run without whitespace) of at most :data:`MAX_TOKEN_BYTES` and a
+line of at most :data:`MAX_LINE_BYTES` where it has comments. A pipe (a FIFO, ``<(cat f)``) is
+read once into memory and every later opening of it reads that copy; a device, socket or other
+special file is refused.
+
 :class:`Numbers` reads the whitespace-separated numbers of a text stream in chunks of a few
 megabytes, parsed by numpy, so that a reader never holds the file's text and its numbers at
 the same time: only the numbers asked for (float64) and the line of each group of them.
@@ -17,18 +26,21 @@ from __future__ import annotations
 
 import bz2
 import collections
+import contextlib
+import contextvars
 import gzip
 import io
 import lzma
 import os
 import re
+import stat
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, OptionError
+from ..errors import BaardaError, InputError, OptionError
 from ..solve.compiled import njit
 
 #: compression → (first bytes, file extension, name used in messages)
@@ -39,17 +51,136 @@ _OPENERS = {"gzip": lambda f, mode: gzip.GzipFile(fileobj=f, mode=mode), "bzip2"
 _CORRUPT = (OSError, EOFError, lzma.LZMAError, zlib.error)
 
 
+#: default ceiling of an input's (decompressed) content, bytes (BAARDA_MAX_INPUT_BYTES)
+MAX_INPUT_BYTES = 4 << 30
+#: default ceiling of content read as a whole or through a pipe, bytes (BAARDA_MAX_DOCUMENT_BYTES)
+MAX_DOCUMENT_BYTES = 1 << 30
+#: the longest run without whitespace in number text (no number is longer)
+MAX_TOKEN_BYTES = 1 << 20
+#: the longest line of number text with comments (a COLMAP points3D.txt line)
+MAX_LINE_BYTES = 64 << 20
+_CEILING = contextvars.ContextVar("baarda_input_ceiling", default=None)
+_CHECK = contextvars.ContextVar("baarda_read_check", default=None)
+_PIPES: dict = {}                   # (device, inode) of a pipe -> its bytes, read once
+
+
+def _env_bytes(name: str, default: int) -> int:
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (1 <= value < 2 ** 62):
+        raise BaardaError(f"{name} must be a positive number of bytes (got '{text[:40]}')")
+    return int(value)
+
+
+def max_input_bytes() -> int:
+    """The ceiling of an input's decompressed content in bytes: ``BAARDA_MAX_INPUT_BYTES``
+    (default :data:`MAX_INPUT_BYTES`), or a tighter one set by :func:`ceiling` here."""
+    n = _env_bytes("BAARDA_MAX_INPUT_BYTES", MAX_INPUT_BYTES)
+    tighter = _CEILING.get()
+    return n if tighter is None else min(n, tighter)
+
+
+def max_document_bytes() -> int:
+    """The ceiling of content read as a whole or through a pipe: ``BAARDA_MAX_DOCUMENT_BYTES``
+    (default :data:`MAX_DOCUMENT_BYTES`), at most :func:`max_input_bytes`."""
+    return min(_env_bytes("BAARDA_MAX_DOCUMENT_BYTES", MAX_DOCUMENT_BYTES), max_input_bytes())
+
+
+@contextlib.contextmanager
+def ceiling(nbytes: int):
+    """Within the block (this thread or task), inputs may hold at most ``nbytes`` decompressed
+    bytes (the served app's uploads); never raises a ceiling already lower."""
+    old = _CEILING.get()
+    token = _CEILING.set(int(nbytes) if old is None else min(old, int(nbytes)))
+    try:
+        yield
+    finally:
+        _CEILING.reset(token)
+
+
+@contextlib.contextmanager
+def checking(check):
+    """Within the block (this thread or task), ``check()`` is called before each piece of an
+    input is read; what it raises ends the reading (the served app stops reading the file of a
+    page that was closed)."""
+    token = _CHECK.set(check)
+    try:
+        yield
+    finally:
+        _CHECK.reset(token)
+
+
+def _size_text(n: int) -> str:
+    for unit, k in (("GiB", 30), ("MiB", 20), ("KiB", 10)):
+        if n >= 1 << k and n % (1 << k) == 0:
+            return f"{n >> k} {unit}"
+    return f"{n:,} bytes"
+
+
+def _open_raw(path):
+    """(binary file object, size) of ``path``'s raw bytes: the file itself, or a pipe's bytes
+    read once (module docstring); InputError for what cannot or must not be read."""
+    try:
+        st = os.stat(path)
+    except OSError as err:
+        raise InputError(path, 0, f"cannot read: {err.strerror or err}") from None
+    mode = st.st_mode
+    if stat.S_ISFIFO(mode):
+        key = (st.st_dev, st.st_ino)
+        if key not in _PIPES:
+            _PIPES[key] = _read_pipe(path)
+        data = _PIPES[key]
+        return io.BytesIO(data), len(data)
+    if stat.S_ISDIR(mode):
+        raise InputError(path, 0, "is a directory, not a file")
+    if not stat.S_ISREG(mode):
+        kind = ("a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode)
+                else "a socket" if stat.S_ISSOCK(mode) else "a special file")
+        raise InputError(path, 0, f"is {kind}, not a file (give a regular file or a pipe)")
+    try:
+        return open(path, "rb"), st.st_size
+    except OSError as err:
+        raise InputError(path, 0, f"cannot read: {err.strerror or err}") from None
+
+
+def _read_pipe(path) -> bytes:
+    """The whole content of a pipe, at most :func:`max_document_bytes`."""
+    limit = max_document_bytes()
+    pieces, n = [], 0
+    try:
+        with open(path, "rb", buffering=0) as f:
+            while True:
+                piece = f.read(min(1 << 20, limit + 1 - n))
+                if not piece:
+                    break
+                pieces.append(piece)
+                n += len(piece)
+                if n > limit:
+                    raise InputError(path, 0, f"the pipe holds more than {_size_text(limit)} "
+                                     "(BAARDA_MAX_DOCUMENT_BYTES); give a regular file")
+    except OSError as err:
+        raise InputError(path, 0, f"cannot read: {err.strerror or err}") from None
+    return b"".join(pieces)
+
+
 def compression(path) -> str | None:
     """``"gzip"``, ``"bzip2"``, ``"xz"`` or None for a plain file, from its first bytes.
 
     InputError when the file cannot be read, or when its extension names a compression its
     content does not have."""
     p = Path(path)
+    f, _ = _open_raw(p)
     try:
-        with open(p, "rb") as f:
-            magic = f.read(6)
+        magic = f.read(6)
     except OSError as err:
         raise InputError(path, 0, f"cannot read: {err.strerror or err}") from None
+    finally:
+        f.close()
     for name, (head, _) in COMPRESSIONS.items():
         if magic.startswith(head):
             return name
@@ -70,18 +201,20 @@ class Source(io.RawIOBase):
 
     Read errors of the decompressor become InputError naming the file; ``nread`` counts the
     decompressed bytes delivered so far; ``size`` is the file's size in bytes when it is not
-    compressed (None otherwise)."""
+    compressed (None otherwise). More than ``limit`` bytes (default :func:`max_input_bytes`;
+    ``limit_name`` names the setting) is an InputError as soon as they are read."""
 
-    def __init__(self, path, kind: str | None):
+    def __init__(self, path, kind: str | None, limit: int | None = None,
+                 limit_name: str = "BAARDA_MAX_INPUT_BYTES"):
         super().__init__()
         self.path = str(path)
         self.kind = kind
         self.nread = 0
-        try:
-            raw = open(path, "rb")
-        except OSError as err:
-            raise InputError(path, 0, f"cannot read: {err.strerror or err}") from None
-        self.size = None if kind else Path(path).stat().st_size
+        self.limit = max_input_bytes() if limit is None else int(limit)
+        self.limit_name = limit_name
+        self._check = _CHECK.get()
+        raw, size = _open_raw(path)
+        self.size = None if kind else size
         self._f = raw if kind is None else _OPENERS[kind](raw, mode="rb")
         self._raw = raw
 
@@ -89,6 +222,8 @@ class Source(io.RawIOBase):
         return True
 
     def readinto(self, b):
+        if self._check is not None:
+            self._check()
         try:
             n = self._f.readinto(b)
         except _CORRUPT as err:
@@ -96,6 +231,10 @@ class Source(io.RawIOBase):
             raise InputError(self.path, 0, f"corrupt or truncated {what} after {self.nread} bytes of "
                              f"decompressed text ({err})") from None
         self.nread += n or 0
+        if self.nread > self.limit:
+            what = "decompressed content" if self.kind else "content"
+            raise InputError(self.path, 0, f"more than {_size_text(self.limit)} of {what}, the ceiling "
+                             f"({self.limit_name})")
         return n
 
     def close(self):
@@ -108,18 +247,28 @@ class Source(io.RawIOBase):
         super().close()
 
 
-def open_binary(path) -> io.BufferedReader:
-    """The content of ``path`` as a buffered binary stream, decompressed (module docstring)."""
-    src = Source(path, compression(path))
+def open_binary(path, whole: bool = False) -> io.BufferedReader:
+    """The content of ``path`` as a buffered binary stream, decompressed (module docstring).
+
+    whole: the content is held as a whole (a document): at most :func:`max_document_bytes`."""
+    limit, name = ((max_document_bytes(), "BAARDA_MAX_DOCUMENT_BYTES") if whole
+                   else (max_input_bytes(), "BAARDA_MAX_INPUT_BYTES"))
+    src = Source(path, compression(path), limit=limit, limit_name=name)
     buf = io.BufferedReader(src, buffer_size=1 << 20)
     buf.source = src
     return buf
 
 
 def read_bytes(path) -> bytes:
-    """The whole (decompressed) content of ``path``."""
-    with open_binary(path) as f:
-        return f.read()
+    """The whole (decompressed) content of ``path``, at most :func:`max_document_bytes`."""
+    pieces = []
+    with open_binary(path, whole=True) as f:
+        while True:
+            piece = f.read(1 << 22)
+            if not piece:
+                break
+            pieces.append(piece)
+    return pieces[0] if len(pieces) == 1 else b"".join(pieces)
 
 
 def head(path, n: int = 4096) -> bytes:
@@ -363,20 +512,35 @@ class Numbers:
         self.buf, self.starts = buf, starts
 
     def _raw_chunks(self):
-        """(bytes of whole lines, its first line, its last line), in order."""
+        """(bytes of whole lines, its first line, its last line), in order.
+
+        Text without a place to cut (a newline; without comments also a blank) is gathered in
+        one buffer, linearly: more than :data:`MAX_TOKEN_BYTES` of it (:data:`MAX_LINE_BYTES`
+        with comments) is a token (a line) too long, refused at its line."""
+        held = bytearray()               # text read since the last place to cut
         while not self.eof:
             data = self.stream.read(self.chunk)
             if not data:
                 self.eof = True
-                buf, self.tail = self.tail, b""
+                buf, self.tail = bytes(self.tail) + bytes(held), b""
+                held = bytearray()
             else:
-                data = self.tail + data
                 cut = data.rfind(b"\n")
                 if cut < 0 and not self.comment:   # one long line: cut between two numbers instead
                     cut = max(data.rfind(b" "), data.rfind(b"\t"))
                 if cut < 0:
-                    self.tail = data
+                    held += data
+                    if len(held) > (MAX_LINE_BYTES if self.comment else MAX_TOKEN_BYTES):
+                        line = self.next_line + bytes(self.tail).count(b"\n")
+                        what = (f"a line longer than {_size_text(MAX_LINE_BYTES)}" if self.comment else
+                                f"a token longer than {_size_text(MAX_TOKEN_BYTES)} (not a number)")
+                        raise InputError(self.path, line, what)
                     continue
+                data = bytes(self.tail) + bytes(held) + data if (self.tail or held) else data
+                held = bytearray()
+                cut = data.rfind(b"\n")
+                if cut < 0 and not self.comment:
+                    cut = max(data.rfind(b" "), data.rfind(b"\t"))
                 buf, self.tail = data[:cut + 1], data[cut + 1:]
             if not buf:
                 return

@@ -14,6 +14,8 @@ from pathlib import Path
 import panel as pn
 import param
 
+from baarda.io.source import ceiling
+
 from .. import geometry
 from ..geometry import observation_label
 from ..state import ROBUST_METHODS, State
@@ -156,6 +158,61 @@ SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._ -]{0,100}")
 SAFE_SUFFIX = re.compile(r"\.[A-Za-z0-9]{1,8}")
 #: Uploads travel in chunks of this size (well under the server's websocket message limit).
 UPLOAD_CHUNK = 4 * 1024 * 1024
+#: The most an upload may hold once decompressed (a .bz2, .gz or .xz upload; a tighter
+#: :func:`baarda.io.source.ceiling` while it is read).
+UPLOAD_MAX_CONTENT = 256 * 1024 * 1024
+
+
+class BoundedDropper(pn.widgets.FileDropper):
+    """:class:`panel.widgets.FileDropper` whose server side holds at most ``max_bytes`` of
+    upload chunks at a time, whatever the page sends (a page script can raise the widget's own
+    limit or send chunks itself): the chunk that would pass it, a chunk out of order or a
+    chunk count that announces more is refused at once, everything held is dropped, and
+    ``on_refused(name)`` is called. Panel's widget holds every chunk until the last arrives."""
+
+    def __init__(self, max_bytes: int, on_refused=None, **params):
+        super().__init__(**params)
+        self._max_bytes = int(max_bytes)
+        self._on_refused = on_refused
+        self._held = {}              # name -> bytes held for it
+        self._refused = set()        # names whose remaining chunks are ignored
+
+    def held_bytes(self) -> int:
+        return sum(self._held.values())
+
+    def _refuse(self, name) -> None:
+        self._file_buffer.clear()
+        self._held.clear()
+        self._refused.add(name)
+        if self._on_refused is not None:
+            self._on_refused(name)
+
+    def _process_event(self, event):
+        if event.event_name != "upload_event":
+            return super()._process_event(event)
+        data = event.data if isinstance(event.data, dict) else {}
+        name, chunk, total, payload = (data.get("name"), data.get("chunk"), data.get("total_chunks"),
+                                       data.get("data"))
+        if not isinstance(name, str):
+            return None
+        if chunk == 1:
+            self._refused.discard(name)
+            self._file_buffer.pop(name, None)
+            self._held.pop(name, None)
+        elif name in self._refused:
+            return None
+        size = len(payload) if isinstance(payload, (bytes, bytearray, memoryview, str)) else -1
+        ok = (isinstance(chunk, int) and isinstance(total, int) and 1 <= chunk <= total and size >= 0
+              and len(self._file_buffer.get(name, ())) == chunk - 1
+              and (total - 1) * min(self.chunk_size, UPLOAD_CHUNK) <= self._max_bytes
+              and self.held_bytes() + size <= self._max_bytes)
+        if not ok:
+            self._refuse(name)
+            return None
+        self._held[name] = self._held.get(name, 0) + size
+        if chunk == total:
+            self._held.pop(name, None)
+        return super()._process_event(event)
 
 
 def upload_name(name) -> str:
@@ -176,7 +233,8 @@ class FilePanel(pn.viewable.Viewer):
     The upload widget (:class:`panel.widgets.FileDropper`) refuses a file above
     :data:`MAX_UPLOAD_MB` in the browser, before anything is sent, and sends the others in
     chunks (:data:`UPLOAD_CHUNK`); the server checks the size again, refuses empty and
-    whitespace-only files with a message, and writes the file under a name of its own
+    whitespace-only files with a message (:class:`BoundedDropper` refuses a larger one while its
+    chunks arrive; its content, decompressed, may hold :data:`UPLOAD_MAX_CONTENT`), and writes the file under a name of its own
     (:func:`upload_name`) into a temporary directory that is removed as soon as the file has
     been read (and, for a read still running, when the session ends: :meth:`cleanup`).
     Messages show the upload's own name as text, never the server's path.
@@ -189,9 +247,10 @@ class FilePanel(pn.viewable.Viewer):
     def __init__(self, **params):
         super().__init__(**params)
         s = self.state
-        self.upload = pn.widgets.FileDropper(max_file_size=f"{MAX_UPLOAD_MB}MB", multiple=False, previews=[],
-                                             chunk_size=UPLOAD_CHUNK, layout="compact",
-                                             sizing_mode="stretch_width", css_classes=["file-input"])
+        self.upload = BoundedDropper(MAX_UPLOAD_MB * 1024 * 1024, self._refused,
+                                     max_file_size=f"{MAX_UPLOAD_MB}MB", multiple=False, previews=[],
+                                     chunk_size=UPLOAD_CHUNK, layout="compact",
+                                     sizing_mode="stretch_width", css_classes=["file-input"])
         self.upload.param.watch(self._uploaded, "value")
         self.limit = pn.pane.HTML(f"<small>Gama .gkf, baarda .json, Bundler .out, BAL; at most "
                                   f"{MAX_UPLOAD_MB} MB</small>", sizing_mode="stretch_width")
@@ -215,6 +274,10 @@ class FilePanel(pn.viewable.Viewer):
         self._dirs: list[Path] = []
         self._lock = threading.Lock()
         self._show_error()
+
+    def _refused(self, name) -> None:
+        shown = plain(name) if name not in (None, "") else "the upload"
+        self.state.error = f"{shown} is larger than {MAX_UPLOAD_MB} MB; run `baarda` on it instead."
 
     def _uploaded(self, event):
         if not event.new:
@@ -247,7 +310,8 @@ class FilePanel(pn.viewable.Viewer):
 
         def read():
             try:
-                return self.state.load(tmp, name=shown)
+                with ceiling(UPLOAD_MAX_CONTENT):        # a compressed upload's content, bounded
+                    return self.state.load(tmp, name=shown)
             finally:
                 self._remove(folder)
 
