@@ -70,11 +70,14 @@ def precision_lines(analysis, ex) -> list[str]:
     if ex.criterion:
         fit = analysis.criterion(ex.criterion, ex.criterion_c0, ex.sbase)
         u = analyses.criterion_units(fit["kind"])
-        c2 = f", C2 = {fit['C2']:.4g} {u['C2']}" if fit["kind"] != "linear" else ""
+        c2 = f", C2 = {fit['C2']:.4g} {u['C2']}" if fit["kind"] != "linear" and not fit["C1_zero"] else ""
         bound = (" (C2 at the end of its range: d² hardly varies with distance over this network)"
-                 if fit.get("C2_at_bound") else "")
-        out.append(f"  criterion matrix ({fit['kind']}, M84 §2.3): fitted C1 = {fit['C1']:.4g} {u['C1']}"
-                   f"{c2}, λmax/λmin = {fit['ratio']:.3g}{bound}")
+                 if fit["C2_at_bound"] and not fit["C1_zero"] else "")
+        c0 = f"C0 = {fit['C0']:.4g} {u['C0']} (given), " if fit["C0"] else ""
+        out.append(f"  criterion matrix ({fit['kind']}, M84 §2.3): {c0}fitted C1 = {fit['C1']:.4g} {u['C1']}"
+                   f"{c2}, λmax = {fit['lam_max']:.4g}, λmax/λmin = {fit['ratio']:.3g}{bound}")
+        if fit["note"]:
+            out.append(f"    {fit['note']}")
     return out
 
 
