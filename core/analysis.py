@@ -490,7 +490,9 @@ class Analysis:
 
     # -- the document's extras ---------------------------------------------------------------------
     def _add_extras(self, doc: dict, ex: Extras) -> None:
-        """Add to ``doc`` what ``ex`` asks for (the keys of docs/json-schema.md)."""
+        """Add to ``doc`` what ``ex`` asks for (the keys of docs/json-schema.md); a number that
+        does not exist (NaN, ±inf) is ``null`` there, as everywhere in the document."""
+        before = set(doc)
         if ex.truth is not None:
             doc["planted"] = self.planted(ex.truth)
         if ex.snooping:
@@ -537,6 +539,8 @@ class Analysis:
                     doc["variance_estimate"] = {"kind": ex.variance_components, "converged": bool(est.converged),
                                                 "iterations": int(est.iterations), "std_error": "rigorous",
                                                 "notes": list(est.notes)}
+        for key in set(doc) - before:
+            doc[key] = results.finite(doc[key])
 
     # -- in a notebook ---------------------------------------------------------------------------
     def _repr_html_(self) -> str:

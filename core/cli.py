@@ -481,7 +481,7 @@ def _diverged(args, analysis, err) -> int:
     left = [sp["ids"] for sp in rob.suspects]
     print(printable(f"{head}; without the {len(left)} suspect(s) of the robust estimation the adjustment "
                     f"converged: its results are written"), file=sys.stderr)
-    doc["robust"] = rob.as_dict()
+    doc["robust"] = results.finite(rob.as_dict())
     doc["summary"]["robust_left_out"] = left
     if args.json:
         results.write_json(final, args.json, doc)
