@@ -247,3 +247,17 @@ def test_no_import_cycle():
 def test_cycle_finder_sees_a_cycle():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) is None
+
+
+def test_no_module_of_the_core_over_800_lines():
+    """Issue 24: a module of the core holds one concept; none grows past 800 lines."""
+    long = {name: n for name, path in MODULES.items() if not name.startswith("baarda.dashboard")
+            for n in [len(path.read_text(encoding="utf-8").splitlines())] if n > 800}
+    assert not long, f"modules over 800 lines: {long}"
+
+
+def test_adjust_is_a_short_loop():
+    """Issue 24: ``adjust()`` is a loop over the iteration's steps (baarda.iteration), at most 80 lines."""
+    tree = ast.parse(MODULES["baarda.adjust"].read_text(encoding="utf-8"))
+    fn = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "adjust")
+    assert fn.end_lineno - fn.lineno + 1 <= 80

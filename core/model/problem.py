@@ -601,8 +601,7 @@ class ProblemNotes:
     COLMAP/Bundler points observed by several keypoints of one image (``{"points", "observations"}``);
     dropped_observations: Gama observations to undefined points dropped (``--drop-undefined``);
     reader_notes: lines of the reader on what it set aside or repaired; tol_abs, angles: a Gama
-    network's ``tol-abs`` (mm) and angular unit (400 gon, 360 degrees); imodel: an
-    independent-model block's geometry.
+    network's ``tol-abs`` (mm) and angular unit; imodel: an independent-model block's geometry.
     """
 
     local_defects: tuple = ()
