@@ -21,8 +21,11 @@ demo: install
 serve: install
 	$(BIN)/baarda serve
 
+# the tests without a browser on two workers (pytest-xdist; a module's tests stay on one worker),
+# then the browser tests on their own
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not browser"
+	$(BIN)/python -m pytest -q -m browser
 
 test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow and not browser"

@@ -219,7 +219,8 @@ def test_diverged_message_names_the_geometry(tmp_path, capsys):
 
     from baarda import cli
 
-    adj = SimpleNamespace(termination="not converged: the maximum number of iterations was reached", iterations=200)
+    adj = SimpleNamespace(termination="not converged: the maximum number of iterations was reached", iterations=200,
+                          converged=False)
     for centres, degenerate in ((DEGENERATE, True), (CENTRES, False)):
         model_dir = write_model(tmp_path / str(degenerate), with_point=False, centres=centres)
         args = SimpleNamespace(input=str(model_dir), robust=None, quiet=True)
