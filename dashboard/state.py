@@ -304,7 +304,10 @@ class State(param.Parameterized):
         self._frames = frames if self.robust_method == "none" else None
         self._cov = None
         with param.parameterized.batch_call_watchers(self):
-            self._set_analysis(analysis.with_policy(self.policy()))
+            # a session's own Analysis over the shared adjustment: its reliability and the
+            # computations cached on it are this session's, as they were before the cache
+            self._set_analysis(Analysis(analysis.problem, analysis.adjustment, self.policy(), analysis.solver,
+                                        name=analysis.name, excluded=analysis.excluded, kept=analysis.kept))
             self.solution += 1
             self._run_robust()
         self.param.update(source=source, file_name=plain(Path(source).name))
