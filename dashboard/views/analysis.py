@@ -21,8 +21,29 @@ TABLE = dict(show_index=False, disabled=True, sizing_mode="stretch_width", layou
              stylesheets=[".tabulator { font-size: 12px; }"])
 
 
-def _table(css: str, height: int) -> pn.widgets.Tabulator:
-    return pn.widgets.Tabulator(pd.DataFrame(), height=height, css_classes=[css], **TABLE)
+class _Slot:
+    """A place for a table that appears when it has rows. Each new content is a new Tabulator made
+    while its place is shown: Tabulator cannot lay out rows given to it while hidden (its virtual DOM
+    measures them), and a hidden table given data then shown stayed empty (tabulator issues 542,
+    4698; seen in the browser test of snooping's leave-one-out table)."""
+
+    def __init__(self, css: str, height: int):
+        self.css, self.height = css, height
+        self.value = pd.DataFrame()
+        self.panel = pn.Column(sizing_mode="stretch_width", margin=0)
+
+    def show(self, frame: pd.DataFrame, visible: bool) -> None:
+        self.value = frame
+        self.panel.objects = ([pn.widgets.Tabulator(frame, height=self.height, css_classes=[self.css], **TABLE)]
+                              if visible else [])
+
+    @property
+    def visible(self) -> bool:
+        return bool(self.panel.objects)
+
+
+def _table(css: str, height: int) -> _Slot:
+    return _Slot(css, height)
 
 
 class AnalysisPanel(pn.viewable.Viewer):
@@ -70,8 +91,8 @@ class AnalysisPanel(pn.viewable.Viewer):
     def _robust(self, *_):
         s = self.state
         rr = s.robust
-        self.robust_table.value = frames.robust_suspects(rr, s.kept, s.frames()[0] if rr is not None else None)
-        self.robust_table.visible = rr is not None and bool(rr.suspects)
+        self.robust_table.show(frames.robust_suspects(rr, s.kept, s.frames()[0] if rr is not None else None),
+                               rr is not None and bool(rr.suspects))
         if s.robust_method == "none":
             self.robust_info.object = "*Robust reweighting is off (choose a method in the sidebar).*"
             return
@@ -95,11 +116,9 @@ class AnalysisPanel(pn.viewable.Viewer):
     def _snoop(self, *_):
         s = self.state
         res = s.snoop
-        self.snoop_table.value = frames.snoop_log(res, s.kept, s.frames()[0] if res is not None else None,
-                                                  *s.problem_index()["factor"])
-        self.loo_table.value = frames.loo_table(s.snoop_loo, s.kept, s.frames()[0])
-        self.snoop_table.visible = res is not None and bool(res.steps)
-        self.loo_table.visible = bool(s.snoop_loo)
+        self.snoop_table.show(frames.snoop_log(res, s.kept, s.frames()[0] if res is not None else None,
+                                               *s.problem_index()["factor"]), res is not None and bool(res.steps))
+        self.loo_table.show(frames.loo_table(s.snoop_loo, s.kept, s.frames()[0]), bool(s.snoop_loo))
         self.accept.disabled = res is None or not res.steps
         if res is None:
             self.snoop_info.object = ""
@@ -110,18 +129,18 @@ class AnalysisPanel(pn.viewable.Viewer):
                                   f"|w| left out in turn (the likeliest error lowers it most).")
 
     def _variance(self, *_):
-        self.variance_table.value = frames.variance_table(self.state.variance, self.state.components)
-        self.variance_table.visible = self.state.variance is not None or self.state.components is not None
+        self.variance_table.show(frames.variance_table(self.state.variance, self.state.components),
+                                 self.state.variance is not None or self.state.components is not None)
 
     def __panel__(self):
         return pn.Column(
             self.message,
-            "#### Robust reweighting and data snooping (M84 §3.2)", self.robust_info, self.robust_table,
+            "#### Robust reweighting and data snooping (M84 §3.2)", self.robust_info, self.robust_table.panel,
             "#### Iterative data snooping", pn.Row(self.snoop_button, self.accept), self.snoop_info,
-            self.snoop_table, self.loo_table,
+            self.snoop_table.panel, self.loo_table.panel,
             "#### Variance components (F80 eq. 9): per observation family, or the radial model "
             "σ² = a² + b²c²/cos⁴α of a block (F80 §2.1)", pn.Row(self.variance_model, self.variance_button),
-            self.variance_table, sizing_mode="stretch_width", scroll=True, height=640)
+            self.variance_table.panel, sizing_mode="stretch_width", scroll=True, height=640)
 
 
 class InjectPanel(pn.viewable.Viewer):
