@@ -15,7 +15,8 @@ import numpy as np
 from .adjust import adjust
 from .errors import OptionError
 from .model.problem import by_size, cluster_sizes, subset, weight_matrix
-from .result import Adjustment, cluster_pairs
+from .result import Adjustment
+from .solve.pairs import cluster_pairs
 from .solve.linalg import LowRankUpdate
 
 #: :func:`exclude` updates by Woodbury when the left-out clusters hold at most this

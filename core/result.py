@@ -27,13 +27,15 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
 
-from .model.problem import by_size, cluster_sizes, size_groups, size_weights
+from .model.problem import cluster_sizes, size_groups, size_weights
 from .solve import heap
 from .solve.linalg import SPDFactor, keep_columns
+from .solve.pairs import cluster_pairs, pair_products
 from .solve.schur import SchurFactor, bmm, schur_structure
 from .stats import hypotheses
 from .stats.policy import TestPolicy
@@ -44,56 +46,6 @@ R_EPS = 1e-10
 GROUP_CHUNK = 1 << 17
 #: points per chunk of :attr:`Adjustment.point_cov`'s entries
 POINT_CHUNK = 1 << 15
-
-
-def _padded_rows(A: sp.csr_matrix):
-    """Columns and values of each row of a CSR matrix, padded to the longest row.
-
-    Padding repeats the row's first column with value 0, so that every (padded) pair of columns
-    of one row stays inside the pattern of N and of the selected inverse.
-    """
-    A = sp.csr_matrix(A)
-    A.sum_duplicates()
-    counts = np.diff(A.indptr)
-    K = max(int(counts.max(initial=0)), 1)
-    n = A.shape[0]
-    first = np.where(counts > 0, A.indices[np.minimum(A.indptr[:-1], max(A.nnz - 1, 0))] if A.nnz else 0, 0)
-    cols = np.repeat(first[:, None], K, axis=1).astype(np.int64)
-    vals = np.zeros((n, K))
-    pos = np.arange(A.nnz) - np.repeat(A.indptr[:-1], counts)
-    rows = np.repeat(np.arange(n), counts)
-    cols[rows, pos] = A.indices
-    vals[rows, pos] = A.data
-    return cols, vals
-
-
-def pair_products(A: sp.csr_matrix, factor: SPDFactor, I: np.ndarray, J: np.ndarray,
-                  chunk: int = 200_000) -> np.ndarray:
-    """a_i Σ a_jᵀ for row pairs (I[k], J[k]) with Σ = N⁻¹ from ``factor`` (selected entries)."""
-    cols, vals = _padded_rows(A)
-    out = np.empty(len(I))
-    for s in range(0, len(I), chunk):
-        i, j = I[s:s + chunk], J[s:s + chunk]
-        ci, cj = cols[i], cols[j]
-        S = factor.entries(ci[:, :, None] + 0 * cj[:, None, :], cj[:, None, :] + 0 * ci[:, :, None])
-        out[s:s + chunk] = np.einsum("pa,pab,pb->p", vals[i], S, vals[j])
-    return out
-
-
-def cluster_pairs(cov) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """All ordered pairs (i, j) of observations within each covariance cluster, and the cluster.
-
-    Pairs are laid out cluster by cluster, m² consecutive entries for a cluster of m members
-    (row-major), so that ``values[start:start + m*m].reshape(m, m)`` is the cluster's block.
-    """
-    I, J, Cl = [], [], []
-    for m, clusters, members in by_size(cov):
-        a = np.repeat(members, m, axis=1)            # (k, m*m): i index
-        b = np.tile(members, (1, m))                 # (k, m*m): j index
-        I.append(a.ravel())
-        J.append(b.ravel())
-        Cl.append(np.repeat(clusters, m * m))
-    return np.concatenate(I), np.concatenate(J), np.concatenate(Cl)
 
 
 def _mm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
@@ -144,6 +96,22 @@ class HeldColumns:
         A = sp.csr_matrix((data, (rows, cols)), shape=self.shape)
         A.sum_duplicates()         # (none: distinct columns) sorted, canonical
         return A
+
+
+class GroupStatistics(NamedTuple):
+    """The policy-free statistics of a problem's observation groups (F80 eq. 10, 13, 14), group k's
+    members at ``members[ptr[k]:ptr[k + 1]]``; per-member arrays in the members' order."""
+
+    keys: np.ndarray            # group ids, ascending
+    ptr: np.ndarray             # (groups + 1,) offsets into members
+    members: np.ndarray         # observation indices, sorted within each group
+    T: np.ndarray               # T = ĝᵀ W_s⁻¹ ĝ (F80 eq. 10), dimensionless
+    q: np.ndarray               # counted dimension of the test (rank of W_s)
+    redundancy: np.ndarray      # Σ r_i over the group's members
+    nabla: np.ndarray           # ∇ŝ per member, SI units of the observation
+    nabla_sigma: np.ndarray     # σ∇ŝ = √diag(W_s⁻¹) per member, SI units
+    w_eigenvalues: np.ndarray   # eigenvalues of W_s ascending (NaN where not counted)
+    mu_max: np.ndarray          # largest eigenvalue of the pencil (HᵀPH, W_s) (F80 eq. 14)
 
 
 @dataclass(frozen=True, eq=False)
@@ -571,10 +539,10 @@ class Adjustment:
         return self.reliability.groups
 
     @cached_property
-    def group_statistics(self) -> tuple | None:
+    def group_statistics(self) -> "GroupStatistics | None":
         """T, q and ∇ŝ of the problem's observation groups (vectors, image points), which do not
-        depend on the test policy: (group ids, ptr, members, T, q, redundancy, ∇ŝ, σ∇ŝ, λ(W_s),
-        μmax) ordered by group id, members of group k at ``members[ptr[k]:ptr[k + 1]]`` (sorted,
+        depend on the test policy: a :class:`GroupStatistics` (group ids, ptr, members, T, q,
+        redundancy, ∇ŝ, σ∇ŝ, λ(W_s), μmax) ordered by group id, members of group k at ``members[ptr[k]:ptr[k + 1]]`` (sorted,
         ∇ŝ and σ∇ŝ = √diag(W_s⁻¹) in their order, F80 eq. 10); at the same positions the
         eigenvalues of W_s ascending (NaN for those the test does not count), whose δ0/√λ are the
         semi-axes of the lower-bound ellipse (F80 eq. 13); per group μmax, the largest eigenvalue
@@ -627,7 +595,7 @@ class Adjustment:
             T[k], q[k] = h.T, h.q
             red[k] = float(r[mem].sum())
         heap.trim(self.n)
-        return keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max
+        return GroupStatistics(keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max)
 
     def cluster_group_tests(self) -> dict:
         """{group: (T, q, ∇ŝ)} of the groups that are exactly one covariance cluster (an image

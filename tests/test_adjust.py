@@ -185,7 +185,7 @@ def test_step_factor_with_duplicate_keypoints(tmp_path, monkeypatch):
     """Two keypoints of one point in one image: a pair of clusters of one point on the same
     diagonal block of S (the pair's product and its transpose both go there)."""
     pytest.importorskip("numba")
-    from tests.test_colmap import duplicate_model
+    from tests.io.test_colmap import duplicate_model
 
     txt, _, _, added = duplicate_model(tmp_path)
     problem = read_problem(txt)

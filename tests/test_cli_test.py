@@ -23,7 +23,7 @@ from baarda.errors import BaardaError
 from baarda.stats.hypotheses import hypothesis_matrix
 
 from tests.oracle import dense, pcp, reduced_design
-from tests.test_colmap import duplicate_model
+from tests.io.test_colmap import duplicate_model
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 DEMO = DATA / "demo-block.json"
@@ -33,8 +33,8 @@ SPECS = ["transfer:P04004:203,204,205", "image-point:302:P05003", "control:P0400
 
 
 @pytest.fixture(scope="module")
-def demo():
-    adj = adjust(read_problem(DEMO))
+def demo(demo_adjustment):
+    adj = demo_adjustment
     ref = dense(adj)
     kind = adj.problem.params.kind[adj.problem.params.free]
     t, k = np.flatnonzero(kind == "t"), np.flatnonzero(kind == "k")

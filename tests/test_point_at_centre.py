@@ -19,7 +19,7 @@ from baarda.build import read_problem
 from baarda.io import read_model
 from baarda.sfm_defects import adjust_block, find_defects
 
-from tests.test_colmap import pycolmap_cost
+from tests.io.test_colmap import pycolmap_cost
 
 F, CX, CY = 1000.0, 500.0, 400.0
 CENTRES = np.array([[0, 0, -10], [0, 0, -10], [1, 0, -14], [-1, 0.5, -14], [0.8, -0.8, -13],

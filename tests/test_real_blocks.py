@@ -42,7 +42,7 @@ def test_real_block_analyses_and_converges(name, optimum, tmp_path, capsys):
 
 def test_every_real_block_is_listed():
     """A new real file in extdata must be added above (dubrovnik-1-1, one image point, is the one
-    file with nothing to adjust: tests/test_readers.py checks its error)."""
+    file with nothing to adjust: tests/io/test_readers.py checks its error)."""
     require_extdata(BAL)
     present = {f"bal/{p.name}" for p in BAL.iterdir() if p.name not in ("SHA256SUMS",)}
     present |= {f"colmap/{p.name}" for p in COLMAP.iterdir()}

@@ -2,7 +2,7 @@
 
 The format is documented in the GNU Gama manual, chapter "XML input data format for
 gama-local" (https://www.gnu.org/software/gama/manual/). Conventions taken from it and
-checked against gama-local 2.33's own results (``tests/test_gama_reader.py``):
+checked against gama-local 2.33's own results (``tests/io/test_gama.py``):
 
 - Distances and coordinates in metres; their standard deviations in millimetres and
   covariances in mm².

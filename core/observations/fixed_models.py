@@ -31,7 +31,7 @@ x = f_x u_d + c_x, y = f_y v_d + c_y (Schönberger & Frahm 2016, the camera mode
 Each function returns (u_d, v_d, J00, J01, J10, J11), J = ∂(u_d, v_d)/∂(u, v), analytic.
 :func:`fixed_distortion` is the numpy reference (arrays); :func:`fixed_distortion_scalar` the
 same formulas one point at a time for the compiled projection kernel (numba), tested equal, and
-both against pycolmap's own projection (``tests/test_camera_models.py``).
+both against pycolmap's own projection (``tests/observations/test_projection.py``).
 """
 
 from __future__ import annotations

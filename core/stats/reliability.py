@@ -239,7 +239,8 @@ class Reliability:
         g = self.result.group_statistics
         if g is None:
             return GroupTests.empty()
-        keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max = g
+        keys, ptr, members, T, q = g.keys, g.ptr, g.members, g.T, g.q
+        red, nabla, nabla_sigma, wlam, mu_max = g.redundancy, g.nabla, g.nabla_sigma, g.w_eigenvalues, g.mu_max
         dof, vPv = self.result.dof, self.result.vPv
         # α_q, the critical values and δ0(q) per dimension q; every array that follows from them
         # (and R, δ0′max, the semi-axes) is made when asked for (:class:`_Derived`)

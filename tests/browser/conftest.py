@@ -130,7 +130,7 @@ def block_app(serve_app):
     demo = ROOT / "data" / "demo-block.json"
     if demo.exists():
         return serve_app(lambda: create_app(demo))
-    from tests.test_dashboard_state import tiny_block_problem
+    from tests.dashboard.test_state import tiny_block_problem
 
     problem = tiny_block_problem()
     return serve_app(lambda: create_app(problem=problem))

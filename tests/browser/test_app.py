@@ -272,7 +272,7 @@ def test_alpha_changes_delta0_and_mdb_data(page, network_app, screenshots):
 
 def _ellipses(page):
     """The 49-point standard ellipses in the page (one path, broken by NaN between ellipses)."""
-    from tests.test_dashboard_state import split_paths
+    from tests.dashboard.test_state import split_paths
 
     return [e for col in page.evaluate(JS_COLUMN, "xs") for x in col for e in split_paths(x) if len(e) == 49]
 

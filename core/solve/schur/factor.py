@@ -245,7 +245,7 @@ class SchurFactor:
 
     def hat_blocks(self, cov):
         """a_i Σ a_jᵀ and a_i Σ_t a_jᵀ (nuisance part) for all pairs within each covariance
-        cluster, laid out as :func:`baarda.result.cluster_pairs` lays them out. When the factor's
+        cluster, laid out as :func:`baarda.solve.pairs.cluster_pairs` lays them out. When the factor's
         blocks are in that layout already (one cluster size, clusters in id order: a bundle block)
         they are returned themselves, not copied (the result repairs them in place: the factor
         holds no second copy of them)."""

@@ -24,7 +24,7 @@ from baarda.dashboard.state import State  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
 from tests.extdata import GAMA, require_extdata  # noqa: E402
 
-DASHBOARD = Path(__file__).resolve().parent.parent / "dashboard"
+DASHBOARD = Path(__file__).resolve().parents[2] / "dashboard"
 #: the modules below the state: they take the core's objects, never the state's module
 BELOW_STATE = ("geometry", "mapgeometry", "frames", "specs", "measures", "sbase", "jobs", "suspects", "text")
 
@@ -242,7 +242,7 @@ def test_sessions_on_one_cached_file_share_its_suspects_per_test_policy(tmp_path
     once); a session with another α0 gets its own list, equal to one computed afresh."""
     from baarda.dashboard.suspects import _ranked, suspects
 
-    path = Path(__file__).resolve().parents[1] / "data" / "demo-block.json"
+    path = Path(__file__).resolve().parents[2] / "data" / "demo-block.json"
     if not path.exists():
         pytest.skip("data/demo-block.json not generated")
     jobs.clear_cache()

@@ -59,7 +59,8 @@ def test_ladybug_groups_stay_within_vpv_and_the_keypoint_pair_is_one_dimensional
     from baarda.stats import hypotheses
 
     adj = ladybug
-    keys, ptr, members, T, q, *_ = adj.group_statistics
+    g = adj.group_statistics
+    keys, ptr, members, T, q = g.keys, g.ptr, g.members, g.T, g.q
     assert np.nanmax(T) <= adj.vPv
     groups = adj.groups
     assert np.nanmax(groups.T) < 1e4

@@ -15,7 +15,7 @@ from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
 from baarda.stats.snooping import iterate, leave_one_out
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 
 
 def test_demo_block_first_removal_is_the_planted_image_error():

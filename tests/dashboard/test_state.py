@@ -41,7 +41,7 @@ from tests.extdata import GAMA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
 
-DEMO_BLOCK = Path(__file__).resolve().parents[1] / "data" / "demo-block.json"
+DEMO_BLOCK = Path(__file__).resolve().parents[2] / "data" / "demo-block.json"
 NETWORKS = ["gama-local.gkf", "krumm/1D/Niemeier_Height_free.gkf", "tetrahedron.gkf",
             "krumm/2D/Grossmann_Direction_fix.gkf"]
 
@@ -802,7 +802,7 @@ def test_criterion_for_blocks_and_heights_refused_without_positions(block_proble
         pn.panel(view).get_root(Document())
         c = st.criterion_compare("logarithmic")
         assert c is not None and c["lam_max"] == pytest.approx(1.0, rel=1e-6), st.criterion_error
-    st = State(Path(__file__).resolve().parents[1] / "data" / "demo-levelling.gkf")
+    st = State(Path(__file__).resolve().parents[2] / "data" / "demo-levelling.gkf")
     assert "planimetric positions" in measures.criterion_reason(st.results)
     assert st.criterion_compare("linear") is None and st.criterion_error.startswith("Criterion:")
 
@@ -919,7 +919,7 @@ def test_teaching_mdb_plot_thins_large_blocks_but_keeps_every_cell():
 # --------------------------------------------------------------------------------------------
 def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
     from baarda.build import read_problem
-    from tests.test_colmap import duplicate_model
+    from tests.io.test_colmap import duplicate_model
 
     txt, _, _, added = duplicate_model(tmp_path)
     p = read_problem(txt)

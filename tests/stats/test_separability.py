@@ -15,20 +15,17 @@ import scipy.sparse as sp
 from tests.oracle import pcp
 
 from baarda.adjust import adjust
-from baarda.build import read_problem
 from baarda.errors import OptionError
 from baarda.stats import separability
 from baarda.stats.hypotheses import h_point_transfer, selection
 from baarda.stats.snooping import iterate
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 
 
 @pytest.fixture(scope="module")
-def demo():
-    p = read_problem(DATA / "demo-block.json")
-    adj = adjust(p)
-    return p, adj, pcp(adj)        # D(Pv) with σ0 absorbed (F80 eq. 8)
+def demo(demo_problem, demo_adjustment):
+    return demo_problem, demo_adjustment, pcp(demo_adjustment)        # D(Pv) with σ0 absorbed (F80 eq. 8)
 
 
 def _row(p, **ids):

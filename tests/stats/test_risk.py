@@ -11,21 +11,17 @@ import numpy as np
 import pytest
 from tests.oracle import dense, normal_inverse, pcp, reduced_design
 
-from baarda.adjust import adjust
-from baarda.build import read_problem
 from baarda.cli import main
 from baarda.errors import OptionError
 from baarda.stats import risk
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 P_ERR, L1, L2 = 0.01, 1.0, 10.0
 
 
 @pytest.fixture(scope="module")
-def demo():
-    p = read_problem(DATA / "demo-block.json")
-    adj = adjust(p)
-    return p, adj, dense(adj), pcp(adj)
+def demo(demo_problem, demo_adjustment):
+    return demo_problem, demo_adjustment, dense(demo_adjustment), pcp(demo_adjustment)
 
 
 def _controlled(adj):

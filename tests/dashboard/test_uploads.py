@@ -92,10 +92,10 @@ def test_a_closed_pages_reading_and_adjustment_stop(tmp_path):
     from baarda.dashboard.state import State
     from baarda.io.source import checking
 
-    from tests.test_dashboard_state import tiny_block_problem
+    from tests.dashboard.test_state import tiny_block_problem
 
     st = State()
-    gkf = Path(__file__).resolve().parents[1] / "data" / "demo-levelling.gkf"
+    gkf = Path(__file__).resolve().parents[2] / "data" / "demo-levelling.gkf"
     with checking(st._stop_if_closed):
         read_problem(gkf)                                   # open page: read
         st.jobs.closed = True

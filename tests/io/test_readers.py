@@ -33,7 +33,7 @@ from baarda.observations.rotation import R_from_rodrigues
 from tests.extdata import EXTDATA, require_extdata
 
 BAL = EXTDATA / "bal"
-VALID = Path(__file__).resolve().parent / "malformed" / "valid"
+VALID = Path(__file__).resolve().parents[1] / "malformed" / "valid"
 
 
 def numeric_jacobian(s, x, h=1e-6):

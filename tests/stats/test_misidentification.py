@@ -16,19 +16,17 @@ from tests.oracle import dense, pcp
 
 from baarda.adjust import adjust
 from baarda.cli import main
-from baarda.build import read_problem
 from baarda.model.bundle import build_block_problem, image_rows
 from baarda.simulate import simulate_block
 from baarda.stats.hypotheses import h_exchanged
 from baarda.stats.misidentification import LINEAR_LIMIT_SIGMA, exchange_test
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 
 
 @pytest.fixture(scope="module")
-def demo():
-    p = read_problem(DATA / "demo-block.json")
-    return p, adjust(p)
+def demo(demo_problem, demo_adjustment):
+    return demo_problem, demo_adjustment
 
 
 def test_linear_statistic_against_dense(demo):

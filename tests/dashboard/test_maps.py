@@ -31,7 +31,7 @@ from tests.extdata import EXTDATA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
 
-DEMO = Path(__file__).resolve().parents[1] / "data" / "demo-block.json"
+DEMO = Path(__file__).resolve().parents[2] / "data" / "demo-block.json"
 
 
 def test_robust_box_moves_far_points_to_the_edge():
@@ -118,7 +118,7 @@ def test_ladybug_maps_spread_the_real_points_and_list_the_far_ones(ladybug):
 
 
 def test_levelling_schematic_gives_every_benchmark_its_own_place():
-    path = Path(__file__).resolve().parents[1] / "data" / "demo-levelling.gkf"
+    path = Path(__file__).resolve().parents[2] / "data" / "demo-levelling.gkf"
     if not path.exists():
         pytest.skip("data/demo-levelling.gkf not generated")
     from baarda.dashboard.geometry import schematic_layout

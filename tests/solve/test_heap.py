@@ -20,7 +20,7 @@ from baarda.model.sfm import CAMERA_MODELS, ControlPoint, SfmBlock, SfmCamera, S
 from baarda.stats.hypotheses import selection
 from baarda.stats.hypotheses import test as general_test
 
-BENCH = Path(__file__).resolve().parents[1] / "bench"
+BENCH = Path(__file__).resolve().parents[2] / "bench"
 
 
 def _make_big_bal():

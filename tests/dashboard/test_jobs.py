@@ -10,7 +10,7 @@ from baarda.build import read_problem
 from baarda.dashboard.state import State
 from baarda.dashboard.views.summary import SummaryHeader
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 
 
 def test_iterations_reach_the_sessions_progress():

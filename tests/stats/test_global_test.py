@@ -30,7 +30,7 @@ from baarda.stats.reliability import Reliability
 
 from tests.extdata import GAMA, require_extdata
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 WOLF = GAMA / "krumm" / "2D" / "Wolf_DistanceDirectionAngle_free.gkf"
 
 

@@ -17,7 +17,7 @@ from baarda.io.colmap import read_colmap
 from baarda.model.sfm import CAMERA_MODELS, SfmBlock, SfmCamera, SfmImage, initial_cost, to_block
 from baarda.observations.fixed_models import FIXED_MODELS, MAX_COEFFICIENTS, fixed_distortion, fixed_distortion_scalar
 
-from tests.test_colmap import pycolmap_cost
+from tests.io.test_colmap import pycolmap_cost
 
 #: distortion coefficients of each model (FOV twice: COLMAP's small-ω series too)
 COEFFICIENTS = {

@@ -27,15 +27,12 @@ from baarda.dashboard.views.suspects import SuspectsView  # noqa: E402
 from baarda.stats.hypotheses import h_point_transfer  # noqa: E402
 from tests.oracle import dense  # noqa: E402
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 
 
 @pytest.fixture(scope="module")
-def demo():
-    path = DATA / "demo-block.json"
-    if not path.exists():
-        pytest.skip("data/demo-block.json not generated")
-    st = State(path)
+def demo(demo_path):
+    st = State(demo_path)
     truth = json.loads((DATA / "demo-block.truth.json").read_text())
     return st, suspects(st), truth["errors"]
 

@@ -24,14 +24,12 @@ from tests.extdata import GAMA, require_extdata  # noqa: E402
 
 hv.extension("bokeh", logo=False)
 
-DEMO = Path(__file__).resolve().parents[1] / "data" / "demo-block.json"
+DEMO = Path(__file__).resolve().parents[2] / "data" / "demo-block.json"
 
 
 @pytest.fixture(scope="module")
-def demo():
-    if not DEMO.exists():
-        pytest.skip("data/demo-block.json not generated")
-    return DEMO
+def demo(demo_path):
+    return demo_path
 
 
 def test_dropdowns_open_with_a_selection(demo):

@@ -18,7 +18,7 @@ from baarda.cli import main
 from baarda.io import output
 from baarda.io.output import OutputError, atomic_write, check_outputs, csv_cell
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]
 REPO = HERE.parent
 VALID = HERE / "malformed" / "valid"
 

@@ -17,7 +17,7 @@ from scipy import stats as sps
 
 from baarda.cli import main
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 LEVELLING = DATA / "demo-levelling.gkf"
 
 

@@ -23,12 +23,12 @@ from baarda.dashboard.report import caption, report_html, verdict
 from baarda.dashboard.state import State
 from baarda.dashboard.tables import TABLES, csv_bytes, table_csv
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 
 
 @pytest.fixture(scope="module")
-def demo():
-    return adjust(read_problem(DATA / "demo-block.json"))
+def demo(demo_adjustment):
+    return demo_adjustment
 
 
 def test_verdict_of_the_demo_block_names_its_rejections(demo):

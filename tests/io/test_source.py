@@ -24,7 +24,7 @@ from baarda.model.sfm import initial_cost
 
 from tests.extdata import EXTDATA, require_extdata
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]
 VALID = HERE / "malformed" / "valid"
 DATA = HERE.parent / "data"
 COMPRESS = {".gz": gzip.compress, ".bz2": bz2.compress, ".xz": lzma.compress}

@@ -21,7 +21,7 @@ from baarda.model.network import Cluster, NetObservation, NetPoint, Network
 from baarda.simulate import simulate_block, simulate_to_files
 from baarda.stats import analyses, precision
 
-DATA = Path(__file__).resolve().parents[1] / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 RECIPE = dict(strips=2, images_per_strip=4, datum="free", seed=3)
 
 

@@ -254,7 +254,7 @@ def test_niemeier_components_reach_the_fixed_point():
     assert est.converged and np.abs(est.factors / ref - 1).max() < 1e-4
 
 
-DEMO = __import__("pathlib").Path(__file__).resolve().parents[1] / "data" / "demo-block.json"
+DEMO = __import__("pathlib").Path(__file__).resolve().parents[2] / "data" / "demo-block.json"
 
 
 def test_demo_block_families_merged_from_the_cli(tmp_path, capsys):
