@@ -47,9 +47,24 @@ class CriterionSetup:
 
 
 def criterion_axes(adj) -> tuple[int, str]:
-    """The coordinates per point a criterion matrix of ``adj`` has (2 planimetric, 1 heights, 3
-    spatial: M84 §2.2-2.3) and "" — or 0 and why criterion matrices do not apply: every point needs
-    the same coordinates, and heights need planimetric positions for their distances."""
+    """The coordinates per point a criterion matrix of ``adj`` has, or why none applies (M84 §2.2-2.3).
+
+    2 planimetric, 1 heights, 3 spatial. Criterion matrices do not apply when points carry different
+    coordinates, when heights lack planimetric positions for their distances, or when the dense
+    covariance would exceed ``MAX_CRITERION_COORDINATES`` coordinates.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment whose coordinates are compared.
+
+    Returns
+    -------
+    axes : int
+        Coordinates per point (1, 2 or 3); 0 where criterion matrices do not apply.
+    reason : str
+        Why they do not apply; "" when they do.
+    """
     params = adj.problem.params
     k = params.kind == "k"
     if k.sum() > MAX_CRITERION_COORDINATES:
@@ -76,8 +91,21 @@ def criterion_axes(adj) -> tuple[int, str]:
 
 
 def planimetric_positions(adj) -> np.ndarray:
-    """x, y of every point (m × 2, metres): the adjusted ones, else those the file gives
-    (``Problem.positions``, a levelling network's benchmarks), NaN where neither."""
+    """The planimetric position x, y of every point, adjusted or given.
+
+    The adjusted coordinates, else those the file gives (``Problem.positions``, a levelling
+    network's benchmarks), NaN where neither.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+
+    Returns
+    -------
+    numpy.ndarray
+        m × 2 positions of the m points, metres (NaN where unknown).
+    """
     xy = adj.coordinates[:, :2].copy()
     given = adj.problem.positions
     if given is not None:
@@ -86,15 +114,46 @@ def planimetric_positions(adj) -> np.ndarray:
 
 
 def criterion_reason(adj) -> str:
-    """Why criterion matrices do not apply to ``adj`` ("" if they do; :func:`criterion_axes`)."""
+    """Why criterion matrices do not apply to ``adj`` (:func:`criterion_axes`).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+
+    Returns
+    -------
+    str
+        The reason; "" if they apply.
+    """
     return criterion_axes(adj)[1]
 
 
 def criterion_setup(adj, sbase, cov=None) -> CriterionSetup:
-    """The coordinate covariance of ``adj`` in the S-base ``sbase`` (point ids; in 3D two points
-    and, optionally, ``normal=C``) with the point positions, S-base conditions and null space
-    (``cov``: that covariance if already computed). Raises :class:`baarda.errors.BaardaError`
-    where criterion matrices do not apply (:func:`criterion_axes`)."""
+    """The coordinate covariance of ``adj`` in an S-base with what a criterion comparison needs (M84 §2).
+
+    The covariance transformed to the S-base (M84 §2.1), the point positions, the S-base conditions
+    and the null space G.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    sbase : iterable of str
+        Point ids of the S-base; in 3D two points and, optionally, ``normal=C``.
+    cov : baarda.stats.precision.CoordinateCovariance, optional
+        That covariance if already computed (m², same units as the coordinates squared).
+
+    Returns
+    -------
+    CriterionSetup
+        Covariance (m²), positions (metres), S-base, null space G (dimensionless and metres) and axes.
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        Where criterion matrices do not apply (:func:`criterion_axes`).
+    """
     axes, reason = criterion_axes(adj)
     if reason:
         raise BaardaError(reason)
@@ -110,24 +169,69 @@ def criterion_setup(adj, sbase, cov=None) -> CriterionSetup:
 
 
 def criterion_fit(setup: CriterionSetup, kind: str = "logarithmic", C0: float = 0.0) -> dict:
-    """The chaotic criterion fitted to the covariance (:func:`baarda.stats.precision.fit_criterion`,
-    Molenaar 1984, §2.3: C0 given first, C1 so that λmax = 1, C2 so that λmax/λmin is smallest)."""
+    """The chaotic criterion fitted to the covariance (M84 §2.3).
+
+    C0 given first, C1 so that λmax = 1, C2 so that λmax/λmin is smallest
+    (:func:`baarda.stats.precision.fit_criterion`).
+
+    Parameters
+    ----------
+    setup : CriterionSetup
+        From :func:`criterion_setup`.
+    kind : str
+        Structure of d²: "linear", "logarithmic" or "exponential" (M84 eq. 2).
+    C0 : float
+        The constant term of d², units of :func:`criterion_units`.
+
+    Returns
+    -------
+    dict
+        The fitted C0, C1, C2 (units of :func:`criterion_units`) and the eigenvalues λ
+        (dimensionless), as :func:`baarda.stats.precision.fit_criterion` returns them.
+    """
     return precision.fit_criterion(setup.cov.cov, setup.xy, setup.in_base, setup.G, kind=kind, axes=setup.axes,
                                    C0=C0)
 
 
 def criterion_compare(setup: CriterionSetup, kind: str, C1: float, C2: float = 1.0,
                       C0: float = 0.0) -> precision.Comparison:
-    """The covariance against the chaotic criterion (units in :func:`criterion_units`) transformed
-    to the S-base: the generalised eigenvalues λ on the complement of the null space, the same in
-    every S-base (Molenaar 1984, §2.2; :func:`baarda.stats.precision.compare`)."""
+    """The covariance against the chaotic criterion transformed to the S-base (M84 §2.2, eq. 3).
+
+    The generalised eigenvalues λ of |G − λH| = 0 on the complement of the null space, the same in
+    every S-base (:func:`baarda.stats.precision.compare`).
+
+    Parameters
+    ----------
+    setup : CriterionSetup
+        From :func:`criterion_setup`.
+    kind : str
+        Structure of d²: "linear", "logarithmic" or "exponential" (M84 eq. 2).
+    C1, C2, C0 : float
+        Parameters of d², units of :func:`criterion_units`.
+
+    Returns
+    -------
+    baarda.stats.precision.Comparison
+        The eigenvalues λ (dimensionless) and their eigenvectors.
+    """
     H = precision.sbase_transform(precision.criterion_matrix(setup.xy, kind, float(C0), float(C1), float(C2),
                                                              axes=setup.axes), setup.G, setup.in_base)
     return precision.compare(setup.cov.cov, H, setup.G, setup.in_base)
 
 
 def criterion_units(kind: str) -> dict:
-    """The units of C0, C1, C2 for each structure of d² (M84 eq. 2; l in metres, d² in m²)."""
+    """The units of C0, C1, C2 for each structure of d² (M84 eq. 2; l in metres, d² in m²).
+
+    Parameters
+    ----------
+    kind : str
+        "linear", "logarithmic" or "exponential".
+
+    Returns
+    -------
+    dict
+        "C0", "C1", "C2" -> unit as text ("" where the parameter is unused).
+    """
     if kind == "exponential":      # d² = C0² + C1 (1 − exp(−C2² l))
         return {"C0": "m", "C1": "m²", "C2": "m^-½"}
     if kind == "logarithmic":      # d² = C0 + C1 C2 ln(1 + l / C2)
@@ -136,42 +240,106 @@ def criterion_units(kind: str) -> dict:
 
 
 def radial_theta0(problem) -> list[float]:
-    """θ0 = (σ²/2, σ²/2, 1) of the radial model, σ² the median a priori variance of the image
-    observations (1 without any)."""
+    """The start θ0 = (σ²/2, σ²/2, 1) of the radial variance model (F80 §2.1).
+
+    σ² is the median a priori variance of the image observations (1 without any).
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        The block.
+
+    Returns
+    -------
+    list of float
+        a², b² (pixels², units of the image observations squared) and c (dimensionless).
+    """
     image = np.char.startswith(np.asarray(problem.info.kind).astype(str), "image")
     sig2 = float(np.median(problem.cov.sigma()[image]) ** 2) if image.any() else 1.0
     return [sig2 / 2, sig2 / 2, 1.0]
 
 
 def radial_variance(problem, options=None, structure: str = "radial"):
-    """The radial variance model of a block (Förstner 1980, §2.1) estimated from
-    :func:`radial_theta0` (:func:`baarda.stats.variance.estimate_components`); ``structure``
-    "radial" (b acts on the radial component, the paper's reading) or "isotropic" (on x and y
-    alike; :func:`baarda.stats.variance.radial_cofactor`)."""
+    """The radial variance model σ² = a² + b²c²/cos⁴α of a block (F80 §2.1) estimated from θ0.
+
+    Starts at :func:`radial_theta0` (:func:`baarda.stats.variance.estimate_components`).
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        The block.
+    options : baarda.adjust.Options, optional
+        Adjustment options of each readjustment.
+    structure : str
+        "radial" (b acts on the radial component, the paper's reading) or "isotropic" (on x and y
+        alike; :func:`baarda.stats.variance.radial_cofactor`).
+
+    Returns
+    -------
+    object
+        What :func:`baarda.stats.variance.estimate_components` returns: the estimated components
+        (units of the image observations squared) and the final adjustment.
+    """
     comps = variance.radial_components(problem, structure)
     return variance.estimate_components(problem, comps, theta0=radial_theta0(problem), options=options)
 
 
 def risk_analysis(p: float, L1: float, L2: float, lam_tol: float) -> dict:
-    """The risk-minimising critical value C (Molenaar 1984, §3.3; :func:`baarda.stats.risk.critical_value`),
-    its risk r_C, α_C = 1 − Φ(C) and β_C = 1 − Φ(C − √λtol) (the definitions of :mod:`baarda.stats.risk`).
-    Raises ValueError for p ∉ (0, 1) or non-positive L1, L2, λtol."""
+    """The risk-minimising critical value C with its risk, α_C and β_C (M84 §3.3).
+
+    C from :func:`baarda.stats.risk.critical_value`, α_C = 1 − Φ(C), β_C = 1 − Φ(C − √λtol).
+
+    Parameters
+    ----------
+    p : float
+        Error rate, in (0, 1), dimensionless.
+    L1, L2 : float
+        Costs of rejecting a good and of missing a bad observation (> 0, any one unit).
+    lam_tol : float
+        Tolerance λtol (> 0), dimensionless non-centrality.
+
+    Returns
+    -------
+    dict
+        "C" (dimensionless), "r_C" (units of L1, L2), "alpha", "beta" (probabilities) and "lam_tol".
+
+    Raises
+    ------
+    ValueError
+        For p ∉ (0, 1) or non-positive L1, L2, λtol.
+    """
     C = risk.critical_value(p, L1, L2, lam_tol)
     return {"C": C, "r_C": risk.risk(C, p, L1, L2, lam_tol), "alpha": float(sps.norm.sf(C)),
             "beta": float(sps.norm.sf(C - np.sqrt(lam_tol))), "lam_tol": float(lam_tol)}
 
 
 def hypothesis_analysis(adj, H, label: str = "", reliability=None) -> dict:
-    """Everything F80 says about hypothesis H (n × q) of ``adj`` under ``reliability``'s policy
-    (default ``adj.reliability``), as plain numbers (SI units of the observations for ∇s,
-    of the coordinates for the deformation):
+    """Everything F80 says about hypothesis H of ``adj``, as plain numbers (F80 eq. 10-18).
 
     T and R with their critical values and the decision (on T with σ0 a priori, on R with σ0 a
     posteriori; eq. 10-12), ∇ŝ and σ∇ŝ (eq. 10), the semi-axes and directions of the
     lower-bound ellipse (eq. 13), δ0′max and its direction (eq. 14, §7.3), δ̄0max, its direction
     and λ̄ = δ̄0max² (eq. 17, M84 §3.2), and the deformation ∇0x of the undetectable error
     ∇0s = s δ0/√(sᵀW_s s) in that direction (eq. 16): per point dx, dy, dz and their norm,
-    largest first. ``rows`` are the observations H acts on.
+    largest first.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    H : scipy.sparse matrix or numpy.ndarray
+        n × q hypothesis matrix, dimensionless.
+    label : str
+        Name of the hypothesis, echoed in the result.
+    reliability : baarda.stats.reliability.Reliability, optional
+        Its test policy (default ``adj.reliability``).
+
+    Returns
+    -------
+    dict
+        T, R, δ0, δ0′max, δ̄0max, λ̄ dimensionless; ∇ŝ, σ∇ŝ and the ellipse axes in the units of
+        the observations; the deformation in the units of the coordinates (metres); ``rows`` the
+        observations H acts on.
     """
     rel = adj.reliability if reliability is None else reliability
     h = rel.test(H, label=label)
