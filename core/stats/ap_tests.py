@@ -62,8 +62,23 @@ class APTest:
 
 
 def ap_tests(adj, policy=None) -> list[dict]:
-    """:func:`ap_test` of every AP group the model estimates (``problem.notes.ap_groups``), each as
-    :meth:`APTest.as_dict` with its ``camera`` and ``group`` (F80 §7.2-7.3)."""
+    """:func:`ap_test` of every AP group the model estimates (F80 §7.2-7.3).
+
+    The groups are ``problem.notes.ap_groups``.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment of a bundle block with additional parameters.
+    policy : baarda.stats.policy.TestPolicy, optional
+        α0, β0 and the B-method (default ``adj.policy``).
+
+    Returns
+    -------
+    list of dict
+        Per group :meth:`APTest.as_dict` (estimates and σ in the units of the APs, T, δ0 and δ̄0
+        dimensionless) with its ``camera`` and ``group``.
+    """
     out = []
     for key in adj.problem.notes.ap_groups:
         camera, _, group = key.rpartition(":")
@@ -77,9 +92,30 @@ def ap_test(adj, camera: str, group: str, policy=None) -> APTest:
     Uses ``adj.solve_normal`` for the q columns Σ e_j (so Σ_ŝŝ and Σ_kŝ), then
     ∇k = Σ_kŝ Σ_ŝŝ⁻¹ ∇s is the effect on the coordinates of leaving an error ∇s of the APs
     unmodelled, and δ̄0²(s) = δ0² ∇kᵀ(C̄ᵀPC̄)∇k / ∇sᵀΣ_ŝŝ⁻¹∇s (F80 eq. 17; the denominator
-    is sᵀHᵀPQ_vvPHs of the model without the APs, H = ∂f/∂s). ``policy``
-    (:class:`baarda.stats.policy.TestPolicy`, default ``adj.policy``) gives α_q, δ0 and the
-    critical value.
+    is sᵀHᵀPQ_vvPHs of the model without the APs, H = ∂f/∂s). Determinability
+    ∇0s_j = δ0 σ_ŝj (eq. 15a), weakest direction of δ'0(s) (eq. 14, §7.3).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment of a bundle block with additional parameters.
+    camera : str
+        Camera id.
+    group : str
+        AP group name of that camera (a key of ``problem.notes.ap_groups`` is ``camera:group``).
+    policy : baarda.stats.policy.TestPolicy, optional
+        Gives α_q, δ0 and the critical value (default ``adj.policy``).
+
+    Returns
+    -------
+    APTest
+        ŝ, Σ_ŝŝ, determinability and ellipsoid axes in the units of the APs (image units);
+        T, δ0, δ̄0 and δ0′max dimensionless; directions as unit vectors.
+
+    Raises
+    ------
+    baarda.errors.NotFoundError
+        When a parameter of the group is not estimated.
     """
     policy = adj.policy if policy is None else policy
     problem = adj.problem

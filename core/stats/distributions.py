@@ -14,17 +14,56 @@ from ..errors import OptionError
 
 
 def critical_normal(alpha: float) -> float:
-    """Two-sided critical value of a standard normal test statistic, Φ⁻¹(1 − α/2)."""
+    """Two-sided critical value of a standard normal test statistic, Φ⁻¹(1 − α/2) (B68; F80 §4).
+
+    Parameters
+    ----------
+    alpha : float
+        Size of the test, in (0, 1), dimensionless.
+
+    Returns
+    -------
+    float
+        The critical value of |w|, dimensionless.
+    """
     return float(stats.norm.isf(alpha / 2.0))
 
 
 def critical_chi2(alpha: float, q: int) -> float:
-    """Critical value χ²_{1−α}(q) of a q-dimensional test statistic T (F80 eq. 12)."""
+    """Critical value χ²_{1−α}(q) of a q-dimensional test statistic T (F80 eq. 12).
+
+    Parameters
+    ----------
+    alpha : float
+        Size of the test, in (0, 1), dimensionless.
+    q : int
+        Dimension of the test (degrees of freedom).
+
+    Returns
+    -------
+    float
+        The critical value of T, dimensionless.
+    """
     return float(stats.chi2.isf(alpha, q))
 
 
 def critical_f(alpha: float, q: int, dof: float) -> float:
-    """Critical value F_{1−α}(q, dof) of R (F80 eq. 12, σ0 estimated)."""
+    """Critical value F_{1−α}(q, dof) of R (F80 eq. 12, σ0 estimated).
+
+    Parameters
+    ----------
+    alpha : float
+        Size of the test, in (0, 1), dimensionless.
+    q : int
+        Dimension of the test (numerator degrees of freedom).
+    dof : float
+        Denominator degrees of freedom r − q.
+
+    Returns
+    -------
+    float
+        The critical value of R, dimensionless; inf when ``dof`` ≤ 0.
+    """
     return float(stats.f.isf(alpha, q, dof)) if dof > 0 else float("inf")
 
 
@@ -32,6 +71,18 @@ def critical_tau(alpha: float, dof: int) -> float:
     """Critical value of Pope's τ (P76; F80 §4): τ²/r ~ Beta(1/2, (r−1)/2).
 
     Through t = τ √(r−1) / √(r − τ²) ~ t(r−1): τ_c = √(r t_c² / (r − 1 + t_c²)).
+
+    Parameters
+    ----------
+    alpha : float
+        Size of the two-sided test, in (0, 1), dimensionless.
+    dof : int
+        Redundancy r.
+
+    Returns
+    -------
+    float
+        The critical value of |τ|, dimensionless; inf when r ≤ 1.
     """
     if dof <= 1:
         return float("inf")
@@ -46,6 +97,25 @@ def delta0(alpha: float, beta: float, q: int = 1) -> float:
     Solves P(χ'²(q, δ0²) > χ²_{1−α}(q)) = β with scipy's non-central χ². For q = 1 this is
     the two-sided normal test; its value differs from the approximation
     Φ⁻¹(1 − α/2) + Φ⁻¹(β) only by the far tail (F80 §5: 4.13 for α = 0.1 %, β = 80 %).
+
+    Parameters
+    ----------
+    alpha : float
+        Size of the test, in (0, 1), dimensionless.
+    beta : float
+        Power, in (0, 1), dimensionless.
+    q : int
+        Dimension of the test, ≥ 1.
+
+    Returns
+    -------
+    float
+        δ0, dimensionless (√ of the non-centrality λ0).
+
+    Raises
+    ------
+    baarda.errors.OptionError
+        For α or β outside (0, 1) or q < 1.
     """
     if not (0 < alpha < 1 and 0 < beta < 1) or q < 1:
         bad = "q" if 0 < alpha < 1 and 0 < beta < 1 else "beta" if 0 < alpha < 1 else "alpha"
@@ -62,16 +132,43 @@ def delta0(alpha: float, beta: float, q: int = 1) -> float:
 
 
 def delta0_normal(alpha: float, beta: float) -> float:
-    """The normal approximation δ0 = Φ⁻¹(1 − α/2) + Φ⁻¹(β) (F80 §5)."""
+    """The normal approximation δ0 = Φ⁻¹(1 − α/2) + Φ⁻¹(β) (F80 §5).
+
+    Parameters
+    ----------
+    alpha : float
+        Size of the two-sided test, in (0, 1), dimensionless.
+    beta : float
+        Power, in (0, 1), dimensionless.
+
+    Returns
+    -------
+    float
+        δ0, dimensionless.
+    """
     return float(stats.norm.isf(alpha / 2.0) + stats.norm.ppf(beta))
 
 
 @lru_cache(maxsize=256)
 def alpha_b_method(alpha1: float, beta: float, q: int) -> float:
-    """Baarda's B-method: the size α_q of a q-dimensional test with the δ0 of the 1D test.
+    """Baarda's B-method: the size α_q of a q-dimensional test with the δ0 of the 1D test (B68; F80 §7.2).
 
-    Tests of any dimension get the same δ0 and β0 (F80 §7.2); α_q solves
+    Tests of any dimension get the same δ0 and β0; α_q solves
     P(χ'²(q, δ0(α1, β, 1)²) > χ²_{1−α_q}(q)) = β.
+
+    Parameters
+    ----------
+    alpha1 : float
+        Size α0 of the one-dimensional test, in (0, 1), dimensionless.
+    beta : float
+        Power β0, in (0, 1), dimensionless.
+    q : int
+        Dimension of the test, ≥ 1.
+
+    Returns
+    -------
+    float
+        α_q, a probability (``alpha1`` for q = 1).
     """
     if q == 1:
         return alpha1
@@ -99,11 +196,27 @@ STRICT = ("above the B-method's bound only: σ0 a priori lies within σ̂0's con
 
 
 def sigma0_interval(statistic: float, dof: int, conf_pr: float = 0.95) -> tuple[float, float]:
-    """Confidence interval of σ/σ0 (the true standard deviation of unit weight in units of σ0 a
-    priori) at level ``conf_pr``: Ω/σ² ~ χ²(r) under H0 (F80 eq. 3, §4.1), so
-    [√(Ω/σ0² / χ²_{1−γ/2}(r)), √(Ω/σ0² / χ²_{γ/2}(r))], γ = 1 − conf_pr. σ̂0/σ0 = √(Ω/σ0²/r)
+    """Confidence interval of σ/σ0 at level ``conf_pr`` (F80 eq. 3, §4.1).
+
+    σ is the true standard deviation of unit weight in units of σ0 a priori. Ω/σ² ~ χ²(r) under H0,
+    so [√(Ω/σ0² / χ²_{1−γ/2}(r)), √(Ω/σ0² / χ²_{γ/2}(r))], γ = 1 − conf_pr. σ̂0/σ0 = √(Ω/σ0²/r)
     lies inside; σ0 a priori (ratio 1) lies below the interval exactly when Ω/σ0² exceeds
-    χ²_{1−γ/2}(r), the bound of the one-sided test."""
+    χ²_{1−γ/2}(r), the bound of the one-sided test.
+
+    Parameters
+    ----------
+    statistic : float
+        Ω/σ0², dimensionless.
+    dof : int
+        Redundancy r.
+    conf_pr : float
+        Confidence level, in (0, 1).
+
+    Returns
+    -------
+    tuple of float
+        Lower and upper bound of σ/σ0, dimensionless; (nan, nan) when r ≤ 0.
+    """
     if dof <= 0:
         return (float("nan"), float("nan"))
     tail = (1.0 - conf_pr) / 2.0
@@ -118,7 +231,7 @@ def global_test(statistic: float, dof: int, conf_pr: float = 0.95, test: str = "
     Model errors only enlarge Ω (T ~ χ'²(r, δ²), F80 eq. 10-11), so F80's test is one-sided;
     its size is free (F80 §4.1: "depending on the significance level 1 − α").
 
-    - ``test="one-sided"`` (default): reject above χ²_{1−α}(r) with α = (1 − conf_pr)/2 unless
+    - ``test="one-sided"``: reject above χ²_{1−α}(r) with α = (1 − conf_pr)/2 unless
       ``alpha`` is given, i.e. when
       σ0 a priori lies below the conf_pr confidence interval of σ (:func:`sigma0_interval`); every
       error-free block, of any redundancy, fails at rate α (2.5 % at conf_pr 0.95).
@@ -127,14 +240,38 @@ def global_test(statistic: float, dof: int, conf_pr: float = 0.95, test: str = "
       α_r grows with r towards β0 (52 % at r = 216 for α0 = 0.1 %, β0 = 80 %), so an error-free
       large block fails more often than not; a rejection the interval does not confirm is said so
       (:data:`STRICT`).
-    - ``test="two-sided"`` (gama-local): accept within [χ²_{γ/2}(r), χ²_{1−γ/2}(r)], γ = α =
-      1 − conf_pr; a value below fails, reported as σ0 a priori too pessimistic (``side`` "low").
+    - ``test="two-sided"`` (gama-local; the default of this function): accept within
+      [χ²_{γ/2}(r), χ²_{1−γ/2}(r)], γ = α = 1 − conf_pr; a value below fails, reported as σ0 a priori
+      too pessimistic (``side`` "low").
 
     In the one-sided tests ``lower`` = χ²_{γ/2}(r) (the interval's) marks a low value for the note
     only (σ0 a priori too pessimistic; the test passes); ``lower`` < ``upper`` always (None when it
-    would not be). Returns statistic, dof, test, alpha, conf_pr, lower, upper, passed (None with
-    r = 0), side (None, "low", "high"), verdict (words), ratio σ̂0/σ0 and ratio_interval (the
-    conf_pr interval of σ/σ0).
+    would not be).
+
+    Parameters
+    ----------
+    statistic : float
+        Ω/σ0², dimensionless.
+    dof : int
+        Redundancy r.
+    conf_pr : float
+        Confidence level, in (0, 1).
+    test : str
+        One of :data:`GLOBAL_TESTS`.
+    alpha : float, optional
+        Size of a one-sided test (required for "b-method"); ignored by "two-sided".
+
+    Returns
+    -------
+    dict
+        statistic, dof, test, alpha, conf_pr, lower, upper (bounds of Ω/σ0², dimensionless), passed
+        (None with r = 0), side (None, "low", "high"), verdict (words), ratio σ̂0/σ0 and
+        ratio_interval (the conf_pr interval of σ/σ0), all dimensionless.
+
+    Raises
+    ------
+    baarda.errors.OptionError
+        For an unknown ``test``, ``conf_pr`` outside (0, 1) or a missing or bad ``alpha``.
     """
     if test not in GLOBAL_TESTS:
         raise OptionError("global-test", test, GLOBAL_TESTS, f"the global test is one of {', '.join(GLOBAL_TESTS)}")
