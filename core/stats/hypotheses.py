@@ -42,13 +42,33 @@ T_BOUND_SLACK = (1e-6, 1e-9)
 
 
 def counted_directions(lam: np.ndarray, V: np.ndarray, g: np.ndarray, tol, vPv: float):
-    """The eigen-directions of W_s that a test counts, its rank q (F80 eq. 10-12): λ_j above the
-    round-off floor ``tol`` and the direction's own statistic T_j = (v_jᵀg)²/λ_j (g = HᵀPv) within
-    what the data hold, T_j ≤ vᵀPv. An exact W_s holds g in its range and every test of a subspace
-    is a part of Ω/σ0² (R's denominator Ω0 − T ≥ 0, F80 eq. 12), so a direction claiming more is
-    the round-off eigenvalue of a rank-deficient W_s (e.g. two keypoints of one far point in one
-    image: their tests perfectly correlated, λ ≈ 1e-10, T ≈ 1e10). Works on stacks: ``lam``
-    (..., m), ``V`` (..., m, m), ``g`` (..., m), ``tol`` scalar or (...,). Returns (mask, T_j)."""
+    """The eigen-directions of W_s that a test counts, and their statistics T_j (F80 eq. 10-12).
+
+    λ_j above the round-off floor ``tol`` and T_j = (v_jᵀg)²/λ_j within what the data hold,
+    T_j ≤ vᵀPv: an exact W_s holds g in its range and every test of a subspace is a part of Ω/σ0²
+    (R's denominator Ω0 − T ≥ 0, F80 eq. 12), so a direction claiming more is the round-off
+    eigenvalue of a rank-deficient W_s (e.g. two keypoints of one far point in one image).
+
+    Parameters
+    ----------
+    lam : numpy.ndarray
+        (..., m) eigenvalues of W_s (units of the observations to the power −2, σ0 absorbed).
+    V : numpy.ndarray
+        (..., m, m) eigenvectors, dimensionless.
+    g : numpy.ndarray
+        (..., m) HᵀPv, units of the observations to the power −1.
+    tol : float or numpy.ndarray
+        Round-off floor of λ, scalar or (...,).
+    vPv : float
+        Ω/σ0², dimensionless.
+
+    Returns
+    -------
+    mask : numpy.ndarray of bool
+        (..., m) the counted directions; their number is the rank q of the test.
+    Tj : numpy.ndarray
+        (..., m) T_j, dimensionless (0 where not counted).
+    """
     lam = np.asarray(lam, dtype=float)
     proj = np.einsum("...ji,...j->...i", V, g)
     pos = lam > np.asarray(tol, dtype=float)[..., None]
@@ -59,7 +79,22 @@ def counted_directions(lam: np.ndarray, V: np.ndarray, g: np.ndarray, tol, vPv: 
 
 
 def selection(n: int, members, weights=None) -> sp.csc_matrix:
-    """H that adds an independent error to each listed observation (columns e_i)."""
+    """H that adds an independent error to each listed observation (columns e_i; F80 §2.2).
+
+    Parameters
+    ----------
+    n : int
+        Number of observations.
+    members : array_like of int
+        The q observation rows.
+    weights : array_like of float, optional
+        Entries of the columns instead of 1.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × q hypothesis matrix, dimensionless; ∇s in the units of the observations.
+    """
     members = np.asarray(members, dtype=np.int64)
     q = members.size
     data = np.ones(q) if weights is None else np.asarray(weights, dtype=float)
@@ -69,9 +104,20 @@ def selection(n: int, members, weights=None) -> sp.csc_matrix:
 def common_error(n: int, rows_per_component: list[np.ndarray]) -> sp.csc_matrix:
     """H for one error vector common to several observations (F80 §2.2, point transfer).
 
-    ``rows_per_component[c]`` lists the observations that the c-th component of ∇s enters,
-    e.g. for a point-transfer error in images i..j: the x rows and the y rows of that point in
-    those images, H = (0 … I₂ … I₂ … I₂ … 0)ᵀ.
+    For a point-transfer error in images i..j: the x rows and the y rows of that point in those
+    images, H = (0 … I₂ … I₂ … I₂ … 0)ᵀ.
+
+    Parameters
+    ----------
+    n : int
+        Number of observations.
+    rows_per_component : list of numpy.ndarray
+        ``rows_per_component[c]`` the observations that the c-th component of ∇s enters.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × q hypothesis matrix of ones, dimensionless.
     """
     rows, cols = [], []
     for c, rr in enumerate(rows_per_component):
@@ -149,8 +195,31 @@ class HypothesisTest:
 def test(adj, H, label: str = "", policy=None) -> HypothesisTest:
     """Test hypothesis H against the adjustment ``adj`` (F80 eq. 10-15; see module docstring).
 
-    ``policy`` (:class:`baarda.stats.policy.TestPolicy`; default ``adj.policy``) gives the size α_q,
-    the critical values and δ0 (the B-method rule)."""
+    W_s = HᵀPQ_vvPH, ∇ŝ = −W_s⁻¹HᵀPv (eq. 10), T (eq. 12), R, the lower-bound ellipse with
+    semi-axes δ0/√eig(W_s) (eq. 13) and δ0′max = δ0 √λmax(HᵀPH, W_s) (eq. 14, §7.3).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    H : scipy.sparse matrix or array_like
+        n × q hypothesis matrix, dimensionless.
+    label : str
+        Name of the hypothesis.
+    policy : baarda.stats.policy.TestPolicy, optional
+        Gives α_q, the critical values and δ0 (the B-method rule); default ``adj.policy``.
+
+    Returns
+    -------
+    HypothesisTest
+        T, R, δ0 dimensionless; ∇ŝ, its covariance and the ellipse axes in the units of the
+        observations (σ0 absorbed in P).
+
+    Raises
+    ------
+    baarda.errors.HypothesisError
+        When H does not have one row per observation.
+    """
     H = sp.csc_matrix(H) if not sp.issparse(H) else H.tocsc()
     n, q_cols = H.shape
     if n != adj.n:
@@ -195,8 +264,26 @@ def deformation(adj, h: HypothesisTest, nabla_s=None) -> np.ndarray:
     """∇0x = Σ AᵀP H ∇0s over the free parameters (F80 §6, eq. 16 for the k-part).
 
     ``nabla_s`` defaults to the lower bound in the direction of the smallest eigenvalue of W_s
-    the test counts (the largest error the test cannot see at power β0); a hypothesis the test
-    cannot see at all (q = 0) or an infinite ``nabla_s`` has no deformation (HypothesisError).
+    the test counts (the largest error the test cannot see at power β0).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    h : HypothesisTest
+        The tested hypothesis (:func:`test`).
+    nabla_s : array_like of float, optional
+        The error ∇0s, q values in the units of the observations.
+
+    Returns
+    -------
+    numpy.ndarray
+        ∇0x, one value per free parameter in its own units (metres for coordinates).
+
+    Raises
+    ------
+    baarda.errors.HypothesisError
+        When the test sees no error (q = 0) or ``nabla_s`` is infinite.
     """
     if nabla_s is None:
         pos = np.flatnonzero(np.isfinite(h.ellipse_axes))
@@ -211,12 +298,25 @@ def deformation(adj, h: HypothesisTest, nabla_s=None) -> np.ndarray:
 
 
 def coordinate_norm(adj, D: np.ndarray, exclude=()) -> np.ndarray:
-    """Dᵀ (C̄ᵀPC̄) D for displacements D of the coordinates (k_free × q), F80 eq. 16.
+    """Dᵀ (C̄ᵀPC̄) D for displacements D of the coordinates, F80 eq. 16.
 
-    C̄ = (I − B(BᵀPB)⁻¹BᵀP)C with B the nuisance columns except ``exclude`` (free positions;
-    an AP group under test is excluded, :func:`baarda.stats.ap_tests.ap_test`). The form is
-    datum invariant (C̄ annihilates the coordinate part of the null space): with D = ∇0k it is
+    C̄ = (I − B(BᵀPB)⁻¹BᵀP)C with B the nuisance columns except ``exclude`` (an AP group under test,
+    :func:`baarda.stats.ap_tests.ap_test`). The form is datum invariant: with D = ∇0k it is
     Baarda's λ̄ (M84 §3.2) and δ̄0(s)² (F80 eq. 17).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    D : numpy.ndarray
+        k_free × q displacements of the free coordinates, metres.
+    exclude : sequence of int
+        Free positions of nuisance parameters left out of B.
+
+    Returns
+    -------
+    numpy.ndarray
+        q × q symmetric form, dimensionless (σ0 absorbed in P).
     """
     kind = adj.problem.params.kind[adj.problem.params.free]
     k = np.flatnonzero(kind == "k")
@@ -265,6 +365,19 @@ def external_reliability(adj, h: HypothesisTest) -> ExternalReliability:
     ∇k per unit ∇s from q solves with the cached factor (Σ AᵀP H, its coordinate part);
     M = Dkᵀ (C̄ᵀPC̄) Dk (:func:`coordinate_norm`), the maximum from the generalised
     eigenproblem of (M, W_s) on the directions the test sees (q of them).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    h : HypothesisTest
+        The tested hypothesis (:func:`test`).
+
+    Returns
+    -------
+    ExternalReliability
+        δ̄0max (dimensionless), its unit direction s, M and W_s, and ∇k per unit ∇s (metres per
+        unit of the observations).
     """
     H = h.H
     PH = adj.P @ H
@@ -287,40 +400,110 @@ def external_reliability(adj, h: HypothesisTest) -> ExternalReliability:
 # hypotheses for blocks (F80 §2.2)
 # --------------------------------------------------------------------------------------------
 def h_image_coordinate(problem, image: str, point: str, component: str):
-    """H (n × 1) of a gross error in one image coordinate (``component`` "x" or "y")."""
+    """H (n × 1) of a gross error in one image coordinate (F80 §2.2).
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem or baarda.result.Adjustment
+        The block (or its adjustment).
+    image, point : str
+        Image and point ids.
+    component : str
+        "x" or "y".
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × 1, dimensionless; ∇s in pixels (image units).
+    """
     problem = problem_of(problem)
     r = image_rows(problem, image, point)["xy".index(component)]
     return selection(problem.n, [r])
 
 
 def h_image_point(problem, image: str, point: str):
-    """H (n × 2) of a 2D error in one image point (F80 §2.2, q = 2)."""
+    """H (n × 2) of a 2D error in one image point (F80 §2.2, q = 2).
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem or baarda.result.Adjustment
+        The block (or its adjustment).
+    image, point : str
+        Image and point ids.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × 2, dimensionless; ∇s in pixels (image units).
+    """
     problem = problem_of(problem)
     return selection(problem.n, image_rows(problem, image, point))
 
 
 def h_control_point(problem, point: str):
-    """H (n × q) of an error in a control point's observed coordinates (q = 2 or 3)."""
+    """H (n × q) of an error in a control point's observed coordinates (F80 §2.2; q = 2 or 3).
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem or baarda.result.Adjustment
+        The block (or its adjustment).
+    point : str
+        Control point id.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × q, dimensionless; ∇s in metres.
+    """
     problem = problem_of(problem)
     return selection(problem.n, control_rows(problem, point))
 
 
 def h_point_transfer(problem, point: str, images) -> sp.csc_matrix:
-    """H (n × 2) of a point-transfer error: one 2D error common to the measurements of
-    ``point`` in every image of ``images`` (F80 §2.2; H = (0 … I₂ … I₂ … 0)ᵀ via
-    :func:`baarda.stats.hypotheses.common_error`). ∇s is in image units (x, y)."""
+    """H (n × 2) of a point-transfer error common to the measurements of ``point`` in ``images``.
+
+    F80 §2.2; H = (0 … I₂ … I₂ … 0)ᵀ via :func:`common_error`.
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem or baarda.result.Adjustment
+        The block (or its adjustment).
+    point : str
+        Tie point id.
+    images : iterable of str
+        The image ids after the wrong transfer.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × 2, dimensionless; ∇s in image units (pixels, x and y).
+    """
     problem = problem_of(problem)
     rows = np.array([image_rows(problem, im, point) for im in images])
     return common_error(problem.n, [rows[:, 0], rows[:, 1]])
 
 
 def h_exchanged(adj, image: str, point_a: str, point_b: str, both: bool = True) -> sp.csc_matrix:
-    """H (n × 1) of a misidentification in one image.
+    """H (n × 1) of a misidentification in one image (F80 §2.2, §7.1; test F80 eq. 12 with q = 1).
 
-    Model: point a was measured where point b is imaged, e_a = p_b − p_a, with p the predicted
+    Point a was measured where point b is imaged, e_a = p_b − p_a, with p the predicted
     (adjusted) image positions ``adj.f``; if ``both`` (an *exchange*), b was measured at a as
-    well, e_b = p_a − p_b. One column, so ∇ŝ ≈ 1 means the full exchange and ∇ŝ ≈ 0 none.
-    The column depends on the solution (linearised about x̂); the test is F80 eq. 12 with q = 1.
+    well, e_b = p_a − p_b. ∇ŝ ≈ 1 means the full exchange and ∇ŝ ≈ 0 none. The column depends on
+    the solution (linearised about x̂).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    image, point_a, point_b : str
+        Image id and the ids of the two points.
+    both : bool
+        An exchange (both measurements swapped) rather than one misidentification.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × 1 in pixels (image units); ∇s dimensionless.
     """
     ra = image_rows(adj.problem, image, point_a)
     rb = image_rows(adj.problem, image, point_b)
@@ -335,6 +518,20 @@ def h_ap_group(adj, camera: str, group: str) -> sp.csc_matrix:
 
     Columns are the basis functions of ``group`` ("brown" or "ebner", module docstring) at the
     adjusted ideal image coordinates of every measurement of ``camera``.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment of a bundle block.
+    camera : str
+        Camera id.
+    group : str
+        A key of ``AP_GROUPS``.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × q, image units per unit of each AP.
     """
     problem = adj.problem
     geo = problem.geometry
@@ -363,7 +560,25 @@ def h_ap_group(adj, camera: str, group: str) -> sp.csc_matrix:
 # hypotheses for independent-model blocks
 # --------------------------------------------------------------------------------------------
 def h_model_point(problem, model: str, point: str):
-    """H (n × 2) of a 2D error in one point's model coordinates (F80 §2.2)."""
+    """H (n × 2) of a 2D error in one point's model coordinates (F80 §2.2).
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        An independent-model block.
+    model, point : str
+        Model and point ids.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × 2, dimensionless; ∇s in the units of the model coordinates.
+
+    Raises
+    ------
+    baarda.errors.NotFoundError
+        When the model holds no x and y of the point.
+    """
     rows = [None, None]
     for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids)):
         if k.startswith("model-") and ids["model"] == model and ids["point"] == point:
@@ -402,11 +617,33 @@ def _id(problem, field: str, value):
 
 
 def hypothesis_rows(problem, spec: dict, index: dict | None = None) -> list[np.ndarray]:
-    """The observations a hypothesis specification acts on (see :func:`hypothesis_matrix`): one
-    array per component of ∇s for a point transfer (its x rows, its y rows in the images listed,
-    F80 §2.2), else one array of the rows H selects. ``index``: :func:`image_point_index` of
-    ``problem`` if already built. The one place both ``baarda test`` and the dashboard find
-    them; ids are matched by their text."""
+    """The observations a hypothesis specification acts on (F80 §2.2; see :func:`hypothesis_matrix`).
+
+    One array per component of ∇s for a point transfer (its x rows, its y rows in the images
+    listed), else one array of the rows H selects. The one place both ``baarda test`` and the
+    dashboard find them; ids are matched by their text.
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        The problem.
+    spec : dict
+        ``{"kind": ..., fields}`` with the fields of :data:`KINDS`.
+    index : dict, optional
+        :func:`baarda.model.problem.image_point_index` of ``problem`` if already built.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        Observation rows (int64), one array per component or one in all.
+
+    Raises
+    ------
+    baarda.errors.NotFoundError
+        For ids the problem does not have.
+    baarda.errors.HypothesisError
+        For an ambiguous image point or a kind built from the solution.
+    """
     info = problem.info
     kind = spec["kind"]
     if kind == "observation":
@@ -461,14 +698,35 @@ def hypothesis_rows(problem, spec: dict, index: dict | None = None) -> list[np.n
 
 
 def hypothesis_matrix(adj, spec: dict) -> sp.csc_matrix:
-    """H (n × q) of a hypothesis specification (F80 §2.2, §7.1): a dict ``{"kind": ..., fields}``
-    with the fields of :data:`KINDS` — one observation (``index``), a test group of the problem
-    (``group``), an image point (``keypoint`` optional, for COLMAP images observing a point by
-    several keypoints), a control (or observed-coordinate) point, a point transfer in
-    ``images``, an AP group not in the model (H = ∂f/∂s, :func:`h_ap_group`), a misidentification
-    of points ``a`` and ``b`` in ``image`` (:func:`h_exchanged`), a model point. Ids are matched
-    by their text. NotFoundError for what the model does not have, HypothesisError for a bad
-    specification."""
+    """H (n × q) of a hypothesis specification (F80 §2.2, §7.1).
+
+    A dict ``{"kind": ..., fields}`` with the fields of :data:`KINDS`: one observation (``index``),
+    a test group of the problem (``group``), an image point (``keypoint`` optional, for COLMAP
+    images observing a point by several keypoints), a control (or observed-coordinate) point, a
+    point transfer in ``images``, an AP group not in the model (H = ∂f/∂s, :func:`h_ap_group`), a
+    misidentification of points ``a`` and ``b`` in ``image`` (:func:`h_exchanged`), a model point.
+    Ids are matched by their text.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    spec : dict
+        The specification.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix
+        n × q, dimensionless for selections (∇s in the units of the observations); see
+        :func:`h_exchanged` and :func:`h_ap_group` for theirs.
+
+    Raises
+    ------
+    baarda.errors.NotFoundError
+        For what the model does not have.
+    baarda.errors.HypothesisError
+        For a bad specification.
+    """
     kind = spec.get("kind")
     if kind not in KINDS:
         raise HypothesisError(f"unknown hypothesis kind {kind!r} (one of {', '.join(KINDS)})")
