@@ -186,7 +186,7 @@ def criterion_fit(setup: CriterionSetup, kind: str = "logarithmic", C0: float = 
     Returns
     -------
     dict
-        The fitted C0, C1, C2 (units of :func:`criterion_units`) and the eigenvalues λ
+        The fitted C0, C1, C2 (units of :func:`criterion_units`), λmax, λmin and their ratio
         (dimensionless), as :func:`baarda.stats.precision.fit_criterion` returns them.
     """
     return precision.fit_criterion(setup.cov.cov, setup.xy, setup.in_base, setup.G, kind=kind, axes=setup.axes,

@@ -149,9 +149,29 @@ def _far_from_one(test: ExchangeTest) -> ExchangeTest:
 
 def exchange_test(adj, image: str, point_a: str, point_b: str, both: bool = True,
                   policy=None) -> ExchangeTest:
-    """Test the misidentification (``both`` False) or exchange (``both``) of two points in one
-    image (F80 §7.1, eq. 10-12; module docstring): linear where the hypothesised error is small,
-    iterated through a refit with the exchange undone where it is not; q = 0 said, not tested."""
+    """Test the misidentification or exchange of two points in one image (F80 §7.1, eq. 10-12).
+
+    Linear (F80 eq. 10-12) where the hypothesised error is small (below
+    :data:`LINEAR_LIMIT_SIGMA` σ, R84 §6), iterated through a refit with the exchange undone where
+    it is not (module docstring); q = 0 said, not tested.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment of a bundle block.
+    image, point_a, point_b : str
+        Image id and the ids of the two points.
+    both : bool
+        An exchange (both measurements swapped) rather than a misidentification of a alone.
+    policy : baarda.stats.policy.TestPolicy, optional
+        Gives the critical value (default ``adj.policy``).
+
+    Returns
+    -------
+    ExchangeTest
+        T, ŝ, the hypothesised error in multiples of σ and the critical value (dimensionless);
+        Ω0, Ω1 (vᵀPv, σ0 absorbed, dimensionless).
+    """
     policy = adj.policy if policy is None else policy
     ra, rb = image_rows(adj.problem, image, point_a), image_rows(adj.problem, image, point_b)
     H = h_exchanged(adj, image, point_a, point_b, both=both)

@@ -49,7 +49,18 @@ class SBase:
 
 
 def as_sbase(base) -> SBase:
-    """An :class:`SBase` from S-base flags per coordinate (or an SBase)."""
+    """An :class:`SBase` from S-base flags per coordinate (or an SBase; M84 §2.2).
+
+    Parameters
+    ----------
+    base : SBase or array_like of bool
+        The S-base, or flags of the coordinates held non-stochastic.
+
+    Returns
+    -------
+    SBase
+        ``base`` itself, or an SBase of those flags.
+    """
     return base if isinstance(base, SBase) else SBase(np.asarray(base, dtype=bool))
 
 
@@ -88,8 +99,21 @@ class CoordinateCovariance:
 
 
 def standard_ellipses(cov2: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """Standard ellipses of m planimetric 2 × 2 covariances (m × 3: semi-major a, semi-minor b
-    in the unit of √cov, bearing of a from the x axis in radians): a² and b² the eigenvalues."""
+    """Standard ellipses of m planimetric 2 × 2 covariances: a² and b² their eigenvalues.
+
+    Parameters
+    ----------
+    cov2 : numpy.ndarray
+        m × 2 × 2 covariances, m² (any unit squared).
+    scale : float
+        Factor on the semi-axes (e.g. a confidence multiple), dimensionless.
+
+    Returns
+    -------
+    numpy.ndarray
+        m × 3: semi-major a, semi-minor b (metres, the unit of √cov), bearing of a from the x axis
+        (radians).
+    """
     lam, V = np.linalg.eigh(np.asarray(cov2, dtype=float))
     lam = np.maximum(lam, 0.0)
     return np.stack([scale * np.sqrt(lam[:, 1]), scale * np.sqrt(lam[:, 0]),
@@ -97,8 +121,20 @@ def standard_ellipses(cov2: np.ndarray, scale: float = 1.0) -> np.ndarray:
 
 
 def ellipse_points(ellipses: np.ndarray, n: int = 49) -> np.ndarray:
-    """Points of ellipses (m × 3: a, b, bearing; :func:`standard_ellipses`) centred at 0,
-    m × n × 2."""
+    """Points of ellipses centred at 0 (:func:`standard_ellipses`).
+
+    Parameters
+    ----------
+    ellipses : numpy.ndarray
+        m × 3: a, b (metres) and bearing (radians).
+    n : int
+        Points per ellipse.
+
+    Returns
+    -------
+    numpy.ndarray
+        m × n × 2 points, metres (the unit of a and b).
+    """
     e = np.asarray(ellipses, dtype=float)
     t = np.linspace(0, 2 * np.pi, n)
     u = e[:, 0:1] * np.cos(t)[None, :]
@@ -108,8 +144,26 @@ def ellipse_points(ellipses: np.ndarray, n: int = 49) -> np.ndarray:
 
 
 def release_null_space(adj):
-    """G over all coordinate parameters (fixed ones included): the transformations that the
-    observations leave free once every point is released. Returns (params, G, names)."""
+    """G over all coordinate parameters, fixed ones included (M84 §2.1).
+
+    The transformations that the observations leave free once every point is released.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+
+    Returns
+    -------
+    params : numpy.ndarray
+        Parameter indices (into ``Problem.params``) of G's rows: coordinates, then free nuisance
+        parameters.
+    G : numpy.ndarray
+        len(params) × d null-space basis; rows in the units of their parameters (metres for
+        coordinates) per unit of each transformation.
+    names : list of str
+        The d transformations' names.
+    """
     problem = adj.problem
     params = problem.params
     coords = np.flatnonzero(params.kind == "k")
@@ -122,10 +176,28 @@ def release_null_space(adj):
 
 
 def covariance(adj, sbase=None) -> CoordinateCovariance:
-    """Coordinate covariance in the S-base ``sbase`` (point ids); None keeps the adjustment's datum.
+    """Coordinate covariance in the S-base ``sbase`` (M84 §2.1: Q_S = S Q Sᵀ).
 
-    The dense coordinate covariance is formed here, so this is for networks and blocks of up to a
-    few thousand points; per-point blocks of big blocks come from ``Adjustment.point_cov``.
+    None keeps the adjustment's datum. The dense coordinate covariance is formed here, so this is for
+    networks and blocks of up to a few thousand points; per-point blocks of big blocks come from
+    ``Adjustment.point_cov``.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    sbase : iterable of str, optional
+        Point ids of the S-base (3D: optionally ``normal=C``).
+
+    Returns
+    -------
+    CoordinateCovariance
+        Covariance of all coordinates (σ̂0² or σ0² applied by ``adj.variance_factor``), m².
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        When the S-base has no coordinates or does not fix the datum.
     """
     problem = adj.problem
     params = problem.params
@@ -194,6 +266,18 @@ def lambda_bar(adj, error: np.ndarray) -> float:
 
     ∇0k is the effect of the error on the coordinates; Q_kk⁻ a generalised inverse of their
     covariance in any S-base (here the pseudo-inverse of the released-network covariance).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    error : numpy.ndarray
+        n values ∇0l, same units as the observations.
+
+    Returns
+    -------
+    float
+        λ̄, dimensionless.
     """
     dx = adj.deformation(error)
     cc = covariance(adj)
@@ -207,7 +291,29 @@ def lambda_bar(adj, error: np.ndarray) -> float:
 # -- criterion matrices (M84 §2) -------------------------------------------------------------------
 
 def chaotic_d2(l: np.ndarray, kind: str, C0: float, C1: float, C2: float = 1.0) -> np.ndarray:
-    """d_ij² of the chaotic criterion matrix as a function of the distance l (M84 eq. 2, §2.3)."""
+    """d_ij² of the chaotic criterion matrix as a function of the distance l (M84 eq. 2, §2.3).
+
+    Linear C0 + C1 l; logarithmic C0 + C1 C2 ln(1 + l/C2); exponential C0² + C1 (1 − exp(−C2² l)).
+
+    Parameters
+    ----------
+    l : numpy.ndarray
+        Distances, metres.
+    kind : str
+        "linear", "logarithmic" or "exponential".
+    C0, C1, C2 : float
+        Parameters in the units of :func:`baarda.stats.analyses.criterion_units`.
+
+    Returns
+    -------
+    numpy.ndarray
+        d², m², shaped as ``l``.
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        For an unknown ``kind``.
+    """
     l = np.asarray(l, dtype=float)
     if kind == "linear":
         return C0 + C1 * l
@@ -219,21 +325,48 @@ def chaotic_d2(l: np.ndarray, kind: str, C0: float, C1: float, C2: float = 1.0) 
 
 
 def distances(xy: np.ndarray) -> np.ndarray:
-    """l_ij between the points ``xy`` (m × 2 or m × 3 positions, metres)."""
+    """l_ij between the points ``xy``.
+
+    Parameters
+    ----------
+    xy : numpy.ndarray
+        m × 2 or m × 3 positions, metres.
+
+    Returns
+    -------
+    numpy.ndarray
+        m × m distances, metres.
+    """
     xy = np.asarray(xy, dtype=float)
     return np.sqrt(((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2))
 
 
 def criterion_matrix(xy: np.ndarray, kind: str = "linear", C0: float = 0.0, C1: float = 1e-6,
                      C2: float = 1.0, d2: float | None = None, axes: int = 2) -> np.ndarray:
-    """Chaotic criterion matrix H for points ``xy`` (m × 2 planimetric or m × 3 spatial positions,
-    metres; l_ij their distances), with ``axes`` coordinates per point, ordered point by point
-    (M84 eq. 2): ``axes`` 2 for planimetry, 3 for 3D blocks and networks (the homogeneous and
-    isotropic structure in R3, M84 §2.2), 1 for heights (the variance of a height difference d_ij²
-    over the planimetric distance), as M84 §2.3 asks for heights and 3D point determination.
+    """Chaotic criterion matrix H for points ``xy``, ordered point by point (M84 eq. 2, §2.2-2.3).
 
-    d² (the variance of each coordinate) defaults to the largest d_ij² so that H is positive
-    semidefinite on the differences; it cancels in any S-base.
+    var = d², cov = d² − ½ d_ij² with l_ij the distances. ``axes`` 2 for planimetry, 3 for 3D blocks
+    and networks (the homogeneous and isotropic structure in R3, M84 §2.2), 1 for heights (the
+    variance of a height difference d_ij² over the planimetric distance, M84 §2.3). d² defaults to the
+    largest d_ij² so that H is positive semidefinite on the differences; it cancels in any S-base.
+
+    Parameters
+    ----------
+    xy : numpy.ndarray
+        m × 2 planimetric or m × 3 spatial positions, metres.
+    kind : str
+        "linear", "logarithmic" or "exponential" (:func:`chaotic_d2`).
+    C0, C1, C2 : float
+        Parameters of d² in the units of :func:`baarda.stats.analyses.criterion_units`.
+    d2 : float, optional
+        The variance d² of each coordinate, m².
+    axes : int
+        Coordinates per point (1, 2 or 3).
+
+    Returns
+    -------
+    numpy.ndarray
+        (m·axes) × (m·axes) matrix, m².
     """
     xy = np.asarray(xy, dtype=float)
     L = distances(xy)
@@ -245,21 +378,59 @@ def criterion_matrix(xy: np.ndarray, kind: str = "linear", C0: float = 0.0, C1: 
 
 
 def sbase_matrix(G: np.ndarray, in_base) -> np.ndarray:
-    """Baarda's S-transformation S = I − G (EᵀG)⁻¹ Eᵀ, E the rows of G on the S-base (M84 §2);
-    ``in_base`` the S-base flags per coordinate or an :class:`SBase` (3D: with the normal
-    condition)."""
+    """Baarda's S-transformation S = I − G (EᵀG)⁻¹ Eᵀ, E the rows of G on the S-base (M84 §2).
+
+    Parameters
+    ----------
+    G : numpy.ndarray
+        u × d null space of the coordinates.
+    in_base : SBase or array_like of bool
+        S-base flags per coordinate or an :class:`SBase` (3D: with the normal condition).
+
+    Returns
+    -------
+    numpy.ndarray
+        u × u matrix S, dimensionless.
+    """
     return as_sbase(in_base).matrix(G)
 
 
 def sbase_transform(H: np.ndarray, G: np.ndarray, in_base: np.ndarray) -> np.ndarray:
-    """S H Sᵀ, H transformed to the S-base (:func:`sbase_matrix`, M84 §2)."""
+    """S H Sᵀ, H transformed to the S-base (:func:`sbase_matrix`, M84 §2).
+
+    Parameters
+    ----------
+    H : numpy.ndarray
+        u × u covariance or criterion matrix, m².
+    G : numpy.ndarray
+        u × d null space.
+    in_base : SBase or numpy.ndarray of bool
+        The S-base.
+
+    Returns
+    -------
+    numpy.ndarray
+        u × u, same units as ``H``.
+    """
     S = sbase_matrix(G, in_base)
     return S @ H @ S.T
 
 
 def null_complement(G: np.ndarray) -> np.ndarray:
-    """An orthonormal basis B (u × (u − d)) of the complement of the null space spanned by G's d
-    columns: BᵀG = 0, so that Bᵀ S = Bᵀ for every S-transformation S of :func:`sbase_matrix`."""
+    """An orthonormal basis B of the complement of the null space spanned by G (M84 §2.2).
+
+    BᵀG = 0, so that Bᵀ S = Bᵀ for every S-transformation S of :func:`sbase_matrix`.
+
+    Parameters
+    ----------
+    G : numpy.ndarray
+        u × d null space.
+
+    Returns
+    -------
+    numpy.ndarray
+        u × (u − d) basis, dimensionless.
+    """
     return np.eye(G.shape[0]) if G.shape[1] == 0 else la.null_space(G.T)
 
 
@@ -299,15 +470,35 @@ class Comparison:
 
 
 def compare(G: np.ndarray, H: np.ndarray, null: np.ndarray, in_base: np.ndarray) -> Comparison:
-    """λ of |G − λH| = 0 for a covariance G and a criterion H over the coordinates, ``null`` (u × d)
-    the datum's null space and ``in_base`` the S-base flags per coordinate.
+    """λ of |G − λH| = 0 for a covariance G and a criterion H over the coordinates (M84 eq. 3, §2.2).
 
     Both matrices are taken on the complement of the null space, B (:func:`null_complement`):
     BᵀGB and BᵀHB are the same whatever S-base G and H are in (BᵀS = Bᵀ), so the judgement does
     not depend on the S-base (M84 §2.2). Dropping the S-base coordinates instead gives the same
-    eigenvalues only for a minimal S-base (as many coordinates as the datum defect); with more it
-    works on a subspace and the result changes with the base. Where G is singular on that
-    complement (control points fix the datum), the S-base coordinates are dropped.
+    eigenvalues only for a minimal S-base; with more it works on a subspace and the result changes
+    with the base. Where G is singular on that complement (control points fix the datum), the
+    S-base coordinates are dropped.
+
+    Parameters
+    ----------
+    G : numpy.ndarray
+        u × u coordinate covariance, m².
+    H : numpy.ndarray
+        u × u criterion matrix, m².
+    null : numpy.ndarray
+        u × d null space of the datum.
+    in_base : numpy.ndarray of bool or SBase
+        S-base flags per coordinate.
+
+    Returns
+    -------
+    Comparison
+        The eigenvalues λ (dimensionless) and eigenvectors (coordinate displacements).
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        When G is singular on the coordinates compared.
     """
     null = np.asarray(null, dtype=float).reshape(G.shape[0], -1)
     flags = as_sbase(in_base).in_base
@@ -336,10 +527,29 @@ def compare(G: np.ndarray, H: np.ndarray, null: np.ndarray, in_base: np.ndarray)
 
 
 def c2_bounds(kind: str, xy: np.ndarray) -> tuple[float, float]:
-    """The range searched for C2 (M84 §2.3), from the network's own distances l (metres):
-    logarithmic, C2 a length, in [l_min/1000, 1000 l_max]; exponential, C2² an inverse length
+    """The range searched for C2 (M84 §2.3), from the network's own distances l.
+
+    Logarithmic, C2 a length, in [l_min/1000, 1000 l_max]; exponential, C2² an inverse length
     (C2 in m^-½), 1/C2² in [l_min/1000, 1000 l_max]. Any C2 outside makes d² proportional to l or
-    constant over the network."""
+    constant over the network.
+
+    Parameters
+    ----------
+    kind : str
+        "logarithmic" or "exponential" (any other kind gets the logarithmic range).
+    xy : numpy.ndarray
+        m × 2 or m × 3 positions, metres.
+
+    Returns
+    -------
+    tuple of float
+        Lower and upper bound of C2: metres (logarithmic) or m^-½ (exponential).
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        With fewer than two distinct points.
+    """
     L = distances(xy)
     l = L[L > 0]
     if not l.size:
@@ -352,17 +562,40 @@ def c2_bounds(kind: str, xy: np.ndarray) -> tuple[float, float]:
 
 def fit_criterion(G: np.ndarray, xy: np.ndarray, in_base: np.ndarray, Gnull: np.ndarray,
                   kind: str = "logarithmic", axes: int = 2, C0: float = 0.0) -> dict:
-    """Fit a chaotic criterion to a covariance G (M84 §2.3): C0 is chosen first (given; it belongs to
-    the precision of the measurements), then C1 makes λmax = 1 and C2 makes λmax/λmin smallest.
+    """Fit a chaotic criterion to a covariance G (M84 §2.3).
 
-    C2 is searched on a grid of 61 values over :func:`c2_bounds` and refined by Brent's method
-    around the best grid value; ``C2_at_bound`` says the smallest ratio lies at the end of that
-    range (for the plateau where d² is the same for every pair, the end of the plateau is given). With C0 = 0, H scales with C1 and C1 = λmax(C1 = 1); otherwise
-    λmax falls as C1 grows and C1 is its root in [0, λmax of the C1 part alone at C1 = 1]; when C0
-    alone already bounds G (λmax < 1 at C1 = 0) the condition λmax = 1 cannot be met: C1 = 0,
-    ``C1_zero`` true and ``note`` says so (``lam_max``, ``lam_min`` of the fit). C1 is in m²/m
-    (linear, logarithmic) or m² (exponential), C2 in m (logarithmic) or m^-½ (exponential), C0 in
-    m² (linear, logarithmic) or m (exponential: d² = C0² + …).
+    C0 is chosen first (given; it belongs to the precision of the measurements), then C1 makes
+    λmax = 1 and C2 makes λmax/λmin smallest. C2 is searched on a grid of 61 values over
+    :func:`c2_bounds` and refined by Brent's method around the best grid value; ``C2_at_bound`` says
+    the smallest ratio lies at the end of that range (for the plateau where d² is the same for every
+    pair, the end of the plateau is given). With C0 = 0, H scales with C1 and C1 = λmax(C1 = 1);
+    otherwise λmax falls as C1 grows and C1 is its root in [0, λmax of the C1 part alone at C1 = 1];
+    when C0 alone already bounds G (λmax < 1 at C1 = 0) the condition λmax = 1 cannot be met: C1 = 0,
+    ``C1_zero`` true and ``note`` says so.
+
+    Parameters
+    ----------
+    G : numpy.ndarray
+        u × u coordinate covariance in the S-base, m².
+    xy : numpy.ndarray
+        m × 2 or m × 3 positions, metres.
+    in_base : numpy.ndarray of bool or SBase
+        The S-base.
+    Gnull : numpy.ndarray
+        u × d null space of the datum.
+    kind : str
+        "linear", "logarithmic" or "exponential".
+    axes : int
+        Coordinates per point (1, 2 or 3).
+    C0 : float
+        m² (linear, logarithmic) or m (exponential: d² = C0² + …).
+
+    Returns
+    -------
+    dict
+        kind; C0; C1 in m²/m (linear, logarithmic) or m² (exponential); C2 in m (logarithmic) or
+        m^-½ (exponential); ratio, lam_max, lam_min (dimensionless); C2_range; C2_at_bound; C1_zero;
+        note.
     """
     null = np.asarray(Gnull, dtype=float)
 
