@@ -41,14 +41,53 @@ from ..errors import OptionError
 
 
 def risk(C: float, p: float, L1: float, L2: float, lam_tol: float) -> float:
-    """r_C for the critical value C (M84 §3.3)."""
+    """The risk r_C = (1 − p) α_C L1 + p (1 − β_C) L2 of the critical value C (M84 §3.3).
+
+    α_C = 1 − Φ(C), β_C = 1 − Φ(C − √λtol).
+
+    Parameters
+    ----------
+    C : float
+        Critical value of the one-sided test value W, dimensionless.
+    p : float
+        Error rate, in (0, 1).
+    L1, L2 : float
+        Costs of rejecting a good and of accepting a bad observation (any one unit).
+    lam_tol : float
+        Tolerance λtol, dimensionless non-centrality.
+
+    Returns
+    -------
+    float
+        r_C, in the units of L1 and L2.
+    """
     alpha = stats.norm.sf(C)
     beta = stats.norm.sf(C - np.sqrt(lam_tol))
     return float((1 - p) * alpha * L1 + p * (1 - beta) * L2)
 
 
 def critical_value(p: float, L1: float, L2: float, lam_tol: float) -> float:
-    """The C that minimises r_C (closed form, M84 §3.3)."""
+    """The C that minimises r_C, C = (ln((1 − p)/p) + ln(L1/L2)) / √λtol + √λtol / 2 (M84 §3.3).
+
+    Parameters
+    ----------
+    p : float
+        Error rate, in (0, 1).
+    L1, L2 : float
+        Costs of rejecting a good and of accepting a bad observation (> 0, any one unit).
+    lam_tol : float
+        Tolerance λtol (> 0), dimensionless.
+
+    Returns
+    -------
+    float
+        C, dimensionless.
+
+    Raises
+    ------
+    baarda.errors.OptionError
+        For p ∉ (0, 1) or non-positive L1, L2, λtol.
+    """
     if not (0 < p < 1) or L1 <= 0 or L2 <= 0 or lam_tol <= 0:
         bad = next(k for k, ok in (("p", 0 < p < 1), ("L1", L1 > 0), ("L2", L2 > 0), ("lam_tol", lam_tol > 0)) if not ok)
         raise OptionError(bad, {"p": p, "L1": L1, "L2": L2, "lam_tol": lam_tol}[bad], (),
@@ -58,7 +97,22 @@ def critical_value(p: float, L1: float, L2: float, lam_tol: float) -> float:
 
 
 def critical_value_numeric(p: float, L1: float, L2: float, lam_tol: float) -> float:
-    """The same C by minimising r_C numerically (a check of the closed form)."""
+    """The same C by minimising r_C numerically (M84 §3.3; a check of the closed form).
+
+    Parameters
+    ----------
+    p : float
+        Error rate, in (0, 1).
+    L1, L2 : float
+        Costs (> 0, any one unit).
+    lam_tol : float
+        Tolerance λtol (> 0), dimensionless.
+
+    Returns
+    -------
+    float
+        C, dimensionless.
+    """
     s = np.sqrt(lam_tol)
     res = optimize.minimize_scalar(lambda c: risk(c, p, L1, L2, lam_tol), bounds=(-10 - s, 20 + s),
                                    method="bounded", options={"xatol": 1e-10})
@@ -72,7 +126,27 @@ def _check(p: float, L1: float, L2: float) -> None:
 
 
 def critical_values(p: float, L1: float, L2: float, lam_tol) -> np.ndarray:
-    """C for each λtol (the closed form of :func:`critical_value`, M84 §3.3); ∞ where λtol = ∞."""
+    """C for each λtol (the closed form of :func:`critical_value`, M84 §3.3); ∞ where λtol = ∞.
+
+    Parameters
+    ----------
+    p : float
+        Error rate, in (0, 1).
+    L1, L2 : float
+        Costs (> 0, any one unit).
+    lam_tol : array_like of float
+        Tolerances λtol, dimensionless.
+
+    Returns
+    -------
+    numpy.ndarray
+        C per λtol, dimensionless.
+
+    Raises
+    ------
+    baarda.errors.OptionError
+        For p ∉ (0, 1) or non-positive L1, L2.
+    """
     _check(p, L1, L2)
     lam = np.asarray(lam_tol, dtype=float)
     s = np.sqrt(lam)
@@ -82,8 +156,27 @@ def critical_values(p: float, L1: float, L2: float, lam_tol) -> np.ndarray:
 
 
 def lambda_tol_general(adj, lambda_bar_tol: float) -> np.ndarray:
-    """λtol,i = λ̄tol (P C_vv P)_ii / (P H_k P)_ii per observation (module docstring, M84 §3.2-3.3);
-    ∞ where the observation cannot move the coordinates, NaN where it is uncontrolled."""
+    """λtol,i = λ̄tol (P C_vv P)_ii / (P H_k P)_ii per observation (M84 §3.2-3.3; F80 eq. 18).
+
+    ∞ where the observation cannot move the coordinates, NaN where it is uncontrolled.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    lambda_bar_tol : float
+        Tolerance λ̄tol of Baarda's λ̄ (> 0), dimensionless.
+
+    Returns
+    -------
+    numpy.ndarray
+        n values λtol,i, dimensionless.
+
+    Raises
+    ------
+    baarda.errors.OptionError
+        For λ̄tol ≤ 0.
+    """
     if not lambda_bar_tol > 0:
         raise OptionError("lambda_bar_tol", lambda_bar_tol, (), "the tolerance λ̄tol must be positive")
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -94,9 +187,23 @@ def lambda_tol_general(adj, lambda_bar_tol: float) -> np.ndarray:
 
 
 def coordinate_effects(adj, batch: int = 256) -> np.ndarray:
-    """max_k |(Σ AᵀP e_i)_k| over the point coordinates, per observation i: the largest coordinate
-    shift (metres) of a unit error in l_i, in the datum of the adjustment (F80 §6; one solve per
-    observation, in batches of ``batch`` columns)."""
+    """max_k |(Σ AᵀP e_i)_k| over the point coordinates, per observation i (F80 §6).
+
+    The largest coordinate shift of a unit error in l_i, in the datum of the adjustment; one solve
+    per observation, in batches of ``batch`` columns.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    batch : int
+        Columns solved at once.
+
+    Returns
+    -------
+    numpy.ndarray
+        n values, metres per unit of the observation (dimensionless for coordinate observations).
+    """
     idx = adj.problem.points.index
     fpos = np.full(adj.problem.params.size, -1)
     fpos[adj.problem.params.free] = np.arange(adj.problem.params.free.size)
@@ -112,8 +219,27 @@ def coordinate_effects(adj, batch: int = 256) -> np.ndarray:
 
 
 def lambda_tol_coordinates(adj, tol: float) -> np.ndarray:
-    """λtol,i = (t / max_k |(Σ AᵀP e_i)_k|)² (P C_vv P)_ii for a tolerance t (metres) on every point
-    coordinate (module docstring, M84 §3.3); ∞ where l_i cannot move a coordinate."""
+    """λtol,i = (t / max_k |(Σ AᵀP e_i)_k|)² (P C_vv P)_ii for a tolerance t on every coordinate (M84 §3.3).
+
+    ∞ where l_i cannot move a coordinate, NaN where it is uncontrolled.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    tol : float
+        Tolerance t (> 0), metres.
+
+    Returns
+    -------
+    numpy.ndarray
+        n values λtol,i, dimensionless.
+
+    Raises
+    ------
+    baarda.errors.OptionError
+        For t ≤ 0.
+    """
     if not tol > 0:
         raise OptionError("coordinate_tol", tol, (), "the coordinate tolerance must be positive (metres)")
     e = coordinate_effects(adj)
@@ -142,8 +268,33 @@ class ObservationRisk:
 
 def per_observation(adj, p: float, L1: float, L2: float, lambda_bar_tol: float | None = None,
                     coordinate_tol: float | None = None) -> ObservationRisk:
-    """C and r_C of every observation's w-test from a tolerance on the coordinates: λ̄tol (general
-    purpose) or ``coordinate_tol`` in metres (special purpose), exactly one (M84 §3.3)."""
+    """C and r_C of every observation's w-test from a tolerance on the coordinates (M84 §3.3).
+
+    λ̄tol (general purpose) or ``coordinate_tol`` (special purpose), exactly one (module docstring).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    p : float
+        Error rate, in (0, 1).
+    L1, L2 : float
+        Costs (> 0, any one unit).
+    lambda_bar_tol : float, optional
+        Tolerance λ̄tol, dimensionless.
+    coordinate_tol : float, optional
+        Tolerance t, metres.
+
+    Returns
+    -------
+    ObservationRisk
+        Per observation λtol, C, α_C, β_C (dimensionless), r_C (units of L1, L2) and the decision.
+
+    Raises
+    ------
+    baarda.errors.OptionError
+        For both or neither tolerance, or bad p, L1, L2.
+    """
     if (lambda_bar_tol is None) == (coordinate_tol is None):
         raise OptionError("tolerance", None, ("lambda_bar_tol", "coordinate_tol"),
                           "give exactly one tolerance: λ̄tol or a coordinate tolerance")
