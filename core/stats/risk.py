@@ -219,7 +219,7 @@ def coordinate_effects(adj, batch: int = 256) -> np.ndarray:
 
 
 def lambda_tol_coordinates(adj, tol: float) -> np.ndarray:
-    """λtol,i = (t / max_k |(Σ AᵀP e_i)_k|)² (P C_vv P)_ii for a tolerance t on every coordinate (M84 §3.3).
+    """λtol,i = (t / max_k |(Σ AᵀP e_i)_k|)² (P C_vv P)_ii for a coordinate tolerance t (M84 §3.3).
 
     ∞ where l_i cannot move a coordinate, NaN where it is uncontrolled.
 
