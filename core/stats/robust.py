@@ -99,13 +99,39 @@ MAX_CONFIRM_PASSES = 3
 
 
 def huber(u, k=2.0):
-    """Huber's weight function: 1 for u ≤ k, k/u above."""
+    """Huber's weight function f(u) = 1 for u ≤ k, k/u above (H64; M84 §3.1).
+
+    Parameters
+    ----------
+    u : array_like of float
+        Normalised residuals |v_i| / (σ_i √r_i), dimensionless.
+    k : float
+        Threshold, dimensionless.
+
+    Returns
+    -------
+    numpy.ndarray
+        Weight factors in (0, 1], dimensionless.
+    """
     u = np.asarray(u, dtype=float)
     return np.where(u <= k, 1.0, k / np.maximum(u, 1e-300))
 
 
 def danish(u, c=3.0):
-    """Danish method (Krarup, Kubik): 1 for u ≤ c, exp(1 − (u/c)²) above."""
+    """The Danish method's weight function f(u) = 1 for u ≤ c, exp(1 − (u/c)²) above (KJK80; R84 §7).
+
+    Parameters
+    ----------
+    u : array_like of float
+        Normalised residuals, dimensionless.
+    c : float
+        Threshold, dimensionless.
+
+    Returns
+    -------
+    numpy.ndarray
+        Weight factors in [0, 1], dimensionless.
+    """
     u = np.asarray(u, dtype=float)
     t = np.minimum(u / c, 1e10)           # exp(1 − 10²⁰) is 0 already; (10²⁰⁰)² would overflow
     return np.where(u <= c, 1.0, np.exp(np.minimum(0.0, 1.0 - t * t)))
@@ -116,7 +142,22 @@ def error_class(size_sigma: float, size_base: float | None = None, medium_base: 
 
     Below 4σ random; 4σ-50σ small; above 50σ medium up to ``medium_base`` base lengths (R84:
     "between 50σ and 2-3 base lengths"), large above ("bigger than 3 base lengths"). Without a
-    base length (no block geometry) an error above 50σ is medium."""
+    base length (no block geometry) an error above 50σ is medium.
+
+    Parameters
+    ----------
+    size_sigma : float
+        Size of the error in multiples of σ, dimensionless.
+    size_base : float, optional
+        Size in base lengths, dimensionless.
+    medium_base : float
+        Upper end of the medium class, base lengths.
+
+    Returns
+    -------
+    str
+        "random", "small", "medium" or "large".
+    """
     if size_sigma < 4:
         return "random"
     if size_sigma <= 50:
@@ -127,14 +168,40 @@ def error_class(size_sigma: float, size_base: float | None = None, medium_base: 
 
 
 def global_score(omega: float, dof: int) -> float:
-    """z = (Ω/σ0² − r) / √(2r), the global test's statistic as a normal score (Ω/σ0² ~ χ²(r)
-    under H0, F80 §4.1), with Ω already divided by σ0²."""
+    """z = (Ω/σ0² − r) / √(2r), the global test's statistic as a normal score (F80 §4.1).
+
+    Ω/σ0² ~ χ²(r) under H0; Ω is already divided by σ0².
+
+    Parameters
+    ----------
+    omega : float
+        Ω/σ0², dimensionless.
+    dof : int
+        Redundancy r.
+
+    Returns
+    -------
+    float
+        z, dimensionless (0 when r ≤ 0).
+    """
     return (omega - dof) / np.sqrt(2.0 * dof) if dof > 0 else 0.0
 
 
 def start_factor(start: np.ndarray, g: float) -> np.ndarray:
-    """R84 §8: the start weight factor s_start tends to 1 (the a priori weight) as g = f(z)
-    goes from 0 to 1: s = s_start^(1 − g)."""
+    """R84 §8: the start weight factor tends to 1 as g = f(z) goes from 0 to 1, s = s_start^(1 − g).
+
+    Parameters
+    ----------
+    start : numpy.ndarray
+        Start weight factors s_start (1 or 1/100), dimensionless.
+    g : float
+        The Danish function of the global score, in [0, 1].
+
+    Returns
+    -------
+    numpy.ndarray
+        Weight factors s, dimensionless.
+    """
     return np.asarray(start, dtype=float) ** (1.0 - g)
 
 
@@ -323,11 +390,28 @@ def _rows_in(keep: np.ndarray, rows) -> np.ndarray:
 
 
 def cluster_tests(adj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """F80 eq. 12 for every covariance cluster of ``adj`` (H its selection: an image point, a
-    control point, a single observation): T = gᵀ W_s⁺ g, g = (Pv)_c, W_s = P_c C_vv,c P_c, and
-    q = rank W_s; and the largest w² = g_i² / (W_s)_ii of its members (Baarda's w, F80 §4.2,
-    for correlated observations). Returns (first member of each cluster, T, q, max w²), from
-    the cluster blocks of C_vv."""
+    """F80 eq. 12 for every covariance cluster of ``adj``, and the largest w² of its members (F80 §4.2).
+
+    H is the cluster's selection (an image point, a control point, a single observation):
+    T = gᵀ W_s⁺ g, g = (Pv)_c, W_s = P_c C_vv,c P_c, q = rank W_s; w² = g_i² / (W_s)_ii is
+    Baarda's w for correlated observations (B68). From the cluster blocks of C_vv.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+
+    Returns
+    -------
+    first : numpy.ndarray
+        First member (observation index) of each cluster, sorted.
+    T : numpy.ndarray
+        T per cluster, dimensionless.
+    q : numpy.ndarray
+        Rank of each cluster's test.
+    w2 : numpy.ndarray
+        Largest w² per cluster, dimensionless.
+    """
     first, T, q, w2 = [], [], [], []
     Pv = adj.Pv
     for members, C, Cvv in adj.cluster_cvv():
@@ -382,12 +466,37 @@ def _fit(problem, keep, options, x0):
 
 
 def snoop_clusters(problem, keep, options, x0=None, point_of=None, held=None):
-    """Iterative data snooping over covariance clusters (M84 §3.1): each image point, control
-    point or single observation is tested as a whole (T of F80 eq. 12 against T_crit(q)) and per
-    member (Baarda's w against the w-test's critical value); the cluster with the largest ratio
-    of statistic to critical value above 1 is left out and the rest readjusted, until none is
-    rejected or leaving one out would leave a point undetermined. Returns (the final
-    adjustment, the kept observations, removed clusters)."""
+    """Iterative data snooping over covariance clusters (M84 §3.1; B68; F80 eq. 12).
+
+    Each image point, control point or single observation is tested as a whole (T of F80 eq. 12
+    against T_crit(q)) and per member (Baarda's w against the w-test's critical value); the cluster
+    with the largest ratio of statistic to critical value above 1 is left out and the rest
+    readjusted, until none is rejected or leaving one out would leave a point undetermined.
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        The problem.
+    keep : numpy.ndarray
+        Indices of the observations to start from.
+    options : baarda.adjust.Options
+        Adjustment options.
+    x0 : numpy.ndarray, optional
+        Start values of the parameters (their own units: metres, radians, ...).
+    point_of : numpy.ndarray, optional
+        Per cluster the object point it observes or holds ("" for others): a point keeps its rays.
+    held : list, optional
+        Receives the clusters rejected but kept in (their point would be undetermined).
+
+    Returns
+    -------
+    adj : baarda.result.Adjustment
+        The final adjustment.
+    keep : numpy.ndarray
+        The kept observations.
+    removed : list of numpy.ndarray
+        The removed clusters' members.
+    """
     cluster = problem.cov.cluster
     removed = []
     adj = _fit(problem, keep, options, x0)
@@ -521,9 +630,40 @@ def estimate(problem, method: str = "r84", options: Options | None = None, tol: 
              k: float | None = None) -> RobustResult:
     """Robust estimation with ``method`` (huber, danish, r84): R84's three steps (module docstring).
 
-    Suspects are the clusters (image points, control points, single observations) that the
-    least-squares test of step 3 confirms, with an estimated error of at least ``min_size`` σ
-    (R84 §6: below 4σ errors are random), each with its R84 class.
+    Iteratively reweighted least squares (M84 §3.1, R84 §7-8), then least squares and data snooping
+    on the cleaned set. Suspects are the clusters that the least-squares test of step 3 confirms, with
+    an estimated error of at least ``min_size`` σ (R84 §6: below 4σ errors are random), each with its
+    R84 class.
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        The problem.
+    method : str
+        One of :data:`METHODS`.
+    options : baarda.adjust.Options, optional
+        Adjustment options.
+    tol : float
+        Largest change of a weight factor at convergence, dimensionless.
+    max_iter : int
+        Iterations of the reweighting at most.
+    min_size : float
+        Smallest reported error, multiples of σ.
+    medium_base : float
+        Upper end of R84's medium class, base lengths.
+    k : float, optional
+        Threshold of the weight function, dimensionless (default per method: 2 Huber, 3 Danish).
+
+    Returns
+    -------
+    RobustResult
+        Weight factors (dimensionless), the robust and the final adjustment, suspects with ∇̂ in the
+        units of the observations and their size in σ and base lengths.
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        For an unknown ``method``.
     """
     if method not in METHODS:
         raise BaardaError(f"unknown robust method '{method}' (known: {', '.join(METHODS)})")
