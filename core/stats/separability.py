@@ -112,9 +112,24 @@ def _single(W11, W12, W22) -> float:
 
 
 def canonical_correlations(adj, H1, H2) -> np.ndarray:
-    """The canonical correlations of g1 = H1ᵀPv and g2 = H2ᵀPv, descending (module docstring;
-    F80 §7.4, M84 §3.3): the cosines of the angles between the two test spaces. Their number is the
-    smaller rank of W11, W22; empty when a hypothesis is not testable (W = 0)."""
+    """The canonical correlations of g1 = H1ᵀPv and g2 = H2ᵀPv, descending (F80 §7.4, M84 §3.3).
+
+    The singular values of W11^(−½) W12 W22^(−½) (module docstring; F80 eq. 8, 10): the cosines of
+    the angles between the two test spaces. Their number is the smaller rank of W11, W22; empty when a
+    hypothesis is not testable (W = 0).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    H1, H2 : numpy.ndarray or scipy.sparse matrix
+        n × q1 and n × q2 hypothesis matrices, dimensionless.
+
+    Returns
+    -------
+    numpy.ndarray
+        The canonical correlations in [0, 1], dimensionless.
+    """
     a, b = _Reduced(adj, H1), _Reduced(adj, H2)
     return _canonical(a.w_with(a), a.w_with(b), b.w_with(b))
 
@@ -125,18 +140,44 @@ def correlation(adj, H1, H2) -> float:
     For two one-dimensional hypotheses (columns h1, h2; w-tests: h = e_i) the signed
     ρ = h1ᵀ P C_vv P h2 / √(h1ᵀ P C_vv P h1 · h2ᵀ P C_vv P h2) ∈ [−1, 1]. For q > 1 the smallest
     canonical correlation over the smaller test space (module docstring) ∈ [0, 1]: 1 when that
-    space lies in the other one — for q1 = q2 the two tests then give the same T on any data. NaN
-    when a hypothesis is not testable at all (W = 0). ``adj`` is an adjustment result; H1, H2
-    n × q matrices (dense or sparse).
+    space lies in the other one — for q1 = q2 the two tests then give the same T on any data.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    H1, H2 : numpy.ndarray or scipy.sparse matrix
+        n × q1 and n × q2 hypothesis matrices (dense or sparse), dimensionless.
+
+    Returns
+    -------
+    float
+        ρ, dimensionless; NaN when a hypothesis is not testable at all (W = 0).
     """
     a, b = _Reduced(adj, H1), _Reduced(adj, H2)
     return _single(a.w_with(a), a.w_with(b), b.w_with(b))
 
 
 def twins(adj, i: int, threshold: float = THRESHOLD) -> list[tuple[int, float]]:
-    """The observations j ≠ i whose w-test has |ρ_ij| ≥ ``threshold`` with observation i's
-    (F80 §7.4): [(j, ρ_ij)], largest |ρ| first. One solve: the column P C_vv P e_i =
-    P e_i − P A Σ AᵀP e_i. Uncontrolled observations (no w) are never twins."""
+    """The observations j ≠ i whose w-test has |ρ_ij| ≥ ``threshold`` with observation i's (F80 §7.4).
+
+    ρ_ij = (P C_vv P)_ij / √((P C_vv P)_ii (P C_vv P)_jj). One solve: the column
+    P C_vv P e_i = P e_i − P A Σ AᵀP e_i. Uncontrolled observations (no w) are never twins.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    i : int
+        Observation index.
+    threshold : float
+        Smallest |ρ| reported, in (0, 1].
+
+    Returns
+    -------
+    list of tuple
+        (j, ρ_ij) with ρ dimensionless, largest |ρ| first.
+    """
     P = adj.P
     pe = np.asarray(P[:, [i]].toarray() if sp.issparse(P) else P[:, [i]]).ravel()
     y = np.asarray(adj.factor.solve(np.asarray(adj.Ar.T @ pe))).ravel()
@@ -291,16 +332,35 @@ def _hypothesis(adj, t, k):
 
 
 def inseparable_pairs(adj, tests=None, threshold: float = THRESHOLD) -> list[InseparableGroup]:
-    """Groups of hypotheses whose test statistics are (near-)perfectly correlated, |ρ| ≥ threshold
-    (module docstring; M84 §3.3, F80 §7.4): the data cannot tell the members of a group apart.
+    """Groups of hypotheses whose test statistics are (near-)perfectly correlated (M84 §3.3, F80 §7.4).
 
+    |ρ| ≥ threshold (module docstring): the data cannot tell the members of a group apart.
     ``tests`` None: Baarda's w-tests of all observations of ``adj`` (members are observation
     indices); an integer array: the w-tests linked to these observations (a suspects list). Only
     pairs that share a parameter or a covariance cluster, and that the redundancy bound of
-    :func:`_w_pairs` allows, are computed (one solve per observation involved). Otherwise a sequence of hypotheses —
-    :class:`baarda.stats.hypotheses.HypothesisTest` objects, (label, H) pairs or n × q matrices
-    (labelled by position) — compared pairwise by :func:`correlation` (q + … solves in all, one set
-    per hypothesis); members are their labels. Groups sorted by their first member.
+    :func:`_w_pairs` allows, are computed (one solve per observation involved). Otherwise a sequence
+    of hypotheses — :class:`baarda.stats.hypotheses.HypothesisTest` objects, (label, H) pairs or
+    n × q matrices (labelled by position) — compared pairwise by :func:`correlation`; members are
+    their labels.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    tests : None, numpy.ndarray of int or sequence, optional
+        What to compare (above).
+    threshold : float
+        Smallest |ρ| that links two tests, in (0, 1].
+
+    Returns
+    -------
+    list of InseparableGroup
+        Sorted by their first member; ρ dimensionless.
+
+    Raises
+    ------
+    baarda.errors.OptionError
+        For a threshold outside (0, 1].
     """
     if not 0 < threshold <= 1:
         raise OptionError("threshold", threshold, (), "the threshold on |ρ| must lie in (0, 1]")
@@ -325,11 +385,32 @@ def inseparable_pairs(adj, tests=None, threshold: float = THRESHOLD) -> list[Ins
 
 
 def partly_inseparable(adj, tests, threshold: float = THRESHOLD) -> list[PartialPair]:
-    """Pairs of the hypotheses ``tests`` (as :func:`inseparable_pairs` takes them) that are partly
-    inseparable: their largest canonical correlation reaches ``threshold``, their smallest does not
-    (module docstring; :func:`inseparable_pairs` reports the pairs where every one does). Two image
-    points of one 3-ray point, say, with canonical correlations (1.0, 0.52): an error along the shared
-    direction cannot be attributed to either image."""
+    """Pairs of hypotheses that are partly inseparable (F80 §7.4, M84 §3.3).
+
+    Their largest canonical correlation reaches ``threshold``, their smallest does not (module
+    docstring; :func:`inseparable_pairs` reports the pairs where every one does). Two image points of
+    one 3-ray point, say, with canonical correlations (1.0, 0.52): an error along the shared direction
+    cannot be attributed to either image.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    tests : sequence
+        Hypotheses as :func:`inseparable_pairs` takes them.
+    threshold : float
+        In (0, 1].
+
+    Returns
+    -------
+    list of PartialPair
+        Canonical correlations (dimensionless) and the shared unit direction.
+
+    Raises
+    ------
+    baarda.errors.OptionError
+        For a threshold outside (0, 1].
+    """
     if not 0 < threshold <= 1:
         raise OptionError("threshold", threshold, (), "the threshold on |ρ| must lie in (0, 1]")
     items = [_hypothesis(adj, t, k) for k, t in enumerate(tests)]
