@@ -54,12 +54,35 @@ class SnoopResult:
 
 def iterate(problem, options: Options | None = None, use_tau: bool = False, max_steps: int | None = None,
             min_dof: int = 1, progress=None, check=None) -> SnoopResult:
-    """Remove the worst rejected observation and readjust until no test rejects.
+    """Remove the worst rejected observation and readjust until no test rejects (B68; F80 §4, M84 §3.1).
 
-    progress: optional callable(step, SnoopStep) after each step. check: optional callable()
-    called before each readjustment and after each of its iterations (``adjust``'s
-    ``progress``); it stops the run by raising (a cancelled dashboard task stops within the
-    step it is in).
+    Baarda's w (σ0 a priori) or Pope's τ (σ0 a posteriori, P76); the estimated error of each removed
+    observation is ∇̂ = −(Pv)_i/(P C_vv P)_ii (F80 eq. 10 for H = e_i).
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        The problem.
+    options : baarda.adjust.Options, optional
+        Adjustment options.
+    use_tau : bool
+        Test with τ instead of w.
+    max_steps : int, optional
+        Observations removed at most (default: no limit).
+    min_dof : int
+        Smallest redundancy left.
+    progress : callable, optional
+        ``progress(step, SnoopStep)`` after each step.
+    check : callable, optional
+        Called before each readjustment and after each of its iterations (``adjust``'s
+        ``progress``); it stops the run by raising (a cancelled dashboard task stops within the step
+        it is in).
+
+    Returns
+    -------
+    SnoopResult
+        The steps (w or τ and σ̂0 dimensionless, ∇̂ in the units of the observation), the final
+        adjustment and the kept observations.
     """
     options = options or Options()
     inner = None if check is None else (lambda _it, _step: check())
@@ -96,8 +119,23 @@ def iterate(problem, options: Options | None = None, use_tau: bool = False, max_
 
 
 def leave_one_out(adj, suspects, check=None) -> list[dict]:
-    """σ̂0 with each suspect left out in turn (the "find the error" view). check: as for
-    :func:`iterate`."""
+    """σ̂0 with each suspect left out in turn (the "find the error" view; F80 §4).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    suspects : iterable of int
+        Observation indices.
+    check : callable, optional
+        As for :func:`iterate`.
+
+    Returns
+    -------
+    list of dict
+        Per suspect: index, w, sigma0_without and ratio to σ̂0 (dimensionless; NaN where the
+        reduced problem cannot be adjusted).
+    """
     inner = None if check is None else (lambda _it, _step: check())
     out = []
     for i in suspects:
