@@ -276,9 +276,10 @@ def radial_variance(problem, options=None, structure: str = "radial"):
 
     Returns
     -------
-    object
-        What :func:`baarda.stats.variance.estimate_components` returns: the estimated components
-        (units of the image observations squared) and the final adjustment.
+    baarda.stats.variance.ComponentEstimate
+        The estimated components a², b²c² (units of the image observations squared) and "other" (a
+        dimensionless factor on the a priori covariance of the rest), their
+        standard errors and the final adjustment.
     """
     comps = variance.radial_components(problem, structure)
     return variance.estimate_components(problem, comps, theta0=radial_theta0(problem), options=options)

@@ -74,10 +74,28 @@ class VarianceComponents:
 
 
 def merge_groups(groups: dict[str, np.ndarray], spec: str) -> dict[str, np.ndarray]:
-    """``groups`` with the sets of ``spec`` merged: "control+image" (or several, comma-separated,
-    "angles+distances,control+image") makes one group "control+image" of both, estimated with one
-    factor (F80 eq. 9) — for a group with too little redundancy of its own. Unknown names are a
-    BaardaError listing the groups there are."""
+    """``groups`` with the sets of ``spec`` merged, estimated with one factor (F80 eq. 9).
+
+    "control+image" (or several, comma-separated, "angles+distances,control+image") makes one group
+    "control+image" of both — for a group with too little redundancy of its own.
+
+    Parameters
+    ----------
+    groups : dict
+        Group name -> observation indices.
+    spec : str
+        The merges, as above.
+
+    Returns
+    -------
+    dict
+        Group name -> sorted observation indices.
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        For unknown names (listing the groups there are) or a merge of one group.
+    """
     out = dict(groups)
     for part in (x.strip() for x in spec.split(",") if x.strip()):
         names = [n.strip() for n in part.split("+") if n.strip()]
@@ -92,7 +110,20 @@ def merge_groups(groups: dict[str, np.ndarray], spec: str) -> dict[str, np.ndarr
 
 
 def groups_by_kind(problem) -> dict[str, np.ndarray]:
-    """Default groups: observation kinds of one family (distances, angles, image observations...)."""
+    """Default variance-component groups: observation kinds of one family (F80 eq. 9).
+
+    Distances, angles, image observations, control...: :data:`KIND_FAMILIES`.
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        The problem.
+
+    Returns
+    -------
+    dict
+        Group name -> observation indices.
+    """
     out: dict[str, list[int]] = {}
     for i, k in enumerate(problem.info.kind):
         out.setdefault(KIND_FAMILIES.get(k, k), []).append(i)
@@ -111,7 +142,32 @@ def estimate(problem, groups: dict[str, np.ndarray] | None = None, options: Opti
              tol: float = 1e-4, max_iter: int = 50) -> VarianceComponents:
     """Iterated variance-component estimation (F80 eq. 9) for ``groups`` (name → observations).
 
-    Every covariance cluster must lie in one group; a group without redundancy cannot be estimated.
+    σ̂0j² = vᵀ P Q_j P v / tr(Q_vv P Q_j P), iterated with rescaled Q_j to convergence. Every
+    covariance cluster must lie in one group; a group without redundancy cannot be estimated.
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        The problem.
+    groups : dict, optional
+        Group name -> observation indices (default :func:`groups_by_kind`).
+    options : baarda.adjust.Options, optional
+        Adjustment options.
+    tol : float
+        Relative change of the factors at convergence.
+    max_iter : int
+        Iterations at most.
+
+    Returns
+    -------
+    VarianceComponents
+        Per group the factor σ̂0j² relative to the a priori covariance (dimensionless), its
+        redundancy and standard error, and the final adjustment.
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        For overlapping groups, split clusters or a group without redundancy.
     """
     groups = groups if groups is not None else groups_by_kind(problem)
     owner = np.full(problem.n, -1)
@@ -246,21 +302,48 @@ def _positive_definite(components, names, theta, ncl) -> bool:
 
 def estimate_components(problem, components: dict[str, tuple], theta0=None, options: Options | None = None,
                         tol: float = 1e-5, max_iter: int = 100, dense_max: int = 4000) -> ComponentEstimate:
-    """Iterated estimation of additive variance components (F80 eq. 9).
+    """Iterated estimation of additive variance components θ_j of D(l) = Σ_j θ_j C_j (F80 eq. 2, 9).
 
     ``components`` maps a name to per-cluster blocks C_j (aligned with ``problem.cov.members``;
     zero blocks where a component does not act). Up to ``dense_max`` observations the full
     estimator is iterated (S θ = q, see :func:`_helmert_step`; it converges in a few steps even for
     nearly collinear components such as the radial model's a² and b²c²), with the standard errors
-    √(2 (S⁻¹)_jj). Above, F80's form with Q_j = θ_j C_j:  θ_j ← θ_j · vᵀPQ_jPv / tr(C_vv P Q_j P),
+    √(2 (S⁻¹)_jj). Above, F80's form with Q_j = θ_j C_j: θ_j ← θ_j · vᵀPQ_jPv / tr(C_vv P Q_j P),
     which needs only cluster blocks of C_vv but converges slowly for correlated components.
 
     A component whose full estimate stays ≤ 0 for :data:`NONPOSITIVE_STEPS` steps is held at 0
     and the others are estimated without it (the estimate constrained to θ_j ≥ 0; ``at_zero``
     and ``notes`` of the result say so); where 0 would leave some cluster without a positive
     definite covariance (the only component of the control points) it is held at its starting
-    value instead, not estimated, which ``notes`` says. Otherwise a BaardaError says which
-    estimate is not positive.
+    value instead, not estimated, which ``notes`` says.
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        The problem.
+    components : dict
+        Name -> tuple of per-cluster cofactor blocks C_j.
+    theta0 : array_like of float, optional
+        Start values of θ (default 1 each), units of the observations squared per unit of C_j.
+    options : baarda.adjust.Options, optional
+        Adjustment options.
+    tol : float
+        Relative change of θ at convergence.
+    max_iter : int
+        Iterations at most.
+    dense_max : int
+        Largest number of observations for the full estimator.
+
+    Returns
+    -------
+    ComponentEstimate
+        θ_j (units of the observations squared per unit of C_j), the redundancy shares, standard
+        errors (units of θ_j) and the final adjustment.
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        For blocks not aligned with the clusters or an estimate that is not positive.
     """
     names = tuple(components)
     ncl = len(problem.cov.members)
@@ -378,13 +461,29 @@ def radial_cofactor(dx: float, dy: float, c: float, structure: str = "radial") -
     .. math::  C_{xy} = a^2 I + \frac{b^2 c^2}{\cos^4\alpha}\, u u^T,
                \qquad \frac{1}{\cos^4\alpha} = \Big(\frac{c^2 + \rho^2}{c^2}\Big)^2 .
 
-    Returned: (1/cos⁴α) u uᵀ, the cofactor of the component θ = b²c² (the unit of the image
-    coordinates squared). At the principal point (ρ = 0) u is undefined; the mean of u uᵀ over
-    all directions, I/2, is taken there.
+    At the principal point (ρ = 0) u is undefined; the mean of u uᵀ over all directions, I/2, is
+    taken there. ``structure="isotropic"``: (1/cos⁴α) I, b²c²/cos⁴α on x and y alike (baarda ≤ 0.x's
+    reading, which gives the tangential component the radial variance too).
 
-    ``structure="isotropic"``: (1/cos⁴α) I, b²c²/cos⁴α on x and y alike (baarda ≤ 0.x's reading,
-    which gives the tangential component the radial variance too).
-    dx, dy: image coordinates relative to the principal point; c: principal distance (same unit).
+    Parameters
+    ----------
+    dx, dy : float
+        Image coordinates relative to the principal point, pixels (image units).
+    c : float
+        Principal distance, same unit as dx, dy.
+    structure : str
+        "radial" or "isotropic".
+
+    Returns
+    -------
+    numpy.ndarray
+        (1/cos⁴α) u uᵀ, 2 × 2, dimensionless: the cofactor of the component θ = b²c² (the unit of
+        the image coordinates squared).
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        For an unknown ``structure``.
     """
     if structure not in RADIAL_STRUCTURES:
         raise BaardaError(f"unknown radial structure '{structure}' (known: {', '.join(RADIAL_STRUCTURES)})")
@@ -407,6 +506,24 @@ def radial_components(problem, structure: str = "radial") -> dict[str, tuple]:
     :func:`radial_cofactor` derives it; ``structure="isotropic"``: (1/cos⁴α) I), and ``other``
     (the a priori covariance of every non-image cluster, e.g. control). Each image cluster gets
     its 2 × 2 block (the rows and columns of its members' components).
+
+    Parameters
+    ----------
+    problem : baarda.model.problem.Problem
+        A block with cameras (principal distance known).
+    structure : str
+        "radial" or "isotropic".
+
+    Returns
+    -------
+    dict
+        "a²", "b²c²", "other" -> tuple of per-cluster blocks, dimensionless cofactors (``other`` in
+        the units of the observations squared).
+
+    Raises
+    ------
+    baarda.errors.BaardaError
+        Without a camera with a principal distance.
     """
     geo = problem.geometry
     if geo is None or not geo.cameras or any(c.c is None for c in geo.cameras):
