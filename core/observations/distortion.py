@@ -25,9 +25,29 @@ from __future__ import annotations
 
 
 def brown(u, v, k1, k2, k3, p1, p2):
-    """Brown's distortion at (u, v): ``(Δu, Δv, J00, J01, J11)`` where J = ∂(u + Δu, v + Δv)/∂(u, v)
-    (symmetric: J10 = J01). Coefficients per unit of u: k1 per unit², k2 per unit⁴, k3 per
-    unit⁶, p1, p2 per unit (module docstring); scalars or arrays that broadcast."""
+    """Brown's radial-tangential distortion at (u, v) and the Jacobian of the distorted point (B71; F97).
+
+    Δu = u (k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2u²) + 2 p2 u v and Δv likewise (module docstring),
+    r² = u² + v²; J = ∂(u + Δu, v + Δv)/∂(u, v) is symmetric (J10 = J01). Plain arithmetic on
+    scalars or arrays that broadcast (numba compiles it for the kernels).
+
+    Parameters
+    ----------
+    u, v : float or numpy.ndarray
+        Image coordinates: a photogrammetric camera's ideal x̄, ȳ (pixels or millimetres, its unit)
+        or a projective camera's normalised coordinates (dimensionless).
+    k1, k2, k3 : float or numpy.ndarray
+        Radial coefficients, per unit² of u, per unit⁴, per unit⁶.
+    p1, p2 : float or numpy.ndarray
+        Decentring coefficients in the photogrammetric order, per unit of u.
+
+    Returns
+    -------
+    du, dv : float or numpy.ndarray
+        Δu, Δv, same unit as u, v.
+    J00, J01, J11 : float or numpy.ndarray
+        Entries of J, dimensionless.
+    """
     r2 = u * u + v * v
     r4 = r2 * r2
     rad = k1 * r2 + k2 * r4 + k3 * r4 * r2

@@ -65,23 +65,55 @@ def _drz(a):
 
 
 def R_opk(omega, phi, kappa) -> np.ndarray:
-    """R = R_ω R_φ R_κ (see the module docstring); angles in radians, result (..., 3, 3)."""
+    """R = R_ω R_φ R_κ of the aerial ω-φ-κ convention (K07; module docstring).
+
+    Parameters
+    ----------
+    omega, phi, kappa : array_like of float
+        Angles (...), radians.
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3, 3) rotation matrices, dimensionless.
+    """
     omega, phi, kappa = (np.asarray(a, dtype=float) for a in (omega, phi, kappa))
     return _rx(omega) @ _ry(phi) @ _rz(kappa)
 
 
 def R_opk_derivatives(omega, phi, kappa) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """R and its partial derivatives ∂R/∂ω, ∂R/∂φ, ∂R/∂κ (each (..., 3, 3), per radian)."""
+    """R = R_ω R_φ R_κ and its partial derivatives ∂R/∂ω, ∂R/∂φ, ∂R/∂κ (K07; module docstring).
+
+    Parameters
+    ----------
+    omega, phi, kappa : array_like of float
+        Angles (...), radians.
+
+    Returns
+    -------
+    R, dR_domega, dR_dphi, dR_dkappa : numpy.ndarray
+        Each (..., 3, 3); R dimensionless, the derivatives per radian.
+    """
     omega, phi, kappa = (np.asarray(a, dtype=float) for a in (omega, phi, kappa))
     Rw, Rp, Rk = _rx(omega), _ry(phi), _rz(kappa)
     return (Rw @ Rp @ Rk, _drx(omega) @ Rp @ Rk, Rw @ _dry(phi) @ Rk, Rw @ Rp @ _drz(kappa))
 
 
 def opk_from_R(R) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ω, φ, κ (radians) of R = R_ω R_φ R_κ; φ in [−π/2, π/2].
+    """ω, φ, κ of R = R_ω R_φ R_κ, φ in [−π/2, π/2] (K07; module docstring).
 
     From r13 = sin φ, r23 = −sin ω cos φ, r33 = cos ω cos φ, r12 = −cos φ sin κ,
     r11 = cos φ cos κ.
+
+    Parameters
+    ----------
+    R : array_like of float
+        (..., 3, 3) rotation matrices.
+
+    Returns
+    -------
+    omega, phi, kappa : numpy.ndarray
+        Angles (...), radians.
     """
     R = np.asarray(R, dtype=float)
     phi = np.arcsin(np.clip(R[..., 0, 2], -1.0, 1.0))
@@ -91,10 +123,20 @@ def opk_from_R(R) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def R_from_rodrigues(rho) -> np.ndarray:
-    """Rotation matrix exp([ρ]×) of Rodrigues (angle-axis) vectors ρ (..., 3), radians.
+    """Rotation matrix exp([ρ]×) of Rodrigues (angle-axis) vectors ρ (BAL10; C11).
 
     R = I + sin θ [k]× + (1 − cos θ) [k]×², θ = |ρ|, k = ρ/θ (Rodrigues' formula); a series is
     used for θ < 1e-8.
+
+    Parameters
+    ----------
+    rho : array_like of float
+        (..., 3) vectors, radians (the rotation angle is |ρ|).
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3, 3) rotation matrices, dimensionless.
     """
     rho = np.asarray(rho, dtype=float)
     theta = np.linalg.norm(rho, axis=-1)
@@ -108,15 +150,36 @@ def R_from_rodrigues(rho) -> np.ndarray:
 
 
 def rodrigues_from_R(R) -> np.ndarray:
-    """Rodrigues vector ρ (..., 3) of rotation matrices (log map); θ = |ρ| ∈ [0, π]."""
+    """Rodrigues vector ρ of rotation matrices (the log map of SO(3); C11), θ = |ρ| ∈ [0, π].
+
+    Parameters
+    ----------
+    R : array_like of float
+        (..., 3, 3) rotation matrices.
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3) vectors ρ, radians.
+    """
     R = np.asarray(R, dtype=float)
     return _axis_angle_from_quaternion(quaternion_from_R(R))
 
 
 def R_from_quaternion(q) -> np.ndarray:
-    """Rotation matrix of unit quaternions q = (w, x, y, z) (..., 4), scalar first (COLMAP).
+    """Rotation matrix of unit quaternions q = (w, x, y, z), scalar first (COLMAP, SF16).
 
     q is normalised first; q and −q give the same matrix.
+
+    Parameters
+    ----------
+    q : array_like of float
+        (..., 4) quaternions, dimensionless.
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3, 3) rotation matrices, dimensionless.
     """
     q = np.asarray(q, dtype=float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
@@ -128,7 +191,18 @@ def R_from_quaternion(q) -> np.ndarray:
 
 
 def quaternion_from_R(R) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) with w ≥ 0 of rotation matrices (Shepperd's method)."""
+    """Unit quaternion (w, x, y, z) with w ≥ 0 of rotation matrices (Shepperd's method; SF16's order).
+
+    Parameters
+    ----------
+    R : array_like of float
+        (..., 3, 3) rotation matrices.
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 4) quaternions, scalar first, dimensionless.
+    """
     R = np.asarray(R, dtype=float)
     shape = R.shape[:-2]
     Rf = R.reshape(-1, 3, 3)
@@ -166,6 +240,18 @@ def _axis_angle_from_quaternion(q):
 
 
 def skew(v):
+    """The cross-product matrix [v]× of vectors v, [v]× a = v × a (C11).
+
+    Parameters
+    ----------
+    v : array_like of float
+        (..., 3) vectors, any unit.
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3, 3) skew-symmetric matrices, same units as ``v``.
+    """
     v = np.asarray(v, dtype=float)
     z = np.zeros(v.shape[:-1])
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
