@@ -230,14 +230,51 @@ _distort_array = _rebound(_distort, {"_fisheye_scale": _fisheye_scale_array, "_f
 
 
 def fixed_distortion_scalar(code, d, u, v):
-    """(u_d, v_d, J00, J01, J10, J11) of one point (module docstring); ``d`` the
-    :data:`MAX_COEFFICIENTS` coefficients of the model (zeros after its own)."""
+    """The distorted point and its Jacobian at one normalised point, for a COLMAP model (SF16).
+
+    The formulas of the module docstring (COLMAP's ``models.h``) for the model ``code``.
+
+    Parameters
+    ----------
+    code : int
+        The model's code (:data:`FIXED_MODELS`, 1-7).
+    d : numpy.ndarray
+        The :data:`MAX_COEFFICIENTS` coefficients of the model (zeros after its own), in the units
+        of the normalised coordinates (FOV's ω in radians).
+    u, v : float
+        Normalised image coordinates, dimensionless.
+
+    Returns
+    -------
+    ud, vd : float
+        The distorted point, dimensionless.
+    J00, J01, J10, J11 : float
+        Entries of J = ∂(u_d, v_d)/∂(u, v), dimensionless.
+    """
     return _distort(code, d, u, v)
 
 
 def fixed_distortion(code: int, d, u: np.ndarray, v: np.ndarray):
-    """:func:`fixed_distortion_scalar` over arrays u, v of one model ``code`` and one set of
-    coefficients ``d`` (:data:`MAX_COEFFICIENTS`,); the same formulas (the numpy reference)."""
+    """:func:`fixed_distortion_scalar` over arrays, one model and one set of coefficients (SF16).
+
+    The same formulas (the numpy reference).
+
+    Parameters
+    ----------
+    code : int
+        The model's code (:data:`FIXED_MODELS`, 1-7).
+    d : array_like of float
+        The :data:`MAX_COEFFICIENTS` coefficients (zeros after the model's own).
+    u, v : numpy.ndarray
+        Normalised image coordinates, dimensionless.
+
+    Returns
+    -------
+    ud, vd : numpy.ndarray
+        The distorted points, dimensionless.
+    J00, J01, J10, J11 : numpy.ndarray
+        Entries of J = ∂(u_d, v_d)/∂(u, v), dimensionless.
+    """
     u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
         return _distort_array(int(code), np.asarray(d, dtype=float), u, v)
@@ -247,8 +284,16 @@ _COMPILED = {}
 
 
 def compiled_distortion():
-    """:func:`fixed_distortion_scalar` compiled by numba with every function it calls (for the
-    kernel of :mod:`baarda.observations.projection`), or None without numba."""
+    """:func:`fixed_distortion_scalar` compiled by numba with every function it calls (SF16's models).
+
+    For the kernel of :mod:`baarda.observations.projection`; compiled once and cached.
+
+    Returns
+    -------
+    callable or None
+        ``f(code, d, u, v) -> (u_d, v_d, J00, J01, J10, J11)`` (dimensionless), or None without
+        numba.
+    """
     if "d" not in _COMPILED:
         jit = njit()
         if jit is None:
