@@ -67,10 +67,22 @@ AP_GROUPS = {
 
 
 def brown_basis(u, v):
-    """Brown's physical set at (u, v): Fx, Fy and their derivatives ∂/∂u, ∂/∂v (each m × 7).
+    """Brown's physical AP set at (u, v): Fx, Fy and their derivatives (B71; F97 for affinity and shear).
 
     Columns a1..a7 as in the module docstring (radial a1-a3, decentring a4, a5, affinity a6,
     shear a7).
+
+    Parameters
+    ----------
+    u, v : array_like of float
+        m normalised image coordinates x̄/s, ȳ/s, dimensionless.
+
+    Returns
+    -------
+    Fx, Fy : numpy.ndarray
+        m × 7 corrections Δx, Δy per unit of each AP, dimensionless (the APs are in image units).
+    Fxu, Fxv, Fyu, Fyv : numpy.ndarray
+        m × 7 derivatives ∂Fx/∂u, ∂Fx/∂v, ∂Fy/∂u, ∂Fy/∂v, dimensionless.
     """
     u = np.asarray(u, dtype=float)
     v = np.asarray(v, dtype=float)
@@ -87,7 +99,20 @@ def brown_basis(u, v):
 
 
 def ebner_basis(u, v):
-    """Ebner's (1976) 12 parameters at (u, v) = (x, y)/b: Fx, Fy and ∂/∂u, ∂/∂v (each m × 12)."""
+    """Ebner's 12 orthogonal AP at (u, v) = (x, y)/b: Fx, Fy and their derivatives (E76).
+
+    Parameters
+    ----------
+    u, v : array_like of float
+        m image coordinates in units of the base b of the 3 × 3 von Gruber pattern, dimensionless.
+
+    Returns
+    -------
+    Fx, Fy : numpy.ndarray
+        m × 12 corrections Δx, Δy per unit of each AP, dimensionless (the APs are in image units).
+    Fxu, Fxv, Fyu, Fyv : numpy.ndarray
+        m × 12 derivatives ∂Fx/∂u, ∂Fx/∂v, ∂Fy/∂u, ∂Fy/∂v, dimensionless.
+    """
     u = np.asarray(u, dtype=float)
     v = np.asarray(v, dtype=float)
     e = 2.0 / 3.0
@@ -350,11 +375,26 @@ class CollinearitySet:
 
 
 def project(camera, images, P, ap: dict | None = None) -> np.ndarray:
-    """Image coordinates (m × 2, camera unit) of object points P (m × 3, m) in ``images``.
+    """Image coordinates of object points by the collinearity equations (K07; module docstring).
 
-    ``images`` is a sequence of m :class:`Image` (one per point). Applies the collinearity
-    equations, the camera's calibrated distortion and, optionally, AP values
-    ``ap = {group: values}`` (module docstring). Used by the simulator and the tests.
+    Applies the collinearity equations, the camera's calibrated distortion (B71) and, optionally, AP
+    values. Used by the simulator and the tests.
+
+    Parameters
+    ----------
+    camera : baarda.model.bundle.Camera
+        The camera: c, x0, y0 and distortion in its unit (mm or px).
+    images : sequence of baarda.model.bundle.Image
+        m images, one per point (X0, Y0, Z0 in metres; ω, φ, κ in radians).
+    P : array_like of float
+        m × 3 object points, metres.
+    ap : dict, optional
+        ``{group: values}`` of :data:`AP_GROUPS`, in the camera's unit.
+
+    Returns
+    -------
+    numpy.ndarray
+        m × 2 image coordinates, the camera's unit (mm or pixels).
     """
     P = np.atleast_2d(np.asarray(P, dtype=float))
     m = P.shape[0]

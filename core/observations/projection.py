@@ -49,7 +49,20 @@ INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
 
 
 def right_jacobian(rho: np.ndarray) -> np.ndarray:
-    """J_r(ρ) of SO(3) for Rodrigues vectors ρ (k × 3) → (k × 3 × 3) (module docstring)."""
+    """The right Jacobian J_r(ρ) of SO(3) for Rodrigues vectors ρ (C11 eq. 10.86; module docstring).
+
+    J_r(ρ) = I − (1 − cos θ)/θ² [ρ]× + (θ − sin θ)/θ³ [ρ]×², θ = |ρ|; a series for θ < 1e-4.
+
+    Parameters
+    ----------
+    rho : numpy.ndarray
+        k × 3 Rodrigues vectors, radians.
+
+    Returns
+    -------
+    numpy.ndarray
+        k × 3 × 3 matrices, dimensionless.
+    """
     rho = np.asarray(rho, dtype=float)
     theta = np.linalg.norm(rho, axis=-1)
     small = theta < 1e-4
