@@ -132,7 +132,7 @@ def criterion_reason(adj) -> str:
 def criterion_setup(adj, sbase, cov=None) -> CriterionSetup:
     """The coordinate covariance of ``adj`` in an S-base with what a criterion comparison needs (M84 §2).
 
-    The covariance transformed to the S-base (M84 §2.1), the point positions, the S-base conditions
+    The covariance transformed to the S-base (M84 §2.2), the point positions, the S-base conditions
     and the null space G.
 
     Parameters

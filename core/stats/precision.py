@@ -144,7 +144,7 @@ def ellipse_points(ellipses: np.ndarray, n: int = 49) -> np.ndarray:
 
 
 def release_null_space(adj):
-    """G over all coordinate parameters, fixed ones included (M84 §2.1).
+    """G over all coordinate parameters, fixed ones included (M84 §2.2).
 
     The transformations that the observations leave free once every point is released.
 
@@ -176,7 +176,7 @@ def release_null_space(adj):
 
 
 def covariance(adj, sbase=None) -> CoordinateCovariance:
-    """Coordinate covariance in the S-base ``sbase`` (M84 §2.1: Q_S = S Q Sᵀ).
+    """Coordinate covariance in the S-base ``sbase`` (M84 §2.2: Q_S = S Q Sᵀ).
 
     None keeps the adjustment's datum. The dense coordinate covariance is formed here, so this is for
     networks and blocks of up to a few thousand points; per-point blocks of big blocks come from
