@@ -79,10 +79,18 @@ def brown_basis(u, v):
 
     Returns
     -------
-    Fx, Fy : numpy.ndarray
-        m × 7 corrections Δx, Δy per unit of each AP, dimensionless (the APs are in image units).
-    Fxu, Fxv, Fyu, Fyv : numpy.ndarray
-        m × 7 derivatives ∂Fx/∂u, ∂Fx/∂v, ∂Fy/∂u, ∂Fy/∂v, dimensionless.
+    Fx : numpy.ndarray
+        m × 7 corrections Δx per unit of each AP, dimensionless (the APs are in image units).
+    Fy : numpy.ndarray
+        m × 7 corrections Δy per unit of each AP, dimensionless.
+    Fxu : numpy.ndarray
+        m × 7 derivatives ∂Fx/∂u, dimensionless.
+    Fxv : numpy.ndarray
+        m × 7 derivatives ∂Fx/∂v, dimensionless.
+    Fyu : numpy.ndarray
+        m × 7 derivatives ∂Fy/∂u, dimensionless.
+    Fyv : numpy.ndarray
+        m × 7 derivatives ∂Fy/∂v, dimensionless.
     """
     u = np.asarray(u, dtype=float)
     v = np.asarray(v, dtype=float)
@@ -108,10 +116,18 @@ def ebner_basis(u, v):
 
     Returns
     -------
-    Fx, Fy : numpy.ndarray
-        m × 12 corrections Δx, Δy per unit of each AP, dimensionless (the APs are in image units).
-    Fxu, Fxv, Fyu, Fyv : numpy.ndarray
-        m × 12 derivatives ∂Fx/∂u, ∂Fx/∂v, ∂Fy/∂u, ∂Fy/∂v, dimensionless.
+    Fx : numpy.ndarray
+        m × 12 corrections Δx per unit of each AP, dimensionless (the APs are in image units).
+    Fy : numpy.ndarray
+        m × 12 corrections Δy per unit of each AP, dimensionless.
+    Fxu : numpy.ndarray
+        m × 12 derivatives ∂Fx/∂u, dimensionless.
+    Fxv : numpy.ndarray
+        m × 12 derivatives ∂Fx/∂v, dimensionless.
+    Fyu : numpy.ndarray
+        m × 12 derivatives ∂Fy/∂u, dimensionless.
+    Fyv : numpy.ndarray
+        m × 12 derivatives ∂Fy/∂v, dimensionless.
     """
     u = np.asarray(u, dtype=float)
     v = np.asarray(v, dtype=float)

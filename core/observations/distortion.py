@@ -43,10 +43,16 @@ def brown(u, v, k1, k2, k3, p1, p2):
 
     Returns
     -------
-    du, dv : float or numpy.ndarray
-        Δu, Δv, same unit as u, v.
-    J00, J01, J11 : float or numpy.ndarray
-        Entries of J, dimensionless.
+    du : float or numpy.ndarray
+        Δu, same unit as u.
+    dv : float or numpy.ndarray
+        Δv, same unit as v.
+    J00 : float or numpy.ndarray
+        ∂(u + Δu)/∂u, dimensionless.
+    J01 : float or numpy.ndarray
+        ∂(u + Δu)/∂v = ∂(v + Δv)/∂u, dimensionless.
+    J11 : float or numpy.ndarray
+        ∂(v + Δv)/∂v, dimensionless.
     """
     r2 = u * u + v * v
     r4 = r2 * r2

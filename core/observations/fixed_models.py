@@ -246,10 +246,18 @@ def fixed_distortion_scalar(code, d, u, v):
 
     Returns
     -------
-    ud, vd : float
-        The distorted point, dimensionless.
-    J00, J01, J10, J11 : float
-        Entries of J = ∂(u_d, v_d)/∂(u, v), dimensionless.
+    ud : float
+        u_d, dimensionless.
+    vd : float
+        v_d, dimensionless.
+    J00 : float
+        ∂u_d/∂u, dimensionless.
+    J01 : float
+        ∂u_d/∂v, dimensionless.
+    J10 : float
+        ∂v_d/∂u, dimensionless.
+    J11 : float
+        ∂v_d/∂v, dimensionless.
     """
     return _distort(code, d, u, v)
 
@@ -270,10 +278,18 @@ def fixed_distortion(code: int, d, u: np.ndarray, v: np.ndarray):
 
     Returns
     -------
-    ud, vd : numpy.ndarray
-        The distorted points, dimensionless.
-    J00, J01, J10, J11 : numpy.ndarray
-        Entries of J = ∂(u_d, v_d)/∂(u, v), dimensionless.
+    ud : numpy.ndarray
+        u_d, dimensionless.
+    vd : numpy.ndarray
+        v_d, dimensionless.
+    J00 : numpy.ndarray
+        ∂u_d/∂u, dimensionless.
+    J01 : numpy.ndarray
+        ∂u_d/∂v, dimensionless.
+    J10 : numpy.ndarray
+        ∂v_d/∂u, dimensionless.
+    J11 : numpy.ndarray
+        ∂v_d/∂v, dimensionless.
     """
     u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -91,8 +91,14 @@ def R_opk_derivatives(omega, phi, kappa) -> tuple[np.ndarray, np.ndarray, np.nda
 
     Returns
     -------
-    R, dR_domega, dR_dphi, dR_dkappa : numpy.ndarray
-        Each (..., 3, 3); R dimensionless, the derivatives per radian.
+    R : numpy.ndarray
+        (..., 3, 3), dimensionless.
+    dR_domega : numpy.ndarray
+        ∂R/∂ω (..., 3, 3), per radian.
+    dR_dphi : numpy.ndarray
+        ∂R/∂φ (..., 3, 3), per radian.
+    dR_dkappa : numpy.ndarray
+        ∂R/∂κ (..., 3, 3), per radian.
     """
     omega, phi, kappa = (np.asarray(a, dtype=float) for a in (omega, phi, kappa))
     Rw, Rp, Rk = _rx(omega), _ry(phi), _rz(kappa)
@@ -112,8 +118,12 @@ def opk_from_R(R) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     Returns
     -------
-    omega, phi, kappa : numpy.ndarray
-        Angles (...), radians.
+    omega : numpy.ndarray
+        ω (...), radians.
+    phi : numpy.ndarray
+        φ (...), radians, in [−π/2, π/2].
+    kappa : numpy.ndarray
+        κ (...), radians.
     """
     R = np.asarray(R, dtype=float)
     phi = np.arcsin(np.clip(R[..., 0, 2], -1.0, 1.0))
