@@ -10,7 +10,7 @@ $(BIN)/python:
 	$(BIN)/pip install -q --upgrade pip
 
 install: $(BIN)/python
-	$(BIN)/pip install -q -e ".[dashboard,test,browser,fast]"
+	$(BIN)/pip install -q -e ".[dashboard,test,browser,fast,batch]"
 
 # Analyse the bundled demo block and write a report to out/
 demo: install
