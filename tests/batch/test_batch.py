@@ -1,0 +1,219 @@
+"""``baarda batch`` on Dask (issue 30): a real ``dask scheduler`` with two ``dask worker``
+processes on 127.0.0.1, and the default local cluster, each on a mixed set of blocks (demo
+files, a Gama network and a BAL problem of ../shared/extdata, a malformed file, a file that does
+not converge); every row and every block's JSON compared with the serial ``baarda analyze
+--json`` of the file, bit for bit (but the timings); a worker killed in the middle of a batch.
+The processes started here are bounded by timeouts and stopped by the test."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.extdata import EXTDATA, require_extdata
+
+distributed = pytest.importorskip("distributed", reason="the batch extra (dask[distributed]) is not installed")
+
+from baarda import batch, cli  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+BIN = Path(sys.executable).parent
+MALFORMED = ROOT / "tests" / "malformed" / "bal-garbage.txt"
+NUMBERS = [c for c in batch.COLUMNS if c not in ("file", "format", "status", "error", "json", "time_s",
+                                                  "peak_memory_mb")]
+
+
+def wait_for(condition, timeout: float, what: str, every: float = 0.05):
+    """Poll ``condition`` until it is truthy (its value returned); fail after ``timeout`` s."""
+    end = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > end:
+            pytest.fail(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(every)
+
+
+@pytest.fixture(scope="module")
+def blocks(tmp_path_factory):
+    """The mixed set: (path, kind) with kind ok, error (malformed) or not-converged."""
+    require_extdata()
+    d = tmp_path_factory.mktemp("blocks")
+    benning = EXTDATA / "gama" / "krumm" / "2D" / "Benning82_Distance_fix.gkf"
+    nonconv = d / "inconsistent.gkf"           # a distance of 50 km in a 1 km square: Gauss-Newton never settles
+    nonconv.write_text(benning.read_text().replace('val="1000.02"', 'val="50000"'))
+    return [(ROOT / "data" / "demo-levelling.gkf", "ok"), (ROOT / "data" / "demo-imodel.json", "ok"),
+            (ROOT / "data" / "demo-block.json", "ok"), (benning, "ok"), (EXTDATA / "gama" / "cube-1.gkf", "ok"),
+            (EXTDATA / "bal" / "dubrovnik-3-7-pre.txt", "ok"), (MALFORMED, "error"),
+            (nonconv, "not-converged")]
+
+
+@pytest.fixture(scope="module")
+def serial(blocks, tmp_path_factory):
+    """The serial ``baarda analyze --json`` of each file: {path: (exit status, document or None, stderr)}."""
+    d = tmp_path_factory.mktemp("serial")
+    out = {}
+    for k, (path, _) in enumerate(blocks):
+        js = d / f"{k}.json"
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err):
+            code = cli.main(["analyze", str(path), "--json", str(js), "--quiet"])
+        out[str(path)] = (code, json.loads(js.read_text()) if js.exists() else None, err.getvalue())
+    return out
+
+
+def start(args, log: Path, env=None):
+    return subprocess.Popen([str(BIN / "dask"), *map(str, args)], stdout=log.open("wb"), stderr=subprocess.STDOUT,
+                            env=env, start_new_session=True)
+
+
+def stop(procs):
+    for p in procs:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGTERM)
+    for p in procs:
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def scheduler(tmp_path_factory):
+    """``dask scheduler`` and two ``dask worker`` (one thread each) on 127.0.0.1: its address.
+    allowed-failures 1, as README's "Batches" sets it: a task that kills two workers is reported."""
+    d = tmp_path_factory.mktemp("dask")
+    sfile = d / "scheduler.json"
+    env = {**os.environ, "DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "1"}
+    procs = []
+    try:
+        procs.append(start(["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                            "--scheduler-file", sfile], d / "scheduler.log", env))
+
+        def address():
+            try:
+                return json.loads(sfile.read_text())["address"]
+            except (OSError, ValueError, KeyError):
+                return None
+        addr = wait_for(address, 60, "the scheduler's address")
+        for i in range(2):
+            procs.append(start(["worker", addr, "--nthreads", "1", "--nworkers", "1", "--host", "127.0.0.1",
+                                "--no-dashboard", "--memory-limit", "2GB", "--name", f"w{i}"], d / f"worker{i}.log", env))
+        with distributed.Client(addr, timeout="30s") as client:
+            client.wait_for_workers(2, timeout=120)
+        yield addr, d
+    finally:
+        stop(procs)
+
+
+def read_rows(out: Path) -> dict:
+    with (out / "summary.csv").open(newline="", encoding="utf-8") as fh:
+        return {r["file"]: r for r in csv.DictReader(fh)}
+
+
+def as_csv(v) -> str:
+    return "" if v is None else repr(v) if isinstance(v, float) else str(v)
+
+
+def without_timings(doc):
+    doc = json.loads(json.dumps(doc))
+    doc["summary"].pop("timings", None)
+    return doc
+
+
+def check_against_serial(out: Path, blocks, serial):
+    """Every row of summary.csv and every block's JSON equal the serial run's."""
+    rows = read_rows(out)
+    assert list(rows) == [str(p) for p, _ in blocks]           # one row per input file, in order
+    for path, kind in blocks:
+        row, (code, doc, err) = rows[str(path)], serial[str(path)]
+        assert row["status"] == kind, (path, row)
+        if kind == "error":
+            assert code == 2 and err.strip() == f"baarda: error: {row['error']}"
+            assert row["json"] == "" and all(row[c] == "" for c in NUMBERS)
+            continue
+        assert code == (0 if kind == "ok" else cli.NOT_CONVERGED)
+        assert (row["error"] == "") == (kind == "ok")
+        expected = batch.summary_row(doc)
+        for c in expected:                                      # the numbers bit for bit (repr round trip)
+            assert row[c] == as_csv(expected[c]), (path, c, row[c], expected[c])
+        mine = json.loads((out / row["json"]).read_text())
+        assert without_timings(mine) == without_timings(doc)
+        assert float(row["time_s"]) > 0 and float(row["peak_memory_mb"]) > 10
+    html = (out / "index.html").read_text()
+    assert f"{sum(k == 'ok' for _, k in blocks)} of {len(blocks)} blocks" in html
+
+
+def run_cli(args, timeout=240):
+    return subprocess.run([str(BIN / "baarda"), "batch", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, cwd=ROOT)
+
+
+def test_batch_on_a_dask_scheduler_equals_the_serial_runs(blocks, serial, scheduler, tmp_path):
+    scheduler, _ = scheduler
+    out = tmp_path / "out"
+    res = run_cli([*(p for p, _ in blocks), "--out", out, "--scheduler", scheduler])
+    assert res.returncode == 1, res.stderr                     # not every file worked
+    assert "Traceback" not in res.stderr and "on 2 worker(s)" in res.stderr
+    check_against_serial(out, blocks, serial)
+    pq = pytest.importorskip("pyarrow.parquet")
+    table = pq.read_table(out / "summary.parquet").to_pylist()
+    assert [r["file"] for r in table] == [str(p) for p, _ in blocks]
+    assert [r["omega"] for r in table] == [serial[str(p)][1] and serial[str(p)][1]["summary"]["omega"]
+                                           for p, _ in blocks]
+
+
+def test_batch_on_the_local_cluster_equals_the_serial_runs_and_a_rerun_skips_them(blocks, serial, tmp_path):
+    out = tmp_path / "out"
+    res = run_cli([*(p for p, _ in blocks), "--out", out, "--workers", "2"])
+    assert res.returncode == 1, res.stderr
+    assert "dashboard http://127.0.0.1:" in res.stderr and "Traceback" not in res.stderr
+    check_against_serial(out, blocks, serial)
+    before = (out / "summary.csv").read_text()
+    err = io.StringIO()                                         # every block done: no cluster, same summary
+    code, _ = batch.run_batch([p for p, _ in blocks], out, batch.options_of(cli.build_parser().parse_args(
+        ["batch", "x"])), stream=err)
+    assert code == 1 and "nothing to analyse" in err.getvalue()
+    assert (out / "summary.csv").read_text() == before
+
+
+def test_a_worker_killed_mid_batch_and_the_batch_completes(blocks, serial, scheduler, tmp_path):
+    """SIGKILL to a worker process while it runs a block: the nanny starts a new one, the
+    scheduler gives the block to a worker again (allowed-failures 1), every file works."""
+    scheduler, logs = scheduler
+    good = [(p, k) for p, k in blocks if k == "ok"]
+    out = tmp_path / "out"
+    with distributed.Client(scheduler, timeout="30s") as client:
+        proc = subprocess.Popen([str(BIN / "baarda"), "batch", *map(str, (p for p, _ in good)), "--out", str(out),
+                                 "--scheduler", scheduler], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, cwd=ROOT)
+        try:
+            busy = wait_for(lambda: {w: k for w, k in client.processing().items() if k}, 120,
+                            "a worker running a block")
+            victim, keys = next(iter(busy.items()))
+            pid = client.run(os.getpid, workers=[victim])[victim]
+            os.kill(pid, signal.SIGKILL)
+            _, err = proc.communicate(timeout=240)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        assert proc.returncode == 0, err
+        check_against_serial(out, good, serial)
+        # the block the killed worker held was given out again: two "processing" in its story
+        story = client.story(*keys)
+        to_processing = [sum(1 for t in story if key in t and t[t.index(key) + 2] == "processing") for key in keys]
+        assert max(to_processing) >= 2, story
+    assert any(f"Worker process {pid} was killed by signal 9" in log.read_text() for log in logs.glob("worker*.log"))
