@@ -26,6 +26,7 @@ import hashlib
 import html
 import io
 import json
+import logging
 import math
 import os
 import resource
@@ -341,8 +342,6 @@ def local_cluster(workers: int | None = None, memory_limit="auto"):
     single-threaded worker processes with ``memory_limit`` each (Dask's ``"auto"``: the memory
     shared out), the dashboard on a free port, a task that kills two workers reported as such
     (allowed-failures 1)."""
-    import logging
-
     import dask
     from distributed import LocalCluster
     n = workers or os.cpu_count() or 1
