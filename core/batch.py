@@ -352,11 +352,12 @@ def local_cluster(workers: int | None = None, memory_limit="auto"):
 
 
 def run_batch(specs, out, options: dict, *, scheduler: str | None = None, workers: int | None = None,
-              memory_limit="auto", quiet: bool = False, stream=None) -> tuple[int, list[dict]]:
+              memory_limit="auto", quiet: bool = False, stream=None, task=None) -> tuple[int, list[dict]]:
     """Analyse every block of ``specs`` (:func:`expand`) on Dask and write the results under ``out``
     (module docstring). Returns ``(exit status, rows)``: 0 when every file worked (read, adjusted,
     converged), 1 otherwise. KeyboardInterrupt (and the CLI's SIGTERM) cancel the tasks, write the
-    summary of what is done (the rest marked ``interrupted``) and propagate."""
+    summary of what is done (the rest marked ``interrupted``) and propagate. ``task``: the function
+    run per block (default :func:`analyze_block`; the tests give one that kills its worker)."""
     from distributed import Client, as_completed
     stream = stream if stream is not None else sys.stderr
     files = expand(specs)
@@ -382,7 +383,7 @@ def run_batch(specs, out, options: dict, *, scheduler: str | None = None, worker
                 print(printable(f"baarda: batch: {len(todo)} block(s) to analyse ({len(files) - len(todo)} done "
                                 f"before) on {len(client.scheduler_info().get('workers', {}))} worker(s); "
                                 f"dashboard {client.dashboard_link}"), file=stream)
-            futures = {client.submit(analyze_block, f, options, key=f"baarda-{block_name(f)}", pure=False): f
+            futures = {client.submit(task or analyze_block, f, options, key=f"baarda-{block_name(f)}", pure=False): f
                        for f in todo}
             for fut in as_completed(futures):
                 f = futures[fut]
@@ -394,8 +395,9 @@ def run_batch(specs, out, options: dict, *, scheduler: str | None = None, worker
                 bar.step(rows[f])
     except BaseException:
         bar.close()
-        for f in files:
-            rows.setdefault(f, _fault_row(f, "interrupted", "interrupted before it finished"))
+        for f in files:                   # what was saved before the interruption is done
+            if f not in rows:
+                rows[f] = _done_row(out, f, stamps[f]) or _fault_row(f, "interrupted", "interrupted before it finished")
         write_summary(out, [rows[f] for f in files], stream)
         raise
     finally:

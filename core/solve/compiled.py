@@ -30,16 +30,18 @@ class Deferred:
     helper of a kernel compiled by :func:`njit`)."""
 
     def __init__(self, fn, options: dict):
-        self.fn, self.options, self._dispatcher = fn, options, None
+        self.fn, self.options, self._dispatcher, self._busy = fn, options, None, False
         self.__doc__, self.__name__ = fn.__doc__, fn.__name__
 
     def dispatcher(self):
         """The numba dispatcher (compiling the helpers it calls first)."""
         if self._dispatcher is None:
-            jit = numba.njit(**self.options)
-            self._dispatcher = jit          # (a helper calling itself: numba resolves it when compiling)
-            _resolve(self.fn)
-            self._dispatcher = jit(self.fn)
+            self._busy = True                # (a helper that calls itself is left to numba)
+            try:
+                _resolve(self.fn)
+                self._dispatcher = numba.njit(**self.options)(self.fn)
+            finally:
+                self._busy = False
         return self._dispatcher
 
     def __call__(self, *args, **kwargs):
@@ -64,7 +66,7 @@ def _resolve(fn) -> None:
         value = namespace.get(name)
         if value is prange:
             namespace[name] = numba.prange
-        elif isinstance(value, Deferred) and value._dispatcher is None:
+        elif isinstance(value, Deferred) and not value._busy:
             namespace[name] = value.dispatcher()
 
 

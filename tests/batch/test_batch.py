@@ -25,6 +25,7 @@ from tests.extdata import EXTDATA, require_extdata
 distributed = pytest.importorskip("distributed", reason="the batch extra (dask[distributed]) is not installed")
 
 from baarda import batch, cli  # noqa: E402
+from baarda.errors import UsageError  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
@@ -96,7 +97,8 @@ def scheduler(tmp_path_factory):
     allowed-failures 1, as README's "Batches" sets it: a task that kills two workers is reported."""
     d = tmp_path_factory.mktemp("dask")
     sfile = d / "scheduler.json"
-    env = {**os.environ, "DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "1"}
+    env = {**os.environ, "DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "1",
+           "PYTHONPATH": str(ROOT)}            # (the test's own task, `crashing`, imported by name there)
     procs = []
     try:
         procs.append(start(["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
@@ -217,3 +219,73 @@ def test_a_worker_killed_mid_batch_and_the_batch_completes(blocks, serial, sched
         to_processing = [sum(1 for t in story if key in t and t[t.index(key) + 2] == "processing") for key in keys]
         assert max(to_processing) >= 2, story
     assert any(f"Worker process {pid} was killed by signal 9" in log.read_text() for log in logs.glob("worker*.log"))
+
+
+def crashing(path, options):
+    """A task that kills its worker process for a file named crash*; else the batch's own."""
+    if Path(path).name.startswith("crash"):
+        os._exit(3)
+    return batch.analyze_block(path, options)
+
+
+def test_ctrl_c_keeps_what_is_done_and_a_rerun_does_the_rest(blocks, serial, scheduler, tmp_path, monkeypatch):
+    scheduler, _ = scheduler
+    good = [(p, k) for p, k in blocks if k == "ok"][:3]
+    out = tmp_path / "out"
+    save = batch._save
+
+    def save_then_interrupt(*a, **kw):
+        row = save(*a, **kw)
+        raise KeyboardInterrupt
+    monkeypatch.setattr(batch, "_save", save_then_interrupt)
+    options = batch.options_of(cli.build_parser().parse_args(["batch", "x"]))
+    with pytest.raises(KeyboardInterrupt):
+        batch.run_batch([p for p, _ in good], out, options, scheduler=scheduler, quiet=True)
+    rows = read_rows(out)
+    assert sorted(r["status"] for r in rows.values()) == ["interrupted", "interrupted", "ok"]
+    monkeypatch.setattr(batch, "_save", save)
+    err = io.StringIO()
+    code, _ = batch.run_batch([p for p, _ in good], out, options, scheduler=scheduler, stream=err)
+    assert code == 0 and "2 block(s) to analyse (1 done before)" in err.getvalue()
+    check_against_serial(out, good, serial)
+
+
+def test_a_block_that_kills_two_workers_is_a_row(scheduler, tmp_path):
+    """allowed-failures 1: the block is given to a second worker once, then reported."""
+    scheduler, _ = scheduler
+    crash = tmp_path / "crash.gkf"
+    crash.write_text((ROOT / "data" / "demo-levelling.gkf").read_text())
+    options = batch.options_of(cli.build_parser().parse_args(["batch", "x"]))
+    code, rows = batch.run_batch([crash, ROOT / "data" / "demo-levelling.gkf"], tmp_path / "out", options,
+                                 scheduler=scheduler, quiet=True, task=crashing)
+    assert code == 1
+    assert rows[0]["status"] == "killed" and "killed its worker twice" in rows[0]["error"]
+    assert rows[1]["status"] == "ok" and rows[1]["error"] == ""
+    with distributed.Client(scheduler, timeout="30s") as client:    # the nannies start new workers
+        client.wait_for_workers(2, timeout=120)
+
+
+def test_inputs_files_globs_and_folders(tmp_path):
+    for name in ("a.gkf", "b.json", "b.truth.json", "c.txt.bz2", "notes.md"):
+        (tmp_path / name).write_text("x")
+    (tmp_path / "model").mkdir()
+    (tmp_path / "model" / "cameras.txt").write_text("x")
+    got = batch.expand([tmp_path, str(tmp_path / "*.gkf"), tmp_path / "b.json"])
+    assert [Path(p).name for p in got] == ["a.gkf", "b.json", "c.txt.bz2", "model"]   # each once, in order
+    with pytest.raises(UsageError, match="nothing matches"):
+        batch.expand([str(tmp_path / "*.xyz")])
+    assert batch.block_name("x/problem.txt") != batch.block_name("y/problem.txt")
+
+
+def test_overview_and_summary_are_text_never_markup(tmp_path):
+    evil = '<script>alert(1)</script>\x1b[31m.gkf'
+    rows = [batch._fault_row(evil, "error", f"{evil}:1: =HYPERLINK(\"x\") bad <b>")]
+    rows[0]["json"] = 'blocks/"><img src=x>.json'
+    batch.write_summary(tmp_path, rows)
+    page = (tmp_path / "index.html").read_text()
+    assert "<script>" not in page and "<b>" not in page and "<img" not in page and "\x1b" not in page
+    assert "&lt;script&gt;" in page
+    text = (tmp_path / "summary.csv").read_text()
+    assert "\x1b" not in text and "'=HYPERLINK" not in text       # the error starts with the file name
+    cell = list(csv.DictReader(io.StringIO(text)))[0]
+    assert cell["file"].startswith("<script>") and cell["status"] == "error"
