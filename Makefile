@@ -39,6 +39,7 @@ bench: install
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_blocks
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_dashboard
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_load
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_batch
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

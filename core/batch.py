@@ -64,7 +64,7 @@ def expand(specs) -> list[str]:
     for spec in specs:
         spec = str(spec)
         if any(c in spec for c in "*?["):
-            found = sorted(glob.glob(spec))
+            found = sorted(glob.glob(spec, recursive=True))
         elif os.path.isdir(spec):
             found = [spec] if _is_colmap(spec) else sorted(
                 os.path.join(spec, e) for e in os.listdir(spec) if _is_block_name(os.path.join(spec, e)))
@@ -337,6 +337,17 @@ class _Progress:
             print(file=self.stream)
 
 
+def dask_client():
+    """distributed's ``Client`` and ``as_completed``; a :class:`UsageError` saying how to install
+    them where the batch extra is missing."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise UsageError("this command needs Dask distributed: pip install 'dask[distributed]' "
+                         "(make install does: the extra batch)") from None
+    return Client, as_completed
+
+
 def local_cluster(workers: int | None = None, memory_limit="auto"):
     """A :class:`distributed.LocalCluster` on 127.0.0.1: ``workers`` (default: the cores)
     single-threaded worker processes with ``memory_limit`` each (Dask's ``"auto"``: the memory
@@ -358,7 +369,7 @@ def run_batch(specs, out, options: dict, *, scheduler: str | None = None, worker
     converged), 1 otherwise. KeyboardInterrupt (and the CLI's SIGTERM) cancel the tasks, write the
     summary of what is done (the rest marked ``interrupted``) and propagate. ``task``: the function
     run per block (default :func:`analyze_block`; the tests give one that kills its worker)."""
-    from distributed import Client, as_completed
+    Client, as_completed = dask_client()
     stream = stream if stream is not None else sys.stderr
     files = expand(specs)
     out = Path(out)

@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from .analysis import analyze
-from .batch import local_cluster
+from .batch import dask_client, local_cluster
 from .build import build
 from .errors import BaardaError, InputError
 from .io.output import csv_cell, write_text
@@ -233,7 +233,7 @@ def run_study(study: dict, out=None, *, scheduler: str | None = None, workers: i
         for i, k, seed in jobs:
             results[(i, k)] = replicate(grid[i], study, sizes[i], seed)
     else:
-        from distributed import Client, as_completed
+        Client, as_completed = dask_client()
         cluster = None if scheduler else local_cluster(workers)
         try:
             with Client(scheduler or cluster, timeout="30s") as client:

@@ -38,7 +38,6 @@ MODULES = {module_name(p): p for p in [*sorted(CORE.rglob("*.py")), *sorted(DASH
 LAZY_ALLOWED = {("baarda.solve.compiled", "numba"), ("baarda.cli", "baarda.dashboard"),
                 # the batch extra (Dask, pyarrow), imported by the commands that use it (issue 30)
                 ("baarda.batch", "dask"), ("baarda.batch", "distributed"), ("baarda.batch", "pyarrow"),
-                ("baarda.study", "distributed"),
                 ("baarda.analysis", "baarda.dashboard.notebook")}
 
 
