@@ -30,6 +30,7 @@ import logging
 import math
 import os
 import resource
+import secrets
 import sys
 import time
 from dataclasses import asdict
@@ -386,15 +387,23 @@ def run_batch(specs, out, options: dict, *, scheduler: str | None = None, worker
     todo = [f for f in files if f not in rows]
     bar = _Progress(len(files), stream, show=not quiet and stream.isatty())
     cluster = client = None
+    if todo:
+        cluster = None if scheduler else local_cluster(workers, memory_limit)
+        try:
+            client = Client(scheduler if scheduler else cluster, timeout="30s")
+        except (OSError, TimeoutError) as err:
+            if cluster is not None:
+                cluster.close()
+            raise UsageError(f"batch: cannot reach the Dask scheduler {printable(scheduler or '')}: {err}") from None
+    run = secrets.token_hex(4)           # task keys of this run: never another run's results
     try:
         if todo:
-            cluster = None if scheduler else local_cluster(workers, memory_limit)
-            client = Client(scheduler if scheduler else cluster, timeout="30s")
             if not quiet:
                 print(printable(f"baarda: batch: {len(todo)} block(s) to analyse ({len(files) - len(todo)} done "
                                 f"before) on {len(client.scheduler_info().get('workers', {}))} worker(s); "
                                 f"dashboard {client.dashboard_link}"), file=stream)
-            futures = {client.submit(task or analyze_block, f, options, key=f"baarda-{block_name(f)}", pure=False): f
+            futures = {client.submit(task or analyze_block, f, options, key=f"baarda-{block_name(f)}-{run}",
+                                     pure=False): f
                        for f in todo}
             for fut in as_completed(futures):
                 f = futures[fut]
