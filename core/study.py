@@ -51,6 +51,7 @@ from .lazy import lazy
 from .simulate import check_recipe, simulate_block
 from .stats.policy import TestPolicy
 from .text import printable
+from .threads import limit_native_threads
 
 stats = lazy("scipy.stats")
 
@@ -156,6 +157,7 @@ def planted_error(recipe: dict, study: dict) -> dict:
 
 def replicate(recipe: dict, study: dict, planted: dict, seed: int) -> dict:
     """One replicate: the block without and with the planted error, analysed and scored."""
+    limit_native_threads()
     t0 = time.perf_counter()
     policy = TestPolicy(alpha0=study["alpha"], beta0=study["beta"], sigma0="apriori")
     clean, _ = _analyse({**recipe, "errors": [], "seed": seed}, policy)
