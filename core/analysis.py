@@ -28,11 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-try:                        # optional: Analysis.records(frame=True)
-    import pandas as pd
-except ImportError:         # pragma: no cover - pandas comes with the dashboard extra
-    pd = None
-
+from .lazy import installed, lazy
 from .adjust import Options, adjust
 from .build import read_problem
 from .datum import split_normal
@@ -48,6 +44,9 @@ from .stats import analyses, hypotheses, misidentification, precision, risk, rob
 from .stats.ap_tests import ap_test
 from .stats.policy import TestPolicy
 from .stats.reliability import Reliability
+
+# optional, imported when first used: Analysis.records(frame=True) (pandas comes with the dashboard extra)
+pd = lazy("pandas") if installed("pandas") else None
 
 #: The methods of the adjustment (:class:`baarda.adjust.Options`).
 METHODS = ("auto", "gauss-newton", "levenberg-marquardt")

@@ -1,5 +1,5 @@
 """Native thread pools of the processes baarda runs in: the command line, the server it starts
-(and, later, batch workers)."""
+and the Dask workers of ``baarda batch`` / ``study`` (each task limits its process's pool first)."""
 
 from __future__ import annotations
 

@@ -265,19 +265,26 @@ def dump_json(doc: dict, path) -> None:
     points, groups, ...) one record per line, everything else indented. (json's indenting
     encoder is pure Python, ~6 µs per value: 40 s for BAL Dubrovnik's 167,000 observations; the
     compact one per record is compiled.)"""
-    compact = json.JSONEncoder(allow_nan=False, ensure_ascii=True, separators=(", ", ": "))
     with atomic_write(path) as fh:
-        fh.write("{")
-        for k, (key, val) in enumerate(doc.items()):
-            fh.write(("," if k else "") + "\n " + json.dumps(str(key)) + ": ")
-            if isinstance(val, Records) or (isinstance(val, list) and val and all(isinstance(v, dict) for v in val)):
-                fh.write("[")
-                for i, rec in enumerate(val):
-                    fh.write(("," if i else "") + "\n  " + compact.encode(rec))
-                fh.write("\n ]")
-            else:
-                fh.write(json.dumps(val, indent=1, allow_nan=False).replace("\n", "\n "))
-        fh.write("\n}\n")
+        for chunk in json_chunks(doc):
+            fh.write(chunk)
+
+
+def json_chunks(doc: dict):
+    """The text of :func:`dump_json` in pieces (``"".join`` of them is the file's text: a batch
+    worker sends it to the client, which writes it)."""
+    compact = json.JSONEncoder(allow_nan=False, ensure_ascii=True, separators=(", ", ": "))
+    yield "{"
+    for k, (key, val) in enumerate(doc.items()):
+        yield ("," if k else "") + "\n " + json.dumps(str(key)) + ": "
+        if isinstance(val, Records) or (isinstance(val, list) and val and all(isinstance(v, dict) for v in val)):
+            yield "["
+            for i, rec in enumerate(val):
+                yield ("," if i else "") + "\n  " + compact.encode(rec)
+            yield "\n ]"
+        else:
+            yield json.dumps(val, indent=1, allow_nan=False).replace("\n", "\n ")
+    yield "\n}\n"
 
 
 def write_csv(adj, directory, doc=None) -> list[Path]:
