@@ -506,7 +506,7 @@ class Analysis:
             def risk_of(i, r=r):
                 d = {k: results.finite(float(getattr(r, k)[i])) for k in ("lam_tol", "C", "alpha", "beta", "r_C")}
                 return {"risk": {**d, "rejected": bool(r.rejected[i])}}
-            doc["observations"].add(risk_of)
+            doc["observations"].add(risk_of, lambda r=r: results.risk_fields(r, self.adjustment.n))
         exchanges = [self.exchange(spec, both) for spec, both in ex.exchanges]
         if exchanges:
             doc["exchange_tests"] = [e.as_dict() for e in exchanges]
