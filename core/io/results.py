@@ -324,13 +324,18 @@ def groups(adj, reliability=None) -> Records:
             flat, p, real = lists[key]
 
             def values(sl):
-                vals = columns_.num_values(flat) if real else flat.tolist()
-                return [vals[a:b] for a, b in zip(p[sl].tolist(), p[1:][sl].tolist())]
+                a0, b0 = int(p[sl.start]), int(p[sl.stop])
+                vals = columns_.num_values(flat[a0:b0]) if real else flat[a0:b0].tolist()
+                return [vals[a - a0:b - a0] for a, b in zip(p[sl].tolist(), p[1:][sl].tolist())]
 
             def text(sl):
                 a0, b0 = int(p[sl.start]), int(p[sl.stop])
-                part = flat[a0:b0]
-                t = columns_.num_texts(part) if real else list(map(str, part.tolist()))
+                t = columns_.num_texts(flat[a0:b0]) if real else list(map(str, flat[a0:b0].tolist()))
+                size = np.diff(p[sl.start:sl.stop + 1])
+                if size.size and (size == size[0]).all():      # lists of one length (q = 2 of image points)
+                    k = int(size[0])
+                    return list(map(("[" + ", ".join(["%s"] * k) + "]").__mod__, zip(*(t[j::k] for j in range(k))))) \
+                        if k else ["[]"] * size.size
                 return ["[" + ", ".join(t[a - a0:b - a0]) + "]" for a, b in zip(p[sl].tolist(), p[1:][sl].tolist())]
             return F(key, "obj", values, text=text)
         f = [F("group", "int", np.asarray(gs.group, dtype=np.int64)), listed("members")]
