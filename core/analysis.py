@@ -33,7 +33,7 @@ try:                        # optional: Analysis.records(frame=True)
 except ImportError:         # pragma: no cover - pandas comes with the dashboard extra
     pd = None
 
-from .adjust import Options, adjust
+from .adjust import STOPS, Options, adjust
 from .build import read_problem
 from .datum import split_normal
 from .errors import BaardaError, DatumDefectError, InputError, OptionError, UsageError
@@ -74,6 +74,10 @@ class SolverOptions:
         Point elimination through the reduced camera system, or one sparse Cholesky of N.
     backend : {"numba", "numpy"} or None
         The pair loops of the Schur path (None: numba when installed). Same numbers either way.
+    stop : {"optimum", "ceres"}
+        The stopping rule: the strict optimum (default; the reliability is computed there) or
+        Ceres Solver's at its defaults (function tolerance 1e-6 relative: the cost to about
+        1e-6 in Ceres's time; :class:`baarda.adjust.Options`).
 
     Raises
     ------
@@ -86,6 +90,7 @@ class SolverOptions:
     method: str = "auto"
     solver: str = "auto"
     backend: str | None = None
+    stop: str = "optimum"
 
     def __post_init__(self):
         if not (isinstance(self.tol, (int, float)) and 0 < float(self.tol) < 1):
@@ -98,12 +103,15 @@ class SolverOptions:
             raise OptionError("solver", self.solver, SOLVERS)
         if self.backend not in (None, "numba", "numpy"):
             raise OptionError("backend", self.backend, ("numba", "numpy"))
+        if self.stop not in STOPS:
+            raise OptionError("stop", self.stop, STOPS)
 
     def options(self, policy: TestPolicy) -> Options:
         """The :class:`baarda.adjust.Options` of these solver options and ``policy``."""
         return Options(alpha0=policy.alpha0, beta0=policy.beta0, b_method=policy.b_method, tol=float(self.tol),
                        max_iter=int(self.max_iter), solver=self.solver, backend=self.backend, method=self.method,
-                       sigma0=policy.sigma0, global_test=policy.global_test, conf_pr=policy.conf_pr)
+                       sigma0=policy.sigma0, global_test=policy.global_test, conf_pr=policy.conf_pr,
+                       stop=self.stop)
 
 
 @dataclass(frozen=True)
