@@ -8,6 +8,7 @@ import os
 from threadpoolctl import threadpool_limits
 
 from .errors import UsageError
+from .solve.compiled import numba
 
 
 def blas_threads() -> int:
@@ -28,8 +29,6 @@ def limit_worker_threads(n: int | None = None) -> int:
     :func:`limit_native_threads` per process): a served session's worker then uses one core,
     and one session's adjustment never starves the others. Returns the limit."""
     n = blas_threads() if n is None else int(n)
-    from .solve.compiled import numba
-
     if numba is not None:
         numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
     return n
