@@ -48,7 +48,7 @@ def main():
             t0 = cpu()
             a = analyze(path)
             doc = a.to_dict()
-            a.reliability.groups.R                   # (the derived group arrays: part of the analysis)
+            _ = a.reliability.groups.R               # (the derived group arrays: part of the analysis)
             t1 = cpu()
             results.write_json(a.adjustment, new, doc)
             t2 = cpu()

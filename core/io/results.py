@@ -208,8 +208,7 @@ def observations(adj, reliability=None) -> Records:
         f = [F("index", "int", np.arange(n, dtype=np.int64)), F("kind", "str", info.kind), *ids]
         num = {"value": info.value_file, "sigma": info.sigma_file, "sigma_si": sig, "residual": v, "redundancy": r,
                "u_k": u_k, "u_t": u_t, "w": w, "tau": tau, "mdb": mdb, "external": ext,
-               # ext[i] ** 2 as the records have it (libm's pow: a ** 2 of the array, x·x, differs in the last bit)
-               "lambda_bar": np.array([x ** 2 for x in np.asarray(ext, dtype=float).tolist()], dtype=float)}
+               "lambda_bar": _squares(ext)}
         for key in ("value", "unit", "sigma", "sigma_unit", "sigma_si", "line", "residual", "redundancy", "u_k",
                     "u_t", "w", "tau", "mdb", "external", "lambda_bar"):
             if key in num:
@@ -228,6 +227,16 @@ def observations(adj, reliability=None) -> Records:
             return None                  # an id named as another key: record by record
         return f
     return Records(adj.n, make, fields)
+
+
+def _squares(a) -> np.ndarray:
+    """a[i] ** 2 as each record has it (libm's pow; the array's a ** 2 is x·x, which differs in
+    the last bit), a chunk at a time (no list of millions of floats)."""
+    a = np.asarray(a, dtype=float)
+    out = np.empty(a.size)
+    for sl in columns_.chunks(a.size):
+        out[sl] = [x ** 2 for x in a[sl].tolist()]
+    return out
 
 
 def _id_fields(ids, n: int) -> list | None:

@@ -49,7 +49,7 @@ def _compare(analysis, extras, tmp_path, monkeypatch, columnar=("observations", 
     for table in ("observations", "points", "groups"):
         name = f"{table}.csv"
         assert (tmp_path / "new" / name).read_bytes() == (tmp_path / "old" / name).read_bytes(), name
-        _same_columns(results.columns(doc[table]), _per_record(monkeypatch, lambda: results.columns(old[table])))
+        _same_columns(results.columns(doc[table]), _per_record(monkeypatch, lambda t=table: results.columns(old[t])))
 
 
 @pytest.mark.parametrize("name, extras", [
