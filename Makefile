@@ -34,6 +34,7 @@ test-fast: install
 bench: install
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_solve
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_read
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_document
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_memory
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_network
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_blocks
