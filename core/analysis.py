@@ -39,8 +39,9 @@ from .datum import split_normal
 from .errors import BaardaError, DatumDefectError, InputError, OptionError, UsageError
 from . import truth
 from .io import read_truth, results
-from .io.analysis_text import extras_text, summary_html
+from .io.analysis_text import check_point_lines, extras_text, summary_html
 from .io.hypothesis import parse_hypothesis, read_hypothesis
+from .model.bundle import check_points as _check_points, has_check_points
 from .model.problem import without as problem_without
 from .network_defects import adjust_network
 from .sfm_defects import adjust_block
@@ -131,6 +132,12 @@ class Extras:
     variance_components: str | None = None
     merge_groups: str | None = None
     truth: str | None = None
+
+
+class _NoModel:
+    """A model without points (a network's analysis has no check points)."""
+
+    points = ()
 
 
 def _policy_for(problem, policy) -> TestPolicy:
@@ -334,6 +341,8 @@ class Analysis:
         """The result document (docs/json-schema.md) with what ``extras`` asks for; records of
         observations, points and groups are made when read (:class:`baarda.io.results.Records`)."""
         doc = results.to_dict(self.adjustment, self.reliability)
+        if has_check_points(self.problem.notes.local_model):
+            doc["check_points"] = results.finite(self.check_points())
         if extras is not None:
             self._add_extras(doc, extras)
         return doc
@@ -357,7 +366,17 @@ class Analysis:
     def text(self, top: int = 8, extras: Extras | None = None) -> str:
         """The text summary ``baarda analyze`` prints, with the lines of ``extras``."""
         head = results.text_summary(self.adjustment, top=top, reliability=self.reliability)
+        if has_check_points(self.problem.notes.local_model):
+            head = "\n".join([head, *check_point_lines(self.check_points())])
         return head if extras is None else "\n".join([head, *extras_text(self, extras, top)])
+
+    def check_points(self) -> dict:
+        """The check points (native ``status: check``, or ``role`` check in a control CSV): adjusted
+        minus known coordinates and the RMSE per axis (:func:`baarda.model.bundle.check_points`);
+        they never enter the adjustment. Empty (``n`` 0) for a model without them."""
+        model = self.problem.notes.local_model
+        return self._cached("check_points", lambda: _check_points(self.adjustment, model) if model is not None
+                            else _check_points(self.adjustment, _NoModel()))
 
     # -- computed on demand --------------------------------------------------------------------------
     def test(self, spec, label: str | None = None) -> dict:

@@ -529,6 +529,7 @@ def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
             xy=np.array(b.xy[keep], dtype=float),
             obs_line=np.array(np.asarray(b.obs_line)[keep]),
             control=tuple(cp for cp in b.control if cp.id in kept_ids),
+            check=tuple(cp for cp in b.check if cp.id in kept_ids),
             extra=extra)
 
     b = model

@@ -350,19 +350,40 @@ def control_rows(problem, point: str) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # check points
 # --------------------------------------------------------------------------------------------
-def check_points(adj, block: Block) -> dict:
-    """Differences adjusted − reference at the check points (m) and their RMS per axis.
+def check_points(adj, block) -> dict:
+    """Differences adjusted − reference at the check points and their RMS per axis.
 
-    Check points take part only through their image measurements (module docstring).
+    ``block``: a native :class:`Block` (points of status ``"check"`` with ``ref``) or an SfM
+    block (its ``check`` points, read from a control CSV's ``role`` column). Check points take
+    part only through their image measurements (module docstring): their adjusted coordinates
+    are intersected by the block like any tie point and compared with the known ones afterwards.
+    Returns ``{"points": [{id, ref, adjusted, diff, sigma, line}], "n", "rms", "mean", "max_abs"}``
+    (lengths in the block's object units; the statistics NaN per axis without check points).
     """
-    coords = adj.coordinates
+    coords, sig = adj.coordinates, adj.point_sigma
+    where = {str(pid): i for i, pid in enumerate(adj.problem.points.ids)}
+    if hasattr(block, "check"):                 # an SfM block
+        refs = [(cp.id, cp.xyz, cp.line) for cp in block.check]
+    else:
+        refs = [(p.id, p.ref, p.line) for p in block.points if p.status == "check" and p.ref is not None]
     rows = []
-    for i, p in enumerate(block.points):
-        if p.status != "check" or p.ref is None:
+    for pid, ref, line in refs:
+        i = where.get(str(pid))
+        if i is None:
             continue
-        d = coords[i] - np.asarray(p.ref)
-        rows.append({"id": p.id, "ref": list(p.ref), "adjusted": coords[i].tolist(), "diff": d.tolist(),
-                     "sigma": adj.point_sigma[i].tolist()})
-    diffs = np.array([r["diff"] for r in rows]).reshape(-1, 3)
-    rms = np.sqrt((diffs ** 2).mean(axis=0)).tolist() if rows else [float("nan")] * 3
-    return {"points": rows, "rms": rms}
+        d = coords[i] - np.asarray(ref, dtype=float)
+        rows.append({"id": pid, "ref": [float(v) for v in ref], "adjusted": coords[i].tolist(), "diff": d.tolist(),
+                     "sigma": sig[i].tolist(), "line": int(line)})
+    diffs = np.array([r["diff"] for r in rows], dtype=float).reshape(-1, 3)
+    nan3 = [float("nan")] * 3
+    return {"points": rows, "n": len(rows),
+            "rms": np.sqrt((diffs ** 2).mean(axis=0)).tolist() if rows else nan3,
+            "mean": diffs.mean(axis=0).tolist() if rows else nan3,
+            "max_abs": np.abs(diffs).max(axis=0).tolist() if rows else nan3}
+
+
+def has_check_points(block) -> bool:
+    """Whether ``block`` (a native or SfM block, or None) holds check points."""
+    if hasattr(block, "check"):                 # an SfM block: its points are ids
+        return bool(block.check)
+    return any(p.status == "check" for p in getattr(block, "points", ()))
