@@ -538,8 +538,9 @@ def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
     obs = ImageObservations(new_image[o.image[keep]].astype(np.int64), new_point[o.point[keep]].astype(np.int64),
                             np.array(o.xy[keep], dtype=float), np.array(o.cov[keep], dtype=float),
                             np.array(np.asarray(o.line)[keep]))
-    return b.replace(cameras=tuple(c for c in b.cameras if c.id in used_cams),
-                     images=tuple(im for k, im in enumerate(b.images) if image_on[k]),
+    images = tuple(im for k, im in enumerate(b.images) if image_on[k])
+    gnss = b.gnss.keep_images(im.id for im in images) if b.gnss is not None else None
+    return b.replace(cameras=tuple(c for c in b.cameras if c.id in used_cams), images=images, gnss=gnss,
                      points=tuple(b.points[i] for i in pts_kept), obs=obs,
                      sbase=tuple(s for s in b.sbase if s in kept_ids), extra=extra)
 

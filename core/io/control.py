@@ -40,7 +40,7 @@ OPTIONAL = ("role",)
 ROLES = ("control", "check")
 
 
-def _rows(path, text: str) -> list[tuple[int, list[str]]]:
+def csv_rows(path, text: str) -> list[tuple[int, list[str]]]:
     """The CSV records of ``text`` with the line each starts on, as spreadsheets write them: a
     UTF-8 byte-order mark, CR, LF or CRLF line ends, quoted fields (which may hold commas)."""
     if text.startswith("\ufeff"):
@@ -66,7 +66,7 @@ def _rows(path, text: str) -> list[tuple[int, list[str]]]:
 def read_control(path) -> list[ControlPoint]:
     """The control points of a CSV file (module docstring); InputError on any bad row."""
     text = read_text(path)
-    rows = [(ln, r) for ln, r in _rows(path, text)
+    rows = [(ln, r) for ln, r in csv_rows(path, text)
             if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
     if not rows:
         raise InputError(path, 1, "empty file: expected the header 'id,X,Y,Z,sx,sy,sz'")

@@ -35,6 +35,7 @@ from ..errors import NotFoundError, OptionError
 from ..observations.geodetic import LinearSet
 from ..observations.collinearity import AP_GROUPS, EO_NAMES, CollinearitySet
 from ..observations.rotation import R_opk
+from . import gnss
 from .geometry import BlockGeometry, CameraGeometry, ImageGeometry
 from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem, ProblemNotes, image_point_index
 
@@ -138,7 +139,9 @@ class Block:
     """A photogrammetric bundle block as read from a file (see the module docstring).
 
     datum: "control" (weighted control points) or "free" (inner constraints over ``sbase``,
-    point ids, empty = all points). sigma0: a priori σ0 (dimensionless).
+    point ids, empty = all points). sigma0: a priori σ0 (dimensionless). gnss: the GNSS
+    projection centres (:class:`baarda.model.gnss.GnssSpec`, or None); with them the datum is
+    "control" (GNSS centres and control points define it).
     """
 
     cameras: tuple[Camera, ...]
@@ -151,6 +154,7 @@ class Block:
     title: str = ""
     source: str = ""
     extra: dict = field(default_factory=dict)
+    gnss: object = None
 
     def replace(self, **changes) -> "Block":
         return replace(self, **changes)
@@ -200,6 +204,10 @@ def build_block_problem(block: Block) -> Problem:
             groups.append((g, idx))
             ap_groups[f"{cam.id}:{g}"] = [pl.labels[i] for i in idx]
         ap_idx[cam.id] = tuple(groups)
+    gnss_layout = None
+    if block.gnss is not None and block.gnss.centres:
+        gnss_layout, gnss_groups = gnss.add_parameters(pl, block)
+        ap_groups.update(gnss_groups)
     index = np.full((len(block.points), 3), -1, dtype=np.int64)
     for i, p in enumerate(block.points):
         for a, (nm, val) in enumerate(zip("xyz", (p.X, p.Y, p.Z))):
@@ -270,6 +278,10 @@ def build_block_problem(block: Block) -> Problem:
     if ctrl_rows:
         sets.append(LinearSet("coordinate", np.array(ctrl_rows, dtype=np.int64),
                               np.full(len(ctrl_rows), -1, dtype=np.int64), np.array(ctrl_idx, dtype=np.int64)))
+    if gnss_layout is not None:
+        row, g = gnss.add_observations(block, gnss_layout, ieo_img, row, g, {
+            "l": l, "kinds": kinds, "ids": ids, "vfile": vfile, "units": units, "sfile": sfile, "lines": lines,
+            "group": group, "members": members, "blocks": blocks, "sets": sets})
     n = row
     cov = Covariance.from_blocks(n, members, blocks)
     info = ObservationInfo(kind=tuple(kinds), ids=tuple(ids), value_file=np.array(vfile, dtype=float),
@@ -278,7 +290,8 @@ def build_block_problem(block: Block) -> Problem:
                            group=np.array(group, dtype=np.int64))
     status = tuple(p.status for p in block.points)
     pts = PointInfo(tuple(p.id for p in block.points), index, status, 3)
-    datum = Datum("free", tuple(block.sbase)) if block.datum == "free" else Datum("fixed")
+    datum = Datum("free", tuple(block.sbase)) if block.datum == "free" else \
+        Datum("fixed", by=gnss.datum_text(block) if gnss_layout is not None else "")
     return Problem(params=params, sets=tuple(sets), l=np.concatenate(l) if l else np.zeros(0),
                    cov=cov, info=info, points=pts, datum=datum, sigma0=block.sigma0,
                    sigma_act="apriori", source=block.source, title=block.title,

@@ -305,6 +305,31 @@ def h_control_point(problem, point: str):
     return selection(problem.n, control_rows(problem, point))
 
 
+def gnss_rows(problem, image: str) -> np.ndarray:
+    """Rows (x, y, z) of the GNSS observation of ``image``'s projection centre."""
+    problem = problem_of(problem)
+    rows = [i for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids))
+            if k.startswith("gnss-") and str(ids.get("image")) == str(image)]
+    if not rows:
+        raise NotFoundError("GNSS centre", {"image": image}, f"no GNSS observation of image {image}")
+    return np.array(rows, dtype=np.int64)
+
+
+def h_gnss_centre(problem, image: str):
+    """H (n × 3) of a 3-D error in the GNSS position of one projection centre (F80 §2.2, q = 3)."""
+    problem = problem_of(problem)
+    return selection(problem.n, gnss_rows(problem, image))
+
+
+def h_gnss_strip(problem, images) -> sp.csc_matrix:
+    """H (n × 3) of one 3-D shift common to the GNSS positions of ``images`` (a strip's cycle
+    slip, F80 §2.2: H = (0 … I₃ … I₃ … 0)ᵀ). Not testable where the model estimates that strip's
+    shift (H then lies in the column space of A): the shift's AP-group test is its test (§7.2)."""
+    problem = problem_of(problem)
+    rows = np.array([gnss_rows(problem, im) for im in images], dtype=np.int64).reshape(-1, 3)
+    return common_error(problem.n, [rows[:, a] for a in range(3)])
+
+
 def h_point_transfer(problem, point: str, images) -> sp.csc_matrix:
     """H (n × 2) of a point-transfer error: one 2D error common to the measurements of
     ``point`` in every image of ``images`` (F80 §2.2; H = (0 … I₂ … I₂ … 0)ᵀ via

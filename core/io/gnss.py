@@ -1,0 +1,141 @@
+"""GNSS projection centres from a CSV file: ``image,x,y,z,sx,sy,sz`` with a header line.
+
+Each row gives the observed antenna position of one image of the block (the ``image`` as the
+block names it), in metres in the frame of the block's object coordinates, and its standard
+deviations. Optional columns: ``strip`` (the strip of the shift/drift model; default: the
+image's strip in the block), ``time`` (for the drift, any time unit; required for every row with
+``--gnss-drift``), ``rxy``, ``rxz``, ``ryz`` (correlation coefficients, making a full 3 × 3
+covariance per centre). Any other column is refused with its name. CSV as
+:mod:`baarda.io.control` reads it (header names case-insensitive in any order, ``#`` and blank
+lines skipped, spreadsheet BOM, line ends and quotes).
+
+:func:`add_gnss` puts them into a native bundle block (:class:`baarda.model.gnss.GnssSpec`)
+with the lever arm and the strip model; the datum is then defined by the GNSS centres and the
+control points together.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..errors import InputError
+from ..model.bundle import Block
+from ..model.gnss import GnssCentre, GnssSpec
+from ..validate import SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
+from .bal import read_text
+from .control import csv_rows
+
+COLUMNS = ("image", "x", "y", "z", "sx", "sy", "sz")
+OPTIONAL = ("strip", "time", "rxy", "rxz", "ryz")
+
+
+@dataclasses.dataclass(frozen=True)
+class GnssOptions:
+    """How GNSS projection centres enter the adjustment (``baarda.analyze(gnss=...)``).
+
+    path: the CSV (module docstring). lever_arm: e from the projection centre to the antenna in
+    the camera frame (m). estimate_lever_arm: estimate e (starting at ``lever_arm``). shift,
+    drift: a shift a_s and a drift b_s per strip (:mod:`baarda.observations.gnss`).
+    """
+
+    path: object
+    lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    estimate_lever_arm: bool = False
+    shift: bool = False
+    drift: bool = False
+
+
+def _number(path, ln, image, name, tok):
+    try:
+        v = float(tok)
+    except ValueError:
+        raise InputError(path, ln, f"image {image}: {name} = '{tok[:40]}' is not a number", field=name) from None
+    if not math.isfinite(v):
+        raise InputError(path, ln, f"image {image}: {name} = {tok[:40]} is not finite", field=name)
+    if abs(v) > VALUE_LIMIT:
+        raise InputError(path, ln, f"image {image}: {name} = {v:g} is outside ±{VALUE_LIMIT:g}: too large to "
+                         f"adjust in double precision", field=name)
+    return v
+
+
+def read_gnss(path) -> list[GnssCentre]:
+    """The GNSS centres of a CSV file (module docstring); InputError naming file, line and field."""
+    text = read_text(path)
+    rows = [(ln, r) for ln, r in csv_rows(path, text)
+            if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise InputError(path, 1, "empty file: expected the header 'image,x,y,z,sx,sy,sz'")
+    hline, header = rows[0]
+    names = [h.strip().lower() for h in header]
+    missing = [c for c in COLUMNS if c not in names]
+    if missing:
+        raise InputError(path, hline, f"the header must name the columns image,x,y,z,sx,sy,sz "
+                         f"(missing: {', '.join(missing)})")
+    unknown = [h.strip() for h in header if h.strip().lower() not in COLUMNS + OPTIONAL]
+    if unknown:
+        raise InputError(path, hline, f"unknown column(s) {', '.join(repr(u[:40]) for u in unknown)} (known: "
+                         f"image,x,y,z,sx,sy,sz and the optional {','.join(OPTIONAL)})")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise InputError(path, hline, f"column(s) {', '.join(dup)} named twice")
+    col = {c: names.index(c) for c in COLUMNS + OPTIONAL if c in names}
+    out, seen = [], {}
+    for ln, r in rows[1:]:
+        if len(r) != len(names):
+            raise InputError(path, ln, f"{len(r)} fields, the header has {len(names)}")
+        image = r[col["image"]].strip()
+        if not image:
+            raise InputError(path, ln, "empty image")
+        if image in seen:
+            raise InputError(path, ln, f"duplicate image {image} (first at line {seen[image]})")
+        seen[image] = ln
+        v = {c: _number(path, ln, image, c, r[col[c]].strip()) for c in COLUMNS[1:]}
+        sd = np.array([v["sx"], v["sy"], v["sz"]])
+        for c, s in zip(("sx", "sy", "sz"), sd):
+            if not SIGMA_MIN <= s <= SIGMA_MAX:
+                raise InputError(path, ln, f"image {image}: {c} = {s:g} must lie in [{SIGMA_MIN:g}, {SIGMA_MAX:g}]",
+                                 field=c)
+        corr = np.eye(3)
+        for c, (i, j) in zip(("rxy", "rxz", "ryz"), ((0, 1), (0, 2), (1, 2))):
+            tok = r[col[c]].strip() if c in col else ""
+            if tok:
+                rho = _number(path, ln, image, c, tok)
+                if not -1 < rho < 1:
+                    raise InputError(path, ln, f"image {image}: {c} = {rho:g} must lie in (-1, 1)", field=c)
+                corr[i, j] = corr[j, i] = rho
+        if np.linalg.eigvalsh(corr)[0] <= 1e-12:
+            raise InputError(path, ln, f"image {image}: the correlations rxy, rxz, ryz make no positive definite "
+                             f"covariance", field="rxy")
+        cov = corr * np.outer(sd, sd)
+        tok = r[col["time"]].strip() if "time" in col else ""
+        t = _number(path, ln, image, "time", tok) if tok else float("nan")
+        strip = r[col["strip"]].strip() if "strip" in col else ""
+        out.append(GnssCentre(image, (v["x"], v["y"], v["z"]), tuple(map(tuple, cov.tolist())), strip, t, ln))
+    if not out:
+        raise InputError(path, hline, "no GNSS centres after the header")
+    return out
+
+
+def add_gnss(model, options: GnssOptions):
+    """The model with the GNSS centres of ``options.path`` (a new object; nothing the caller
+    holds is changed). Native bundle blocks only; every image must be an image of the block;
+    the datum becomes "control" (GNSS centres and control points define it)."""
+    path = options.path
+    centres = read_gnss(path)
+    if not isinstance(model, Block):
+        raise InputError(path, 0, f"GNSS projection centres can be added to native bundle blocks only "
+                         f"(baarda convert turns BAL, Bundler and COLMAP models into one), not to a "
+                         f"{type(model).__name__}")
+    known = {im.id for im in model.images}
+    for c in centres:
+        if c.image not in known:
+            raise InputError(path, c.line, f"image {c.image} is not an image of the block", field="image")
+        if options.drift and not math.isfinite(c.time):
+            raise InputError(path, c.line, f"image {c.image}: --gnss-drift needs a time in every row", field="time")
+    lever = tuple(float(v) for v in options.lever_arm)
+    spec = GnssSpec(tuple(centres), lever, bool(options.estimate_lever_arm), bool(options.shift),
+                    bool(options.drift), source=str(path))
+    return model.replace(gnss=spec, datum="control")
