@@ -1,0 +1,110 @@
+"""The GNSS file (``--gnss CSV``, issue 28): columns, correlations, errors naming file, line and
+field, the options of the command line, and ``baarda simulate --gnss-sigma``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import baarda
+from baarda.cli import main
+from baarda.io.gnss import read_gnss
+from baarda.simulate import simulate_to_files
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    d = tmp_path_factory.mktemp("gnssio")
+    simulate_to_files({"seed": 1, "strips": 2, "images_per_strip": 4, "control": "corners", "gnss_sigma": 0.05},
+                      d / "b.json", d / "b.truth.json")
+    return d
+
+
+def test_columns_correlations_and_strip(tmp_path):
+    p = tmp_path / "g.csv"
+    p.write_text("# antenna positions\nImage,X,Y,Z,sx,sy,sz,rxy,strip,time\n"
+                 "101,1,2,3,0.05,0.04,0.1,0.5,A,12.5\n102,4,5,6,0.05,0.05,0.05,,,\n")
+    c = read_gnss(p)
+    assert [x.image for x in c] == ["101", "102"] and c[0].strip == "A" and c[0].time == 12.5
+    np.testing.assert_allclose(c[0].cov, [[0.0025, 0.001, 0], [0.001, 0.0016, 0], [0, 0, 0.01]], atol=1e-15)
+    assert c[1].strip == "" and np.isnan(c[1].time) and c[1].line == 4
+
+
+@pytest.mark.parametrize("text,line,needle", [
+    ("image,x,y,z,sx,sy\n101,0,0,0,1,1\n", 1, "missing: sz"),
+    ("image,x,y,z,sx,sy,sz,quality\n101,0,0,0,1,1,1,a\n", 1, "unknown column(s) 'quality'"),
+    ("image,x,y,z,sx,sy,sz\n101,0,0,0,1,1,1\n999,0,0,0,1,1,1\n", 3, "image 999 is not an image of the block"),
+    ("image,x,y,z,sx,sy,sz\n101,0,0,zz,1,1,1\n", 2, "z = 'zz' is not a number"),
+    ("image,x,y,z,sx,sy,sz\n101,0,0,0,1,0,1\n", 2, "sy = 0 must lie in"),
+    ("image,x,y,z,sx,sy,sz\n101,0,0,0,1,1,1\n101,0,0,0,1,1,1\n", 3, "duplicate image 101"),
+    ("image,x,y,z,sx,sy,sz,rxy,rxz,ryz\n101,0,0,0,1,1,1,0.99,0.99,-0.99\n", 2, "no positive definite"),
+    ("image,x,y,z,sx,sy,sz,rxy\n101,0,0,0,1,1,1,1.5\n", 2, "rxy = 1.5 must lie in (-1, 1)"),
+])
+def test_bad_gnss_files_are_refused_with_file_and_line(block, tmp_path, capsys, text, line, needle):
+    p = tmp_path / "g.csv"
+    p.write_text(text)
+    before = p.read_bytes(), (block / "b.json").read_bytes()
+    assert main(["analyze", str(block / "b.json"), "--gnss", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"baarda: error: {p}:{line}: ") and err.count("\n") == 1, err
+    assert needle in err, err
+    assert (p.read_bytes(), (block / "b.json").read_bytes()) == before
+
+
+def test_drift_needs_times_and_options_need_gnss(block, tmp_path, capsys):
+    p = tmp_path / "g.csv"
+    p.write_text("image,x,y,z,sx,sy,sz\n101,0,0,1500,1,1,1\n")
+    assert main(["analyze", str(block / "b.json"), "--gnss", str(p), "--gnss-drift"]) == 2
+    assert "--gnss-drift needs a time in every row" in capsys.readouterr().err
+    assert main(["analyze", str(block / "b.json"), "--gnss-shift"]) == 2
+    assert "--gnss-shift need(s) --gnss CSV" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["analyze", str(block / "b.json"), "--gnss", str(p), "--lever-arm", "1,x,2"])
+    assert exc.value.code == 2
+    assert "expected DX,DY,DZ" in capsys.readouterr().err
+
+
+def test_gnss_on_an_sfm_block_is_refused(tmp_path, capsys):
+    from pathlib import Path
+    bal = Path(__file__).resolve().parents[1] / "malformed" / "valid" / "bal-valid.txt"
+    p = tmp_path / "g.csv"
+    p.write_text("image,x,y,z,sx,sy,sz\n0,0,0,0,1,1,1\n")
+    assert main(["analyze", str(bal), "--gnss", str(p)]) == 2
+    assert "native bundle blocks only" in capsys.readouterr().err
+
+
+def test_cli_json_and_simulate(block, tmp_path, capsys):
+    out = tmp_path / "r.json"
+    code = main(["analyze", str(block / "b.json"), "--gnss", str(block / "b.gnss.csv"), "--lever-arm", "0,0,0",
+                 "--gnss-shift", "--json", str(out), "--top", "2"])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "GNSS projection centres (8; per-strip shifts) and control points (4)" in text
+    assert "GNSS shift of strip 1 (F80 §7.2-7.3)" in text
+    doc = json.loads(out.read_text())
+    kinds = {o["kind"] for o in doc["observations"]}
+    assert {"gnss-x", "gnss-y", "gnss-z"} <= kinds
+    gx = [o for o in doc["observations"] if o["kind"] == "gnss-x"]
+    assert len(gx) == 8 and all(o["mdb"] > 0 and o["redundancy"] > 0 for o in gx)
+    assert {a["camera"] for a in doc["ap_tests"] if a["group"] == "gnss-shift"} == {"1", "2"}
+    # the Python door gives the same numbers
+    a = baarda.analyze(block / "b.json", gnss=baarda.io.gnss.GnssOptions(block / "b.gnss.csv", shift=True))
+    np.testing.assert_allclose([o["w"] for o in gx], a.records("observations")["w"][[o["index"] for o in gx]])
+
+
+def test_simulate_writes_the_gnss_file(tmp_path, capsys):
+    out = tmp_path / "s.json"
+    assert main(["simulate", str(out), "--strips", "2", "--images", "4", "--gnss-sigma", "0.05",
+                 "--error", "gnss:20:image=102:axis=z"]) == 0
+    assert "GNSS centres in" in capsys.readouterr().out
+    truth = json.loads((tmp_path / "s.truth.json").read_text())
+    assert truth["gnss_file"] == "s.gnss.csv" and truth["recipe"]["gnss_sigma"] == 0.05
+    e = [x for x in truth["errors"] if x["kind"] == "gnss"][0]
+    assert e["ids"] == {"image": "102", "axis": "z"} and e["vector"] == [pytest.approx(1.0)]
+    assert main(["analyze", str(out), "--gnss", str(tmp_path / "s.gnss.csv"), "--top", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "gnss              image=102 axis=z" in text and "GNSS centre T =" in text and "FOUND" in text
+    assert main(["simulate", str(tmp_path / "t.json"), "--error", "gnss:20"]) == 2
+    assert "a GNSS error needs gnss_sigma" in capsys.readouterr().err
