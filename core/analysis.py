@@ -39,7 +39,7 @@ from .datum import split_normal
 from .errors import BaardaError, DatumDefectError, InputError, OptionError, UsageError
 from . import truth
 from .io import read_truth, results
-from .io.analysis_text import check_point_lines, extras_text, summary_html
+from .io.analysis_text import check_point_lines, extras_text, strip_test_lines, summary_html
 from .io.hypothesis import parse_hypothesis, read_hypothesis
 from .model.bundle import check_points as _check_points, has_check_points
 from .model.problem import without as problem_without
@@ -347,6 +347,8 @@ class Analysis:
         doc = results.to_dict(self.adjustment, self.reliability)
         if has_check_points(self.problem.notes.local_model):
             doc["check_points"] = results.finite(self.check_points())
+        if self.gnss_strip_tests():
+            doc["gnss_strip_tests"] = results.finite(self.gnss_strip_tests())
         if extras is not None:
             self._add_extras(doc, extras)
         return doc
@@ -372,7 +374,18 @@ class Analysis:
         head = results.text_summary(self.adjustment, top=top, reliability=self.reliability)
         if has_check_points(self.problem.notes.local_model):
             head = "\n".join([head, *check_point_lines(self.check_points())])
+        if self.gnss_strip_tests():
+            head = "\n".join([head, *strip_test_lines(self.gnss_strip_tests())])
         return head if extras is None else "\n".join([head, *extras_text(self, extras, top)])
+
+    def gnss_strip_tests(self) -> list:
+        """The test of a shift of each strip's GNSS centres (a cycle slip, F80 §2.2 eq. 10-12) whose
+        shift the model does not estimate (:func:`baarda.stats.hypotheses.strip_tests`); empty
+        without GNSS centres."""
+        gnss = getattr(self.problem.notes.local_model, "gnss", None)
+        if gnss is None or not gnss.centres:
+            return []
+        return self._cached("gnss_strip_tests", lambda: hypotheses.strip_tests(self.adjustment, self.reliability))
 
     def check_points(self) -> dict:
         """The check points (native ``status: check``, or ``role`` check in a control CSV): adjusted

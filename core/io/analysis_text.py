@@ -151,6 +151,18 @@ def check_point_lines(rep: dict, top: int = 20) -> list[str]:
     return out
 
 
+def strip_test_lines(tests: list) -> list[str]:
+    """The tests of a shift of each strip's GNSS centres (:func:`baarda.stats.hypotheses.strip_tests`)."""
+    out = ["  GNSS strip tests (a shift common to a strip's centres, F80 eq. 10-12):"]
+    for t in tests:
+        nab = ", ".join(f"{number(a, '+.3g')} ± {number(b, '.2g')}" for a, b in zip(t["nabla"], t["nabla_sigma"]))
+        out.append(printable(f"    strip {t['strip']:<10s} {len(t['images']):>3d} centres  q = {t['q']}  T = "
+                             f"{number(t['T'], '.3f')} (crit {number(t['critical'], '.2f')})  R = {number(t['R'], '.3f')}"
+                             f" (crit {number(t['critical_R'], '.2f')}){'  REJECTED' if t['rejected'] else ''};  "
+                             f"∇ŝ = {nab} m"))
+    return out
+
+
 def extras_text(analysis, ex, top: int = 8) -> list[str]:
     """The lines ``baarda analyze`` prints after the summary for what ``ex``
     (:class:`baarda.analysis.Extras`) asked for, in the CLI's order."""

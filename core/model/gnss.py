@@ -13,7 +13,7 @@ estimated); per strip s with a shift ``strip S.gnss-shift.x|y|z`` and with a dri
 groups of additional parameters: ``problem.notes.ap_groups`` has ``"S:gnss-shift"`` and
 ``"S:gnss-drift"``, tested by :func:`baarda.stats.ap_tests.ap_test` (F80 §7.2).
 
-Observations: kinds ``gnss-x|y|z`` (ids ``image``, ``component``), after the image points and
+Observations: kinds ``gnss-x|y|z`` (ids ``image``, ``strip`` where there is one, ``component``), after the image points and
 control, centre by centre; one covariance cluster and one test group per centre (its group test
 is the 3-D test of the centre, F80 eq. 10-12).
 """
@@ -130,12 +130,13 @@ def add_observations(block, layout: GnssLayout, ieo_img: np.ndarray, row: int, g
                                dt=time_offsets(spec, image_strip)))
     for j, c in enumerate(spec.centres):
         cov = np.asarray(c.cov, dtype=float)
+        strip = strip_of(c, image_strip)
         out["members"].append(rows[3 * j:3 * j + 3])
         out["blocks"].append(cov)
         out["l"].append(np.asarray(c.xyz, dtype=float))
         for a, nm in enumerate("xyz"):
             out["kinds"].append(f"gnss-{nm}")
-            out["ids"].append({"image": c.image, "component": nm})
+            out["ids"].append({"image": c.image, **({"strip": strip} if strip else {}), "component": nm})
             out["vfile"].append(c.xyz[a])
             out["units"].append("m")
             out["sfile"].append(float(np.sqrt(cov[a, a])))

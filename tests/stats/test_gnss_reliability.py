@@ -82,7 +82,7 @@ def test_planted_centre_error_is_the_largest_gnss_w_and_rejected_with_its_3d_tes
     adj, rel = a.adjustment, a.reliability
     g = np.sort(_gnss_rows(adj.problem).ravel())
     worst = g[np.argmax(np.abs(adj.w[g]))]
-    assert adj.problem.info.ids[worst] == {"image": "205", "component": "x"}
+    assert adj.problem.info.ids[worst] == {"image": "205", "strip": "2", "component": "x"}
     assert rel.rejected[worst]
     t = rel.test(hypotheses.h_gnss_centre(adj.problem, "205"), label="GNSS 205")
     assert t.q == 3 and t.rejected_T
@@ -104,6 +104,12 @@ def test_strip_shift_is_found_by_the_strip_test(planted):
     others = [a.reliability.test(hypotheses.h_gnss_strip(a.adjustment.problem, [im.id for im in
                                  a.problem.notes.local_model.images if im.strip == s])) for s in ("1", "2")]
     assert all(o.T < t.T for o in others)
+    # reported: the strip tests in the text and the document, and baarda test's gnss-strip:STRIP
+    reported = {d["strip"]: d for d in a.to_dict()["gnss_strip_tests"]}
+    assert reported["3"]["rejected"] and reported["3"]["T"] == pytest.approx(t.T)
+    assert not reported["1"]["rejected"] and not reported["2"]["rejected"]
+    assert "GNSS strip tests" in a.text(top=1)
+    assert a.test("gnss-strip:3")["T"] == pytest.approx(t.T)
     # modelled as a shift per strip (an AP group, F80 §7.2): strip 3's shift is the largest of the three
     b = baarda.analyze(planted / "b.json", gnss=GnssOptions(planted / "b.gnss.csv", shift=True))
     T = {s: ap_test(b.adjustment, s, "gnss-shift").T for s in ("1", "2", "3")}
