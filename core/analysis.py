@@ -183,7 +183,7 @@ def defect_message(err: DatumDefectError, problem) -> str:
 def analyze(source, *, format: str = "auto", solver: SolverOptions | None = None,  # noqa: A002 - the CLI's name
             policy: TestPolicy | dict | None = None, strict: bool = False, excluded=(), control=None,
             sigma_px: float | None = None, refine_intrinsics: bool | None = None, drop_undefined: bool = False,
-            gnss=None, progress=None) -> "Analysis":
+            gnss=None, imu=None, progress=None) -> "Analysis":
     """Read, adjust and test a block or network.
 
     Parameters
@@ -212,6 +212,9 @@ def analyze(source, *, format: str = "auto", solver: SolverOptions | None = None
         GNSS projection centres (a CSV ``image,x,y,z,sx,sy,sz``; the options give the lever arm
         and whether each strip gets a shift and a drift): observations of a native bundle block
         (:mod:`baarda.observations.gnss`), tested like every other observation.
+    imu : str, os.PathLike or baarda.io.gnss.ImuOptions, optional
+        IMU attitudes (a CSV ``image,omega,phi,kappa,somega,sphi,skappa`` in degrees) with a
+        boresight rotation, estimated unless held (:mod:`baarda.observations.imu`).
     progress : callable, optional
         ``progress(iteration, largest step / σ)`` during the adjustment.
 
@@ -227,7 +230,7 @@ def analyze(source, *, format: str = "auto", solver: SolverOptions | None = None
     """
     t0 = time.perf_counter()
     if isinstance(source, (str, Path)) or hasattr(source, "__fspath__"):
-        problem = read_problem(source, format, control=control, gnss=gnss, sigma_px=sigma_px,
+        problem = read_problem(source, format, control=control, gnss=gnss, imu=imu, sigma_px=sigma_px,
                                refine_intrinsics=refine_intrinsics, strict=strict, drop_undefined=drop_undefined)
         name = str(source)
     else:

@@ -417,7 +417,8 @@ def _analysis(args, progress=None, strict=None):
     solver options and test policy; the dropped-observations warning printed."""
     policy = _policy(args)
     analysis = _read_quietly(analyze, args.input, format=args.format, control=getattr(args, "control", None),
-                             gnss=cli_options.gnss_options(args), sigma_px=getattr(args, "sigma_px", None),
+                             gnss=cli_options.gnss_options(args), imu=cli_options.imu_options(args),
+                             sigma_px=getattr(args, "sigma_px", None),
                              refine_intrinsics=getattr(args, "refine_intrinsics", None),
                              strict=bool(getattr(args, "strict", False) if strict is None else strict),
                              drop_undefined=args.drop_undefined,
@@ -618,7 +619,8 @@ def cmd_simulate(args) -> int:
     if not args.quiet:
         print(f"wrote {out} ({len(block.images)} images, {len(block.points)} points, "
               f"{len(t.get('errors', []))} planted errors) and {truth}"
-              + (f"; GNSS centres in {gnss_path(out)} (analyse with --gnss)" if block.gnss is not None else ""))
+              + (f"; GNSS centres in {gnss_path(out)} (analyse with --gnss)" if block.gnss is not None else "")
+              + (f"; IMU attitudes in {gnss_path(out, '.imu.csv')} (--imu)" if block.imu is not None else ""))
     return 0
 
 
@@ -669,19 +671,21 @@ def _io_paths(args) -> tuple[list, list, list]:
     if command == "simulate":
         out = Path(args.out)
         return [args.recipe], [out, Path(args.truth) if args.truth else _truth_beside(out),
-                               gnss_path(out) if args.gnss_sigma is not None else None], []
+                               gnss_path(out) if args.gnss_sigma is not None else None,
+                               gnss_path(out, ".imu.csv") if args.imu_sigma is not None else None], []
     if command == "convert":
         return [args.input, args.control], [args.out], []
     if command == "report":
         return [args.input], [_report_path(args)], []
     if command == "test":
         files = [t.partition(":")[2] for t in args.hypothesis if t.startswith("file:")]
-        return [args.input, args.control, args.gnss, *files], [args.json], []
+        return [args.input, args.control, args.gnss, args.imu, *files], [args.json], []
     if command == "analyze":
         guess = _truth_beside(args.input)
         truth_file = args.truth or (guess if guess is not None and guess.exists() else None)
         csv = [Path(args.csv) / f"{name}.csv" for name in ("observations", "points", "groups")] if args.csv else []
-        return [args.input, args.control, args.gnss, truth_file], [args.json, args.geojson, *csv], [args.csv] * bool(args.csv)
+        return [args.input, args.control, args.gnss, args.imu, truth_file], [args.json, args.geojson, *csv], \
+            [args.csv] * bool(args.csv)
     return [], [], []
 
 

@@ -8,7 +8,7 @@ import argparse
 import math
 
 from .errors import BaardaError, UsageError
-from .io.gnss import GnssOptions
+from .io.gnss import GnssOptions, ImuOptions
 
 
 def lever_arm(text: str) -> tuple[float, float, float]:
@@ -23,6 +23,28 @@ def lever_arm(text: str) -> tuple[float, float, float]:
     return vals
 
 
+def angles(text: str) -> tuple[float, float, float]:
+    """``DO,DP,DK`` (degrees) as three finite numbers within ±180."""
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != 3 or not all(math.isfinite(v) and abs(v) <= 180 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected three angles in degrees within ±180, got {text!r}")
+    return vals
+
+
+def imu_options(args) -> ImuOptions | None:
+    """The :class:`ImuOptions` of parsed arguments, None without ``--imu`` (a usage error for a
+    boresight option without it)."""
+    if getattr(args, "imu", None) is None:
+        if getattr(args, "fix_boresight", False) or tuple(getattr(args, "boresight", (0.0,) * 3)) != (0.0,) * 3:
+            raise UsageError("--boresight / --fix-boresight need --imu CSV")
+        return None
+    return ImuOptions(args.imu, tuple(args.boresight), bool(args.fix_boresight))
+
+
 def add_gnss_arguments(p) -> None:
     """The GNSS options of a subcommand that reads a block."""
     p.add_argument("--gnss", metavar="CSV",
@@ -35,6 +57,11 @@ def add_gnss_arguments(p) -> None:
     p.add_argument("--gnss-shift", action="store_true", help="a GNSS shift per strip (3 unknowns each, tested)")
     p.add_argument("--gnss-drift", action="store_true",
                    help="a GNSS drift per strip (3 unknowns each, per time unit of the CSV's time column)")
+    p.add_argument("--imu", metavar="CSV",
+                   help="IMU attitudes image,omega,phi,kappa,somega,sphi,skappa in degrees (native bundle blocks)")
+    p.add_argument("--boresight", type=angles, default=(0.0, 0.0, 0.0), metavar="DO,DP,DK",
+                   help="boresight ω, φ, κ in degrees: the start of its estimate, or its value with --fix-boresight")
+    p.add_argument("--fix-boresight", action="store_true", help="hold the boresight at --boresight")
 
 
 def add_simulate_gnss_arguments(p) -> None:
@@ -43,13 +70,20 @@ def add_simulate_gnss_arguments(p) -> None:
                    help="simulate GNSS projection centres with this σ per component (m), written to OUT.gnss.csv")
     p.add_argument("--gnss-lever-arm", type=lever_arm, default=(0.0, 0.0, 0.0), metavar="DX,DY,DZ",
                    help="the simulated lever arm (m, camera frame; analyse with --lever-arm)")
+    p.add_argument("--imu-sigma", type=float, default=None, metavar="DEG",
+                   help="simulate IMU attitudes with this σ per angle (degrees), written to OUT.imu.csv")
+    p.add_argument("--imu-boresight", type=angles, default=(0.0, 0.0, 0.0), metavar="DO,DP,DK",
+                   help="the simulated boresight ω, φ, κ (degrees, each within ±10)")
 
 
 def gnss_recipe(args) -> dict:
     """The recipe keys of ``baarda simulate``'s GNSS options (none without --gnss-sigma)."""
-    if getattr(args, "gnss_sigma", None) is None:
-        return {}
-    return {"gnss_sigma": args.gnss_sigma, "gnss_lever": list(args.gnss_lever_arm)}
+    out = {}
+    if getattr(args, "gnss_sigma", None) is not None:
+        out.update(gnss_sigma=args.gnss_sigma, gnss_lever=list(args.gnss_lever_arm))
+    if getattr(args, "imu_sigma", None) is not None:
+        out.update(imu_sigma=args.imu_sigma, imu_boresight=list(args.imu_boresight))
+    return out
 
 
 def gnss_options(args) -> GnssOptions | None:

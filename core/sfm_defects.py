@@ -540,7 +540,8 @@ def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
                             np.array(np.asarray(o.line)[keep]))
     images = tuple(im for k, im in enumerate(b.images) if image_on[k])
     gnss = b.gnss.keep_images(im.id for im in images) if b.gnss is not None else None
-    return b.replace(cameras=tuple(c for c in b.cameras if c.id in used_cams), images=images, gnss=gnss,
+    imu = b.imu.keep_images(im.id for im in images) if b.imu is not None else None
+    return b.replace(cameras=tuple(c for c in b.cameras if c.id in used_cams), images=images, gnss=gnss, imu=imu,
                      points=tuple(b.points[i] for i in pts_kept), obs=obs,
                      sbase=tuple(s for s in b.sbase if s in kept_ids), extra=extra)
 

@@ -3,7 +3,10 @@
 (error kind ``gnss``) or a shift of a whole strip, a cycle slip (``gnss-strip``).
 
 Recipe keys: ``gnss_sigma`` (m, σ of each component; None = no GNSS), ``gnss_lever`` (e, m,
-camera frame), ``gnss_shift`` / ``gnss_drift`` (the block models a shift / drift per strip).
+camera frame), ``gnss_shift`` / ``gnss_drift`` (the block models a shift / drift per strip);
+``imu_sigma`` (degrees, σ of each IMU angle; None = no IMU) and ``imu_boresight`` (degrees): IMU
+attitudes angles(R(ω, φ, κ) R_b) + noise (:mod:`baarda.observations.imu`), error kind ``imu``
+(``{"size": σ-multiple, "image", "angle": omega|phi|kappa}``), written to ``OUT.imu.csv``.
 Errors: ``{"kind": "gnss", "size": σ-multiple, "image", "axis"}`` and ``{"kind": "gnss-strip",
 "size": σ-multiple, "strip", "axis"}`` (axis x, y or z; default x). Times: image j of a strip at
 t = j (one time unit per image).
@@ -18,6 +21,8 @@ import numpy as np
 
 from .errors import OptionError
 from .model.gnss import GnssCentre, GnssSpec
+from .model.gnss import ImuAttitude, ImuSpec
+from .observations.imu import angles_of
 from .observations.rotation import R_opk
 
 
@@ -83,4 +88,47 @@ def gnss_csv(spec: GnssSpec) -> str:
         sd = np.sqrt(np.diag(np.asarray(c.cov)))
         lines.append(",".join([c.image, *(repr(float(v)) for v in c.xyz), *(repr(float(v)) for v in sd),
                                c.strip, repr(float(c.time))]))
+    return "\n".join(lines) + "\n"
+
+
+def add_imu(block, truth_images: dict, r: dict, errors: list) -> tuple:
+    """``(block with IMU attitudes, truth errors)``: angles(R R_b) of every image observed with σ
+    ``r["imu_sigma"]`` degrees, the recipe's ``imu`` errors planted (module docstring)."""
+    sd = float(r["imu_sigma"])
+    rng = np.random.default_rng([int(r["seed"]), 29])
+    Rb = R_opk(*np.radians(np.asarray(r["imu_boresight"], dtype=float)))
+    ids = [im.id for im in block.images]
+    deg = {}
+    for iid in ids:
+        ang = np.degrees(angles_of(R_opk(*truth_images[iid][3:]) @ Rb))
+        deg[iid] = ang if r["design"] else ang + rng.normal(0, sd, 3)
+    out = []
+    row0 = 2 * block.obs.size + sum(len(p.axes) for p in block.points if p.status == "control") \
+        + (3 * len(block.gnss.centres) if block.gnss is not None else 0)
+    for spec in errors:
+        angle = spec.get("angle") or "omega"
+        if angle not in ("omega", "phi", "kappa"):
+            raise OptionError("angle", angle, ("omega", "phi", "kappa"))
+        image = spec.get("image") or str(rng.choice(ids))
+        if image not in deg:
+            raise OptionError("image", image, (), f"error imu: no image {image!r} in the block")
+        size = float(spec.get("size", 20.0))
+        val = size * sd * (spec.get("sign") or 1.0)
+        c = ("omega", "phi", "kappa").index(angle)
+        deg[image][c] += val
+        out.append({"kind": "imu", "ids": {"image": image, "angle": angle}, "vector": [val], "unit": "deg",
+                    "size_sigma": size, "class": "small" if size <= 50 else "medium",
+                    "rows": [row0 + 3 * ids.index(image) + c]})
+    cov = tuple(map(tuple, (np.radians(sd) ** 2 * np.eye(3)).tolist()))
+    att = tuple(ImuAttitude(i, tuple(float(a) for a in np.radians(deg[i])), cov, tuple(float(a) for a in deg[i]),
+                            (sd, sd, sd)) for i in ids)
+    return block.replace(imu=ImuSpec(att), datum="control"), out
+
+
+def imu_csv(spec: ImuSpec) -> str:
+    """The IMU file of a simulated block (``image,omega,phi,kappa,somega,sphi,skappa``, degrees)."""
+    lines = ["image,omega,phi,kappa,somega,sphi,skappa"]
+    for a in spec.attitudes:
+        lines.append(",".join([a.image, *(repr(float(v)) for v in a.values_file),
+                               *(repr(float(v)) for v in a.sigma_file)]))
     return "\n".join(lines) + "\n"

@@ -1,4 +1,5 @@
-"""GNSS projection centres from a CSV file: ``image,x,y,z,sx,sy,sz`` with a header line.
+"""GNSS projection centres from a CSV file: ``image,x,y,z,sx,sy,sz`` with a header line (and
+IMU attitudes, ``image,omega,phi,kappa,somega,sphi,skappa`` in degrees: :func:`read_imu`).
 
 Each row gives the observed antenna position of one image of the block (the ``image`` as the
 block names it), in metres in the frame of the block's object coordinates, and its standard
@@ -23,7 +24,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..model.bundle import Block
-from ..model.gnss import GnssCentre, GnssSpec
+from ..model.gnss import GnssCentre, GnssSpec, ImuAttitude, ImuSpec
 from ..validate import SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
 from .bal import read_text
 from .control import csv_rows
@@ -139,3 +140,86 @@ def add_gnss(model, options: GnssOptions):
     spec = GnssSpec(tuple(centres), lever, bool(options.estimate_lever_arm), bool(options.shift),
                     bool(options.drift), source=str(path))
     return model.replace(gnss=spec, datum="control")
+
+
+# --------------------------------------------------------------------------------------------
+# IMU attitudes (--imu CSV)
+# --------------------------------------------------------------------------------------------
+IMU_COLUMNS = ("image", "omega", "phi", "kappa", "somega", "sphi", "skappa")
+
+
+@dataclasses.dataclass(frozen=True)
+class ImuOptions:
+    """How IMU attitudes enter the adjustment (``baarda.analyze(imu=...)``): ``path`` the CSV
+    ``image,omega,phi,kappa,somega,sphi,skappa`` (degrees; the rotation R_ω R_φ R_κ of the IMU
+    body frame, as the block's images define theirs), ``boresight`` the start (or, with
+    ``boresight_fixed``, the value) of the boresight rotation in degrees."""
+
+    path: object
+    boresight: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    boresight_fixed: bool = False
+
+
+def read_imu(path) -> list[ImuAttitude]:
+    """The IMU attitudes of a CSV file (:class:`ImuOptions`); InputError naming file, line and field."""
+    text = read_text(path)
+    rows = [(ln, r) for ln, r in csv_rows(path, text)
+            if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise InputError(path, 1, f"empty file: expected the header '{','.join(IMU_COLUMNS)}'")
+    hline, header = rows[0]
+    names = [h.strip().lower() for h in header]
+    missing = [c for c in IMU_COLUMNS if c not in names]
+    if missing:
+        raise InputError(path, hline, f"the header must name the columns {','.join(IMU_COLUMNS)} "
+                         f"(missing: {', '.join(missing)})")
+    unknown = [h.strip() for h in header if h.strip().lower() not in IMU_COLUMNS]
+    if unknown:
+        raise InputError(path, hline, f"unknown column(s) {', '.join(repr(u[:40]) for u in unknown)} "
+                         f"(known: {','.join(IMU_COLUMNS)})")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise InputError(path, hline, f"column(s) {', '.join(dup)} named twice")
+    col = {c: names.index(c) for c in IMU_COLUMNS}
+    out, seen = [], {}
+    for ln, r in rows[1:]:
+        if len(r) != len(names):
+            raise InputError(path, ln, f"{len(r)} fields, the header has {len(names)}")
+        image = r[col["image"]].strip()
+        if not image:
+            raise InputError(path, ln, "empty image")
+        if image in seen:
+            raise InputError(path, ln, f"duplicate image {image} (first at line {seen[image]})")
+        seen[image] = ln
+        v = {c: _number(path, ln, image, c, r[col[c]].strip()) for c in IMU_COLUMNS[1:]}
+        for c in ("somega", "sphi", "skappa"):
+            if not 1e-9 <= v[c] <= 180.0:
+                raise InputError(path, ln, f"image {image}: {c} = {v[c]:g} must lie in [1e-09, 180] degrees", field=c)
+        if abs(v["phi"]) >= 89.999:
+            raise InputError(path, ln, f"image {image}: phi = {v['phi']:g}: ω, φ, κ are singular at |φ| = 90°",
+                             field="phi")
+        deg = (v["omega"], v["phi"], v["kappa"])
+        sd = (v["somega"], v["sphi"], v["skappa"])
+        cov = np.diag(np.radians(sd) ** 2)
+        out.append(ImuAttitude(image, tuple(float(a) for a in np.radians(deg)), tuple(map(tuple, cov.tolist())),
+                               deg, sd, ln))
+    if not out:
+        raise InputError(path, hline, "no IMU attitudes after the header")
+    return out
+
+
+def add_imu(model, options: ImuOptions):
+    """The model with the IMU attitudes of ``options.path`` (a new object); native bundle
+    blocks only, every image an image of the block; the datum becomes "control"."""
+    path = options.path
+    attitudes = read_imu(path)
+    if not isinstance(model, Block):
+        raise InputError(path, 0, f"IMU attitudes can be added to native bundle blocks only (baarda convert "
+                         f"turns BAL, Bundler and COLMAP models into one), not to a {type(model).__name__}")
+    known = {im.id for im in model.images}
+    for a in attitudes:
+        if a.image not in known:
+            raise InputError(path, a.line, f"image {a.image} is not an image of the block", field="image")
+    spec = ImuSpec(tuple(attitudes), tuple(float(b) for b in np.radians(options.boresight)),
+                   bool(options.boresight_fixed), source=str(path))
+    return model.replace(imu=spec, datum="control")

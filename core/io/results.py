@@ -388,7 +388,7 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
         for k in np.argsort(-np.nan_to_num(ratio, nan=-1.0))[:top].tolist():
             g = groups[k]
             first = int(g["members"][0])
-            ids = ("GNSS " if info.kind[first].startswith("gnss-") else "") + " ".join(
+            ids = {"gnss": "GNSS ", "imu-": "IMU "}.get(info.kind[first][:4], "") + " ".join(
                 f"{a}={b}" for a, b in info.ids[first].items() if a != "component")
             nab = ", ".join(f"{number(a, '+.3g')} ± {number(b, '.2g')}" for a, b in zip(g["nabla"], g["nabla_sigma"]))
             axes = ", ".join(number(a, ".3g") for a in g["ellipse_axes"])

@@ -140,8 +140,9 @@ class Block:
 
     datum: "control" (weighted control points) or "free" (inner constraints over ``sbase``,
     point ids, empty = all points). sigma0: a priori σ0 (dimensionless). gnss: the GNSS
-    projection centres (:class:`baarda.model.gnss.GnssSpec`, or None); with them the datum is
-    "control" (GNSS centres and control points define it).
+    projection centres (:class:`baarda.model.gnss.GnssSpec`, or None); imu: the IMU attitudes
+    (:class:`baarda.model.gnss.ImuSpec`, or None); with them the datum is "control" (GNSS centres,
+    IMU attitudes and control points define it).
     """
 
     cameras: tuple[Camera, ...]
@@ -155,6 +156,7 @@ class Block:
     source: str = ""
     extra: dict = field(default_factory=dict)
     gnss: object = None
+    imu: object = None
 
     def replace(self, **changes) -> "Block":
         return replace(self, **changes)
@@ -208,6 +210,7 @@ def build_block_problem(block: Block) -> Problem:
     if block.gnss is not None and block.gnss.centres:
         gnss_layout, gnss_groups = gnss.add_parameters(pl, block)
         ap_groups.update(gnss_groups)
+    boresight = gnss.add_imu_parameters(pl, block) if block.imu is not None and block.imu.attitudes else None
     index = np.full((len(block.points), 3), -1, dtype=np.int64)
     for i, p in enumerate(block.points):
         for a, (nm, val) in enumerate(zip("xyz", (p.X, p.Y, p.Z))):
@@ -282,6 +285,10 @@ def build_block_problem(block: Block) -> Problem:
         row, g = gnss.add_observations(block, gnss_layout, ieo_img, row, g, {
             "l": l, "kinds": kinds, "ids": ids, "vfile": vfile, "units": units, "sfile": sfile, "lines": lines,
             "group": group, "members": members, "blocks": blocks, "sets": sets})
+    if boresight is not None:
+        row, g = gnss.add_imu_observations(block, boresight, ieo_img, row, g, {
+            "l": l, "kinds": kinds, "ids": ids, "vfile": vfile, "units": units, "sfile": sfile, "lines": lines,
+            "group": group, "members": members, "blocks": blocks, "sets": sets})
     n = row
     cov = Covariance.from_blocks(n, members, blocks)
     info = ObservationInfo(kind=tuple(kinds), ids=tuple(ids), value_file=np.array(vfile, dtype=float),
@@ -291,7 +298,7 @@ def build_block_problem(block: Block) -> Problem:
     status = tuple(p.status for p in block.points)
     pts = PointInfo(tuple(p.id for p in block.points), index, status, 3)
     datum = Datum("free", tuple(block.sbase)) if block.datum == "free" else \
-        Datum("fixed", by=gnss.datum_text(block) if gnss_layout is not None else "")
+        Datum("fixed", by=gnss.datum_text(block) if gnss_layout is not None or boresight is not None else "")
     return Problem(params=params, sets=tuple(sets), l=np.concatenate(l) if l else np.zeros(0),
                    cov=cov, info=info, points=pts, datum=datum, sigma0=block.sigma0,
                    sigma_act="apriori", source=block.source, title=block.title,

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..observations.gnss import GnssSet
+from ..observations.imu import ImuSet
 
 
 @dataclass(frozen=True)
@@ -146,10 +147,84 @@ def add_observations(block, layout: GnssLayout, ieo_img: np.ndarray, row: int, g
 
 
 def datum_text(block) -> str:
-    """How the datum of a block with GNSS centres is defined (the summary's ``datum``)."""
-    n_gnss = len(block.gnss.centres)
+    """How the datum of a block with GNSS centres or IMU attitudes is defined (the summary's
+    ``datum``)."""
     n_ctrl = sum(1 for p in block.points if p.status == "control")
-    extra = [w for w, on in (("per-strip shifts", block.gnss.shift), ("drifts", block.gnss.drift),
-                             ("lever arm estimated", block.gnss.estimate_lever_arm)) if on]
-    what = f"GNSS projection centres ({n_gnss}" + (f"; {', '.join(extra)}" if extra else "") + ")"
+    parts = []
+    gnss, imu = block.gnss, getattr(block, "imu", None)
+    if gnss is not None and gnss.centres:
+        extra = [w for w, on in (("per-strip shifts", gnss.shift), ("drifts", gnss.drift),
+                                 ("lever arm estimated", gnss.estimate_lever_arm)) if on]
+        parts.append(f"GNSS projection centres ({len(gnss.centres)}" + (f"; {', '.join(extra)}" if extra else "") + ")")
+    if imu is not None and imu.attitudes:
+        parts.append(f"IMU attitudes ({len(imu.attitudes)}; boresight {'held' if imu.boresight_fixed else 'estimated'})")
+    what = " and ".join(parts)
     return f"{what} and control points ({n_ctrl})" if n_ctrl else f"{what}, no control points"
+
+
+# --------------------------------------------------------------------------------------------
+# IMU attitudes (:mod:`baarda.observations.imu`)
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ImuAttitude:
+    """An IMU attitude of an image: ``angles`` ω, φ, κ (rad, the rotation R_ω R_φ R_κ of the
+    IMU body frame), covariance ``cov`` (3 × 3, rad²), ``values_file`` and ``sigma_file`` as the
+    file has them (degrees), source ``line``."""
+
+    image: str
+    angles: tuple[float, float, float]
+    cov: tuple[tuple[float, float, float], ...]
+    values_file: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sigma_file: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    line: int = 0
+
+
+@dataclass(frozen=True)
+class ImuSpec:
+    """The IMU attitudes of a block and the boresight (rad; estimated unless ``boresight_fixed``)."""
+
+    attitudes: tuple[ImuAttitude, ...]
+    boresight: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    boresight_fixed: bool = False
+    source: str = ""
+
+    def keep_images(self, ids) -> "ImuSpec":
+        """The spec with only the attitudes of the images ``ids``."""
+        ids = set(ids)
+        return ImuSpec(tuple(a for a in self.attitudes if a.image in ids), self.boresight, self.boresight_fixed,
+                       self.source)
+
+
+def add_imu_parameters(pl, block) -> np.ndarray:
+    """Add the boresight b_ω, b_φ, b_κ (``imu.boresight.omega|phi|kappa``, rad) to ``pl``."""
+    spec = block.imu
+    return np.array([pl.add(f"imu.boresight.{nm}", v, "t", fixed=spec.boresight_fixed)
+                     for nm, v in zip(("omega", "phi", "kappa"), spec.boresight)], dtype=np.int64)
+
+
+def add_imu_observations(block, boresight: np.ndarray, ieo_img: np.ndarray, row: int, group: int, out: dict):
+    """Append the IMU rows of ``block`` (kinds ``imu-omega|phi|kappa``, ids ``image``, ``strip``,
+    ``component``; one cluster and test group per image) as :func:`add_observations` does."""
+    spec = block.imu
+    if not spec.attitudes:
+        return row, group
+    where = {im.id: k for k, im in enumerate(block.images)}
+    strip_of_image = {im.id: im.strip for im in block.images}
+    k = len(spec.attitudes)
+    ieo = np.array([ieo_img[where[a.image]] for a in spec.attitudes], dtype=np.int64).reshape(k, 6)
+    rows = row + np.arange(3 * k, dtype=np.int64)
+    out["sets"].append(ImuSet(rows=rows, ieo=ieo, boresight=boresight))
+    for j, a in enumerate(spec.attitudes):
+        out["members"].append(rows[3 * j:3 * j + 3])
+        out["blocks"].append(np.asarray(a.cov, dtype=float))
+        out["l"].append(np.asarray(a.angles, dtype=float))
+        strip = strip_of_image.get(a.image, "")
+        for c, nm in enumerate(("omega", "phi", "kappa")):
+            out["kinds"].append(f"imu-{nm}")
+            out["ids"].append({"image": a.image, **({"strip": strip} if strip else {}), "component": nm})
+            out["vfile"].append(a.values_file[c])
+            out["units"].append("deg")
+            out["sfile"].append(a.sigma_file[c])
+            out["lines"].append(a.line)
+            out["group"].append(group + j)
+    return row + 3 * k, group + k

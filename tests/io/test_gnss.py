@@ -108,3 +108,36 @@ def test_simulate_writes_the_gnss_file(tmp_path, capsys):
     assert "gnss              image=102 axis=z" in text and "GNSS centre T =" in text and "FOUND" in text
     assert main(["simulate", str(tmp_path / "t.json"), "--error", "gnss:20"]) == 2
     assert "a GNSS error needs gnss_sigma" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text,line,needle", [
+    ("image,omega,phi,kappa,somega,sphi\n101,0,0,0,1,1\n", 1, "missing: skappa"),
+    ("image,omega,phi,kappa,somega,sphi,skappa,yaw\n101,0,0,0,1,1,1,0\n", 1, "unknown column(s) 'yaw'"),
+    ("image,omega,phi,kappa,somega,sphi,skappa\n101,0,90,0,1,1,1\n", 2, "singular at |φ| = 90°"),
+    ("image,omega,phi,kappa,somega,sphi,skappa\n101,0,0,0,1,0,1\n", 2, "sphi = 0 must lie in"),
+    ("image,omega,phi,kappa,somega,sphi,skappa\n777,0,0,0,1,1,1\n", 2, "image 777 is not an image of the block"),
+])
+def test_bad_imu_files_are_refused_with_file_and_line(block, tmp_path, capsys, text, line, needle):
+    p = tmp_path / "i.csv"
+    p.write_text(text)
+    assert main(["analyze", str(block / "b.json"), "--imu", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"baarda: error: {p}:{line}: ") and err.count("\n") == 1, err
+    assert needle in err, err
+
+
+def test_imu_through_the_cli(tmp_path, capsys):
+    out = tmp_path / "s.json"
+    assert main(["simulate", str(out), "--strips", "2", "--images", "4", "--gnss-sigma", "0.05", "--imu-sigma",
+                 "0.005", "--imu-boresight", "0.2,0.1,-0.3", "--error", "imu:25:image=203:angle=omega"]) == 0
+    capsys.readouterr()
+    assert main(["analyze", str(out), "--gnss", str(tmp_path / "s.gnss.csv"), "--imu", str(tmp_path / "s.imu.csv"),
+                 "--top", "1", "--json", str(tmp_path / "r.json")]) == 0
+    text = capsys.readouterr().out
+    assert "IMU attitudes (8; boresight estimated)" in text
+    assert "#" in text and "imu-omega       image=203" in text
+    doc = json.loads((tmp_path / "r.json").read_text())
+    imu = [o for o in doc["observations"] if o["kind"].startswith("imu-")]
+    assert len(imu) == 24 and all(o["unit"] == "deg" for o in imu)
+    assert main(["analyze", str(out), "--fix-boresight"]) == 2
+    assert "--boresight / --fix-boresight need --imu CSV" in capsys.readouterr().err
