@@ -38,6 +38,7 @@ from .build import read_problem
 from .datum import split_normal
 from .errors import BaardaError, DatumDefectError, InputError, OptionError, UsageError
 from . import truth
+from .georeference import text_lines as georeference_lines
 from .io import read_truth, results
 from .io.analysis_text import check_point_lines, extras_text, strip_test_lines, summary_html
 from .io.hypothesis import parse_hypothesis, read_hypothesis
@@ -49,6 +50,7 @@ from .stats import analyses, hypotheses, misidentification, precision, risk, rob
 from .stats.ap_tests import ap_test
 from .stats.policy import TestPolicy
 from .stats.reliability import Reliability
+from .text import printable
 
 #: The methods of the adjustment (:class:`baarda.adjust.Options`).
 METHODS = ("auto", "gauss-newton", "levenberg-marquardt")
@@ -352,6 +354,9 @@ class Analysis:
             doc["check_points"] = results.finite(self.check_points())
         if self.gnss_strip_tests():
             doc["gnss_strip_tests"] = results.finite(self.gnss_strip_tests())
+        geo = getattr(self.problem.notes.local_model, "extra", {}).get("georeference")
+        if geo is not None:
+            doc["georeference"] = results.finite(geo)
         if extras is not None:
             self._add_extras(doc, extras)
         return doc
@@ -379,6 +384,9 @@ class Analysis:
             head = "\n".join([head, *check_point_lines(self.check_points())])
         if self.gnss_strip_tests():
             head = "\n".join([head, *strip_test_lines(self.gnss_strip_tests())])
+        geo = getattr(self.problem.notes.local_model, "extra", {}).get("georeference")
+        if geo is not None:
+            head = "\n".join([head, *(printable(x) for x in georeference_lines(geo))])
         return head if extras is None else "\n".join([head, *extras_text(self, extras, top)])
 
     def gnss_strip_tests(self) -> list:

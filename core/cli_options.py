@@ -57,6 +57,8 @@ def add_gnss_arguments(p) -> None:
     p.add_argument("--gnss-shift", action="store_true", help="a GNSS shift per strip (3 unknowns each, tested)")
     p.add_argument("--gnss-drift", action="store_true",
                    help="a GNSS drift per strip (3 unknowns each, per time unit of the CSV's time column)")
+    p.add_argument("--georeference", action="store_true",
+                   help="bring the block into the frame of its GNSS centres first (a robust similarity)")
     p.add_argument("--imu", metavar="CSV",
                    help="IMU attitudes image,omega,phi,kappa,somega,sphi,skappa in degrees (native bundle blocks)")
     p.add_argument("--boresight", type=angles, default=(0.0, 0.0, 0.0), metavar="DO,DP,DK",
@@ -94,12 +96,13 @@ def gnss_options(args) -> GnssOptions | None:
         used = [f for f, on in (("--estimate-lever-arm", getattr(args, "estimate_lever_arm", False)),
                                 ("--gnss-shift", getattr(args, "gnss_shift", False)),
                                 ("--gnss-drift", getattr(args, "gnss_drift", False)),
+                                ("--georeference", getattr(args, "georeference", False)),
                                 ("--lever-arm", tuple(getattr(args, "lever_arm", (0.0,) * 3)) != (0.0,) * 3)) if on]
         if used:
             raise UsageError(f"{', '.join(used)} need(s) --gnss CSV")
         return None
     return GnssOptions(path, tuple(args.lever_arm), bool(args.estimate_lever_arm), bool(args.gnss_shift),
-                       bool(args.gnss_drift))
+                       bool(args.gnss_drift), bool(args.georeference))
 
 
 #: keys of a --error spec that name things by id: kept as text, as the reader keeps ids

@@ -23,6 +23,7 @@ import math
 import numpy as np
 
 from ..errors import InputError
+from ..georeference import georeference
 from ..model.bundle import Block
 from ..model.gnss import GnssCentre, GnssSpec, ImuAttitude, ImuSpec
 from ..validate import SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
@@ -39,7 +40,8 @@ class GnssOptions:
 
     path: the CSV (module docstring). lever_arm: e from the projection centre to the antenna in
     the camera frame (m). estimate_lever_arm: estimate e (starting at ``lever_arm``). shift,
-    drift: a shift a_s and a drift b_s per strip (:mod:`baarda.observations.gnss`).
+    drift: a shift a_s and a drift b_s per strip (:mod:`baarda.observations.gnss`). georeference:
+    bring the block into the frame of the centres first (:mod:`baarda.georeference`).
     """
 
     path: object
@@ -47,6 +49,7 @@ class GnssOptions:
     estimate_lever_arm: bool = False
     shift: bool = False
     drift: bool = False
+    georeference: bool = False
 
 
 def _number(path, ln, image, name, tok):
@@ -139,7 +142,8 @@ def add_gnss(model, options: GnssOptions):
     lever = tuple(float(v) for v in options.lever_arm)
     spec = GnssSpec(tuple(centres), lever, bool(options.estimate_lever_arm), bool(options.shift),
                     bool(options.drift), source=str(path))
-    return model.replace(gnss=spec, datum="control")
+    model = model.replace(gnss=spec, datum="control")
+    return georeference(model, path) if options.georeference else model
 
 
 # --------------------------------------------------------------------------------------------
