@@ -27,13 +27,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rotation import R_opk_derivatives
+from .rotation import R_opk_derivatives, opk_from_R
 
 
 def angles_of(R: np.ndarray) -> np.ndarray:
-    """(ω, φ, κ) of rotation matrices R (..., 3, 3) built as R_ω R_φ R_κ; (..., 3) radians."""
-    return np.stack([np.arctan2(-R[..., 1, 2], R[..., 2, 2]), np.arcsin(np.clip(R[..., 0, 2], -1.0, 1.0)),
-                     np.arctan2(-R[..., 0, 1], R[..., 0, 0])], axis=-1)
+    """(ω, φ, κ) of rotation matrices R (..., 3, 3) built as R_ω R_φ R_κ; (..., 3) radians
+    (:func:`baarda.observations.rotation.opk_from_R`, stacked)."""
+    return np.stack(opk_from_R(R), axis=-1)
 
 
 def angle_derivatives(R: np.ndarray, dR: np.ndarray) -> np.ndarray:
