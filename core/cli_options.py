@@ -49,7 +49,7 @@ def add_gnss_arguments(p) -> None:
     """The GNSS options of a subcommand that reads a block."""
     p.add_argument("--gnss", metavar="CSV",
                    help="GNSS projection centres image,x,y,z,sx,sy,sz[,strip,time,rxy,rxz,ryz] observed "
-                        "(native bundle blocks; metres, the block's frame)")
+                        "(bundle blocks, SfM models converted; metres, the block's frame)")
     p.add_argument("--lever-arm", type=lever_arm, default=(0.0, 0.0, 0.0), metavar="DX,DY,DZ",
                    help="lever arm from the projection centre to the antenna, camera frame, metres (default 0,0,0)")
     p.add_argument("--estimate-lever-arm", action="store_true",
@@ -60,7 +60,7 @@ def add_gnss_arguments(p) -> None:
     p.add_argument("--georeference", action="store_true",
                    help="bring the block into the frame of its GNSS centres first (a robust similarity)")
     p.add_argument("--imu", metavar="CSV",
-                   help="IMU attitudes image,omega,phi,kappa,somega,sphi,skappa in degrees (native bundle blocks)")
+                   help="IMU attitudes image,omega,phi,kappa,somega,sphi,skappa in degrees (bundle blocks)")
     p.add_argument("--boresight", type=angles, default=(0.0, 0.0, 0.0), metavar="DO,DP,DK",
                    help="boresight ω, φ, κ in degrees: the start of its estimate, or its value with --fix-boresight")
     p.add_argument("--fix-boresight", action="store_true", help="hold the boresight at --boresight")

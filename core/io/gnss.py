@@ -10,9 +10,11 @@ covariance per centre). Any other column is refused with its name. CSV as
 :mod:`baarda.io.control` reads it (header names case-insensitive in any order, ``#`` and blank
 lines skipped, spreadsheet BOM, line ends and quotes).
 
-:func:`add_gnss` puts them into a native bundle block (:class:`baarda.model.gnss.GnssSpec`)
-with the lever arm and the strip model; the datum is then defined by the GNSS centres and the
-control points together.
+:func:`add_gnss` puts them into a native bundle block (:class:`baarda.model.gnss.GnssSpec`; a
+BAL, Bundler or COLMAP model is converted to one first) with the lever arm and the strip model;
+the datum is then defined by the GNSS centres and the control points together. An ``image`` is
+the block's image id, or an SfM model's image file name, or that name without its extension
+(:func:`image_matcher`).
 """
 
 from __future__ import annotations
@@ -22,10 +24,11 @@ import math
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import ConversionError, InputError
 from ..georeference import georeference
 from ..model.bundle import Block
 from ..model.gnss import GnssCentre, GnssSpec, ImuAttitude, ImuSpec
+from ..model.sfm import SfmBlock, to_block
 from ..validate import SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
 from .bal import read_text
 from .control import csv_rows
@@ -123,24 +126,67 @@ def read_gnss(path) -> list[GnssCentre]:
     return out
 
 
+def native_block(model, path, what: str):
+    """``model`` as a native :class:`Block`: itself, or an SfM block (BAL, Bundler, COLMAP)
+    converted as ``baarda convert`` does (intrinsics held at the file's values); InputError
+    naming ``path`` otherwise."""
+    if isinstance(model, Block):
+        return model
+    if isinstance(model, SfmBlock):
+        try:
+            return to_block(model)
+        except ConversionError as err:
+            raise InputError(path, 0, f"{what} need a native bundle block; this {model.convention} model cannot "
+                             f"be converted to one: {err}") from None
+    raise InputError(path, 0, f"{what} can be added to bundle blocks only, not to a {type(model).__name__}")
+
+
+def image_matcher(block: Block):
+    """A function file name → image id of ``block``: the image's id, else its file name (an SfM
+    model's, ``extra["image_names"]``), else that name without its extension — the last two only
+    where they name one image; None for no image."""
+    ids = {im.id for im in block.images}
+    names = dict(block.extra.get("image_names", {}) or {})
+    by_name, by_stem = {}, {}
+    for iid, name in names.items():
+        by_name.setdefault(str(name), []).append(iid)
+        by_stem.setdefault(str(name).rsplit(".", 1)[0], []).append(iid)
+
+    def match(text: str):
+        if text in ids:
+            return text
+        for table in (by_name, by_stem):
+            hit = table.get(text, [])
+            if len(hit) == 1:
+                return hit[0]
+        return None
+    return match
+
+
 def add_gnss(model, options: GnssOptions):
     """The model with the GNSS centres of ``options.path`` (a new object; nothing the caller
-    holds is changed). Native bundle blocks only; every image must be an image of the block;
+    holds is changed). A BAL, Bundler or COLMAP model is converted to a native bundle block first
+    (:func:`native_block`); every row must name an image of the block (:func:`image_matcher`);
     the datum becomes "control" (GNSS centres and control points define it)."""
     path = options.path
     centres = read_gnss(path)
-    if not isinstance(model, Block):
-        raise InputError(path, 0, f"GNSS projection centres can be added to native bundle blocks only "
-                         f"(baarda convert turns BAL, Bundler and COLMAP models into one), not to a "
-                         f"{type(model).__name__}")
-    known = {im.id for im in model.images}
+    model = native_block(model, path, "GNSS projection centres")
+    match = image_matcher(model)
+    resolved = []
     for c in centres:
-        if c.image not in known:
+        iid = match(c.image)
+        if iid is None:
             raise InputError(path, c.line, f"image {c.image} is not an image of the block", field="image")
         if options.drift and not math.isfinite(c.time):
             raise InputError(path, c.line, f"image {c.image}: --gnss-drift needs a time in every row", field="time")
+        resolved.append(dataclasses.replace(c, image=iid))
+    twice = {}
+    for c in resolved:
+        if c.image in twice:
+            raise InputError(path, c.line, f"image {c.image} named twice (first at line {twice[c.image]})", field="image")
+        twice[c.image] = c.line
     lever = tuple(float(v) for v in options.lever_arm)
-    spec = GnssSpec(tuple(centres), lever, bool(options.estimate_lever_arm), bool(options.shift),
+    spec = GnssSpec(tuple(resolved), lever, bool(options.estimate_lever_arm), bool(options.shift),
                     bool(options.drift), source=str(path))
     model = model.replace(gnss=spec, datum="control")
     return georeference(model, path) if options.georeference else model
@@ -213,17 +259,23 @@ def read_imu(path) -> list[ImuAttitude]:
 
 
 def add_imu(model, options: ImuOptions):
-    """The model with the IMU attitudes of ``options.path`` (a new object); native bundle
-    blocks only, every image an image of the block; the datum becomes "control"."""
+    """The model with the IMU attitudes of ``options.path`` (a new object); an SfM model is
+    converted first (:func:`native_block`), images matched by :func:`image_matcher`; the datum
+    becomes "control"."""
     path = options.path
     attitudes = read_imu(path)
-    if not isinstance(model, Block):
-        raise InputError(path, 0, f"IMU attitudes can be added to native bundle blocks only (baarda convert "
-                         f"turns BAL, Bundler and COLMAP models into one), not to a {type(model).__name__}")
-    known = {im.id for im in model.images}
+    model = native_block(model, path, "IMU attitudes")
+    match = image_matcher(model)
+    resolved, twice = [], {}
     for a in attitudes:
-        if a.image not in known:
+        iid = match(a.image)
+        if iid is None:
             raise InputError(path, a.line, f"image {a.image} is not an image of the block", field="image")
+        if iid in twice:
+            raise InputError(path, a.line, f"image {iid} named twice (first at line {twice[iid]})", field="image")
+        twice[iid] = a.line
+        resolved.append(dataclasses.replace(a, image=iid))
+    attitudes = resolved
     spec = ImuSpec(tuple(attitudes), tuple(float(b) for b in np.radians(options.boresight)),
                    bool(options.boresight_fixed), source=str(path))
     return model.replace(imu=spec, datum="control")

@@ -66,13 +66,37 @@ def test_drift_needs_times_and_options_need_gnss(block, tmp_path, capsys):
     assert "expected DX,DY,DZ" in capsys.readouterr().err
 
 
-def test_gnss_on_an_sfm_block_is_refused(tmp_path, capsys):
+def test_gnss_on_a_colmap_model_matched_by_file_name(tmp_path, capsys):
+    """A COLMAP model is converted to a native block (intrinsics held); the GNSS file names its
+    images by file name (img1.jpg) or stem (img2). Its three centres lie on a line: georeferencing
+    is refused, and without control the rotation about the line is a datum defect, named."""
     from pathlib import Path
-    bal = Path(__file__).resolve().parents[1] / "malformed" / "valid" / "bal-valid.txt"
+
+    from baarda.io import read_model
+    from baarda.model.sfm import to_block
+    colmap = Path(__file__).resolve().parents[1] / "malformed" / "valid" / "colmap-valid"
+    blk = to_block(read_model(colmap))
+    names = blk.extra["image_names"]
+    C = np.array([[im.X0, im.Y0, im.Z0] for im in blk.images])
+    G = C + np.random.default_rng(0).normal(0, 0.01, C.shape)
+    rows = ["image,x,y,z,sx,sy,sz"]
+    for k, im in enumerate(blk.images):
+        name = names[im.id] if k % 2 == 0 else names[im.id].rsplit(".", 1)[0]
+        rows.append(f"{name},{float(G[k, 0])!r},{float(G[k, 1])!r},{float(G[k, 2])!r},0.01,0.01,0.01")
     p = tmp_path / "g.csv"
-    p.write_text("image,x,y,z,sx,sy,sz\n0,0,0,0,1,1,1\n")
-    assert main(["analyze", str(bal), "--gnss", str(p)]) == 2
-    assert "native bundle blocks only" in capsys.readouterr().err
+    p.write_text("\n".join(rows) + "\n")
+    from baarda.build import read_problem
+    problem = read_problem(colmap, gnss=p)
+    assert problem.datum.describe().startswith(f"GNSS projection centres ({len(blk.images)})")
+    gx = [i for i, k in enumerate(problem.info.kind) if k == "gnss-x"]
+    assert {problem.info.ids[i]["image"] for i in gx} == {im.id for im in blk.images}
+    assert main(["analyze", str(colmap), "--gnss", str(p)]) == 2
+    assert "rotation about x undetermined" in capsys.readouterr().err
+    assert main(["analyze", str(colmap), "--gnss", str(p), "--georeference"]) == 2
+    assert "--georeference: the projection centres lie on a line" in capsys.readouterr().err
+    p.write_text("image,x,y,z,sx,sy,sz\nnot-an-image.jpg,0,0,0,1,1,1\n")
+    assert main(["analyze", str(colmap), "--gnss", str(p)]) == 2
+    assert f"{p}:2: image not-an-image.jpg is not an image of the block" in capsys.readouterr().err
 
 
 def test_cli_json_and_simulate(block, tmp_path, capsys):
