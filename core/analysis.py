@@ -212,8 +212,8 @@ def analyze(source, *, format: str = "auto", solver: SolverOptions | None = None
         points dropped.
     gnss : str, os.PathLike or baarda.io.gnss.GnssOptions, optional
         GNSS projection centres (a CSV ``image,x,y,z,sx,sy,sz``; the options give the lever arm
-        and whether each strip gets a shift and a drift): observations of a native bundle block
-        (:mod:`baarda.observations.gnss`), tested like every other observation.
+        and whether each strip gets a shift and a drift): observations of a bundle block (an SfM
+        model converted to one; :mod:`baarda.observations.gnss`), tested like any observation.
     imu : str, os.PathLike or baarda.io.gnss.ImuOptions, optional
         IMU attitudes (a CSV ``image,omega,phi,kappa,somega,sphi,skappa`` in degrees) with a
         boresight rotation, estimated unless held (:mod:`baarda.observations.imu`).
