@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sqlite3
 
 import numpy as np
 
@@ -68,8 +69,75 @@ def _number(path, ln, image, name, tok):
     return v
 
 
+#: the first bytes of an SQLite 3 database (a COLMAP ``database.db``)
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def read_pose_priors(path) -> list[GnssCentre]:
+    """The position priors of a COLMAP ``database.db`` (sqlite, no COLMAP needed) as GNSS centres:
+    table ``pose_priors`` as COLMAP 3.9-3.12 writes it (``image_id``, ``position``,
+    ``coordinate_system``, ``position_covariance``) or COLMAP 4 (``corr_data_id`` = image id for
+    ``corr_sensor_type`` 0, camera). ``position`` is 3 little-endian doubles, the covariance 9;
+    only Cartesian priors (coordinate_system 1; -1, undefined, taken as Cartesian) are read — WGS84
+    latitude/longitude (0) would need a map projection first. Image ids are COLMAP's IMAGE_IDs;
+    "line" is the prior's row number. InputError naming the file for anything else."""
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            cols = [r[1] for r in con.execute("PRAGMA table_info(pose_priors)")]
+            if not cols:
+                raise InputError(path, 0, "a COLMAP database without a pose_priors table")
+            if "image_id" in cols:
+                rows = con.execute("SELECT image_id, position, coordinate_system, position_covariance "
+                                   "FROM pose_priors ORDER BY image_id").fetchall()
+            elif "corr_data_id" in cols:
+                rows = con.execute("SELECT corr_data_id, position, coordinate_system, position_covariance "
+                                   "FROM pose_priors WHERE corr_sensor_type = 0 ORDER BY corr_data_id").fetchall()
+            else:
+                raise InputError(path, 0, f"pose_priors has neither image_id nor corr_data_id (columns: "
+                                 f"{', '.join(cols)})")
+        finally:
+            con.close()
+    except sqlite3.Error as err:
+        raise InputError(path, 0, f"cannot read the COLMAP database: {err}") from None
+    out = []
+    for k, (image, pos, system, cov) in enumerate(rows, 1):
+        what = f"pose prior {k} (image {image})"
+        if system == 0:
+            raise InputError(path, 0, f"{what}: WGS84 latitude/longitude; baarda needs Cartesian positions "
+                             f"(metres in a projected or local frame)")
+        if not isinstance(pos, bytes) or len(pos) != 24:
+            raise InputError(path, 0, f"{what}: position is not 3 doubles")
+        xyz = np.frombuffer(pos, dtype="<f8")
+        if not isinstance(cov, bytes) or len(cov) != 72:
+            raise InputError(path, 0, f"{what}: position_covariance is not 9 doubles")
+        C = np.frombuffer(cov, dtype="<f8").reshape(3, 3)
+        if not (np.isfinite(xyz).all() and np.isfinite(C).all()):
+            raise InputError(path, 0, f"{what}: position or covariance not finite (COLMAP stores NaN for an "
+                             f"unknown covariance: give the σ in a CSV instead)")
+        C = 0.5 * (C + C.T)
+        sd = np.sqrt(np.clip(np.diag(C), 0.0, None))
+        if np.linalg.eigvalsh(C)[0] <= 0 or not ((sd >= SIGMA_MIN) & (sd <= SIGMA_MAX)).all():
+            raise InputError(path, 0, f"{what}: the covariance is not positive definite with σ in "
+                             f"[{SIGMA_MIN:g}, {SIGMA_MAX:g}]")
+        if np.abs(xyz).max() > VALUE_LIMIT:
+            raise InputError(path, 0, f"{what}: position beyond ±{VALUE_LIMIT:g}")
+        out.append(GnssCentre(str(image), tuple(float(v) for v in xyz), tuple(map(tuple, C.tolist())), "",
+                              float("nan"), k))
+    if not out:
+        raise InputError(path, 0, "the COLMAP database has no pose priors of images")
+    return out
+
+
 def read_gnss(path) -> list[GnssCentre]:
-    """The GNSS centres of a CSV file (module docstring); InputError naming file, line and field."""
+    """The GNSS centres of a CSV file (module docstring), or the pose priors of a COLMAP
+    ``database.db`` (:func:`read_pose_priors`); InputError naming file, line and field."""
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(16) == SQLITE_MAGIC:
+                return read_pose_priors(path)
+    except OSError:
+        pass                                    # read_text below says what is wrong
     text = read_text(path)
     rows = [(ln, r) for ln, r in csv_rows(path, text)
             if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]

@@ -165,3 +165,55 @@ def test_imu_through_the_cli(tmp_path, capsys):
     assert len(imu) == 24 and all(o["unit"] == "deg" for o in imu)
     assert main(["analyze", str(out), "--fix-boresight"]) == 2
     assert "--boresight / --fix-boresight need --imu CSV" in capsys.readouterr().err
+
+
+def _pose_prior_db(path, rows, v4=False):
+    """A COLMAP database.db with only a pose_priors table, as COLMAP 3.9-3.12 (or 4) writes it."""
+    import sqlite3
+    con = sqlite3.connect(path)
+    if v4:
+        con.execute("CREATE TABLE pose_priors (pose_prior_id INTEGER PRIMARY KEY NOT NULL, corr_data_id INTEGER "
+                    "NOT NULL, corr_sensor_id INTEGER NOT NULL, corr_sensor_type INTEGER NOT NULL, position BLOB, "
+                    "position_covariance BLOB, gravity BLOB, coordinate_system INTEGER NOT NULL)")
+        con.executemany("INSERT INTO pose_priors VALUES (?, ?, 1, 0, ?, ?, NULL, ?)",
+                        [(k, i, np.asarray(p, "<f8").tobytes(), np.asarray(c, "<f8").tobytes(), cs)
+                         for k, (i, p, c, cs) in enumerate(rows, 1)])
+    else:
+        con.execute("CREATE TABLE pose_priors (image_id INTEGER PRIMARY KEY NOT NULL, position BLOB, "
+                    "coordinate_system INTEGER NOT NULL, position_covariance BLOB)")
+        con.executemany("INSERT INTO pose_priors VALUES (?, ?, ?, ?)",
+                        [(i, np.asarray(p, "<f8").tobytes(), cs, np.asarray(c, "<f8").tobytes())
+                         for i, p, c, cs in rows])
+    con.commit()
+    con.close()
+
+
+@pytest.mark.parametrize("v4", [False, True], ids=["colmap-3", "colmap-4"])
+def test_colmap_pose_priors_from_database_db(tmp_path, capsys, v4):
+    from pathlib import Path
+
+    from baarda.build import read_problem
+    from baarda.io import read_model
+    from baarda.model.sfm import to_block
+    colmap = Path(__file__).resolve().parents[1] / "malformed" / "valid" / "colmap-valid"
+    blk = to_block(read_model(colmap))
+    cov = [[0.0004, 0.0001, 0.0], [0.0001, 0.0009, 0.0], [0.0, 0.0, 0.0016]]
+    rows = [(int(im.id), [im.X0 + 0.01, im.Y0, im.Z0], cov, 1) for im in blk.images]
+    db = tmp_path / "database.db"
+    _pose_prior_db(db, rows, v4)
+    centres = baarda.io.gnss.read_gnss(db)
+    assert [c.image for c in centres] == [im.id for im in blk.images]
+    np.testing.assert_allclose(centres[0].cov, cov)
+    problem = read_problem(colmap, gnss=db)
+    g = [i for i, k in enumerate(problem.info.kind) if k.startswith("gnss-")]
+    assert len(g) == 3 * len(blk.images)
+    np.testing.assert_allclose(problem.cov.matrix().toarray()[np.ix_(g[:3], g[:3])], cov)
+    bad = tmp_path / "wgs84.db"
+    _pose_prior_db(bad, [(1, [52.0, 4.3, 10.0], cov, 0)], v4)
+    assert main(["analyze", str(colmap), "--gnss", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"baarda: error: {bad}:0: pose prior 1 (image 1): WGS84") and err.count("\n") == 1
+    nan = tmp_path / "nan.db"
+    _pose_prior_db(nan, [(1, [1.0, 2.0, 3.0], np.full((3, 3), np.nan), 1)], v4)
+    assert main(["analyze", str(colmap), "--gnss", str(nan)]) == 2
+    assert "COLMAP stores NaN for an unknown covariance" in capsys.readouterr().err
