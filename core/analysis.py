@@ -350,13 +350,6 @@ class Analysis:
         """The result document (docs/json-schema.md) with what ``extras`` asks for; records of
         observations, points and groups are made when read (:class:`baarda.io.results.Records`)."""
         doc = results.to_dict(self.adjustment, self.reliability)
-        if has_check_points(self.problem.notes.local_model):
-            doc["check_points"] = results.finite(self.check_points())
-        if self.gnss_strip_tests():
-            doc["gnss_strip_tests"] = results.finite(self.gnss_strip_tests())
-        geo = getattr(self.problem.notes.local_model, "extra", {}).get("georeference")
-        if geo is not None:
-            doc["georeference"] = results.finite(geo)
         if extras is not None:
             self._add_extras(doc, extras)
         return doc
@@ -384,7 +377,7 @@ class Analysis:
             head = "\n".join([head, *check_point_lines(self.check_points())])
         if self.gnss_strip_tests():
             head = "\n".join([head, *strip_test_lines(self.gnss_strip_tests())])
-        geo = getattr(self.problem.notes.local_model, "extra", {}).get("georeference")
+        geo = results.georeference_of(self.adjustment)
         if geo is not None:
             head = "\n".join([head, *(printable(x) for x in georeference_lines(geo))])
         return head if extras is None else "\n".join([head, *extras_text(self, extras, top)])
@@ -403,8 +396,8 @@ class Analysis:
         minus known coordinates and the RMSE per axis (:func:`baarda.model.bundle.check_points`);
         they never enter the adjustment. Empty (``n`` 0) for a model without them."""
         model = self.problem.notes.local_model
-        return self._cached("check_points", lambda: _check_points(self.adjustment, model) if model is not None
-                            else _check_points(self.adjustment, _NoModel()))
+        return self._cached("check_points", lambda: _check_points(self.adjustment, model if model is not None
+                                                                  else _NoModel()))
 
     # -- computed on demand --------------------------------------------------------------------------
     def test(self, spec, label: str | None = None) -> dict:

@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from ..datum import far_points
+from ..model.bundle import check_points, has_check_points
 from ..stats.ap_tests import ap_tests
+from ..stats.hypotheses import strip_tests
 from ..text import number, printable
 from .output import OutputError, atomic_write, csv_cell
 
@@ -215,7 +217,23 @@ def to_dict(adj, reliability=None) -> dict:
            "observations": observations(adj, rel), "points": points(adj), "groups": groups(adj, rel)}
     if adj.problem.notes.ap_groups:
         doc["ap_tests"] = finite(ap_tests(adj, rel.policy))
+    model = adj.problem.notes.local_model
+    if has_check_points(model):
+        doc["check_points"] = finite(check_points(adj, model))
+    if getattr(model, "gnss", None) is not None and model.gnss.centres:
+        strips = strip_tests(adj, rel)
+        if strips:
+            doc["gnss_strip_tests"] = finite(strips)
+    geo = georeference_of(adj)
+    if geo is not None:
+        doc["georeference"] = finite(geo)
     return doc
+
+
+def georeference_of(adj) -> dict | None:
+    """The similarity a block was georeferenced by (:mod:`baarda.georeference`), or None."""
+    extra = getattr(adj.problem.notes.local_model, "extra", None)
+    return extra.get("georeference") if isinstance(extra, dict) else None
 
 
 def columns(records) -> dict:
