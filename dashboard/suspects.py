@@ -74,6 +74,9 @@ NAME_TRIES = 3
 
 COLUMNS = ["rank", "what", "hypothesis", "p", "decision", "explained by", "|w|", "|τ|", "T", "k", "q",
            "MDB ratio", "∇ŝ", "cannot be told apart from", "obs", "point", "image"]
+#: Columns after :data:`COLUMNS` for the downloads: ∇ŝ as a tuple of numbers in the file's unit
+#: of its observations, and that unit (:mod:`baarda.dashboard.tables`).
+EXTRA = ["∇ŝ values", "∇ŝ unit"]
 
 
 def log_p(T: float, q: int, policy=None, tau: float | None = None, dof: int = 0) -> float:
@@ -98,6 +101,11 @@ def _max_abs(values: np.ndarray, rows) -> float:
 
 def _estimate_text(nabla, factor: float, unit: str) -> str:
     return ", ".join(f"{x * factor:+.3g}" for x in np.atleast_1d(nabla)) + f" {unit}"
+
+
+def _values(nabla, factor: float) -> tuple[float, ...]:
+    """∇ŝ as numbers in the file's unit (the downloads' typed columns)."""
+    return tuple(float(x) * factor for x in np.atleast_1d(nabla))
 
 
 def _point_of(state, rows) -> int | None:
@@ -144,7 +152,7 @@ def _one_dimensional(state, picked: np.ndarray) -> list[dict]:
                     "|w|": abs(float(adj.w[k])), "|τ|": abs(float(adj.tau[k])),
                     "T": float(stat[k]) ** 2, "k": float(rel.critical) ** 2, "rejected": bool(rel.rejected[k]),
                     "q": 1, "_logp": log_p(float(adj.w[k]) ** 2, 1, rel.policy, float(adj.tau[k]), int(adj.dof)),
-                    "∇ŝ": _estimate_text(nabla, factor[i], units[i]),
+                    "∇ŝ": _estimate_text(nabla, factor[i], units[i]), "_nabla": _values(nabla, factor[i]), "_unit": units[i],
                     "MDB ratio": abs(float(stat[k])) / d0,
                     "obs": i, "point": _point_of(s, [i]),
                     "image": str(ids["image"]) if "image" in ids else None,
@@ -178,6 +186,7 @@ def _groups(state) -> list[dict]:
                     "T": float(d["T"]), "k": float(d["critical"]), "rejected": bool(d["rejected"]),
                     "q": q, "_logp": log_p(float(d["T"]), q),
                     "∇ŝ": _estimate_text(d["nabla"], factor[i0], units[i0]),
+                    "_nabla": _values(d["nabla"], factor[i0]), "_unit": units[i0],
                     "MDB ratio": float(np.sqrt(max(d["T"], 0.0)) / rel.policy.delta0(q)) if q else float("nan"),
                     "obs": i0, "point": _point_of(s, rows),
                     "image": str(ids["image"]) if "image" in ids else None,
@@ -250,6 +259,7 @@ def _transfers(state, seeds: list[dict]) -> list[dict]:
                           "T": float(h.T), "k": float(h.critical_T), "rejected": bool(h.rejected_T),
                           "q": int(h.q), "_logp": log_p(float(h.T), int(h.q)),
                           "∇ŝ": _estimate_text(h.nabla, factor[i0], units[i0]),
+                          "_nabla": _values(h.nabla, factor[i0]), "_unit": units[i0],
                           "MDB ratio": float(np.sqrt(max(h.T, 0.0)) / h.delta0),
                           "obs": i0, "point": s.problem_index()["point_index"].get(pid), "image": ims[0],
                           "_H": H, "_key": ("transfer", pid, tuple(ims))})
@@ -404,7 +414,7 @@ def suspects(state) -> pd.DataFrame:
     (:func:`baarda.dashboard.jobs.shared`: sessions opened on a cached file share its
     adjustment, and its kept observations with it): the frame is shared, not to be changed."""
     if state.results is None:
-        return pd.DataFrame(columns=COLUMNS)
+        return pd.DataFrame(columns=COLUMNS + EXTRA)
     return shared(state.results, ("suspects", state.reliability.policy), lambda: _ranked(state))
 
 
@@ -427,7 +437,8 @@ def _ranked(state) -> pd.DataFrame:
                         "decision": "rejected" if r["rejected"] else "accepted",
                         "cannot be told apart from": "; ".join(r["_twins"])} for r in rows])
     if df.empty:
-        return pd.DataFrame(columns=COLUMNS)
+        return pd.DataFrame(columns=COLUMNS + EXTRA)
     df.insert(0, "rank", np.arange(1, len(df) + 1))
     df["q"] = df["q"].astype(np.int64)
-    return df[COLUMNS]
+    df[EXTRA] = pd.DataFrame([(r["_nabla"], r["_unit"]) for r in rows], columns=EXTRA)
+    return df[COLUMNS + EXTRA]
