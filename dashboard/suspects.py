@@ -23,7 +23,7 @@ the model extended by C (F80 §2.2 with H' = [H_C H]): T(H_C, H) − T(H_C) ~ χ
 H0, rejected at the policy's α for that dimension — then the others, each by its p-value. A
 rejected row the tier-one suspects explain names the one that does ("explained by"; a twin is
 explained by the hypothesis it cannot be told apart from). Ties (twins have one p-value) go to
-the larger hypothesis, then the first observation in the file.
+the larger hypothesis (dimension, then observations), then the first observation in the file.
 
 Columns: |w| and |τ| (the largest over the hypothesis' observations), T and its critical value k,
 the decision in words, the estimated error ∇ŝ (F80 eq. 10, in the file's units of the
@@ -269,10 +269,12 @@ def _transfers(state, seeds: list[dict]) -> list[dict]:
 
 
 def _order(row: dict) -> tuple:
-    """Sort key of one scale: the p-value (smallest first), then the larger hypothesis, then the
-    first observation in the file (twins have one p-value)."""
+    """Sort key of one scale: the p-value (smallest first), then the larger hypothesis (its
+    dimension, then its observations: an image point before its coordinates), then the first
+    observation in the file (twins have one p-value)."""
     lp = row["_logp"]
-    return (round(lp, 6) if np.isfinite(lp) else np.inf, -int(row.get("q") or 0), int(row["obs"]))
+    return (round(lp, 6) if np.isfinite(lp) else np.inf, -int(row.get("q") or 0), -int(row["_H"].shape[1]),
+            int(row["obs"]))
 
 
 def _rank_key(row: dict) -> tuple:

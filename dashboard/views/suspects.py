@@ -54,10 +54,11 @@ class SuspectsView(pn.viewable.Viewer):
             formatters={"decision": DECISION, "cannot be told apart from": TWINS,
                         "|w|": NumberFormatter(format="0.00"), "|τ|": NumberFormatter(format="0.00"),
                         "T": NumberFormatter(format="0.0"), "k": NumberFormatter(format="0.0"),
-                        "MDB ratio": NumberFormatter(format="0.00"), "p": ScientificFormatter(precision=1)},
+                        "MDB ratio": NumberFormatter(format="0.00"),
+                        "p": ScientificFormatter(precision=2, power_limit_low=-2)},
             titles={"k": "critical k", "∇ŝ": "∇ŝ (estimate)", "MDB ratio": "∇ŝ / ∇0s", "p": "p-value"},
             text_align={c: "right" for c in ("|w|", "|τ|", "T", "k", "q", "MDB ratio", "p")},
-            widths={"rank": 40, "what": 88, "hypothesis": 170, "decision": 92}, frozen_columns=["rank"])
+            widths={"rank": 54, "what": 88, "hypothesis": 170, "decision": 92}, frozen_columns=["rank"])
         self.table.param.watch(self._clicked, "selection")
         self.state.param.watch(self._refresh, ["results", "reliability"])
         self._refresh()
@@ -94,9 +95,10 @@ class SuspectsView(pn.viewable.Viewer):
         own = int(((df["explained by"] == "") & (df["decision"] == "rejected")).sum())
         text = (f"<b>{len(df)} suspects</b> ranked by the p-value of their test under the policy "
                 f"(|{rel.policy.statistic_name}| for one observation, T ~ χ²(q) for a group, a point transfer, "
-                f"a control point), the {own} that the stronger ones above do not explain first "
-                "(tested given them; \"or …\": an alternative the data hardly tell apart from it); "
-                "click a column header to sort by it. "
+                "a control point)"
+                + (f", the {own} rejected that the stronger ones above do not explain first (tested given "
+                   "them; \"or …\": an alternative the data hardly tell apart from it)" if own else "")
+                + "; click a column header to sort by it. "
                 f"{n_obs} observation(s) and {n_grp} group(s) rejected in all"
                 + (f" ({'; '.join(more)})" if more else "") + ". "
                 + (f"<span style='color:#a15c00'>{twins} cannot be told apart from others</span> "
