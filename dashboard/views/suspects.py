@@ -56,7 +56,7 @@ class SuspectsView(pn.viewable.Viewer):
                         "T": NumberFormatter(format="0.0"), "k": NumberFormatter(format="0.0"),
                         "MDB ratio": NumberFormatter(format="0.00"),
                         "p": ScientificFormatter(precision=2, power_limit_low=-2)},
-            titles={"k": "critical k", "∇ŝ": "∇ŝ (estimate)", "MDB ratio": "∇ŝ / ∇0s", "p": "p-value"},
+            titles={"rank": "#", "k": "critical k", "∇ŝ": "∇ŝ (estimate)", "MDB ratio": "∇ŝ / ∇0s", "p": "p-value"},
             text_align={c: "right" for c in ("|w|", "|τ|", "T", "k", "q", "MDB ratio", "p")},
             widths={"rank": 54, "what": 88, "hypothesis": 170, "decision": 92}, frozen_columns=["rank"])
         self.table.param.watch(self._clicked, "selection")
