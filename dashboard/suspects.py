@@ -33,8 +33,9 @@ observation |∇ŝ| / MDB = |w| / δ0. Hypotheses whose statistics are (near-)pe
 (|ρ| ≥ :data:`baarda.stats.separability.THRESHOLD`; F80 §7.4, M84 §3.3) cannot be told apart by
 the data: each row names its twins.
 
-The dashboard computes nothing here: the statistics are the core's, the list only orders and
-names them (issue 15, item 2).
+The dashboard computes no statistic here: every T (of a hypothesis alone or with the suspects
+above it) is the core's test (:meth:`baarda.stats.reliability.Reliability.test`); the list orders,
+tiers and names them (issue 15, item 2; issue 31, item 1).
 """
 
 from __future__ import annotations
@@ -368,9 +369,9 @@ def _explainer(state, row: dict, causes: list[dict]) -> tuple[dict | None, bool]
         except (BaardaError, np.linalg.LinAlgError, ValueError):
             continue
         dq, dT = int(h.q) - qc, float(h.T) - Tc
-        if dq <= 0 or (dT <= policy.critical_T(dq) and dT <= KEPT * _own(rel, row)[0]):
-            if best is None or dT < best[1]:
-                best = (c, dT, dq, float(h.T))
+        explains = dq <= 0 or (dT <= policy.critical_T(dq) and dT <= KEPT * _own(rel, row)[0])
+        if explains and (best is None or dT < best[1]):
+            best = (c, dT, dq, float(h.T))
     if best is None:
         return None, False
     c, dT, dq, Tcr = best

@@ -43,8 +43,8 @@ def test_power_and_tail_ranges_follow_q(view):
         if q >= 2:
             assert y1 > stats.chi2.pdf(q - 2 if q > 2 else 1e-9, q) and x0 <= q - 2 < x1, q
             assert y1 < 1.5 * max(stats.chi2.pdf(max(q - 2, 1e-9), q), 0.05)     # not left on a taller frame
-        top_a = -optimize.minimize_scalar(lambda x: -stats.ncx2.pdf(x, q, lam), bounds=(0.5, 3 * lam + 20),
-                                          method="bounded").fun
+        top_a = -optimize.minimize_scalar(lambda x, q=q, lam=lam: -stats.ncx2.pdf(x, q, lam),
+                                          bounds=(0.5, 3 * lam + 20), method="bounded").fun
         assert y0 == 0 and y1 > top_a, q
         assert f"{q}-dimensional" in f.title.text
         # the log tail: x from this q's k, y over the tail of Ha
