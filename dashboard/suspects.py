@@ -40,6 +40,8 @@ tiers and names them (issue 15, item 2; issue 31, item 1).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pandas as pd
 import scipy.sparse as sp
@@ -70,6 +72,9 @@ MAX_CAUSES = 15
 #: controlled point — loses its rejection to any small correlation; smear from a large error loses
 #: most of its T).
 KEPT = 0.5
+#: Seconds the tiering may take (the list is computed once per result and policy, off the event
+#: loop when served); the rows after it are ranked by their own p-value.
+TIME_BUDGET = 20.0
 #: Causes tried one by one to name the one that explains a row (else "the suspects above").
 NAME_TRIES = 3
 
@@ -296,16 +301,18 @@ def _explain(state, rows: list[dict]) -> None:
     eq. 12 in the model extended by C), still rejects; else (``_tier`` 1) ``explained by`` names
     the suspect above that explains it alone (of the first :data:`NAME_TRIES` sharing its point or
     image, then the strongest), or "the suspects above". Rows are visited by p-value; past
-    :data:`MAX_CAUSES` suspects the rejected rows stay in the first tier untested."""
+    :data:`MAX_CAUSES` suspects, or :data:`TIME_BUDGET` seconds (a block of 10⁵ observations
+    solves for a second per test), the rejected rows stay in the first tier untested."""
     rel = state.reliability
     policy = rel.policy
     causes: list[dict] = []
     HC, TC, qC = None, 0.0, 0
+    end = time.monotonic() + TIME_BUDGET
     for r in sorted(rows, key=_order):
         r["_tier"], r["explained by"], r["_alt"] = 1, "", None
         if not r["rejected"]:
             continue
-        if len(causes) >= MAX_CAUSES:
+        if len(causes) >= MAX_CAUSES or time.monotonic() > end:
             r["_tier"] = 0
             continue
         own = HC is None

@@ -239,3 +239,18 @@ def test_tests_table_decisions_in_words_and_abs_w_sorted(demo):
     df = view.table.value
     assert df["decision"].iat[301] == "excluded" and df["excluded"].iat[301] == "excluded"
     st.include(301)
+
+
+def test_tiering_stops_at_its_time_budget(demo, monkeypatch):
+    """Past the time budget the rejected rows are ranked by their own p-value, untested (a large
+    block must not wait minutes for its list)."""
+    from baarda.dashboard import suspects as module
+
+    st, _, _ = demo
+    monkeypatch.setattr(module, "TIME_BUDGET", -1.0)
+    df = module._ranked(st)
+    assert (df["explained by"] == "").all()
+    rej = df[df["decision"] == "rejected"]
+    assert list(rej["rank"]) == list(range(1, len(rej) + 1))
+    lp = np.log(rej["p"].to_numpy(dtype=float) + 1e-300)
+    assert np.all(np.diff(lp) >= -1e-6)
