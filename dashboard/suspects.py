@@ -12,22 +12,40 @@ Every row is a hypothesis the core has tested on the current adjustment (:class:
   point over consecutive images of one strip (a scan over the runs of at least two of its images
   in each strip; :data:`TRANSFER_POINTS` points at most), each tested by ``Reliability.test``.
 
+**One scale** (issue 31, item 1): every row carries the p-value of its own test under the
+test policy — the probability of a statistic at least this large if the hypothesis' observations
+are free of error: χ²(q) of T for a q-dimensional hypothesis (F80 eq. 12; q = 1: Baarda's w,
+two-sided normal), Pope's τ distribution (τ²/r ~ Beta(1/2, (r−1)/2), P76) for an observation
+when the policy decides on τ. Twenty rejected neighbours of one large error would fill the first
+screen, so the rows are ranked in two tiers: first the rejected hypotheses that the stronger ones
+above them do not explain — hypothesis H is tested *given* the set C of those already listed, in
+the model extended by C (F80 §2.2 with H' = [H_C H]): T(H_C, H) − T(H_C) ~ χ²(q' − q_C) under
+H0, rejected at the policy's α for that dimension — then the others, each by its p-value. A
+rejected row the tier-one suspects explain names the one that does ("explained by"; a twin is
+explained by the hypothesis it cannot be told apart from). Ties (twins have one p-value) go to
+the larger hypothesis (dimension, then observations), then the first observation in the file.
+
 Columns: |w| and |τ| (the largest over the hypothesis' observations), T and its critical value k,
 the decision in words, the estimated error ∇ŝ (F80 eq. 10, in the file's units of the
 observations), and the MDB ratio √T / δ0(q): the length of ∇ŝ over the lower bound ∇0s in its
 own direction (F80 eq. 13, ∇0s = s δ0 / √(sᵀ W s) with s = ∇ŝ and ∇ŝᵀ W ∇ŝ = T); for one
 observation |∇ŝ| / MDB = |w| / δ0. Hypotheses whose statistics are (near-)perfectly correlated
 (|ρ| ≥ :data:`baarda.stats.separability.THRESHOLD`; F80 §7.4, M84 §3.3) cannot be told apart by
-the data: each row names its twins. The list is sorted by |w|, largest first.
+the data: each row names its twins.
 
-The dashboard computes nothing here: the statistics are the core's, the list only orders and
-names them (issue 15, item 2).
+The dashboard computes no statistic here: every T (of a hypothesis alone or with the suspects
+above it) is the core's test (:meth:`baarda.stats.reliability.Reliability.test`); the list orders,
+tiers and names them (issue 15, item 2; issue 31, item 1).
 """
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pandas as pd
+import scipy.sparse as sp
+from scipy import stats
 
 from baarda.errors import BaardaError
 from baarda.stats import separability
@@ -46,8 +64,39 @@ TRANSFER_POINTS = 8
 #: Transfer hypotheses kept per point (the largest T / k first).
 TRANSFER_PER_POINT = 3
 
-COLUMNS = ["rank", "what", "hypothesis", "|w|", "decision", "|τ|", "T", "k", "MDB ratio", "∇ŝ",
-           "cannot be told apart from", "obs", "point", "image"]
+#: Suspects tested given the stronger ones at most (the first screen and more); the rejected rows
+#: below them are ranked by their own p-value without the conditional test.
+MAX_CAUSES = 15
+#: A rejected row the suspects above do not reject given them stays a suspect of its own while it
+#: keeps more than this share of its statistic T given them (a marginal error — a weakly
+#: controlled point — loses its rejection to any small correlation; smear from a large error loses
+#: most of its T).
+KEPT = 0.5
+#: Seconds the tiering may take (the list is computed once per result and policy, off the event
+#: loop when served); the rows after it are ranked by their own p-value.
+TIME_BUDGET = 20.0
+#: Causes tried one by one to name the one that explains a row (else "the suspects above").
+NAME_TRIES = 3
+
+COLUMNS = ["rank", "what", "hypothesis", "p", "decision", "explained by", "|w|", "|τ|", "T", "k", "q",
+           "MDB ratio", "∇ŝ", "cannot be told apart from", "obs", "point", "image"]
+#: Columns after :data:`COLUMNS` for the downloads: ∇ŝ as a tuple of numbers in the file's unit
+#: of its observations, and that unit (:mod:`baarda.dashboard.tables`).
+EXTRA = ["∇ŝ values", "∇ŝ unit"]
+
+
+def log_p(T: float, q: int, policy=None, tau: float | None = None, dof: int = 0) -> float:
+    """Natural logarithm of the p-value of a test under ``policy``: χ²(q) of T (F80 eq. 12;
+    q = 1 is the two-sided normal test of w, T = w²), or, for one observation when the policy
+    decides on τ (``tau`` given), Pope's P(|τ| ≥ |tau|) with τ²/r ~ Beta(1/2, (r−1)/2) (P76).
+    NaN for a test that sees nothing (q = 0) or an undefined statistic."""
+    if policy is not None and policy.sigma0 == "aposteriori" and tau is not None:
+        if not (np.isfinite(tau) and dof > 1):
+            return float("nan")
+        return float(stats.beta.logsf(min(tau * tau / dof, 1.0), 0.5, (dof - 1) / 2.0))
+    if not (q > 0 and np.isfinite(T)):
+        return float("nan")
+    return float(stats.chi2.logsf(max(T, 0.0), q))
 
 
 def _max_abs(values: np.ndarray, rows) -> float:
@@ -58,6 +107,11 @@ def _max_abs(values: np.ndarray, rows) -> float:
 
 def _estimate_text(nabla, factor: float, unit: str) -> str:
     return ", ".join(f"{x * factor:+.3g}" for x in np.atleast_1d(nabla)) + f" {unit}"
+
+
+def _values(nabla, factor: float) -> tuple[float, ...]:
+    """∇ŝ as numbers in the file's unit (the downloads' typed columns)."""
+    return tuple(float(x) * factor for x in np.atleast_1d(nabla))
 
 
 def _point_of(state, rows) -> int | None:
@@ -103,7 +157,8 @@ def _one_dimensional(state, picked: np.ndarray) -> list[dict]:
         out.append({"what": "observation", "hypothesis": plain(f"{i} {obs['kind'].iat[i]} {obs['ids'].iat[i]}"),
                     "|w|": abs(float(adj.w[k])), "|τ|": abs(float(adj.tau[k])),
                     "T": float(stat[k]) ** 2, "k": float(rel.critical) ** 2, "rejected": bool(rel.rejected[k]),
-                    "∇ŝ": _estimate_text(nabla, factor[i], units[i]),
+                    "q": 1, "_logp": log_p(float(adj.w[k]) ** 2, 1, rel.policy, float(adj.tau[k]), int(adj.dof)),
+                    "∇ŝ": _estimate_text(nabla, factor[i], units[i]), "_nabla": _values(nabla, factor[i]), "_unit": units[i],
                     "MDB ratio": abs(float(stat[k])) / d0,
                     "obs": i, "point": _point_of(s, [i]),
                     "image": str(ids["image"]) if "image" in ids else None,
@@ -118,10 +173,11 @@ def _groups(state) -> list[dict]:
     if len(g) == 0:
         return []
     factor, units = s.problem_index()["factor"]
-    ratio = np.where(g.critical > 0, g.T / np.where(g.critical > 0, g.critical, 1.0), 0.0)
-    ratio = np.where(g.dimension > 0, ratio, -np.inf)
-    order = np.argsort(-ratio, kind="stable")
-    chosen = [int(k) for k in order[:TOP_GROUPS] if np.isfinite(ratio[k])]
+    q = np.asarray(g.dimension, dtype=np.int64)
+    logp = np.where(q > 0, stats.chi2.logsf(np.maximum(np.nan_to_num(np.asarray(g.T, dtype=float), nan=0.0), 0.0),
+                                            np.maximum(q, 1)), np.inf)
+    order = np.argsort(logp, kind="stable")
+    chosen = [int(k) for k in order[:TOP_GROUPS] if np.isfinite(logp[k])]
     out = []
     for k in chosen:
         d = g[k]
@@ -134,7 +190,9 @@ def _groups(state) -> list[dict]:
         out.append({"what": what, "hypothesis": plain(name),
                     "|w|": _max_abs(adj.w, members), "|τ|": _max_abs(adj.tau, members),
                     "T": float(d["T"]), "k": float(d["critical"]), "rejected": bool(d["rejected"]),
+                    "q": q, "_logp": log_p(float(d["T"]), q),
                     "∇ŝ": _estimate_text(d["nabla"], factor[i0], units[i0]),
+                    "_nabla": _values(d["nabla"], factor[i0]), "_unit": units[i0],
                     "MDB ratio": float(np.sqrt(max(d["T"], 0.0)) / rel.policy.delta0(q)) if q else float("nan"),
                     "obs": i0, "point": _point_of(s, rows),
                     "image": str(ids["image"]) if "image" in ids else None,
@@ -205,13 +263,131 @@ def _transfers(state, seeds: list[dict]) -> list[dict]:
             found.append({"what": "transfer", "hypothesis": plain(f"{pid} in images {', '.join(ims)}"),
                           "|w|": _max_abs(adj.w, rows), "|τ|": _max_abs(adj.tau, rows),
                           "T": float(h.T), "k": float(h.critical_T), "rejected": bool(h.rejected_T),
+                          "q": int(h.q), "_logp": log_p(float(h.T), int(h.q)),
                           "∇ŝ": _estimate_text(h.nabla, factor[i0], units[i0]),
+                          "_nabla": _values(h.nabla, factor[i0]), "_unit": units[i0],
                           "MDB ratio": float(np.sqrt(max(h.T, 0.0)) / h.delta0),
                           "obs": i0, "point": s.problem_index()["point_index"].get(pid), "image": ims[0],
                           "_H": H, "_key": ("transfer", pid, tuple(ims))})
-        found.sort(key=lambda r: -r["T"] / r["k"])
+        found.sort(key=_order)
         out += found[:TRANSFER_PER_POINT]
     return out
+
+
+def _order(row: dict) -> tuple:
+    """Sort key of one scale: the p-value (smallest first), then the larger hypothesis (its
+    dimension, then its observations: an image point before its coordinates), then the first
+    observation in the file (twins have one p-value)."""
+    lp = row["_logp"]
+    return (round(lp, 6) if np.isfinite(lp) else np.inf, -int(row.get("q") or 0), -int(row["_H"].shape[1]),
+            int(row["obs"]))
+
+
+def _rank_key(row: dict) -> tuple:
+    """The suspects of their own by p-value, each followed by its alternatives; then the rest."""
+    alt = row.get("_alt")
+    if alt is not None:
+        return (0,) + _order(alt) + (1,) + _order(row)
+    return (row["_tier"],) + _order(row) + (0,)
+
+
+def _stack(a, b):
+    return sp.hstack([sp.csc_matrix(a), sp.csc_matrix(b)]).tocsc()
+
+
+def _explain(state, rows: list[dict]) -> None:
+    """Tier each row (module docstring): a rejected row is a suspect of its own (``_tier`` 0) when
+    its test given the suspects above it, T(H_C, H) − T(H_C) against χ²_{1−α}(q' − q_C) (F80 §2.2,
+    eq. 12 in the model extended by C), still rejects; else (``_tier`` 1) ``explained by`` names
+    the suspect above that explains it alone (of the first :data:`NAME_TRIES` sharing its point or
+    image, then the strongest), or "the suspects above". Rows are visited by p-value; past
+    :data:`MAX_CAUSES` suspects, or :data:`TIME_BUDGET` seconds (a block of 10⁵ observations
+    solves for a second per test), the rejected rows stay in the first tier untested."""
+    rel = state.reliability
+    policy = rel.policy
+    causes: list[dict] = []
+    HC, TC, qC = None, 0.0, 0
+    end = time.monotonic() + TIME_BUDGET
+    for r in sorted(rows, key=_order):
+        r["_tier"], r["explained by"], r["_alt"] = 1, "", None
+        if not r["rejected"]:
+            continue
+        if len(causes) >= MAX_CAUSES or time.monotonic() > end:
+            r["_tier"] = 0
+            continue
+        own = HC is None
+        if not own:
+            try:
+                h = rel.test(_stack(HC, r["_H"]))
+                dq, dT = int(h.q) - qC, float(h.T) - TC
+                own = dq > 0 and (dT > policy.critical_T(dq) or dT > KEPT * _own(rel, r)[0])
+            except (BaardaError, np.linalg.LinAlgError, ValueError):
+                own = True
+        if own:
+            r["_tier"] = 0
+            HC = r["_H"] if HC is None else _stack(HC, r["_H"])
+            if len(causes) == 0:
+                TC, qC = _own(rel, r)
+            else:
+                hc = rel.test(HC)
+                TC, qC = float(hc.T), int(hc.q)
+            causes.append(r)
+            continue
+        c, alternative = _explainer(state, r, causes)
+        r["explained by"] = "the suspects above" if c is None else f"{c['what']} {c['hypothesis']}"
+        if alternative:
+            r["_tier"], r["_alt"] = 0, c
+            r["explained by"] = f"or {r['explained by']}"
+
+
+def _own(rel, row: dict) -> tuple[float, int]:
+    """(T, q) of ``row``'s hypothesis alone under σ0 a priori (cached on the row)."""
+    if "_Tq" not in row:
+        h = rel.test(row["_H"])
+        row["_Tq"] = (float(h.T), int(h.q))
+    return row["_Tq"]
+
+
+def _related(state, row: dict, c: dict) -> bool:
+    """Whether suspect ``c`` shares ``row``'s point or image, or both are observations of one
+    kind outside the images (control points, GNSS vectors: the datum ties them together)."""
+    if (row["point"] is not None and c["point"] == row["point"]) or (row["image"] is not None and c["image"] == row["image"]):
+        return True
+    kind = state.problem.info.kind
+    return (row["image"] is None and c["image"] is None
+            and str(kind[int(row["obs"])]) == str(kind[int(c["obs"])]))
+
+
+def _explainer(state, row: dict, causes: list[dict]) -> tuple[dict | None, bool]:
+    """The suspect that alone explains ``row`` best (its test given that one does not reject, the
+    smallest conditional T), tried among the first :data:`NAME_TRIES` of ``causes`` related to it
+    (:func:`_related`) and the strongest; None if none does. Second: whether ``row`` is an
+    *alternative* to it — a hypothesis of the same dimension that explains it in turn (their tests
+    nearly perfectly correlated but below the twins' threshold: the data hardly prefer one),
+    listed with it."""
+    rel, policy = state.reliability, state.reliability.policy
+    near = [c for c in causes if _related(state, row, c)][:NAME_TRIES]
+    tried = near + [c for c in causes[:1] if c not in near]
+    best = None
+    for c in tried:
+        try:
+            Tc, qc = _own(rel, c)
+            h = rel.test(_stack(c["_H"], row["_H"]))
+        except (BaardaError, np.linalg.LinAlgError, ValueError):
+            continue
+        dq, dT = int(h.q) - qc, float(h.T) - Tc
+        explains = dq <= 0 or (dT <= policy.critical_T(dq) and dT <= KEPT * _own(rel, row)[0])
+        if explains and (best is None or dT < best[1]):
+            best = (c, dT, dq, float(h.T))
+    if best is None:
+        return None, False
+    c, dT, dq, Tcr = best
+    alt = False
+    if dq > 0 and int(c["q"]) == int(row["q"]):
+        Tr, _ = _own(rel, row)
+        back = Tcr - Tr
+        alt = back <= policy.critical_T(dq) and back <= KEPT * _own(rel, c)[0]
+    return c, alt
 
 
 def _mark_twins(state, rows: list[dict]) -> None:
@@ -238,7 +414,9 @@ def _mark_twins(state, rows: list[dict]) -> None:
 
 def suspects(state) -> pd.DataFrame:
     """The ranked list of suspects of ``state`` (module docstring): one row per hypothesis,
-    sorted by |w| (largest first), with ``rank`` 1, 2, …; ``decision`` is "rejected" or
+    ranked on one scale — the rejected hypotheses the stronger ones do not explain first, then the
+    others, each tier by p-value (smallest first) — with ``rank`` 1, 2, …; ``p`` the p-value of
+    the row's own test (0 where it underflows), ``q`` its dimension; ``decision`` is "rejected" or
     "accepted"; ``obs``, ``point`` and ``image`` say what a click selects (full observation index,
     point index, image id).
 
@@ -246,7 +424,7 @@ def suspects(state) -> pd.DataFrame:
     (:func:`baarda.dashboard.jobs.shared`: sessions opened on a cached file share its
     adjustment, and its kept observations with it): the frame is shared, not to be changed."""
     if state.results is None:
-        return pd.DataFrame(columns=COLUMNS)
+        return pd.DataFrame(columns=COLUMNS + EXTRA)
     return shared(state.results, ("suspects", state.reliability.policy), lambda: _ranked(state))
 
 
@@ -259,14 +437,18 @@ def _ranked(state) -> pd.DataFrame:
     picked = picked[stat[picked] >= 0]
     rows = _one_dimensional(s, picked)
     rows += _groups(s)
-    seeds = sorted(rows, key=lambda r: -np.nan_to_num(r["|w|"]))
+    seeds = sorted(rows, key=_order)
     rows += _transfers(s, [r for r in seeds if r["image"] is not None])
     _mark_twins(s, rows)
+    _explain(s, rows)
+    rows.sort(key=_rank_key)
     df = pd.DataFrame([{**{c: r.get(c) for c in COLUMNS if c in r},
+                        "p": float(np.exp(r["_logp"])),
                         "decision": "rejected" if r["rejected"] else "accepted",
                         "cannot be told apart from": "; ".join(r["_twins"])} for r in rows])
     if df.empty:
-        return pd.DataFrame(columns=COLUMNS)
-    df = df.sort_values(["|w|", "T"], ascending=False, na_position="last", kind="stable").reset_index(drop=True)
+        return pd.DataFrame(columns=COLUMNS + EXTRA)
     df.insert(0, "rank", np.arange(1, len(df) + 1))
-    return df[COLUMNS]
+    df["q"] = df["q"].astype(np.int64)
+    df[EXTRA] = pd.DataFrame([(r["_nabla"], r["_unit"]) for r in rows], columns=EXTRA)
+    return df[COLUMNS + EXTRA]

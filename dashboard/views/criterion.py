@@ -12,11 +12,14 @@ Every number comes from the core through :meth:`State.criterion_compare` and
 
 from __future__ import annotations
 
+import re
+
 import holoviews as hv
 import numpy as np
 import pandas as pd
 import panel as pn
 import param
+from bokeh.models import PrintfTickFormatter
 
 from baarda.errors import BaardaError
 from baarda.stats import analyses
@@ -33,6 +36,17 @@ KINDS = ["linear", "logarithmic", "exponential"]
 ARROW_SHARE = 0.12
 #: The larger side of the criterion map's frame (pixels): it fits the map column at 1280 px.
 MAP_SIZE = 400
+#: The format of C1 and C2 in their fields and in the text under them (printf: four significant
+#: digits; the fields' numbro format "0.000e+0" showed a fitted C1 of 2.6e-7 as "+0.00000").
+FIELD_FORMAT = "%.3e"
+
+
+def field_text(value: float) -> str:
+    """C1 or C2 as its field shows it (:data:`FIELD_FORMAT` as the browser's sprintf writes it: an
+    exponent without leading zeros, 1.192e-7)."""
+    return re.sub(r"e([+-])0*(\d)", r"e\1\2", FIELD_FORMAT % value)
+
+
 #: Networks up to this many points are fitted when the view opens (the covariance is dense).
 AUTO_FIT_POINTS = 300
 
@@ -53,15 +67,17 @@ class CriterionView(pn.viewable.Viewer):
         self.fit = pn.widgets.Button(label="Fit C1, C2", color="primary", width=120,
                                      css_classes=["criterion-fit"])
         # four significant digits in the fields (C1 of a fit is some 1e-7: its digits were cut)
-        self.C1 = pn.widgets.FloatInput(label="C1 [m²/m]", value=1e-6, width=150, format="0.000e+0",
+        self.C1 = pn.widgets.FloatInput(label="C1 [m²/m]", value=1e-6, width=150,
+                                        format=PrintfTickFormatter(format=FIELD_FORMAT),
                                         css_classes=["criterion-c1"])
-        self.C2 = pn.widgets.FloatInput(label="C2 [m]", value=1.0, width=150, format="0.000e+0",
+        self.C2 = pn.widgets.FloatInput(label="C2 [m]", value=1.0, width=150,
+                                        format=PrintfTickFormatter(format=FIELD_FORMAT),
                                         css_classes=["criterion-c2"])
         self.check = pn.widgets.Button(label="Compare with C1, C2", width=170, css_classes=["criterion-check"])
         self.info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["criterion-info"])
         self.message = pn.pane.Alert("", alert_type="warning", visible=False, sizing_mode="stretch_width",
                                      css_classes=["criterion-alert"])
-        self.plot = pn.pane.HoloViews(self.pattern_map(), sizing_mode="stretch_width", css_classes=["criterion-map"],
+        self.plot = pn.pane.HoloViews(self.pattern_map(), css_classes=["criterion-map"],
                                       linked_axes=False)
         self.kind.param.watch(self._units, "value")
         self._units()
@@ -132,8 +148,8 @@ class CriterionView(pn.viewable.Viewer):
                        "**satisfied** (λmax < 1)" if c["satisfied"] else "**NOT satisfied** (λmax ≥ 1)")
             self.info.object = (
                 f"{'Fitted' if c['fitted'] else 'Given'} {c['kind']} criterion in S-base "
-                f"{md_text(', '.join(c['sbase']))}: C1 = {c['C1']:.4g} {c['units']['C1']}"
-                + (f", C2 = {c['C2']:.4g} {c['units']['C2']}" if c["units"]["C2"] else "")
+                f"{md_text(', '.join(c['sbase']))}: C1 = {field_text(c['C1'])} {c['units']['C1']}"
+                + (f", C2 = {field_text(c['C2'])} {c['units']['C2']}" if c["units"]["C2"] else "")
                 + (" (C2 at the end of its range: d² hardly varies with distance here)" if c["C2_at_bound"] else "")
                 + "  \n"
                 f"λmax = {c['lam_max']:.4g}, λmin = {c['lam_min']:.4g}, λmax/λmin = {c['ratio']:.3g}: {verdict}  \n"
@@ -149,11 +165,15 @@ class CriterionView(pn.viewable.Viewer):
             color="#1f4e9c", size=6, tools=["hover"])
         c = s.criterion
         title = "Eigenvector of λmax (M84 §2.3)"
-        if c is None:
-            return pts.opts(title=title, xticks=4, yticks=5, fontscale=0.9,
-                            **frame_size(pd.DataFrame({"x": e, "y": n}), size=MAP_SIZE), **formatters())
-        d = (display_matrix(s.problem) @ c["pattern"].T).T
+        # one frame for every fit: the points with room for the longest arrow on each side (the
+        # page keeps the canvas of the first figure it laid out: a wider frame was cut at the right)
         extent = max(float(np.ptp(e)), float(np.ptp(n)), 1e-9)
+        room = ARROW_SHARE * extent
+        frame = frame_size(pd.DataFrame({"x": [e.min() - room, e.max() + room], "y": [n.min() - room, n.max() + room]}),
+                           size=MAP_SIZE)
+        if c is None:
+            return pts.opts(title=title, xticks=4, yticks=5, fontscale=0.9, **frame, **formatters())
+        d = (display_matrix(s.problem) @ c["pattern"].T).T
         scale = ARROW_SHARE * extent / max(float(np.hypot(*d.T).max()), 1e-300)
         arrows = hv.Segments((e, n, e + scale * d[:, 0], n + scale * d[:, 1]), [xl, yl, "x1", "y1"]).opts(
             color="#e6007e", line_width=2)
@@ -162,14 +182,14 @@ class CriterionView(pn.viewable.Viewer):
         base = np.isin(list(s.problem.points.ids), c["sbase"])
         sb = hv.Points((e[base], n[base]), [xl, yl], label="S-base").opts(
             color="black", marker="square", size=10, fill_alpha=0)
-        # the frame holds the points and the arrows' tips, with equal scales (nothing cropped)
-        frame = frame_size(pd.DataFrame({"x": np.r_[e, e + scale * d[:, 0]], "y": np.r_[n, n + scale * d[:, 1]]}),
-                           size=MAP_SIZE)
         return (pts * sb * arrows * tips).opts(
             title=fit_title(f"Eigenvector of λmax = {c['lam_max']:.3g} (M84 §2.3); arrows ≤ {ARROW_SHARE:.0%} of "
                             "the extent", frame["frame_width"], 12.7),
             show_legend=False, xlabel=xl, ylabel=yl, fontscale=0.9, fontsize={"title": "9.5pt"},
-            xticks=4, yticks=5, **frame, **formatters())
+            xticks=4, yticks=5, framewise=True, **frame, **formatters()).opts(
+            # a new fit's arrows in a new frame: the pane updates its figure in place, which kept
+            # the first fit's ranges and cut the map at the right (issue 31, item 4)
+            hv.opts.Points(framewise=True), hv.opts.Segments(framewise=True))
 
     def __panel__(self):
         if self.reason:

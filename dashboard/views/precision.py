@@ -82,9 +82,13 @@ class PrecisionMap(MapView):
         if self.free_view():
             base = ", ".join(s.sbase) if s.sbase else "every point (inner constraints)"
             self._ellipses()
+            if getattr(self, "_free_error_for", None) != tuple(s.sbase):
+                self.point_cov2()           # the ellipses came from the cache: this S-base's message
             return html_text(f"Free-block view: the control observations left out, the block adjusted as a "
                              f"free network (M84 §2); S-base: {base}. Choose other S-base points: the "
                              "ellipses change, r and w do not. " + getattr(self, "_free_error", ""))
+        if s.sbase:
+            s.coordinate_covariance()       # sbase_error of this S-base (the map may be drawn after the note)
         if getattr(s.problem.datum, "kind", "") != "free" and s.problem.points.dim > 1:
             text = sbase_lesson.WHY_NOT if not self.free_reason else (
                 sbase_lesson.WHY_NOT.split(" Tick")[0] + f" (No free-block view: {self.free_reason}.)")
@@ -95,7 +99,7 @@ class PrecisionMap(MapView):
         """The planimetric point covariances the map shows: the state's (its S-base) or, in the
         free-block view, the free block's in the chosen S-base."""
         s = self.state
-        self._free_error = ""
+        self._free_error, self._free_error_for = "", tuple(s.sbase)
         if self.free_view():
             try:
                 return sbase_lesson.free_point_cov2(s, s.sbase)

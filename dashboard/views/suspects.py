@@ -1,6 +1,8 @@
 """The suspects view: the reviewer's ranked list of hypotheses (:mod:`baarda.dashboard.suspects`).
 
-One table of 1D tests, group tests and point-transfer scans sorted by |w|; the decision in words
+One table of 1D tests, group tests and point-transfer scans ranked on one scale — the p-value of
+each test under the policy, the suspects that the stronger ones do not explain first (issue 31,
+item 1) — sortable by any column (a click on a header); the decision in words
 (rejected in red, accepted in green); hypotheses the data cannot tell apart named in their own
 column. A click on a row selects what it is about in the state — the observation (maps, tests
 table), its point and its image (image view) — so the other views show it at once.
@@ -12,7 +14,7 @@ import numpy as np
 import pandas as pd
 import panel as pn
 import param
-from bokeh.models.widgets.tables import HTMLTemplateFormatter, NumberFormatter
+from bokeh.models.widgets.tables import HTMLTemplateFormatter, NumberFormatter, ScientificFormatter
 
 from baarda.errors import BaardaError
 
@@ -42,7 +44,7 @@ class SuspectsView(pn.viewable.Viewer):
         self._for = None
         self.note = pn.pane.HTML("", sizing_mode="stretch_width", css_classes=["suspects-note"])
         self.table = pn.widgets.Tabulator(
-            pd.DataFrame(columns=SHOWN), disabled=True, selectable=1, show_index=False,
+            pd.DataFrame(columns=SHOWN), disabled=True, selectable=1, show_index=False, sortable=True,
             sizing_mode="stretch_width", height=560, layout="fit_data_stretch", pagination="local",
             page_size=100, css_classes=["suspects-table"], stylesheets=[TABLE_CSS],
             header_filters={"what": {"type": "input", "func": "like", "placeholder": "what"},
@@ -52,10 +54,11 @@ class SuspectsView(pn.viewable.Viewer):
             formatters={"decision": DECISION, "cannot be told apart from": TWINS,
                         "|w|": NumberFormatter(format="0.00"), "|τ|": NumberFormatter(format="0.00"),
                         "T": NumberFormatter(format="0.0"), "k": NumberFormatter(format="0.0"),
-                        "MDB ratio": NumberFormatter(format="0.00")},
-            titles={"k": "critical k", "∇ŝ": "∇ŝ (estimate)", "MDB ratio": "∇ŝ / ∇0s"},
-            text_align={c: "right" for c in ("|w|", "|τ|", "T", "k", "MDB ratio")},
-            widths={"rank": 40, "what": 88, "hypothesis": 170, "decision": 92}, frozen_columns=["rank"])
+                        "MDB ratio": NumberFormatter(format="0.00"),
+                        "p": ScientificFormatter(precision=2, power_limit_low=-2)},
+            titles={"rank": "#", "k": "critical k", "∇ŝ": "∇ŝ (estimate)", "MDB ratio": "∇ŝ / ∇0s", "p": "p-value"},
+            text_align={c: "right" for c in ("|w|", "|τ|", "T", "k", "q", "MDB ratio", "p")},
+            widths={"rank": 54, "what": 88, "hypothesis": 170, "decision": 92}, frozen_columns=["rank"])
         self.table.param.watch(self._clicked, "selection")
         self.state.param.watch(self._refresh, ["results", "reliability"])
         self._refresh()
@@ -89,7 +92,13 @@ class SuspectsView(pn.viewable.Viewer):
             more.append(f"{n_obs - shown_obs} more rejected observations in the tests table")
         if n_grp > shown_grp:
             more.append(f"{n_grp - shown_grp} more rejected groups")
-        text = (f"<b>{len(df)} suspects</b>, largest |{rel.policy.statistic_name}| first: "
+        own = int(((df["explained by"] == "") & (df["decision"] == "rejected")).sum())
+        text = (f"<b>{len(df)} suspects</b> ranked by the p-value of their test under the policy "
+                f"(|{rel.policy.statistic_name}| for one observation, T ~ χ²(q) for a group, a point transfer, "
+                "a control point)"
+                + (f", the {own} rejected that the stronger ones above do not explain first (tested given "
+                   "them; \"or …\": an alternative the data hardly tell apart from it)" if own else "")
+                + "; click a column header to sort by it. "
                 f"{n_obs} observation(s) and {n_grp} group(s) rejected in all"
                 + (f" ({'; '.join(more)})" if more else "") + ". "
                 + (f"<span style='color:#a15c00'>{twins} cannot be told apart from others</span> "

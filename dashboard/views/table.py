@@ -16,6 +16,7 @@ import param
 
 from .. import geometry
 from ..state import State
+from ..tables import tables_xlsx
 
 COLUMNS = {"kind": "kind [unit]", "ids": "ids", "v": "v", "w": "w", "abs_w": "|w|", "tau": "τ", "abs_tau": "|τ|",
            "decision": "decision", "r": "r", "mdb": "MDB", "ext": "δ̄0", "excluded": "excluded",
@@ -38,6 +39,11 @@ class TestsTable(pn.viewable.Viewer):
         self._syncing = False
         self.only_selection = pn.widgets.Checkbox(label="only rows of the selected point / observation",
                                                   value=False)
+        # every table of the app in one workbook, one sheet each (issue 31, item 9)
+        self.xlsx = pn.widgets.FileDownload(callback=lambda: tables_xlsx(self.state), filename="baarda-tables.xlsx",
+                                            label="All tables (Excel .xlsx)", color="default",
+                                            css_classes=["xlsx-download"], width=220,
+                                            description="Observations, points and suspects, one sheet each")
         self.table = pn.widgets.Tabulator(
             self._frame(), layout="fit_data_stretch", sizing_mode="stretch_width", height=560,
             selectable=True, show_index=True, disabled=True,
@@ -128,4 +134,5 @@ class TestsTable(pn.viewable.Viewer):
             self.state.param.update(selected_point=None, selected_obs=None)
 
     def __panel__(self):
-        return pn.Column(self.only_selection, self.table, sizing_mode="stretch_width")
+        return pn.Column(pn.Row(self.only_selection, pn.layout.HSpacer(), self.xlsx, sizing_mode="stretch_width"),
+                         self.table, sizing_mode="stretch_width")

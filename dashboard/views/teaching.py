@@ -22,6 +22,11 @@ from ..text import fit_title
 from .common import NARROW_TITLE
 
 
+# Every element of the q-dependent plots normalised per frame: the axes follow q (HoloViews
+#: keeps a DynamicMap's first ranges otherwise: the plots stayed on the q = 1 axes, issue 31).
+def framewise() -> tuple:
+    return tuple(getattr(hv.opts, e)(framewise=True) for e in ("Area", "Curve", "VLine", "Text"))
+
 #: Above this many observations the MDB plot shows one point per occupied cell of a fine grid.
 MAX_POINTS = 2000
 
@@ -54,18 +59,49 @@ class TeachingView(pn.viewable.Viewer):
                                                        hv.streams.Params(self, ["q"])])
         self.mdb = hv.DynamicMap(self._mdb_curve, streams=[hv.streams.Params(self.state, ["results", "reliability"])])
 
-    def _power(self, **_):
+    def power_frame(self, q: int | None = None) -> dict:
+        """The frame of the power plot for dimension ``q`` (default: the view's): x-range [0, top]
+        with top past δ0² + q + 5 sd of Ha and 1.3 k; y-range [0, ymax] with the maximum of Ha
+        and, for q ≥ 2, of H0 (at its mode q − 2) inside, 10 % above the higher (χ²(1) goes to
+        infinity at 0: there ymax is 2.5 × the maximum of Ha and H0 is clipped). Recomputed per q:
+        the plot follows the slider (issue 31, item 3)."""
         policy = self.state.reliability.policy
-        q = self.q
+        q = self.q if q is None else int(q)
         alpha, d0, k = policy.alpha(q), policy.delta0(q), policy.critical_T(q)
         lam = d0 ** 2
         top = max(lam + q + 5 * np.sqrt(2 * (q + 2 * lam)), k * 1.3)
         x = np.linspace(1e-3, top, 600)
         f0 = sps.chi2.pdf(x, q)
         fa = sps.ncx2.pdf(x, q, lam)
-        # χ²(1) goes to infinity at 0 (the only density clipped); for q ≥ 2 both curves show whole
-        ymax = float(np.nanmax(fa)) * 2.5 if q == 1 else 1.1 * float(max(np.nanmax(f0), np.nanmax(fa)))
-        f0 = np.minimum(f0, ymax)
+        if q == 1:
+            ymax = float(np.nanmax(fa)) * 2.5
+        else:
+            mode0 = float(sps.chi2.pdf(max(q - 2, 1e-3), q))
+            ymax = 1.1 * max(mode0, float(np.nanmax(f0)), float(np.nanmax(fa)))
+        return {"q": q, "alpha": alpha, "d0": d0, "k": k, "lam": lam, "x": x, "f0": f0, "fa": fa,
+                "xlim": (0.0, float(top)), "ylim": (0.0, ymax)}
+
+    def tail_frame(self, q: int | None = None) -> dict:
+        """The frame of the log-tail plot for dimension ``q``: x-range [k, top] (as
+        :meth:`power_frame`), y-range [floor, 3 × max of Ha there] on a log scale."""
+        policy = self.state.reliability.policy
+        q = self.q if q is None else int(q)
+        alpha, d0, k = policy.alpha(q), policy.delta0(q), policy.critical_T(q)
+        lam = d0 ** 2
+        top = max(lam + q + 5 * np.sqrt(2 * (q + 2 * lam)), k * 1.3)
+        x = np.linspace(k, top, 300)
+        f0 = sps.chi2.pdf(x, q)
+        fa = sps.ncx2.pdf(x, q, lam)
+        floor = max(float(f0.min()), 1e-5 * float(fa.max()))
+        return {"q": q, "alpha": alpha, "k": k, "lam": lam, "x": x, "f0": f0, "fa": fa, "floor": floor,
+                "xlim": (float(k), float(top)), "ylim": (floor, float(fa.max()) * 3)}
+
+    def _power(self, **_):
+        policy = self.state.reliability.policy
+        fr = self.power_frame()
+        q, alpha, d0, k, lam, x, fa = fr["q"], fr["alpha"], fr["d0"], fr["k"], fr["lam"], fr["x"], fr["fa"]
+        top, ymax = fr["xlim"][1], fr["ylim"][1]
+        f0 = np.minimum(fr["f0"], ymax)
         right = x >= k
         kd, vd = "T", "density"
         pad = 0.015 * top
@@ -82,21 +118,15 @@ class TeachingView(pn.viewable.Viewer):
                     text_font_size="10pt")
                 ).opts(title=fit_title(f"Power of the {q}-dimensional test (α = {alpha:.2g}, β0 = {policy.beta0:.2f})",
                                        NARROW_TITLE, 14.4),
-                       xlabel="T", ylabel="density", ylim=(0, ymax), responsive=True, height=290,
-                       legend_position="top_right", fontscale=0.9)
+                       xlabel="T", ylabel="density", xlim=fr["xlim"], ylim=fr["ylim"], responsive=True, height=290,
+                       legend_position="top_right", fontscale=0.9, framewise=True).opts(*framewise())
 
     def _tail(self, **_):
         """The tail right of k on a log scale: the size α (area of H0 there), invisible on the
         linear plot at α = 0.001, beside the power β0 (area of Ha)."""
         policy = self.state.reliability.policy
-        q = self.q
-        alpha, d0, k = policy.alpha(q), policy.delta0(q), policy.critical_T(q)
-        lam = d0 ** 2
-        top = max(lam + q + 5 * np.sqrt(2 * (q + 2 * lam)), k * 1.3)
-        x = np.linspace(k, top, 300)
-        f0 = sps.chi2.pdf(x, q)
-        fa = sps.ncx2.pdf(x, q, lam)
-        floor = max(float(f0.min()), 1e-5 * float(fa.max()))
+        fr = self.tail_frame()
+        alpha, k, x, f0, fa, floor = fr["alpha"], fr["k"], fr["x"], fr["f0"], fr["fa"], fr["floor"]
         kd, vd = "T", "density"
         base = np.full(x.size, floor)
         f0 = np.maximum(f0, floor)
@@ -107,8 +137,9 @@ class TeachingView(pn.viewable.Viewer):
                 * hv.Curve((x, fa), kd, vd).opts(color="#e6007e", line_width=2)
                 ).opts(hv.opts.Overlay(
                     title=fit_title(f"Right of k = {k:.2f} on a log scale: the size α (area under H0)", NARROW_TITLE, 13.6),
-                    xlabel="T", ylabel="density (log)", logy=True, ylim=(floor, float(fa.max()) * 3),
-                    responsive=True, height=200, legend_position="top_right", fontscale=0.85))
+                    xlabel="T", ylabel="density (log)", logy=True, xlim=fr["xlim"], ylim=fr["ylim"],
+                    responsive=True, height=200, legend_position="top_right", fontscale=0.85, framewise=True),
+                    *framewise())
 
     def _mdb_curve(self, **_):
         """δ0/√r with the observations on it; those above the plot (r ≈ 0: MDB → ∞) are drawn at

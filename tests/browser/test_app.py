@@ -385,5 +385,25 @@ def test_criterion_tab_fits_and_shows_lambda(page, network_app, screenshots):
         ends = [np.asarray(x, dtype=float) for x in page.evaluate(JS_COLUMN, "x1") if len(x) == len(e)]
         return any(np.allclose(x, e + scale * d[:, 0]) for x in ends)
     assert wait_until(arrows, 30), "pattern arrows not in the page"
+    # issue 31, item 4: the new fit's frame holds every point and arrow tip (it kept the first fit's)
+    rng = page.evaluate("""() => { for (const doc of Bokeh.documents) for (const m of doc.all_models)
+        if (m.title && m.title.text && m.title.text.startsWith('Eigenvector of λmax ='))
+          return [m.x_range.start, m.x_range.end, m.y_range.start, m.y_range.end]; return null; }""")
+    xs, ys = np.r_[e, e + scale * d[:, 0]], np.r_[n, n + scale * d[:, 1]]
+    assert rng and rng[0] < xs.min() and xs.max() < rng[1] and rng[2] < ys.min() and ys.max() < rng[3], rng
+    # ... and the canvas shows all of it: the frame (the x-axis) is as wide as the figure asks for
+    box = page.evaluate("""() => { for (const doc of Bokeh.documents) for (const m of doc.all_models)
+        if (m.title && m.title.text && m.title.text.startsWith('Eigenvector of λmax ='))
+          return [m.frame_width, m.frame_height]; return null; }""")
+    shown = page.locator(".criterion-map").first.bounding_box()
+    # frame, y-axis and toolbar: the pane as wide as its figure (stretched, it cut the frame at the right)
+    assert box[0] + 40 <= shown["width"] <= box[0] + 170, (shown, box)
+    # issue 31, item 4: the C1 and C2 fields show what the text says (not "+0.00000")
+    from baarda.dashboard.views.criterion import field_text
+    for name in ("C1", "C2") if c["units"]["C2"] else ("C1",):
+        text = field_text(c[name])
+        expect(info).to_contain_text(f"{name} = {text}")
+        expect(page.locator(f".criterion-{name.lower()} input").first).to_have_value(text, timeout=30_000)
     page.screenshot(path=str(screenshots / "network-criterion.png"))
+    page.locator(".criterion-map").first.screenshot(path=str(screenshots / "network-criterion-map.png"))
     assert real_errors(errors) == []

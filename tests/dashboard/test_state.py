@@ -541,7 +541,12 @@ def test_sbase_changes_ellipses_but_not_r_and_w():
     assert "S-base" in view.title()
     view.sbase.value = [ids[0]]          # one point cannot fix rotation and translation
     assert "does not fix the datum" in st.sbase_error
+    assert "fix" in view.note.object and "1 point" not in view.note.object
     np.testing.assert_allclose(st.point_cov2(), adj.point_cov[:, :2, :2])
+    # issue 31, item 5: a second point chosen, the note says so (it kept the one-point message)
+    view.sbase.value = [ids[0], ids[5]]
+    assert "fix" not in view.note.object and "r and w unchanged" in view.note.object
+    assert view.note.object == st.sbase_check()
 
 
 def test_sbase_of_fixed_network_transforms_the_covariance_only():
