@@ -12,6 +12,7 @@ import numpy as np
 
 from .errors import BaardaError
 from .stats import hypotheses
+from .stats.reliability import reliability_of
 
 
 def _hypothesis(adj, e):
@@ -33,7 +34,7 @@ def compare(adj, truth: dict, reliability=None) -> list[dict]:
     """One entry per planted error: kind, ids, class, max |w| of its observations, whether data
     snooping rejects one of them, and T/critical/decision of the matching hypothesis, under
     ``reliability``'s policy (default the adjustment's own)."""
-    rel = adj.reliability if reliability is None else reliability
+    rel = reliability_of(adj) if reliability is None else reliability
     kept = adj.problem.notes.kept_rows
     out = []
     for k, e in enumerate(truth.get("errors", [])):

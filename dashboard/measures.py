@@ -163,7 +163,7 @@ def injection(problem, adj, rel, kept, new, e: np.ndarray, index: int, size: flo
             "largest_label": observation_label(problem, int(kept[top])),
             "group_T": None if group is None else float(group["T"]),
             "group_critical": None if group is None else float(group["critical"]),
-            "global_passed": new.global_test.get("passed"),
+            "global_passed": new_rel.global_test.get("passed"),
             "sigma0_post": float(new.sigma0_post), "error_vector": e}
 
 

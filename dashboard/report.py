@@ -30,6 +30,7 @@ from bokeh.resources import Resources
 
 from baarda.io.output import write_text
 from baarda.stats.distributions import STRICT
+from baarda.stats.reliability import policy_of
 
 from . import geometry, render
 from .frames import R_UNCONTROLLED
@@ -253,7 +254,7 @@ def report_html(adj, state: State | None = None) -> str:
     exclusions and its hypotheses are reported; nothing of its view is.
     """
     session = state if state is not None and state.results is adj else None
-    clean = State.from_adjustment(adj, policy=session.policy() if session is not None else getattr(adj, "policy", None))
+    clean = State.from_adjustment(adj, policy=session.policy() if session is not None else policy_of(adj))
     if session is not None:
         clean.param.update(alpha0=session.alpha0, beta0=session.beta0, b_method=session.b_method)
     hv.extension("bokeh", logo=False)

@@ -35,6 +35,7 @@ from ..model.bundle import control_rows, image_rows, problem_of
 from ..model.problem import image_point_index
 from ..observations.collinearity import AP_GROUPS, BASES, CollinearitySet
 from ..solve.linalg import SPDFactor
+from .policy import TestPolicy
 
 
 #: slack of the bound T_j ≤ vᵀPv of :func:`counted_directions` (relative, absolute)
@@ -207,7 +208,7 @@ def test(adj, H, label: str = "", policy=None) -> HypothesisTest:
     label : str
         Name of the hypothesis.
     policy : baarda.stats.policy.TestPolicy, optional
-        Gives α_q, the critical values and δ0 (the B-method rule); default ``adj.policy``.
+        Gives α_q, the critical values and δ0 (the B-method rule); default the policy of ``adj.options``.
 
     Returns
     -------
@@ -241,7 +242,7 @@ def test(adj, H, label: str = "", policy=None) -> HypothesisTest:
     nabla = -Winv @ g
     T = float(Tj.sum())
     R = float((T / q) / ((vPv - T) / (dof - q))) if (q and dof > q and vPv > T) else float("nan")
-    policy = adj.policy if policy is None else policy
+    policy = TestPolicy.from_options(adj.options) if policy is None else policy
     alpha = policy.alpha(q)
     d0 = policy.delta0(q)
     crit_T = policy.critical_T(q)

@@ -81,6 +81,7 @@ from ..adjust import Options, adjust
 from ..errors import BaardaError, DatumDefectError, SingularError
 from ..model.problem import subset
 from . import hypotheses
+from .reliability import policy_of, reliability_of
 
 METHODS = ("huber", "danish", "r84")
 #: smallest weight factor: keeps a downweighted observation's parameters determined
@@ -228,7 +229,7 @@ class RobustResult:
         did not take out every gross error (or σ0 a priori is too optimistic). None without it."""
         if self.final is None:
             return None
-        g = self.final.global_test
+        g = reliability_of(self.final).global_test
         return {"sigma0_aposteriori": float(self.final.sigma0_post), "global_test_passed": g["passed"],
                 "complete": not (g["passed"] is False and g["side"] == "high")}
 
@@ -458,7 +459,7 @@ def _test_cluster(problem, members, clean, keep, options):
 
 def _smallest_critical(adj, q: int) -> float:
     """The smallest critical value of a test of up to ``q`` dimensions under ``adj``'s policy."""
-    return min(float(adj.policy.critical_T(j)) for j in range(1, q + 1))
+    return min(float(policy_of(adj).critical_T(j)) for j in range(1, q + 1))
 
 
 def _fit(problem, keep, options, x0):
@@ -502,8 +503,8 @@ def snoop_clusters(problem, keep, options, x0=None, point_of=None, held=None):
     adj = _fit(problem, keep, options, x0)
     while True:
         first, T, q, w2 = cluster_tests(adj)
-        crit = np.array([float(adj.policy.critical_T(int(j))) if j > 0 else np.inf for j in q])
-        ratio = np.maximum(T / crit, w2 / float(adj.policy.critical_T(1)))
+        crit = np.array([float(policy_of(adj).critical_T(int(j))) if j > 0 else np.inf for j in q])
+        ratio = np.maximum(T / crit, w2 / float(policy_of(adj).critical_T(1)))
         k = int(np.argmax(ratio))
         if ratio[k] <= 1.0:
             return adj, keep, removed
@@ -671,7 +672,7 @@ def estimate(problem, method: str = "r84", options: Options | None = None, tol: 
     adj, f, u_obs, it, converged, history, floored = _irls(problem, method, options, tol, max_iter, k)
     members = problem.cov.members
     w_obs = _per_observation(f, members, problem.n)
-    crit = adj.critical_w
+    crit = reliability_of(adj).critical_w
     cand = [(float(u_obs[m].max()), c) for c, m in enumerate(members) if u_obs[m].max() > crit]
     cand.sort(reverse=True)
     candidates = [members[c] for _, c in cand]

@@ -16,6 +16,7 @@ from .. import frames
 from ..geometry import observation_label
 from ..state import VARIANCE_MODELS, State
 from ..text import md_text
+from baarda.stats.reliability import reliability_of
 
 TABLE = dict(show_index=False, disabled=True, sizing_mode="stretch_width", layout="fit_data_stretch",
              stylesheets=[".tabulator { font-size: 12px; }"])
@@ -103,7 +104,7 @@ class AnalysisPanel(pn.viewable.Viewer):
         rejected = obs.index[obs["rejected"] & ~obs["excluded"]].tolist()
         final = ""
         if rr.final is not None:
-            g = rr.final.global_test
+            g = reliability_of(rr.final).global_test
             final = (f" Least squares without them: σ̂0 = {rr.final.sigma0_post:.4g}, global test "
                      f"{'passed' if g.get('passed') else 'FAILED'}.")
         self.robust_info.object = (

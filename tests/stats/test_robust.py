@@ -11,6 +11,7 @@ from baarda.adjust import adjust
 from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
 from baarda.stats import robust, snooping
+from baarda.stats.reliability import reliability_of
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +58,7 @@ def _plant(p, truth, sizes, seed):
     e = _noisy(p, seed)
     sigma = p.cov.sigma()
     for i, s in zip(rows, sorted(sizes)):
-        assert s * sigma[i] > truth.mdb[i]
+        assert s * sigma[i] > reliability_of(truth).mdb[i]
         e[i] += s * sigma[i] * rng.choice([-1, 1])
     return dataclasses.replace(p, l=p.l + e), rows
 
@@ -81,7 +82,7 @@ def test_five_small_errors_found_by_snooping_and_every_robust_method(design, see
         # fit inflates (the least-squares check below keeps them honest)
         assert len(res.suspects) <= len(rows) + 4
         # the least-squares adjustment without the suspects passes data snooping (M84 §3.2)
-        assert res.final is not None and res.final.rejected.sum() <= 1
+        assert res.final is not None and reliability_of(res.final).rejected.sum() <= 1
 
 
 def test_medium_error_robust_recovers_where_least_squares_misfits(design):
@@ -131,7 +132,7 @@ def test_cleaned_fit_that_still_fails_the_global_test_is_said(capsys):
     res = robust.estimate(build_block_problem(blk), "r84")
     c = res.as_dict()["cleaned"]
     assert c["complete"] is False and c["global_test_passed"] is False and c["sigma0_aposteriori"] > 2
-    assert res.final.vPv > res.final.global_test["upper"]
+    assert res.final.vPv > reliability_of(res.final).global_test["upper"]
     assert any("the robust step did NOT clean the block" in line for line in robust_lines(res))
 
 

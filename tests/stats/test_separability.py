@@ -19,6 +19,7 @@ from baarda.errors import OptionError
 from baarda.stats import separability
 from baarda.stats.hypotheses import h_point_transfer, selection
 from baarda.stats.snooping import iterate
+from baarda.stats.reliability import reliability_of
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 
@@ -103,7 +104,7 @@ def test_transfer_hypotheses_in_the_two_strips_are_inseparable(demo):
     assert ref("203-205", "303-305").min() > 0.999 and ref("203-205", "204-205").min() < 0.5
     groups = separability.inseparable_pairs(adj, list(H.items()))
     assert [g.members for g in groups] == [("203-205", "303-305")]
-    tests = [adj.test(h, label=k) for k, h in H.items()]
+    tests = [reliability_of(adj).test(h, label=k) for k, h in H.items()]
     assert [g.members for g in separability.inseparable_pairs(adj, tests)] == [("203-205", "303-305")]
 
 
