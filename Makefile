@@ -10,7 +10,7 @@ $(BIN)/python:
 	$(BIN)/pip install -q --upgrade pip
 
 install: $(BIN)/python
-	$(BIN)/pip install -q -e ".[dashboard,test,browser,fast]"
+	$(BIN)/pip install -q -e ".[dashboard,test,browser,fast,batch]"
 
 # Analyse the bundled demo block and write a report to out/
 demo: install
@@ -34,11 +34,13 @@ test-fast: install
 bench: install
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_solve
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_read
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_document
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_memory
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_network
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_blocks
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_dashboard
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_load
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench.bench_batch
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

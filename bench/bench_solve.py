@@ -6,9 +6,15 @@ build excluded; numba kernels warmed up on a small problem first), then pycolmap
 adjuster (set-up and solve; one thread; focal length, k1, k2 refined per camera as BAL defines;
 the block written as a COLMAP RADIAL model with flipped axes, :func:`bench.bench_blocks.bal_as_colmap`),
 the ratio of the two times, both final costs ½Σr² (Ceres' evaluated in BAL's model over the image
-points COLMAP kept: it drops those whose point is behind the camera), both iteration counts
+points COLMAP kept: it drops those whose point is behind the camera) and the relative difference
+(baarda − Ceres)/Ceres, both iteration counts
 (Ceres: successful + unsuccessful steps) and the end-to-end ``baarda analyze FILE --json`` time
 and peak resident set (a subprocess: read, adjust, reliability, JSON).
+
+Two rows per problem: "colmap", Ceres at COLMAP's tolerances (gradient 1e-4, function and
+parameter 0) beside baarda's strict optimum (the default ``stop="optimum"``), and "ceres", Ceres at
+its own defaults (function tolerance 1e-6, gradient 1e-10, parameter 1e-8) beside baarda's
+``stop="ceres"`` (the same rule).
 
 Usage (from the repository root): ``python -m bench.bench_solve [--problems DIR/FILE ...] [--no-analyze]
 [--repeat N]``.
@@ -56,10 +62,16 @@ def readable(path: Path, tmp: Path) -> Path:
     return out
 
 
-def _ceres_solve(rec, refine: bool, threads: int):
+#: Ceres's stopping rules: COLMAP's bundle adjuster's (pycolmap's defaults) and Ceres Solver's own
+#: ``Solver::Options`` defaults (what a plain Ceres run of an SfM user stops at)
+CERES_RULES = {"colmap": {"function_tolerance": 0.0, "gradient_tolerance": 1e-4, "parameter_tolerance": 0.0},
+               "ceres": {"function_tolerance": 1e-6, "gradient_tolerance": 1e-10, "parameter_tolerance": 1e-8}}
+
+
+def _ceres_solve(rec, refine: bool, threads: int, rule: str = "colmap"):
     """pycolmap's Ceres bundle adjustment of reconstruction ``rec`` in place, every image (focal
-    length and extra parameters refined or not; principal point fixed): (seconds of set-up and
-    solve, iterations, termination)."""
+    length and extra parameters refined or not; principal point fixed), stopped by ``rule`` (a
+    key of :data:`CERES_RULES`): (seconds of set-up and solve, iterations, termination)."""
     import pycolmap
 
     pycolmap.logging.minloglevel = 2
@@ -68,6 +80,8 @@ def _ceres_solve(rec, refine: bool, threads: int):
     ba.refine_principal_point = False
     ba.print_summary = False
     ba.ceres.solver_options.num_threads = threads
+    for key, value in CERES_RULES[rule].items():
+        setattr(ba.ceres.solver_options, key, value)
     config = pycolmap.BundleAdjustmentConfig()
     for i in rec.reg_image_ids():
         config.add_image(i)
@@ -79,7 +93,7 @@ def _ceres_solve(rec, refine: bool, threads: int):
     return t, its, str(summary["termination_type"]).split(".")[-1]
 
 
-def ceres(block, threads: int = 1):
+def ceres(block, threads: int = 1, rule: str = "colmap"):
     """pycolmap's Ceres bundle adjustment of ``block`` (problem set-up and solve timed, as
     baarda's ``adjust``; f, k1, k2 refined per camera as BAL defines): (seconds, ½Σr² in BAL's
     model over the image points Ceres kept, iterations, how many of them, Ceres' termination)."""
@@ -88,7 +102,7 @@ def ceres(block, threads: int = 1):
     with tempfile.TemporaryDirectory() as tmp:
         bal_as_colmap(block, Path(tmp) / "in")
         rec = pycolmap.Reconstruction(str(Path(tmp) / "in"))
-        t, its, term = _ceres_solve(rec, True, threads)
+        t, its, term = _ceres_solve(rec, True, threads, rule)
         out = Path(tmp) / "out"
         out.mkdir()
         rec.write_text(str(out))
@@ -97,14 +111,14 @@ def ceres(block, threads: int = 1):
     return t, cost, its, problem.n // 2, term
 
 
-def ceres_colmap(model: Path, threads: int = 1):
+def ceres_colmap(model: Path, threads: int = 1, rule: str = "colmap"):
     """pycolmap's Ceres bundle adjustment of a COLMAP model as it is, intrinsics fixed (as baarda
     adjusts a COLMAP model): (seconds, ½Σr² in COLMAP's camera model, iterations, image points,
     termination)."""
     import pycolmap
 
     rec = pycolmap.Reconstruction(str(model))
-    t, its, term = _ceres_solve(rec, False, threads)
+    t, its, term = _ceres_solve(rec, False, threads, rule)
     cost, n, undefined = 0.0, 0, 0
     for im in rec.images.values():
         cam, pose = rec.cameras[im.camera_id], im.cam_from_world()
@@ -166,7 +180,7 @@ def main():
     print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
           f"load average {os.getloadavg()[0]:.2f}, cores {os.cpu_count()}", flush=True)
     warm_up()
-    head = (f"{'problem':<28} {'baarda s':>8} {'its':>4} {'½Σr² baarda':>16} {'Ceres s':>8} {'its':>4} "
+    head = (f"{'problem':<28} {'rule':<7} {'baarda s':>8} {'its':>4} {'½Σr² baarda':>16} {'Ceres s':>8} {'its':>4} "
             f"{'½Σr² Ceres':>16} {'ratio':>6} {'rel.Δcost':>9} {'analyze s':>9} {'peak MB':>7}  status")
     print(head)
     print("-" * len(head), flush=True)
@@ -181,37 +195,41 @@ def main():
             else:
                 block = read_bal(readable(path, Path(tmpdir)))
                 problem = build_sfm_problem(block)
-            t0 = time.perf_counter()
-            adj = adjust(problem, Options())
-            t_b = time.perf_counter() - t0
-            cost_b = 0.5 * float(adj.v @ adj.v)
-            t_c = cost_c = its_c = None
-            note = ""
-            if not args.no_ceres:
-                try:
-                    t_c, cost_c, its_c, kept, term = (ceres_colmap(path, args.threads) if colmap
-                                                      else ceres(block, args.threads))
-                    note = f"; Ceres {term}" + (f" over {kept} of {problem.n // 2} image points"
-                                                 if kept != problem.n // 2 and cost_c is not None else "")
-                except ImportError:
-                    pass
-                except Exception as err:       # a peer's failure is a row, not the end of the table
-                    note = f"; Ceres failed: {type(err).__name__}: {str(err)[:120]}"
             t_a = rss = None
             if not args.no_analyze:
                 with tempfile.TemporaryDirectory() as out:
                     t_a, rss = analyze_run(path, Path(out) / "r.json")
+            # COLMAP's tolerances beside baarda's strict optimum; Ceres's defaults beside stop="ceres"
+            for rule, stop in (("colmap", "optimum"), ("ceres", "ceres")):
+                t0 = time.perf_counter()
+                adj = adjust(problem, Options(stop=stop))
+                t_b = time.perf_counter() - t0
+                cost_b = 0.5 * float(adj.v @ adj.v)
+                t_c = cost_c = its_c = None
+                note = ""
+                if not args.no_ceres:
+                    try:
+                        t_c, cost_c, its_c, kept, term = (ceres_colmap(path, args.threads, rule) if colmap
+                                                          else ceres(block, args.threads, rule))
+                        note = f"; Ceres {term}" + (f" over {kept} of {problem.n // 2} image points"
+                                                     if kept != problem.n // 2 and cost_c is not None else "")
+                    except ImportError:
+                        pass
+                    except Exception as err:       # a peer's failure is a row, not the end of the table
+                        note = f"; Ceres failed: {type(err).__name__}: {str(err)[:120]}"
 
-            def fmt(v, spec):
-                return format(v, spec) if v is not None else "-".rjust(int(spec[1:].split(".")[0].strip(",")))
-            if problem.notes.local_defects:
-                note += f"; baarda left out {len(problem.notes.local_defects)} local defect(s)"
-            ratio = t_b / t_c if t_c else None
-            rel = abs(cost_b - cost_c) / cost_c if cost_c else None
-            print(f"{path.name:<28} {t_b:>8.2f} {adj.iterations:>4} {cost_b:>16,.6f} {fmt(t_c, '>8.2f')} "
-                  f"{fmt(its_c, '>4')} {fmt(cost_c, '>16,.6f')} {fmt(ratio, '>6.2f')} {fmt(rel, '>9.1e')} "
-                  f"{fmt(t_a, '>9.2f')} {fmt(rss, '>7.0f')}  {adj.termination}{note}", flush=True)
-            del adj, problem
+                def fmt(v, spec):
+                    return format(v, spec) if v is not None else "-".rjust(int(spec[1:].split(".")[0].strip(",")))
+                if problem.notes.local_defects:
+                    note += f"; baarda left out {len(problem.notes.local_defects)} local defect(s)"
+                ratio = t_b / t_c if t_c else None
+                rel = (cost_b - cost_c) / cost_c if cost_c else None
+                print(f"{path.name:<28} {rule:<7} {t_b:>8.2f} {adj.iterations:>4} {cost_b:>16,.6f} {fmt(t_c, '>8.2f')} "
+                      f"{fmt(its_c, '>4')} {fmt(cost_c, '>16,.6f')} {fmt(ratio, '>6.2f')} {fmt(rel, '>+9.1e')} "
+                      f"{fmt(t_a if rule == 'colmap' else None, '>9.2f')} {fmt(rss if rule == 'colmap' else None, '>7.0f')}"
+                      f"  {adj.termination.split(':')[0]} (status {adj.status}){note}", flush=True)
+                del adj
+            del problem
             block = None
 
 

@@ -63,13 +63,13 @@ import numpy as np
 
 from .errors import OptionError
 from .iteration import (DIVERGENCE, FUNCTION_TOL, GAUGE_COST, GRADIENT_TOL, INITIAL_RADIUS, KEEP_LAYOUTS_BYTES,
-                        MAX_END_GAMES, MAX_RADIUS, MIN_RADIUS, MIN_RELATIVE_DECREASE, ROUNDOFF_COST, ROUNDOFF_STEP,
-                        STATUS, Iteration, check_termination, diagnose, gain_ratio, update_radius)
+                        MAX_END_GAMES, MAX_RADIUS, MIN_RADIUS, MIN_RELATIVE_DECREASE, PARAMETER_TOL, ROUNDOFF_COST,
+                        ROUNDOFF_STEP, STATUS, STOPS, Iteration, check_termination, diagnose, gain_ratio, update_radius)
 from .solve.linearisation import Linearisation
 
 __all__ = ["DIVERGENCE", "FUNCTION_TOL", "GAUGE_COST", "GRADIENT_TOL", "INITIAL_RADIUS", "KEEP_LAYOUTS_BYTES",
-           "MAX_END_GAMES", "MAX_RADIUS", "METHODS", "MIN_RADIUS", "MIN_RELATIVE_DECREASE", "ROUNDOFF_COST",
-           "ROUNDOFF_STEP", "STATUS", "Iteration", "Linearisation", "Options", "adjust", "check_termination",
+           "MAX_END_GAMES", "MAX_RADIUS", "METHODS", "MIN_RADIUS", "MIN_RELATIVE_DECREASE", "PARAMETER_TOL",
+           "ROUNDOFF_COST", "ROUNDOFF_STEP", "STATUS", "STOPS", "Iteration", "Linearisation", "Options", "adjust", "check_termination",
            "diagnose", "gain_ratio", "update_radius"]
 
 METHODS = ("auto", "gauss-newton", "levenberg-marquardt")
@@ -94,7 +94,12 @@ class Options:
     sigma0, global_test, conf_pr: the test policy's σ0 of the decisions (``"apriori"``: w,
     ``"aposteriori"``: τ), its global test (``"one-sided"``, ``"two-sided"``, ``"b-method"``) and
     the confidence level of that test and of σ̂0's interval (None: the file's conf-pr, else 0.95;
-    :class:`baarda.stats.policy.TestPolicy`).
+    :class:`baarda.stats.policy.TestPolicy`). stop: ``"optimum"`` (default: the increment
+    criterion after the undamped end game, the optimum the reliability is computed at) or
+    ``"ceres"`` (Ceres Solver's rule at its defaults: the first accepted step after the first
+    that changes vᵀPv by less than ``FUNCTION_TOL`` relative, or x by less than
+    ``PARAMETER_TOL``, ends the run, status 5 — the cost to about 1e-6, in Ceres's time; a free
+    block's coordinates then stay in the gauge the damped steps left them in).
     """
 
     alpha0: float = 0.001
@@ -108,6 +113,7 @@ class Options:
     sigma0: str = "apriori"
     global_test: str = "one-sided"
     conf_pr: float | None = None
+    stop: str = "optimum"
 
 
 def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None, progress=None):
@@ -123,6 +129,8 @@ def adjust(problem, options: Options | None = None, x0: np.ndarray | None = None
     if options.method not in METHODS:
         raise OptionError("method", options.method, METHODS,
                           f"unknown method {options.method!r} (known: {', '.join(METHODS)})")
+    if options.stop not in STOPS:
+        raise OptionError("stop", options.stop, STOPS, f"unknown stop {options.stop!r} (known: {', '.join(STOPS)})")
     if int(options.max_iter) < 1:
         raise OptionError("max_iter", options.max_iter, (), f"max_iter must be at least 1 (got {options.max_iter})")
     run = Iteration(problem, options, x0)      # linearised at x0; the datum plan, the layout

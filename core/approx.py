@@ -28,10 +28,11 @@ from collections import defaultdict
 from dataclasses import replace
 
 import numpy as np
-from scipy.optimize import least_squares
-
+from .lazy import lazy
 from baarda.errors import InputError, OptionError
 from baarda.model.network import Network
+
+optimize = lazy("scipy.optimize")        # imported when first used (start-up)
 
 __all__ = ["approximate_coordinates"]
 
@@ -451,7 +452,7 @@ class _Approx:
                 b, d = next((b, d) for s2, b, d in resect if s2 == sid)
                 u0.append(brg(st[0], st[1], b, True) - d)
             try:
-                res = least_squares(resid, np.array(u0), method="lm", xtol=1e-12, ftol=1e-12)
+                res = optimize.least_squares(resid, np.array(u0), method="lm", xtol=1e-12, ftol=1e-12)
             except Exception:  # noqa: BLE001 - a failed start is just skipped
                 continue
             rms = math.sqrt(2 * res.cost / max(n_eq, 1))

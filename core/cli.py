@@ -31,7 +31,7 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__
+from . import __version__, batch, study
 from .analysis import Extras, SolverOptions, analyze
 from .errors import BaardaError, HypothesisError, InputError, NotFoundError, OptionError, SingularError, UsageError
 from .io import read_model, results
@@ -173,9 +173,7 @@ def _recipe_range(key: str):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = _Parser(
-        prog="baarda",
-        description="Reliability of geodetic networks and photogrammetric blocks: global test, "
+    ap = _Parser(prog="baarda", description="Reliability of geodetic networks and photogrammetric blocks: global test, "
                     "data snooping, redundancy numbers, MDB, external reliability.",
         epilog="Exit status: 0 ok, 2 bad input or usage (also an output that names an input or cannot be "
                "written), 3 internal error, 4 the adjustment did not converge (results written and marked as "
@@ -317,6 +315,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--quiet", "-q", action="store_true")
     rp.add_argument("--debug", action="store_true")
 
+    for module in (batch, study):      # the commands on Dask (issue 30)
+        module.add_parser(sub, (_add_input_options, _add_test_options, _add_iteration_option), _in_range)
     rk = sub.add_parser("risk", help="risk-minimising critical value of a test (M84 §3.3)",
                         description="Critical value C minimising (1−p) α L1 + p (1−β) L2 for a one-sided "
                                     "normal test against an error of tolerance λtol.")
@@ -778,8 +778,8 @@ def _run(args) -> int:
                           f"the power of a test exceeds its size")
     inputs, outputs, folders = _io_paths(args)
     check_outputs(inputs, outputs, folders)
-    commands = {"analyze": cmd_analyze, "simulate": cmd_simulate, "test": cmd_test, "convert": cmd_convert,
-                "serve": cmd_serve, "report": cmd_report, "risk": cmd_risk}
+    commands = {"analyze": cmd_analyze, "simulate": cmd_simulate, "test": cmd_test, "convert": cmd_convert, "serve": cmd_serve,
+                "report": cmd_report, "risk": cmd_risk, "batch": batch.command, "study": study.command}
     return commands[args.command](args)
 
 

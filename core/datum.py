@@ -44,7 +44,7 @@ import scipy.linalg as la
 import scipy.sparse as sp
 
 from .errors import DatumDefectError
-from .solve.compiled import njit
+from .solve.compiled import NUMBA, compiled
 from .solve.linalg import SPDFactor
 
 TRANSFORMS = {
@@ -283,8 +283,7 @@ def _gram(a_ptr, a_idx, a_val, w_ptr, w_idx, w_val, out):
                 out[i, w_idx[q]] += v * w_val[q]
 
 
-_jit = njit(cache=True)
-_GRAM = _jit(_gram) if _jit is not None else None
+_GRAM = compiled(_gram, cache=True) if NUMBA else None
 #: nuisance unknowns up to which :func:`null_space` sums AₜᵀPAₜ into a dense matrix (8 · n² bytes)
 DENSE_NTT = 2000
 

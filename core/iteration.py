@@ -36,6 +36,11 @@ MIN_RELATIVE_DECREASE = 1e-3
 #: an accepted damped step changing vᵀPv by less than this (relative) starts the undamped end
 #: game (Ceres' function_tolerance)
 FUNCTION_TOL = 1e-6
+#: Ceres' parameter_tolerance: with ``stop="ceres"`` an accepted step with ‖Δx‖ ≤ this · (‖x‖ + this) ends the run
+PARAMETER_TOL = 1e-8
+#: the stopping rules of ``Options.stop``: the strict optimum (increments below tol conditional
+#: standard deviations, after the undamped end game) or Ceres Solver's at its defaults
+STOPS = ("optimum", "ceres")
 #: gradient tolerance (Ceres' gradient_tolerance, here on the scaled gradient; see gradient_small)
 GRADIENT_TOL = 1e-10
 #: increments (in conditional standard deviations) below which round-off is reached when they
@@ -65,6 +70,9 @@ STATUS = {
     4: ("converged: every increment below tol conditional standard deviations with {n_far} far "
         "point(s) held where Levenberg-Marquardt left them (they drift along their rays towards "
         "infinity: no finite optimum for them)"),
+    5: ("converged by Ceres Solver's rule (stop=\"ceres\"): a step changed vᵀPv by less than the function "
+        "tolerance 1e-6 (relative) or the parameters by less than 1e-8: near the optimum's cost, "
+        "not the strict optimum of tol"),
 }
 
 
@@ -310,6 +318,8 @@ class Iteration:
                 # its work (Ceres would stop here); the undamped end game decides
                 self.endgame, self.quiet = True, 0
                 self.history.append(t.step)
+                if self.options.stop == "ceres":
+                    self.status = 5
                 return False
             self.mu, self.decrease = update_radius(self.mu, self.decrease, t.rho, ok)
             if not ok and self.mu < MIN_RADIUS:
@@ -399,6 +409,9 @@ class Iteration:
         tolerance (Ceres) starts the undamped end game — far, weakly determined points may still
         drift along their rays — after 2, 4, 8 ... such steps once an end game failed (a curved
         valley: the undamped step overshoots)."""
+        if self.options.stop == "ceres" and self.it > 1 and (abs(t.rel_drop) < FUNCTION_TOL or self._small_step(t)):
+            self.status = 5            # Ceres' function (or parameter) tolerance: no end game
+            return True
         if t.lam == 0.0:
             status = check_termination(t.step, self.last_undamped, self.options.tol)
             self.last_undamped = t.step
@@ -412,6 +425,10 @@ class Iteration:
         else:
             self.quiet = 0
         return False
+
+    def _small_step(self, t: Trial) -> bool:
+        """Ceres' parameter tolerance: ‖Δx‖ ≤ :data:`PARAMETER_TOL` (‖x‖ + :data:`PARAMETER_TOL`)."""
+        return float(np.linalg.norm(t.dx)) <= PARAMETER_TOL * (float(np.linalg.norm(self.x[self.free])) + PARAMETER_TOL)
 
     # -- the end -------------------------------------------------------------------------------
     def release(self) -> None:

@@ -149,9 +149,12 @@ def check_numeric_range(problem, path, control=None) -> None:
 def _check_projections(problem, path, control, x0) -> None:
     """An image point whose projection is undefined at the start values (a division or EUCM
     camera's model has no real distorted point there, a point in the camera's centre plane) is
-    refused, naming it and its camera, instead of reaching the adjustment as NaN."""
+    refused, naming it and its camera, instead of reaching the adjustment as NaN; so is any other
+    observation whose value or derivatives are undefined there (a distance or direction between
+    two points with the same approximate coordinates)."""
     for s in problem.sets:
         if not isinstance(s, ProjectionSet):
+            _check_defined(problem, s, path, control, x0)
             continue
         with np.errstate(all="ignore"):
             f = s.values(x0)
@@ -169,6 +172,24 @@ def _check_projections(problem, path, control, x0) -> None:
         raise InputError(fl, line, f"{_label(problem, i)}: its projection{cam} is undefined at the file's "
                          f"values (outside the camera model's field of view, or in the camera's centre "
                          f"plane); {max(int(bad.sum()) // 2, 1)} image point(s) in all", field="value")
+
+
+def _check_defined(problem, s, path, control, x0) -> None:
+    """Refuse the first observation of set ``s`` whose value or Jacobian is not finite at ``x0``."""
+    with np.errstate(all="ignore"):
+        f, jr, _, jv = s.evaluate(x0)
+    bad = ~np.isfinite(np.asarray(f, dtype=float))
+    jv = np.asarray(jv, dtype=float)
+    if not bad.any() and np.isfinite(jv).all():
+        return
+    rows = np.zeros(problem.n, dtype=bool)
+    rows[np.asarray(s.rows)[bad]] = True
+    rows[np.asarray(jr)[~np.isfinite(jv)]] = True
+    i = int(np.flatnonzero(rows)[0])
+    fl, line = _where(problem, i, path, control)
+    raise InputError(fl, line, f"{_label(problem, i)}: undefined at the approximate coordinates (points with "
+                     f"the same approximate coordinates: a zero distance or an undefined direction); give them "
+                     f"distinct approximate coordinates; {int(rows.sum())} observation(s) in all", field="value")
 
 
 def _refuse_large(path, lines, values, what) -> None:

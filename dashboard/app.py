@@ -28,6 +28,7 @@ from panel.io.state import set_curdoc
 from tornado.ioloop import IOLoop
 
 from baarda.errors import BaardaError
+from baarda.threads import limit_native_threads, limit_worker_threads
 
 from . import geometry
 from .guard import HostCheck, bound_messages, guard_hosts, is_loopback
@@ -629,6 +630,8 @@ def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = 
     """
     global WEBGL
     WEBGL = bool(webgl)
+    limit_native_threads()               # BLAS: the whole process; numba: this (the event loop's) thread
+    limit_worker_threads()
     remote = not is_loopback(address)
     if token is not None and not token.strip():
         raise BaardaError("--token must not be empty")

@@ -17,10 +17,22 @@ import weakref
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from ..threads import limit_worker_threads
+
+def _worker_start() -> None:
+    """Each worker thread's compiled kernels on one thread (:func:`baarda.threads.limit_worker_threads`;
+    the BLAS limit is the process's): four sessions adjusting at once use four threads, not
+    four times numba's default of one per core."""
+    try:
+        limit_worker_threads()
+    except Exception:  # noqa: BLE001 - a bad BAARDA_BLAS_THREADS is reported by the command line
+        _LOG.exception("could not limit the worker thread's threads")
+
+
 #: Long computations (reading and adjusting a file, snooping, robust reweighting, variance
-#: components) of every session run on these threads, off the server's event loop; the numerical
-#: work releases the GIL, so other sessions keep answering.
-TASKS = ThreadPoolExecutor(max_workers=4, thread_name_prefix="baarda-task")
+#: components, criterion fits) of every session run on these threads, off the server's event
+#: loop; the numerical work releases the GIL, so other sessions keep answering.
+TASKS = ThreadPoolExecutor(max_workers=4, thread_name_prefix="baarda-task", initializer=_worker_start)
 
 
 _LOG = logging.getLogger("baarda.dashboard")

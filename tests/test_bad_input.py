@@ -196,3 +196,35 @@ def test_sigma_at_the_rounding_of_its_value(factor, refused, tmp_path):
     assert exc.value.field == "sigma" and "below the rounding error of the value 1000" in exc.value.message
     lines = f.read_text().splitlines()
     assert exc.value.line == lines.index(' "observations": [') + 2      # where observations[0] starts
+
+
+@pytest.mark.parametrize("obs", ["<distance from='1' to='3' val='1000.02' stdev='10' />",
+                                 "<direction from='1' to='3' val='0' stdev='10' />"])
+def test_coincident_approximate_points_are_refused_naming_the_line(obs, tmp_path, capsys):
+    """A point given the approximate coordinates of another one makes a distance or direction
+    between them undefined at the start (zero length): refused naming the file, line and
+    observation, not an internal error from the datum analysis's eigen solver."""
+    gkf = tmp_path / "coincident.gkf"
+    gkf.write_text(f"""<?xml version="1.0" ?>
+<gama-local xmlns="http://www.gnu.org/software/gama/gama-local">
+<network axes-xy="ne">
+<parameters sigma-apr="10" />
+<points-observations>
+<point id='1' x='0' y='1000' fix='xy' />
+<point id='2' x='1000' y='1000' fix='xy' />
+<point id='3' x='0' y='1000' adj='xy' />
+<obs from='1'>
+{obs}
+<distance from='1' to='2' val='1000' stdev='10' />
+</obs>
+<obs from='2'>
+<distance from='2' to='3' val='1414.2' stdev='10' />
+</obs>
+</points-observations>
+</network>
+</gama-local>
+""")
+    assert main(["analyze", str(gkf)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"baarda: error: {gkf}:10: ") and "from=1 to=3" in err, err
+    assert "same approximate coordinates" in err and "internal error" not in err

@@ -19,6 +19,7 @@ from ..datum import far_points
 from ..stats.ap_tests import ap_tests
 from ..stats.reliability import reliability_of
 from ..text import number, printable
+from . import columns as columns_
 from .output import OutputError, atomic_write, csv_cell
 
 SCHEMA_VERSION = "1.0"
@@ -109,11 +110,15 @@ def far_point_ids(adj) -> list[str]:
 class Records(Sequence):
     """The records of one table of the result document (observations, points, groups), each a
     dict made when it is asked for: a block of millions of image points holds its arrays, not
-    millions of dicts (~1 KB each), and :func:`dump_json` and :func:`write_csv` stream them.
-    ``add(f)`` merges ``f(i)`` (a dict) into record i (the CLI's --risk columns)."""
+    millions of dicts (~1 KB each). ``fields()``, where given, makes the same table as columns
+    (:class:`baarda.io.columns.Field`), which :func:`dump_json`, :func:`write_csv` and
+    :func:`columns` write a chunk of rows at a time (the per-record path is their reference).
+    ``add(f, fields)`` merges ``f(i)`` (a dict) into record i (the CLI's --risk columns), and
+    ``fields()`` its keys as columns (without them the table is written record by record)."""
 
-    def __init__(self, n: int, make):
+    def __init__(self, n: int, make, fields=None):
         self._n, self._make, self._extra = int(n), make, []
+        self._fields = fields
 
     def __len__(self) -> int:
         return self._n
@@ -127,7 +132,7 @@ class Records(Sequence):
         if not 0 <= i < self._n:
             raise IndexError(i)
         d = self._make(i)
-        for f in self._extra:
+        for f, _ in self._extra:
             d.update(f(i))
         return d
 
@@ -140,8 +145,29 @@ class Records(Sequence):
 
     __hash__ = None
 
-    def add(self, f) -> None:
-        self._extra.append(f)
+    def add(self, f, fields=None) -> None:
+        self._extra.append((f, fields))
+
+    def fields(self) -> list | None:
+        """The table as :class:`~baarda.io.columns.Field` s, or None where some part of it has
+        no columnar form (its keys not in one order over the records, an extra without fields)."""
+        if self._fields is None or any(fl is None for _, fl in self._extra):
+            return None
+        base = self._fields()
+        if base is None:
+            return None
+        out = list(base)
+        for _, fl in self._extra:
+            for f in fl():
+                known = [k for k, g in enumerate(out) if g.key == f.key]
+                if known:
+                    return None          # an extra that replaces a key keeps its place: record by record
+                out.append(f)
+        return out
+
+    def json_lines(self, fields, sl: slice) -> list[str]:
+        """The compact JSON text of records ``sl`` (:func:`baarda.io.columns.row_texts`)."""
+        return columns_.row_texts(fields, sl, sl.stop - sl.start)
 
 
 def observations(adj, reliability=None) -> Records:
@@ -173,7 +199,80 @@ def observations(adj, reliability=None) -> Records:
         if info.group[i] >= 0:
             d["group"] = int(info.group[i])
         return d
-    return Records(adj.n, make)
+
+    def fields():
+        F = columns_.Field
+        n = adj.n
+        ids = _id_fields(info.ids, n)
+        if ids is None:
+            return None
+        f = [F("index", "int", np.arange(n, dtype=np.int64)), F("kind", "str", info.kind), *ids]
+        num = {"value": info.value_file, "sigma": info.sigma_file, "sigma_si": sig, "residual": v, "redundancy": r,
+               "u_k": u_k, "u_t": u_t, "w": w, "tau": tau, "mdb": mdb, "external": ext,
+               "lambda_bar": _squares(ext)}
+        for key in ("value", "unit", "sigma", "sigma_unit", "sigma_si", "line", "residual", "redundancy", "u_k",
+                    "u_t", "w", "tau", "mdb", "external", "lambda_bar"):
+            if key in num:
+                f.append(F(key, "num", np.asarray(num[key], dtype=float)))
+            elif key == "line":
+                f.append(F(key, "int", np.asarray(info.line).astype(np.int64)))
+            else:
+                f.append(F(key, "str", getattr(info, key)))
+        for key, a in (("rejected", rej), ("rejected_w", rej_w), ("rejected_tau", rej_tau), ("uncontrolled", unc)):
+            f.append(F(key, "bool", np.asarray(a, dtype=bool)))
+        group = np.asarray(info.group).astype(np.int64)
+        has = group >= 0
+        if has.any():
+            f.append(F("group", "int", group, None if has.all() else has))
+        if len({g.key for g in f}) != len(f):
+            return None                  # an id named as another key: record by record
+        return f
+    return Records(adj.n, make, fields)
+
+
+def _squares(a) -> np.ndarray:
+    """a[i] ** 2 as each record has it (libm's pow; the array's a ** 2 is x·x, which differs in
+    the last bit), a chunk at a time (no list of millions of floats)."""
+    a = np.asarray(a, dtype=float)
+    out = np.empty(a.size)
+    for sl in columns_.chunks(a.size):
+        out[sl] = [x ** 2 for x in a[sl].tolist()]
+    return out
+
+
+def _id_fields(ids, n: int) -> list | None:
+    """The observations' id keys as fields, or None where the records do not all have their
+    keys in one order (then the table is written record by record)."""
+    if getattr(ids, "roles", None) is not None:         # RecordIds: per role its values and codes
+        out = []
+        for k, role in enumerate(ids.roles):
+            codes = np.asarray(ids.codes[:, k])
+            has = codes >= 0
+            vals = list(ids.values[k])
+            if all(type(x) is str for x in vals):
+                out.append(columns_.Field(role, "str", columns_.Codes(vals, codes), None if has.all() else has))
+            else:
+                out.append(columns_.Field(role, "obj", lambda sl, vals=vals, codes=codes: [
+                    vals[c] if c >= 0 else None for c in codes[sl].tolist()], None if has.all() else has))
+        return out
+    sigs = list(dict.fromkeys(map(tuple, ids)))
+    order: list = []
+    for s in sigs:                       # a key new to the order goes before the next key of its record
+        for j, k in enumerate(s):
+            if k not in order:
+                after = next((order.index(x) for x in s[j + 1:] if x in order), len(order))
+                order.insert(after, k)
+    pos = {k: j for j, k in enumerate(order)}
+    if any(any(pos[a] > pos[b] for a, b in zip(s, s[1:])) for s in sigs):
+        return None
+    out = []
+    for key in order:
+        everywhere = all(key in s for s in sigs)
+        vals = [d.get(key) for d in ids]
+        present = None if everywhere else np.fromiter((key in d for d in ids), dtype=bool, count=n)
+        kind = "str" if all(type(x) is str for x in vals if x is not None) else "obj"
+        out.append(columns_.Field(key, kind, vals if kind == "str" else (lambda sl, vals=vals: vals[sl]), present))
+    return out
 
 
 def points(adj) -> Records:
@@ -189,7 +288,21 @@ def points(adj) -> Records:
                     if val is not None:              # left out, never NaN (strict JSON, the schema)
                         d[key] = val
         return d
-    return Records(len(pts.ids), make)
+
+    def fields():
+        F = columns_.Field
+        ids = list(pts.ids)
+        f = [F("id", "str" if all(type(x) is str for x in ids) else "obj",
+               ids if all(type(x) is str for x in ids) else (lambda sl: ids[sl])),
+             F("status", "str", list(pts.status))]
+        X, S = np.asarray(xyz, dtype=float), np.asarray(sig, dtype=float)
+        for a, name in enumerate("xyz"):
+            on = np.asarray(pts.index)[:, a] >= 0
+            for key, col in ((name, X[:, a]), ("s" + name, S[:, a])):
+                present = on & np.isfinite(col)
+                f.append(F(key, "num", col, None if present.all() else present))
+        return f
+    return Records(len(pts.ids), make, fields)
 
 
 def groups(adj, reliability=None) -> Records:
@@ -205,7 +318,63 @@ def groups(adj, reliability=None) -> Records:
                 "nabla": [_num(x) for x in g["nabla"]], "nabla_sigma": [_num(x) for x in g["nabla_sigma"]],
                 "ellipse_axes": [_num(x) for x in g["ellipse_axes"]],
                 "delta0_prime_max": _num(g["delta0_prime_max"])}
-    return Records(len(gs), make)
+
+    def fields():
+        F = columns_.Field
+        ptr = np.asarray(gs.ptr, dtype=np.int64)
+        axes = np.asarray(gs.ellipse_axes, dtype=float)
+        keep = np.isfinite(axes)
+        kept_ptr = np.concatenate([[0], np.cumsum(keep)])[ptr]
+        lists = {"members": (np.asarray(gs.members, dtype=np.int64), ptr, False),
+                 "nabla": (np.asarray(gs.nabla, dtype=float), ptr, True),
+                 "nabla_sigma": (np.asarray(gs.nabla_sigma, dtype=float), ptr, True),
+                 "ellipse_axes": (axes[keep], kept_ptr, True)}
+
+        def listed(key):
+            flat, p, real = lists[key]
+
+            def values(sl):
+                a0, b0 = int(p[sl.start]), int(p[sl.stop])
+                vals = columns_.num_values(flat[a0:b0]) if real else flat[a0:b0].tolist()
+                return [vals[a - a0:b - a0] for a, b in zip(p[sl].tolist(), p[1:][sl].tolist())]
+
+            def text(sl):
+                a0, b0 = int(p[sl.start]), int(p[sl.stop])
+                t = columns_.num_texts(flat[a0:b0]) if real else list(map(str, flat[a0:b0].tolist()))
+                size = np.diff(p[sl.start:sl.stop + 1])
+                if size.size and (size == size[0]).all():      # lists of one length (q = 2 of image points)
+                    k = int(size[0])
+                    return list(map(("[" + ", ".join(["%s"] * k) + "]").__mod__, zip(*(t[j::k] for j in range(k))))) \
+                        if k else ["[]"] * size.size
+                return ["[" + ", ".join(t[a - a0:b - a0]) + "]" for a, b in zip(p[sl].tolist(), p[1:][sl].tolist())]
+            return F(key, "obj", values, text=text)
+        f = [F("group", "int", np.asarray(gs.group, dtype=np.int64)), listed("members")]
+        for key in ("T", "dimension", "redundancy", "critical", "alpha", "rejected", "R", "critical_R",
+                    "nabla", "nabla_sigma", "ellipse_axes", "delta0_prime_max"):
+            if key in lists:
+                f.append(listed(key))
+            elif key == "dimension":
+                f.append(F(key, "int", np.asarray(gs.dimension, dtype=np.int64)))
+            elif key == "rejected":
+                f.append(F(key, "bool", np.asarray(gs.rejected, dtype=bool)))
+            else:
+                f.append(F(key, "num", np.asarray(getattr(gs, key), dtype=float)))
+        return f
+    return Records(len(gs), make, fields)
+
+
+def risk_fields(r, n: int) -> list:
+    """The ``risk`` key of the observations' records (``--risk``, M84 §3.3) as a field: an
+    object of λtol, C, α, β, r_C and the decision per observation."""
+    F = columns_.Field
+    names = ("lam_tol", "C", "alpha", "beta", "r_C")
+    sub = [F(k, "num", np.broadcast_to(np.asarray(getattr(r, k), dtype=float), (n,))) for k in names]
+    sub.append(F("rejected", "bool", np.broadcast_to(np.asarray(r.rejected, dtype=bool), (n,))))
+
+    def values(sl):
+        cols = [f.python(sl) for f in sub]
+        return [dict(zip((*names, "rejected"), row)) for row in zip(*cols)]
+    return [F("risk", "obj", values, text=lambda sl: columns_.row_texts(sub, sl, sl.stop - sl.start))]
 
 
 def to_dict(adj, reliability=None) -> dict:
@@ -223,26 +392,18 @@ def columns(records) -> dict:
     """A table of records as columns: ``{key: numpy array}`` in the records' key order. Numbers
     (None where the JSON has null) become float arrays with NaN, booleans and integers keep their
     type where every record has them, anything else (strings, lists, dicts) an object array;
-    a key some records lack is missing (NaN / None) there."""
+    a key some records lack is missing (NaN / None) there (:func:`baarda.io.columns.column`).
+    :class:`Records` with fields are made from their arrays, not record by record."""
+    fields = records.fields() if isinstance(records, Records) else None
+    if fields is not None:
+        n = len(records)
+        by_key = {f.key: f for f in fields}
+        return {key: columns_.field_column(by_key[key], n) for key in columns_.key_order(fields, n)}
     rows = list(records)
     keys: dict = {}
     for row in rows:
         keys.update(dict.fromkeys(row))
-    out = {}
-    for key in keys:
-        vals = [row.get(key) for row in rows]
-        present = [v for v in vals if v is not None]
-        if present and all(isinstance(v, bool) for v in present) and len(present) == len(vals):
-            out[key] = np.array(vals, dtype=bool)
-        elif present and all(isinstance(v, int) and not isinstance(v, bool) for v in present) and len(present) == len(vals):
-            out[key] = np.array(vals, dtype=np.int64)
-        elif all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in present):
-            out[key] = np.array([np.nan if v is None else float(v) for v in vals], dtype=float)
-        else:
-            arr = np.empty(len(vals), dtype=object)
-            arr[:] = vals
-            out[key] = arr
-    return out
+    return {key: columns_.column([row.get(key) for row in rows]) for key in keys}
 
 
 def finite(x):
@@ -265,20 +426,34 @@ def dump_json(doc: dict, path) -> None:
     """``doc`` as strict JSON (no NaN), streamed to ``path``: the lists of records (observations,
     points, groups, ...) one record per line, everything else indented. (json's indenting
     encoder is pure Python, ~6 µs per value: 40 s for BAL Dubrovnik's 167,000 observations; the
-    compact one per record is compiled.)"""
-    compact = json.JSONEncoder(allow_nan=False, ensure_ascii=True, separators=(", ", ": "))
+    compact one per record is compiled.) :class:`Records` with fields are written from their
+    columns a chunk at a time (the same text, :mod:`baarda.io.columns`)."""
     with atomic_write(path) as fh:
-        fh.write("{")
-        for k, (key, val) in enumerate(doc.items()):
-            fh.write(("," if k else "") + "\n " + json.dumps(str(key)) + ": ")
-            if isinstance(val, Records) or (isinstance(val, list) and val and all(isinstance(v, dict) for v in val)):
-                fh.write("[")
-                for i, rec in enumerate(val):
-                    fh.write(("," if i else "") + "\n  " + compact.encode(rec))
-                fh.write("\n ]")
-            else:
-                fh.write(json.dumps(val, indent=1, allow_nan=False).replace("\n", "\n "))
-        fh.write("\n}\n")
+        for chunk in json_chunks(doc):
+            fh.write(chunk)
+
+
+def json_chunks(doc: dict):
+    """The text of :func:`dump_json` in pieces (``"".join`` of them is the file's text: a batch
+    worker sends it to the client, which writes it)."""
+    compact = json.JSONEncoder(allow_nan=False, ensure_ascii=True, separators=(", ", ": "))
+    yield "{"
+    for k, (key, val) in enumerate(doc.items()):
+        yield ("," if k else "") + "\n " + json.dumps(str(key)) + ": "
+        fields = val.fields() if isinstance(val, Records) else None
+        if fields is not None:           # a chunk of records at a time, from their columns
+            yield "["
+            for sl in columns_.chunks(len(val)):
+                yield ("," if sl.start else "") + "\n  " + ",\n  ".join(val.json_lines(fields, sl))
+            yield "\n ]"
+        elif isinstance(val, Records) or (isinstance(val, list) and val and all(isinstance(v, dict) for v in val)):
+            yield "["
+            for i, rec in enumerate(val):
+                yield ("," if i else "") + "\n  " + compact.encode(rec)
+            yield "\n ]"
+        else:
+            yield json.dumps(val, indent=1, allow_nan=False).replace("\n", "\n ")
+    yield "\n}\n"
 
 
 def write_csv(adj, directory, doc=None) -> list[Path]:
@@ -297,6 +472,11 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
     for name in ("observations", "points", "groups"):
         rows = doc[name]                   # (records made twice, streamed: not held)
         path = d / f"{name}.csv"
+        fields = rows.fields() if isinstance(rows, Records) else None
+        if fields is not None:
+            _csv_from_fields(fields, len(rows), path, mark)
+            written.append(path)
+            continue
         keys = {}
         for row in rows:
             keys.update(dict.fromkeys(row))
@@ -311,6 +491,39 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
                              for v in (row.get(k, "") for k in names)])
         written.append(path)
     return written
+
+
+def _csv_from_fields(fields, n: int, path, mark: dict) -> None:
+    """One CSV of :func:`write_csv` from a table's columns, a chunk of rows at a time: the cells
+    the per-record path writes (None and absent keys empty, lists joined by ';', text made safe)."""
+    by_key = {f.key: f for f in fields}
+    names = columns_.key_order(fields, n) + [k for k in mark if k not in by_key]
+    safe: dict = {}
+
+    def cell(v):
+        if isinstance(v, str):
+            if v not in safe:
+                safe[v] = csv_cell(v)
+            return safe[v]
+        return csv_cell(";".join(map(str, v))) if isinstance(v, list) else v
+    with atomic_write(path, newline="") as fh:
+        wr = csv.writer(fh)
+        wr.writerow([csv_cell(k) for k in (names or ["empty"])])
+        for sl in columns_.chunks(n):
+            m = sl.stop - sl.start
+            cols = []
+            for k in names:
+                if k not in by_key:
+                    cols.append([cell(mark[k])] * m)
+                    continue
+                f = by_key[k]
+                vals = f.python(sl)
+                if f.present is not None:
+                    vals = [v if p else "" for v, p in zip(vals, f.present[sl].tolist())]
+                if f.kind in ("str", "obj"):
+                    vals = list(map(cell, vals))
+                cols.append(vals)
+            wr.writerows(zip(*cols))
 
 
 def text_summary(adj, top: int = 8, reliability=None) -> str:

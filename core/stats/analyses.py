@@ -19,11 +19,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats as sps
-
+from ..lazy import lazy
 from . import hypotheses, precision, risk, variance
 from .reliability import reliability_of
 from ..errors import BaardaError
+
+sps = lazy("scipy.stats")                # imported when first used (start-up)
 
 
 #: the largest number of coordinates whose dense covariance a criterion comparison forms

@@ -8,9 +8,10 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy import optimize, stats
-
+from ..lazy import lazy
 from ..errors import OptionError
+
+optimize, stats = lazy("scipy.optimize"), lazy("scipy.stats")     # imported when first used (start-up)
 
 
 def critical_normal(alpha: float) -> float:

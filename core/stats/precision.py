@@ -27,10 +27,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as la
-from scipy import optimize
-
+from ..lazy import lazy
 from .. import datum as datum_mod
 from ..errors import BaardaError
+
+optimize = lazy("scipy.optimize")        # imported when first used (start-up)
 
 
 @dataclass(frozen=True, eq=False)

@@ -35,9 +35,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, stats
-
+from ..lazy import lazy
 from ..errors import OptionError
+
+optimize, stats = lazy("scipy.optimize"), lazy("scipy.stats")     # imported when first used (start-up)
 
 
 def risk(C: float, p: float, L1: float, L2: float, lam_tol: float) -> float:

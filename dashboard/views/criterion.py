@@ -18,9 +18,11 @@ import pandas as pd
 import panel as pn
 import param
 
+from baarda.errors import BaardaError
 from baarda.stats import analyses
 
 from .. import measures
+from ..jobs import Cancelled
 from ..geometry import display_matrix, display_xy
 from ..state import State
 from ..text import fit_title, labels, md_text, plain
@@ -77,13 +79,46 @@ class CriterionView(pn.viewable.Viewer):
         self.C2.disabled = not u["C2"]
 
     def run_fit(self):
-        c = self.state.criterion_compare(self.kind.value, sbase=self.sbase.value)
-        if c is not None:
-            self.C1.value, self.C2.value = c["C1"], c["C2"]
+        self._compare(None, 1.0)
 
     def run_check(self):
-        self.state.criterion_compare(self.kind.value, C1=float(self.C1.value), C2=float(self.C2.value),
-                                     sbase=self.sbase.value)
+        self._compare(float(self.C1.value), float(self.C2.value))
+
+    def _compare(self, C1, C2):
+        """The fit (C1 None) or the comparison: in place in scripts and tests
+        (:meth:`State.criterion_compare`); served, on a task thread of the session
+        (:meth:`baarda.dashboard.jobs.Jobs.start`, the dense covariance in the S-base and its
+        eigenvalues take seconds), its result shown on the event loop, which never waits for it
+        (the page of a session opening the tab is built meanwhile)."""
+        s = self.state
+        if not (s.background and s.jobs.loop_call is not None):
+            c = s.criterion_compare(self.kind.value, C1=C1, C2=C2, sbase=self.sbase.value)
+            if c is not None and C1 is None:
+                self.C1.value, self.C2.value = c["C1"], c["C2"]
+            return
+        adj, kind = s.results, self.kind.value
+        base = list(self.sbase.value) or s.criterion_base()
+        m = len(s.problem.points.ids)
+
+        def run():
+            try:
+                out, err = measures.criterion(adj, m, base, kind, C1, C2), ""
+            except (BaardaError, ValueError, np.linalg.LinAlgError) as e:   # as State.criterion_compare
+                out, err = None, f"Criterion: {e}"
+            except Exception as e:  # noqa: BLE001 - a message in the tab, never a silent nothing
+                out, err = None, f"Criterion: {type(e).__name__}: {e}"
+
+            def show():
+                if s.results is not adj:             # another file or adjustment since: not its result
+                    return
+                s.param.update(criterion=out, criterion_error=err)
+                if out is not None and C1 is None:
+                    self.C1.value, self.C2.value = out["C1"], out["C2"]
+            try:
+                s.on_loop(show)
+            except Cancelled:                        # the session ended meanwhile
+                pass
+        s.jobs.start(run)
 
     def _show(self, *_):
         s = self.state

@@ -191,7 +191,8 @@ def test_outputs_are_written_with_their_folder(inputs, monkeypatch):
 # --------------------------------------------------------------------------------------------
 # interrupted writes, broken pipes
 # --------------------------------------------------------------------------------------------
-#: the child writes each JSON record slowly, so that it is surely interrupted while writing
+#: the child writes each JSON record slowly (one at a time, or a chunk of them from their
+#: columns), so that it is surely interrupted while writing
 SLOW_CHILD = """
 import sys, time
 from baarda.io import results
@@ -200,6 +201,11 @@ def slow(self, i):
     time.sleep(0.002)
     return make(self, i)
 results.Records.__getitem__ = slow
+lines = results.Records.json_lines
+def slow_lines(self, fields, sl):
+    time.sleep(0.01 * (sl.stop - sl.start))
+    return lines(self, fields, sl)
+results.Records.json_lines = slow_lines
 from baarda.cli import main
 sys.exit(main(sys.argv[1:]))
 """
