@@ -983,7 +983,7 @@ def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
             # the loop's observations: q = 1, ∇0 = MDB (F80 eq. 13 = M84's minimal detectable bias)
             h = hypotheses.test(adj, selection(adj.n, [0]))
             assert h.q == 1
-            assert abs(h.lower_bound([1.0])[0]) == pytest.approx(adj.mdb[0], rel=1e-9)
+            assert abs(h.lower_bound([1.0])[0]) == pytest.approx(reliability_of(adj).mdb[0], rel=1e-9)
             # the dangling observation (r = 0): W is round-off (of either sign), q = 0
             h = hypotheses.test(adj, selection(adj.n, [adj.n - 1]))
             seen_negative |= float(h.W[0, 0]) < 0

@@ -26,7 +26,7 @@ from baarda.dashboard.views import Controls
 from baarda.dashboard.views.summary import summary_html
 from baarda.io.results import summary
 from baarda.stats import distributions
-from baarda.stats.reliability import Reliability, reliability_of
+from baarda.stats.reliability import Reliability, policy_of, reliability_of
 
 from tests.extdata import GAMA, require_extdata
 
@@ -81,10 +81,10 @@ def test_wolf_free_network_passes_one_sided_and_fails_two_sided_low(tmp_path, ca
     assert (g["test"], g["passed"], g["side"]) == ("one-sided", True, "low")
     assert g["alpha"] == pytest.approx(0.025, rel=1e-12)
     assert g["upper"] == pytest.approx(sps.chi2.isf(0.025, 14), rel=1e-12)
-    b = Reliability(adj, replace(adj.policy, global_test="b-method")).global_test
+    b = Reliability(adj, replace(policy_of(adj), global_test="b-method")).global_test
     assert (b["passed"], b["side"]) == (True, "low") and b["alpha"] == pytest.approx(a14, rel=1e-8)
     assert b["upper"] == pytest.approx(sps.chi2.isf(a14, 14), rel=1e-8)
-    two = Reliability(adj, replace(adj.policy, global_test="two-sided")).global_test
+    two = Reliability(adj, replace(policy_of(adj), global_test="two-sided")).global_test
     assert two["lower"] == pytest.approx(sps.chi2.ppf(0.025, 14), rel=1e-12)
     assert round(two["lower"], 2) == 5.63
     assert (two["passed"], two["side"]) == (False, "low")
@@ -117,11 +117,11 @@ def test_demo_levelling_verdict(tmp_path):
     assert g["alpha"] == pytest.approx(0.025, rel=1e-12) and g["upper"] == pytest.approx(sps.chi2.isf(0.025, r), rel=1e-12)
     assert T > sps.chi2.isf(0.025, r)
     assert (g["passed"], g["side"]) == (False, "high") and "too large" in g["verdict"]
-    b = Reliability(adj, replace(adj.policy, global_test="b-method")).global_test
+    b = Reliability(adj, replace(policy_of(adj), global_test="b-method")).global_test
     assert b["alpha"] == pytest.approx(a5, rel=1e-8)
     assert b["upper"] == pytest.approx(sps.chi2.isf(a5, r), rel=1e-8) and T > b["upper"]
     assert (b["passed"], b["side"]) == (False, "high") and "too large" in b["verdict"]
-    two = Reliability(adj, replace(adj.policy, global_test="two-sided")).global_test
+    two = Reliability(adj, replace(policy_of(adj), global_test="two-sided")).global_test
     assert two["upper"] == pytest.approx(sps.chi2.isf(0.025, r), rel=1e-12)
     assert (two["passed"], two["side"]) == (T <= sps.chi2.isf(0.025, r), "high")
 
