@@ -34,9 +34,11 @@ from .build import read_problem
 from .datum import split_normal
 from .errors import BaardaError, DatumDefectError, InputError, OptionError, UsageError
 from . import truth
+from .georeference import text_lines as georeference_lines
 from .io import read_truth, results
-from .io.analysis_text import extras_text, summary_html
+from .io.analysis_text import check_point_lines, extras_text, strip_test_lines, summary_html
 from .io.hypothesis import parse_hypothesis, read_hypothesis
+from .model.bundle import check_points as _check_points, has_check_points
 from .model.problem import without as problem_without
 from .network_defects import adjust_network
 from .sfm_defects import adjust_block
@@ -44,6 +46,7 @@ from .stats import analyses, hypotheses, misidentification, precision, risk, rob
 from .stats.ap_tests import ap_test
 from .stats.policy import TestPolicy
 from .stats.reliability import Reliability
+from .text import printable
 
 # optional, imported when first used: Analysis.records(frame=True) (pandas comes with the dashboard extra)
 pd = lazy("pandas") if installed("pandas") else None
@@ -140,6 +143,12 @@ class Extras:
     truth: str | None = None
 
 
+class _NoModel:
+    """A model without points (a network's analysis has no check points)."""
+
+    points = ()
+
+
 def _policy_for(problem, policy) -> TestPolicy:
     """The policy: a TestPolicy as it is; None or a dict of TestPolicy's fields without
     ``sigma0``: deciding on the σ0 the file asks for (GNU Gama's ``sigma-act``)."""
@@ -183,7 +192,7 @@ def defect_message(err: DatumDefectError, problem) -> str:
 def analyze(source, *, format: str = "auto", solver: SolverOptions | None = None,  # noqa: A002 - the CLI's name
             policy: TestPolicy | dict | None = None, strict: bool = False, excluded=(), control=None,
             sigma_px: float | None = None, refine_intrinsics: bool | None = None, drop_undefined: bool = False,
-            progress=None) -> "Analysis":
+            gnss=None, imu=None, progress=None) -> "Analysis":
     """Read, adjust and test a block or network.
 
     Parameters
@@ -208,6 +217,13 @@ def analyze(source, *, format: str = "auto", solver: SolverOptions | None = None
         The reader's options (:func:`baarda.io.read_model`): a control-point CSV, σ of image
         coordinates in pixels, whether intrinsics are estimated, Gama observations to undefined
         points dropped.
+    gnss : str, os.PathLike or baarda.io.gnss.GnssOptions, optional
+        GNSS projection centres (a CSV ``image,x,y,z,sx,sy,sz``; the options give the lever arm
+        and whether each strip gets a shift and a drift): observations of a bundle block (an SfM
+        model converted to one; :mod:`baarda.observations.gnss`), tested like any observation.
+    imu : str, os.PathLike or baarda.io.gnss.ImuOptions, optional
+        IMU attitudes (a CSV ``image,omega,phi,kappa,somega,sphi,skappa`` in degrees) with a
+        boresight rotation, estimated unless held (:mod:`baarda.observations.imu`).
     progress : callable, optional
         ``progress(iteration, largest step / σ)`` during the adjustment.
 
@@ -223,7 +239,7 @@ def analyze(source, *, format: str = "auto", solver: SolverOptions | None = None
     """
     t0 = time.perf_counter()
     if isinstance(source, (str, Path)) or hasattr(source, "__fspath__"):
-        problem = read_problem(source, format, control=control, sigma_px=sigma_px,
+        problem = read_problem(source, format, control=control, gnss=gnss, imu=imu, sigma_px=sigma_px,
                                refine_intrinsics=refine_intrinsics, strict=strict, drop_undefined=drop_undefined)
         name = str(source)
     else:
@@ -364,7 +380,31 @@ class Analysis:
     def text(self, top: int = 8, extras: Extras | None = None) -> str:
         """The text summary ``baarda analyze`` prints, with the lines of ``extras``."""
         head = results.text_summary(self.adjustment, top=top, reliability=self.reliability)
+        if has_check_points(self.problem.notes.local_model):
+            head = "\n".join([head, *check_point_lines(self.check_points())])
+        if self.gnss_strip_tests():
+            head = "\n".join([head, *strip_test_lines(self.gnss_strip_tests())])
+        geo = results.georeference_of(self.adjustment)
+        if geo is not None:
+            head = "\n".join([head, *(printable(x) for x in georeference_lines(geo))])
         return head if extras is None else "\n".join([head, *extras_text(self, extras, top)])
+
+    def gnss_strip_tests(self) -> list:
+        """The test of a shift of each strip's GNSS centres (a cycle slip, F80 §2.2 eq. 10-12) whose
+        shift the model does not estimate (:func:`baarda.stats.hypotheses.strip_tests`); empty
+        without GNSS centres."""
+        gnss = getattr(self.problem.notes.local_model, "gnss", None)
+        if gnss is None or not gnss.centres:
+            return []
+        return self._cached("gnss_strip_tests", lambda: hypotheses.strip_tests(self.adjustment, self.reliability))
+
+    def check_points(self) -> dict:
+        """The check points (native ``status: check``, or ``role`` check in a control CSV): adjusted
+        minus known coordinates and the RMSE per axis (:func:`baarda.model.bundle.check_points`);
+        they never enter the adjustment. Empty (``n`` 0) for a model without them."""
+        model = self.problem.notes.local_model
+        return self._cached("check_points", lambda: _check_points(self.adjustment, model if model is not None
+                                                                  else _NoModel()))
 
     # -- computed on demand --------------------------------------------------------------------------
     def test(self, spec, label: str | None = None) -> dict:

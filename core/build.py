@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from .io import read_model
 from .io.control import add_control
+from .io.gnss import GnssOptions, ImuOptions, add_gnss, add_imu
 from .model.bundle import Block
 from .model.imodel import IModelBlock, build_imodel_problem
 from .model.network import Network
@@ -35,15 +36,22 @@ def build(model, strict: bool = False):
     raise TypeError(f"cannot build a problem from {type(model).__name__}")
 
 
-def read_problem(path, fmt: str = "auto", control=None, strict: bool = False, **options):
+def read_problem(path, fmt: str = "auto", control=None, strict: bool = False, gnss=None, imu=None, **options):
     """Read ``path`` and return a :class:`baarda.model.problem.Problem` ready to adjust.
 
-    control: optional control-point CSV (:func:`baarda.io.control.add_control`); strict: local
-    defects are an error (:func:`build`); options go to :func:`baarda.io.read_model`.
+    control: optional control-point CSV (:func:`baarda.io.control.add_control`); gnss: GNSS
+    projection centres, a CSV path or :class:`baarda.io.gnss.GnssOptions`
+    (:func:`baarda.io.gnss.add_gnss`); imu: IMU attitudes, a CSV path or
+    :class:`baarda.io.gnss.ImuOptions` (:func:`baarda.io.gnss.add_imu`); strict: local defects are an error (:func:`build`);
+    options go to :func:`baarda.io.read_model`.
     """
     model = read_model(path, fmt, **options)
     if control is not None:
         model = add_control(model, control)
+    if gnss is not None:
+        model = add_gnss(model, gnss if isinstance(gnss, GnssOptions) else GnssOptions(gnss))
+    if imu is not None:
+        model = add_imu(model, imu if isinstance(imu, ImuOptions) else ImuOptions(imu))
     check_model_range(model, path)                   # values double precision can adjust
     problem = build(model, strict=strict)
     check_numeric_range(problem, path, control)      # σ and values double precision can adjust

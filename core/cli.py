@@ -31,7 +31,7 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__, batch, study
+from . import __version__, batch, cli_options, study
 from .analysis import Extras, SolverOptions, analyze
 from .errors import BaardaError, HypothesisError, InputError, NotFoundError, OptionError, SingularError, UsageError
 from .io import read_model, results
@@ -44,7 +44,7 @@ from .io.native import write_native
 from .io.output import OutputError, check_outputs, write_text
 from .model.sfm import SfmBlock, to_block
 from .sfm_defects import degenerate_geometry
-from .simulate import CAMERAS, RANGES as RECIPE_RANGES, check_recipe, simulate_to_files
+from .simulate import CAMERAS, RANGES as RECIPE_RANGES, check_recipe, gnss_path, simulate_to_files
 from .stats import analyses, separability
 from .text import number, printable, printable_lines, shorten
 from .threads import limit_native_threads
@@ -187,6 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("input", help="the network or block: GNU Gama .gkf, native .json, BAL problem .txt, "
                                   "Bundler .out, COLMAP model directory (docs/formats.md)")
     _add_input_options(an)
+    cli_options.add_gnss_arguments(an)
     _add_test_options(an)
     _add_iteration_option(an)
     an.add_argument("--json", metavar="OUT", help="write the full results as JSON (docs/json-schema.md)")
@@ -253,6 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="repeatable: " + "; ".join(HYPOTHESIS_SPECS) + " (ids as in the file; "
                          "FILE: docs/formats.md, 'Hypothesis files')")
     _add_input_options(ts)
+    cli_options.add_gnss_arguments(ts)
     _add_test_options(ts)
     _add_iteration_option(ts)
     ts.add_argument("--json", metavar="OUT", help="write the tests as JSON (docs/json-schema.md, 'baarda test')")
@@ -288,8 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="planted radial distortion at the image corner, mm")
     sim.add_argument("--error", action="append", default=[], metavar="KIND:SIZE[:K=V...]",
                      help="plant an error, e.g. image:20, transfer:10:images=3, control:20:axis=z, "
-                          "image-point:6, misidentification:1, exchange:1 (size in σ; repeatable)")
+                          "image-point:6, misidentification:1, exchange:1, with --gnss-sigma gnss:20:image=203 "
+                          "or gnss-strip:10:strip=2:axis=y (size in σ; repeatable)")
     sim.add_argument("--design", action="store_true", help="design mode: exact observations (no noise)")
+    cli_options.add_simulate_gnss_arguments(sim)
     sim.add_argument("--seed", type=_recipe_range("seed"), default=0, help="random seed (default 0)")
     sim.add_argument("--title", default="", help="a title stored in the block")
     sim.add_argument("--recipe", metavar="FILE",
@@ -413,6 +417,7 @@ def _analysis(args, progress=None, strict=None):
     solver options and test policy; the dropped-observations warning printed."""
     policy = _policy(args)
     analysis = _read_quietly(analyze, args.input, format=args.format, control=getattr(args, "control", None),
+                             gnss=cli_options.gnss_options(args), imu=cli_options.imu_options(args),
                              sigma_px=getattr(args, "sigma_px", None),
                              refine_intrinsics=getattr(args, "refine_intrinsics", None),
                              strict=bool(getattr(args, "strict", False) if strict is None else strict),
@@ -573,45 +578,15 @@ def cmd_convert(args) -> int:
     return 0
 
 
-#: keys of a --error spec that name things by id: kept as text, as the reader keeps ids
-_ID_KEYS = ("point", "image", "strip", "component", "axis")
-
-
-def _parse_error(spec: str) -> dict:
-    """A --error KIND:SIZE[:K=V...] as a recipe's error (its numbers checked by check_recipe)."""
-    parts = spec.split(":")
-    d = {"kind": parts[0]}
-    if len(parts) > 1 and parts[1]:
-        try:
-            d["size"] = float(parts[1])
-        except ValueError:
-            raise BaardaError(f"--error {spec!r}: SIZE must be a number, not {parts[1]!r}") from None
-    for kv in parts[2:]:
-        k, eq, v = kv.partition("=")
-        if not (k and eq):
-            raise BaardaError(f"--error {spec!r}: expected KIND:SIZE[:K=V...], not {kv!r}")
-        if k in _ID_KEYS:                  # ids, even when they look like numbers
-            d[k] = v
-            continue
-        try:
-            d[k] = int(v)
-        except ValueError:
-            try:
-                d[k] = float(v)
-            except ValueError:
-                d[k] = v
-    return d
-
-
 def cmd_simulate(args) -> int:
     recipe = {"strips": args.strips, "images_per_strip": args.images, "camera": args.camera,
               "flying_height": args.flying_height, "forward_overlap": args.forward_overlap,
               "side_overlap": args.side_overlap, "pattern": list(args.pattern), "control": args.control,
               "control_spacing": args.control_spacing, "check": args.check,
               "sigma_image": args.sigma_image, "radial": args.radial,
-              "errors": [_parse_error(e) for e in args.error], "design": args.design,
+              "errors": [cli_options.parse_error(e) for e in args.error], "design": args.design,
               "seed": args.seed, "title": args.title,
-              "datum": "free" if args.control == "none" else "control"}
+              "datum": "free" if args.control == "none" else "control", **cli_options.gnss_recipe(args)}
     where = "simulate"
     if args.recipe:
         where = f"{args.recipe}:0"
@@ -643,7 +618,9 @@ def cmd_simulate(args) -> int:
                           f"points, images and sizes)") from None
     if not args.quiet:
         print(f"wrote {out} ({len(block.images)} images, {len(block.points)} points, "
-              f"{len(t.get('errors', []))} planted errors) and {truth}")
+              f"{len(t.get('errors', []))} planted errors) and {truth}"
+              + (f"; GNSS centres in {gnss_path(out)} (analyse with --gnss)" if block.gnss is not None else "")
+              + (f"; IMU attitudes in {gnss_path(out, '.imu.csv')} (--imu)" if block.imu is not None else ""))
     return 0
 
 
@@ -693,19 +670,22 @@ def _io_paths(args) -> tuple[list, list, list]:
     command = args.command
     if command == "simulate":
         out = Path(args.out)
-        return [args.recipe], [out, Path(args.truth) if args.truth else _truth_beside(out)], []
+        return [args.recipe], [out, Path(args.truth) if args.truth else _truth_beside(out),
+                               gnss_path(out) if args.gnss_sigma is not None else None,
+                               gnss_path(out, ".imu.csv") if args.imu_sigma is not None else None], []
     if command == "convert":
         return [args.input, args.control], [args.out], []
     if command == "report":
         return [args.input], [_report_path(args)], []
     if command == "test":
         files = [t.partition(":")[2] for t in args.hypothesis if t.startswith("file:")]
-        return [args.input, args.control, *files], [args.json], []
+        return [args.input, args.control, args.gnss, args.imu, *files], [args.json], []
     if command == "analyze":
         guess = _truth_beside(args.input)
         truth_file = args.truth or (guess if guess is not None and guess.exists() else None)
         csv = [Path(args.csv) / f"{name}.csv" for name in ("observations", "points", "groups")] if args.csv else []
-        return [args.input, args.control, truth_file], [args.json, args.geojson, *csv], [args.csv] if args.csv else []
+        return [args.input, args.control, args.gnss, args.imu, truth_file], [args.json, args.geojson, *csv], \
+            [args.csv] * bool(args.csv)
     return [], [], []
 
 

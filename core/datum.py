@@ -71,10 +71,12 @@ class Datum:
 
     kind: str = "fixed"
     sbase: tuple[str, ...] = ()
+    #: what defines a "fixed" datum when it is not points alone (GNSS projection centres)
+    by: str = ""
 
     def describe(self) -> str:
         if self.kind == "fixed":
-            return "fixed and weighted points"
+            return self.by or "fixed and weighted points"
         base = ", ".join(self.sbase) if self.sbase else "all points"
         return f"free network, minimum-norm S-base: {base}"
 

@@ -529,6 +529,7 @@ def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
             xy=np.array(b.xy[keep], dtype=float),
             obs_line=np.array(np.asarray(b.obs_line)[keep]),
             control=tuple(cp for cp in b.control if cp.id in kept_ids),
+            check=tuple(cp for cp in b.check if cp.id in kept_ids),
             extra=extra)
 
     b = model
@@ -537,8 +538,10 @@ def _reduce(v: _View, point_on, image_on, camera_on, obs_on):
     obs = ImageObservations(new_image[o.image[keep]].astype(np.int64), new_point[o.point[keep]].astype(np.int64),
                             np.array(o.xy[keep], dtype=float), np.array(o.cov[keep], dtype=float),
                             np.array(np.asarray(o.line)[keep]))
-    return b.replace(cameras=tuple(c for c in b.cameras if c.id in used_cams),
-                     images=tuple(im for k, im in enumerate(b.images) if image_on[k]),
+    images = tuple(im for k, im in enumerate(b.images) if image_on[k])
+    gnss = b.gnss.keep_images(im.id for im in images) if b.gnss is not None else None
+    imu = b.imu.keep_images(im.id for im in images) if b.imu is not None else None
+    return b.replace(cameras=tuple(c for c in b.cameras if c.id in used_cams), images=images, gnss=gnss, imu=imu,
                      points=tuple(b.points[i] for i in pts_kept), obs=obs,
                      sbase=tuple(s for s in b.sbase if s in kept_ids), extra=extra)
 

@@ -36,9 +36,11 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 
+from . import simulate_gnss
 from .errors import OptionError
 from .io.native import write_native
 from .io.output import write_text
@@ -59,6 +61,8 @@ DEFAULTS = {
     "check": 0, "sigma_image": None, "rho": 0.0, "sigma_control_h": 0.05, "sigma_control_v": 0.05,
     "radial": 0.0, "ap": [], "errors": [], "design": False, "approx_sigma": 0.5,
     "datum": "control", "seed": 0, "title": "",
+    "gnss_sigma": None, "gnss_lever": [0.0, 0.0, 0.0], "gnss_shift": False, "gnss_drift": False,
+    "imu_sigma": None, "imu_boresight": [0.0, 0.0, 0.0],
 }
 
 
@@ -70,7 +74,8 @@ RANGES = {
     "attitude_sigma": (0.0, 1.0, False), "position_sigma": (0.0, 1e3, False), "control_spacing": (1, 1000, True),
     "check": (0, 10_000, True), "sigma_image": (1e-9, 1e3, False), "rho": (-0.99, 0.99, False),
     "sigma_control_h": (1e-9, 1e3, False), "sigma_control_v": (1e-9, 1e3, False), "radial": (-1e3, 1e3, False),
-    "approx_sigma": (0.0, 1e3, False), "seed": (0, 2**63 - 1, True),
+    "approx_sigma": (0.0, 1e3, False), "seed": (0, 2**63 - 1, True), "gnss_sigma": (1e-6, 1e3, False),
+    "imu_sigma": (1e-9, 10.0, False),
 }
 #: the ranges of the numbers of a planted error (``errors[k]``)
 ERROR_RANGES = {"size": (0.0, 1e6, False), "size_base": (0.0, 1e3, False), "images": (1, 100, True),
@@ -99,7 +104,7 @@ def check_recipe(recipe: dict) -> dict:
         raise OptionError("recipe", sorted(unknown), tuple(DEFAULTS), f"unknown recipe keys: {', '.join(sorted(unknown))}")
     r = dict(recipe)
     for key, (low, high, integer) in RANGES.items():
-        if key in r and not (key == "sigma_image" and r[key] is None):
+        if key in r and not (key in ("sigma_image", "gnss_sigma", "imu_sigma") and r[key] is None):
             r[key] = check_number(key, r[key], low, high, integer)
     for key in ("control", "datum", "title"):
         if key in r and not isinstance(r[key], str):
@@ -129,8 +134,15 @@ def check_recipe(recipe: dict) -> dict:
         errors.append(spec)
     if "errors" in r:
         r["errors"] = errors
-    if "design" in r and not isinstance(r["design"], bool):
-        raise OptionError("design", r["design"], (), f"design must be true or false (got {r['design']!r})")
+    for key in ("design", "gnss_shift", "gnss_drift"):
+        if key in r and not isinstance(r[key], bool):
+            raise OptionError(key, r[key], (), f"{key} must be true or false (got {r[key]!r})")
+    for key, lim in (("gnss_lever", 1e3), ("imu_boresight", 10.0)):
+        if key in r:
+            lev = r[key]
+            if not isinstance(lev, (list, tuple)) or len(lev) != 3:
+                raise OptionError(key, lev, (), f"{key} must be a list of three numbers (got {lev!r})")
+            r[key] = [check_number(key, v, -lim, lim) for v in lev]
     return r
 
 
@@ -247,7 +259,15 @@ def simulate_block(**recipe) -> tuple[Block, dict]:
     if not r["design"]:
         ref[ctrl] += rng.standard_normal((int(ctrl.sum()), 3)) * np.array([sh, sh, sv])
     truth_errors = []
-    xy, ref = _plant(r, rng, images, pid, obs_i, obs_p, xy, ref, status, sigma, sh, sv, cam, B, truth_errors)
+    gnss_errors = [e for e in r["errors"] if str(e.get("kind", "")).startswith("gnss")]
+    if gnss_errors and r["gnss_sigma"] is None:
+        raise OptionError("errors", gnss_errors[0]["kind"], (), "a GNSS error needs gnss_sigma (--gnss-sigma)")
+    imu_errors = [e for e in r["errors"] if e.get("kind") == "imu"]
+    if imu_errors and r["imu_sigma"] is None:
+        raise OptionError("errors", "imu", (), "an IMU error needs imu_sigma (--imu-sigma)")
+    gnss_errors += imu_errors
+    xy, ref = _plant({**r, "errors": [e for e in r["errors"] if e not in gnss_errors]}, rng, images, pid, obs_i,
+                     obs_p, xy, ref, status, sigma, sh, sv, cam, B, truth_errors)
     # approximations
     Pa, imgs_a = P.copy(), images
     if not r["design"] and r["approx_sigma"]:
@@ -276,6 +296,13 @@ def simulate_block(**recipe) -> tuple[Block, dict]:
     for e in truth_errors:
         e["rows"] = _rows(e, inv, block)
         e.pop("_k", None)
+    eo = {im.id: [im.X0, im.Y0, im.Z0, im.omega, im.phi, im.kappa] for im in images}
+    if r["gnss_sigma"] is not None:
+        block, more = simulate_gnss.add_gnss(block, eo, r, [e for e in gnss_errors if e["kind"] != "imu"])
+        truth_errors += more
+    if r["imu_sigma"] is not None:
+        block, more = simulate_gnss.add_imu(block, eo, r, imu_errors)
+        truth_errors += more
     truth = {"format": "baarda-truth", "version": 1, "recipe": {**r, "pattern": list(r["pattern"])},
              "sigma_image": sigma, "base": B, "strip_distance": A, "radial": r["radial"],
              "errors": truth_errors,
@@ -476,9 +503,22 @@ def simulate_to_files(recipe: dict, out_path, truth_path=None) -> tuple[Block, d
     """Simulate a block from ``recipe`` and write it (native format) and its truth (JSON)."""
     block, truth = simulate_block(**recipe)
     write_native(block, out_path)
+    if block.gnss is not None:                  # the native format has no GNSS: a file beside it
+        write_text(gnss_path(out_path), simulate_gnss.gnss_csv(block.gnss))
+        truth["gnss_file"] = gnss_path(out_path).name
+    if block.imu is not None:
+        write_text(gnss_path(out_path, ".imu.csv"), simulate_gnss.imu_csv(block.imu))
+        truth["imu_file"] = gnss_path(out_path, ".imu.csv").name
     if truth_path is not None:
         write_text(truth_path, json.dumps(truth, indent=1, default=_json_default) + "\n")
     return block, truth
+
+
+def gnss_path(out_path, ending: str = ".gnss.csv") -> Path:
+    """The GNSS (or IMU, ``ending`` ".imu.csv") file written beside a simulated block
+    ``OUT.json``: ``OUT.gnss.csv``."""
+    p = Path(out_path)
+    return p.with_name((p.name[:-len(p.suffix)] if p.suffix else p.name) + ending)
 
 
 def _json_default(o):

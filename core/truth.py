@@ -12,6 +12,7 @@ import numpy as np
 
 from .errors import BaardaError
 from .stats import hypotheses
+from .stats.ap_tests import ap_test
 from .stats.reliability import reliability_of
 
 
@@ -21,11 +22,15 @@ def _hypothesis(adj, e):
     try:
         if kind == "transfer":
             return "point transfer", hypotheses.h_point_transfer(adj.problem, ids["point"], ids["images"])
+        if kind == "gnss":
+            return "GNSS centre", hypotheses.h_gnss_centre(adj.problem, ids["image"])
+        if kind == "gnss-strip":
+            return "GNSS strip shift", hypotheses.h_gnss_strip(adj.problem, ids["images"])
         if kind == "control":
             return "control point", hypotheses.h_control_point(adj.problem, ids.get("point", ids.get("id")))
         if "image" in ids and "point" in ids:
             return "image point", hypotheses.h_image_point(adj.problem, ids["image"], ids["point"])
-    except (KeyError, ValueError, IndexError, TypeError):
+    except (KeyError, ValueError, IndexError, TypeError, BaardaError):
         return None, None
     return None, None
 
@@ -56,6 +61,11 @@ def compare(adj, truth: dict, reliability=None) -> list[dict]:
             h = rel.test(H, label=name)
             d.update({"hypothesis": name, "T": h.T, "critical": h.critical_T, "rejected": h.rejected_T,
                       "nabla": h.nabla.tolist(), "nabla_sigma": h.nabla_sigma.tolist()})
+        key = f"{e.get('ids', {}).get('strip')}:gnss-shift"
+        if e.get("kind") == "gnss-strip" and key in adj.problem.notes.ap_groups:
+            a = ap_test(adj, key.rpartition(":")[0], "gnss-shift", policy=rel.policy)   # estimated shift, F80 §7.2
+            d.update({"hypothesis": "GNSS strip shift (AP group)", "T": a.T, "critical": a.critical,
+                      "rejected": a.significant, "nabla": a.estimate.tolist(), "nabla_sigma": a.sigma.tolist()})
         d["found"] = bool(d.get("snooping_rejects") or d.get("rejected"))
         out.append(d)
     return out

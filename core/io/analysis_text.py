@@ -134,6 +134,36 @@ def variance_lines(analysis, kind: str, merge: str | None = None) -> list[str]:
     return out
 
 
+def check_point_lines(rep: dict, top: int = 20) -> list[str]:
+    """The check points (:func:`baarda.model.bundle.check_points`): the RMSE per axis and the
+    largest differences adjusted − known."""
+    rms, mean = rep["rms"], rep["mean"]
+    out = [f"  check points (not in the adjustment): {rep['n']}; RMSE X {number(rms[0], '.4g')}, Y "
+           f"{number(rms[1], '.4g')}, Z {number(rms[2], '.4g')}; mean X {number(mean[0], '+.3g')}, Y "
+           f"{number(mean[1], '+.3g')}, Z {number(mean[2], '+.3g')}"]
+    worst = sorted(rep["points"], key=lambda p: -float(np.linalg.norm(p["diff"])))[:top]
+    for p in worst:
+        d, sd = p["diff"], p["sigma"]
+        out.append(printable(f"    {str(p['id']):<16s} dX {number(d[0], '+9.4f')}  dY {number(d[1], '+9.4f')}  "
+                             f"dZ {number(d[2], '+9.4f')}   (σ {number(sd[0], '.3g')}, {number(sd[1], '.3g')}, "
+                             f"{number(sd[2], '.3g')})"))
+    if rep["n"] > top:
+        out.append(f"    ... {rep['n'] - top} more in the JSON document (check_points)")
+    return out
+
+
+def strip_test_lines(tests: list) -> list[str]:
+    """The tests of a shift of each strip's GNSS centres (:func:`baarda.stats.hypotheses.strip_tests`)."""
+    out = ["  GNSS strip tests (a shift common to a strip's centres, F80 eq. 10-12):"]
+    for t in tests:
+        nab = ", ".join(f"{number(a, '+.3g')} ± {number(b, '.2g')}" for a, b in zip(t["nabla"], t["nabla_sigma"]))
+        out.append(printable(f"    strip {t['strip']:<10s} {len(t['images']):>3d} centres  q = {t['q']}  T = "
+                             f"{number(t['T'], '.3f')} (crit {number(t['critical'], '.2f')})  R = {number(t['R'], '.3f')}"
+                             f" (crit {number(t['critical_R'], '.2f')}){'  REJECTED' if t['rejected'] else ''};  "
+                             f"∇ŝ = {nab} m"))
+    return out
+
+
 def extras_text(analysis, ex, top: int = 8) -> list[str]:
     """The lines ``baarda analyze`` prints after the summary for what ``ex``
     (:class:`baarda.analysis.Extras`) asked for, in the CLI's order."""

@@ -1,4 +1,4 @@
-"""Control points from a CSV file: ``id,X,Y,Z,sx,sy,sz`` with a header line.
+"""Control and check points from a CSV file: ``id,X,Y,Z,sx,sy,sz[,role]`` with a header line.
 
 Each row gives the known coordinates of a block point (the ``id`` as the block names it: a
 BAL/Bundler point index, a COLMAP POINT3D_ID, a native point id) and their standard deviations,
@@ -7,6 +7,13 @@ model's own frame and scale — control only makes sense once the model is close
 since the adjustment linearises at the model's coordinates). The points become weighted control
 (observations of X, Y, Z) and the datum is then defined by them instead of the free-block
 inner constraints.
+
+An optional ``role`` column says what a row is: ``control`` (the default, also for an empty
+cell) or ``check``. A check point never enters the adjustment: it is a point of the block
+determined by its image points alone, and its adjusted coordinates are compared with the file's
+afterwards (residuals and RMSE per axis, :func:`baarda.model.bundle.check_points`); its σ cells
+may be empty. Any other column is refused with its name (a misspelt ``role`` would otherwise make
+check points control without a word).
 
 Separators: comma; blank lines and lines starting with ``#`` are skipped; columns are found by
 the header names (case-insensitive, in any order). Files as spreadsheets write them are read: a
@@ -27,9 +34,13 @@ from ..validate import SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
 from .bal import read_text
 
 COLUMNS = ("id", "x", "y", "z", "sx", "sy", "sz")
+#: The optional columns.
+OPTIONAL = ("role",)
+#: The values of the ``role`` column.
+ROLES = ("control", "check")
 
 
-def _rows(path, text: str) -> list[tuple[int, list[str]]]:
+def csv_rows(path, text: str) -> list[tuple[int, list[str]]]:
     """The CSV records of ``text`` with the line each starts on, as spreadsheets write them: a
     UTF-8 byte-order mark, CR, LF or CRLF line ends, quoted fields (which may hold commas)."""
     if text.startswith("\ufeff"):
@@ -55,7 +66,7 @@ def _rows(path, text: str) -> list[tuple[int, list[str]]]:
 def read_control(path) -> list[ControlPoint]:
     """The control points of a CSV file (module docstring); InputError on any bad row."""
     text = read_text(path)
-    rows = [(ln, r) for ln, r in _rows(path, text)
+    rows = [(ln, r) for ln, r in csv_rows(path, text)
             if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
     if not rows:
         raise InputError(path, 1, "empty file: expected the header 'id,X,Y,Z,sx,sy,sz'")
@@ -65,7 +76,14 @@ def read_control(path) -> list[ControlPoint]:
     if missing:
         raise InputError(path, hline, f"the header must name the columns id,X,Y,Z,sx,sy,sz "
                          f"(missing: {', '.join(missing)})")
-    col = {c: names.index(c) for c in COLUMNS}
+    unknown = [h.strip() for h in header if h.strip().lower() not in COLUMNS + OPTIONAL]
+    if unknown:
+        raise InputError(path, hline, f"unknown column(s) {', '.join(repr(u[:40]) for u in unknown)} "
+                         f"(known: id,X,Y,Z,sx,sy,sz and the optional role)")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise InputError(path, hline, f"column(s) {', '.join(dup)} named twice")
+    col = {c: names.index(c) for c in COLUMNS + OPTIONAL if c in names}
     out, seen = [], {}
     for ln, r in rows[1:]:
         if len(r) != len(names):
@@ -76,9 +94,17 @@ def read_control(path) -> list[ControlPoint]:
         if pid in seen:
             raise InputError(path, ln, f"duplicate id {pid} (first at line {seen[pid]})")
         seen[pid] = ln
+        role = r[col["role"]].strip().lower() if "role" in col else ""
+        role = role or "control"
+        if role not in ROLES:
+            raise InputError(path, ln, f"point {pid}: role = '{r[col['role']].strip()[:40]}' is not one of "
+                             f"{', '.join(ROLES)}", field="role")
         vals = {}
         for c in COLUMNS[1:]:
             tok = r[col[c]].strip()
+            if role == "check" and c.startswith("s") and not tok:
+                vals[c] = float("nan")          # a check point's σ is not used
+                continue
             try:
                 v = float(tok)
             except ValueError:
@@ -94,35 +120,46 @@ def read_control(path) -> list[ControlPoint]:
                 raise InputError(path, ln, f"point {pid}: {c} = {v:g} is outside ±{VALUE_LIMIT:g}: too large "
                                  f"to adjust in double precision", field=c)
             vals[c] = v
-        out.append(ControlPoint(pid, (vals["x"], vals["y"], vals["z"]), (vals["sx"], vals["sy"], vals["sz"]), ln))
+        out.append(ControlPoint(pid, (vals["x"], vals["y"], vals["z"]), (vals["sx"], vals["sy"], vals["sz"]), ln,
+                                role=role))
     if not out:
         raise InputError(path, hline, "no control points after the header")
     return out
 
 
 def add_control(model, csv_path):
-    """The model with the control points of ``csv_path`` added (a new object; the file and the
-    model are not changed). Works for SfM blocks (BAL, Bundler, COLMAP) and native bundle blocks;
-    a control point must be a point of the block."""
+    """The model with the control and check points of ``csv_path`` added (a new object; the file
+    and the model are not changed). Works for SfM blocks (BAL, Bundler, COLMAP) and native bundle
+    blocks; a control or check point must be a point of the block. Check points (``role`` check)
+    stay tie points of the adjustment, their known coordinates kept for the comparison."""
     cps = read_control(csv_path)
+    ctrl = tuple(cp for cp in cps if cp.role == "control")
+    chk = tuple(cp for cp in cps if cp.role == "check")
     if isinstance(model, SfmBlock):
         known = set(model.points)
         for cp in cps:
             if cp.id not in known:
                 raise InputError(csv_path, cp.line, f"point {cp.id} is not a point of the block")
-        return model.replace(control=tuple(cps))
+        return model.replace(control=ctrl, check=chk)
     if isinstance(model, Block):
         by_id = {cp.id: cp for cp in cps}
         known = {p.id for p in model.points}
         for cp in cps:
             if cp.id not in known:
                 raise InputError(csv_path, cp.line, f"point {cp.id} is not a point of the block")
-            if cp.sigma[0] != cp.sigma[1]:
+            if cp.role == "control" and cp.sigma[0] != cp.sigma[1]:
                 raise InputError(csv_path, cp.line, f"point {cp.id}: a native bundle block takes one "
                                  f"horizontal σ (sx = sy), got {cp.sigma[0]:g} and {cp.sigma[1]:g}")
-        pts = tuple(dataclasses.replace(p, status="control", ref=by_id[p.id].xyz, sigma_h=by_id[p.id].sigma[0],
-                                        sigma_v=by_id[p.id].sigma[2], axes="xyz", line=by_id[p.id].line)
-                    if p.id in by_id else p for p in model.points)
-        return model.replace(points=pts, datum="control")
+
+        def point(p):
+            cp = by_id.get(p.id)
+            if cp is None:
+                return p
+            if cp.role == "check":
+                return dataclasses.replace(p, status="check", ref=cp.xyz, sigma_h=0.0, sigma_v=0.0, line=cp.line)
+            return dataclasses.replace(p, status="control", ref=cp.xyz, sigma_h=cp.sigma[0], sigma_v=cp.sigma[2],
+                                       axes="xyz", line=cp.line)
+        return model.replace(points=tuple(point(p) for p in model.points),
+                             datum="control" if ctrl else model.datum)
     raise InputError(csv_path, 0, f"control points can be added to bundle blocks only, "
                      f"not to a {type(model).__name__}")

@@ -86,7 +86,7 @@ def _integer(path, lineno: int, field: str, text: str) -> int:
 #: The --hypothesis specifications of ``baarda test`` (fields separated by ':').
 HYPOTHESIS_SPECS = ("observation:INDEX", "group:G", "image-point:IMAGE:POINT[:KEYPOINT]", "control:POINT",
                     "transfer:POINT:IMAGE,IMAGE,...", "ap-group:CAMERA:brown|ebner", "exchanged:IMAGE:A:B",
-                    "model-point:MODEL:POINT", "file:PATH")
+                    "model-point:MODEL:POINT", "gnss:IMAGE", "gnss-strip:STRIP", "file:PATH")
 
 
 def parse_hypothesis(text: str) -> dict:
@@ -103,7 +103,8 @@ def parse_hypothesis(text: str) -> dict:
         return {"kind": "file", "path": rest}
     names = {"observation": ["index"], "group": ["group"], "image-point": ["image", "point"],
              "control": ["point"], "transfer": ["point", "images"], "ap-group": ["camera", "group"],
-             "exchanged": ["image", "a", "b"], "model-point": ["model", "point"]}[kind]
+             "exchanged": ["image", "a", "b"], "model-point": ["model", "point"], "gnss": ["image"],
+             "gnss-strip": ["strip"]}[kind]
     parts = rest.split(":") if rest else []
     if kind == "image-point" and len(parts) == 3:          # a COLMAP image's keypoint on the point
         names = names + ["keypoint"]

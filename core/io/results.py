@@ -16,8 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from ..datum import far_points
+from ..model.bundle import check_points, has_check_points
 from ..stats.ap_tests import ap_tests
+<<<<<<< HEAD
 from ..stats.reliability import reliability_of
+=======
+from ..stats.hypotheses import strip_tests
+>>>>>>> main
 from ..text import number, printable
 from . import columns as columns_
 from .output import OutputError, atomic_write, csv_cell
@@ -385,7 +390,23 @@ def to_dict(adj, reliability=None) -> dict:
            "observations": observations(adj, rel), "points": points(adj), "groups": groups(adj, rel)}
     if adj.problem.notes.ap_groups:
         doc["ap_tests"] = finite(ap_tests(adj, rel.policy))
+    model = adj.problem.notes.local_model
+    if has_check_points(model):
+        doc["check_points"] = finite(check_points(adj, model))
+    if getattr(model, "gnss", None) is not None and model.gnss.centres:
+        strips = strip_tests(adj, rel)
+        if strips:
+            doc["gnss_strip_tests"] = finite(strips)
+    geo = georeference_of(adj)
+    if geo is not None:
+        doc["georeference"] = finite(geo)
     return doc
+
+
+def georeference_of(adj) -> dict | None:
+    """The similarity a block was georeferenced by (:mod:`baarda.georeference`), or None."""
+    extra = getattr(adj.problem.notes.local_model, "extra", None)
+    return extra.get("georeference") if isinstance(extra, dict) else None
 
 
 def columns(records) -> dict:
@@ -587,7 +608,9 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
         lines.append(f"    {label(i):<48s} δ̄0 = {_unbounded(rel.external[i], '.3f')}  λ̄ = "
                      f"{_unbounded(rel.external[i] ** 2, '.3g')}  r = {number(adj.r[i], '.3f')}")
     for a in (ap_tests(adj, rel.policy) if adj.problem.notes.ap_groups else []):
-        lines.append(f"  additional parameters {a['group']} of camera {a['camera']} (F80 §7.2-7.3): T = "
+        what = (f"GNSS {a['group'][5:]} of strip {a['camera']}" if a["group"].startswith("gnss-")
+                else f"additional parameters {a['group']} of camera {a['camera']}")
+        lines.append(f"  {what} (F80 §7.2-7.3): T = "
                      f"{number(a['T'], '.3f')} (crit {number(a['critical'], '.2f')}, q = {a['q']}) → "
                      f"{'SIGNIFICANT' if a['significant'] else 'not significant'};  δ0′max = "
                      f"{_unbounded(a['delta0_prime_max'], '.3g')} (determinability), δ̄0max = "
@@ -599,7 +622,9 @@ def text_summary(adj, top: int = 8, reliability=None) -> str:
         ratio = np.where(groups.dimension > 0, groups.T / groups.critical, -1.0)
         for k in np.argsort(-np.nan_to_num(ratio, nan=-1.0))[:top].tolist():
             g = groups[k]
-            ids = " ".join(f"{a}={b}" for a, b in info.ids[int(g["members"][0])].items() if a != "component")
+            first = int(g["members"][0])
+            ids = {"gnss": "GNSS ", "imu-": "IMU "}.get(info.kind[first][:4], "") + " ".join(
+                f"{a}={b}" for a, b in info.ids[first].items() if a != "component")
             nab = ", ".join(f"{number(a, '+.3g')} ± {number(b, '.2g')}" for a, b in zip(g["nabla"], g["nabla_sigma"]))
             axes = ", ".join(number(a, ".3g") for a in g["ellipse_axes"])
             lines.append(f"    group {g['group']:<6d} {ids:<34s} q = {g['dimension']}  T = "

@@ -35,6 +35,7 @@ from ..errors import NotFoundError, OptionError
 from ..observations.geodetic import LinearSet
 from ..observations.collinearity import AP_GROUPS, EO_NAMES, CollinearitySet
 from ..observations.rotation import R_opk
+from . import gnss
 from .geometry import BlockGeometry, CameraGeometry, ImageGeometry
 from .problem import Covariance, ObservationInfo, ParameterList, PointInfo, Problem, ProblemNotes, image_point_index
 
@@ -138,7 +139,10 @@ class Block:
     """A photogrammetric bundle block as read from a file (see the module docstring).
 
     datum: "control" (weighted control points) or "free" (inner constraints over ``sbase``,
-    point ids, empty = all points). sigma0: a priori σ0 (dimensionless).
+    point ids, empty = all points). sigma0: a priori σ0 (dimensionless). gnss: the GNSS
+    projection centres (:class:`baarda.model.gnss.GnssSpec`, or None); imu: the IMU attitudes
+    (:class:`baarda.model.gnss.ImuSpec`, or None); with them the datum is "control" (GNSS centres,
+    IMU attitudes and control points define it).
     """
 
     cameras: tuple[Camera, ...]
@@ -151,6 +155,8 @@ class Block:
     title: str = ""
     source: str = ""
     extra: dict = field(default_factory=dict)
+    gnss: object = None
+    imu: object = None
 
     def replace(self, **changes) -> "Block":
         return replace(self, **changes)
@@ -200,6 +206,11 @@ def build_block_problem(block: Block) -> Problem:
             groups.append((g, idx))
             ap_groups[f"{cam.id}:{g}"] = [pl.labels[i] for i in idx]
         ap_idx[cam.id] = tuple(groups)
+    gnss_layout = None
+    if block.gnss is not None and block.gnss.centres:
+        gnss_layout, gnss_groups = gnss.add_parameters(pl, block)
+        ap_groups.update(gnss_groups)
+    boresight = gnss.add_imu_parameters(pl, block) if block.imu is not None and block.imu.attitudes else None
     index = np.full((len(block.points), 3), -1, dtype=np.int64)
     for i, p in enumerate(block.points):
         for a, (nm, val) in enumerate(zip("xyz", (p.X, p.Y, p.Z))):
@@ -270,6 +281,14 @@ def build_block_problem(block: Block) -> Problem:
     if ctrl_rows:
         sets.append(LinearSet("coordinate", np.array(ctrl_rows, dtype=np.int64),
                               np.full(len(ctrl_rows), -1, dtype=np.int64), np.array(ctrl_idx, dtype=np.int64)))
+    if gnss_layout is not None:
+        row, g = gnss.add_observations(block, gnss_layout, ieo_img, row, g, {
+            "l": l, "kinds": kinds, "ids": ids, "vfile": vfile, "units": units, "sfile": sfile, "lines": lines,
+            "group": group, "members": members, "blocks": blocks, "sets": sets})
+    if boresight is not None:
+        row, g = gnss.add_imu_observations(block, boresight, ieo_img, row, g, {
+            "l": l, "kinds": kinds, "ids": ids, "vfile": vfile, "units": units, "sfile": sfile, "lines": lines,
+            "group": group, "members": members, "blocks": blocks, "sets": sets})
     n = row
     cov = Covariance.from_blocks(n, members, blocks)
     info = ObservationInfo(kind=tuple(kinds), ids=tuple(ids), value_file=np.array(vfile, dtype=float),
@@ -278,7 +297,8 @@ def build_block_problem(block: Block) -> Problem:
                            group=np.array(group, dtype=np.int64))
     status = tuple(p.status for p in block.points)
     pts = PointInfo(tuple(p.id for p in block.points), index, status, 3)
-    datum = Datum("free", tuple(block.sbase)) if block.datum == "free" else Datum("fixed")
+    datum = Datum("free", tuple(block.sbase)) if block.datum == "free" else \
+        Datum("fixed", by=gnss.datum_text(block) if gnss_layout is not None or boresight is not None else "")
     return Problem(params=params, sets=tuple(sets), l=np.concatenate(l) if l else np.zeros(0),
                    cov=cov, info=info, points=pts, datum=datum, sigma0=block.sigma0,
                    sigma_act="apriori", source=block.source, title=block.title,
@@ -350,19 +370,40 @@ def control_rows(problem, point: str) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # check points
 # --------------------------------------------------------------------------------------------
-def check_points(adj, block: Block) -> dict:
-    """Differences adjusted − reference at the check points (m) and their RMS per axis.
+def check_points(adj, block) -> dict:
+    """Differences adjusted − reference at the check points and their RMS per axis.
 
-    Check points take part only through their image measurements (module docstring).
+    ``block``: a native :class:`Block` (points of status ``"check"`` with ``ref``) or an SfM
+    block (its ``check`` points, read from a control CSV's ``role`` column). Check points take
+    part only through their image measurements (module docstring): their adjusted coordinates
+    are intersected by the block like any tie point and compared with the known ones afterwards.
+    Returns ``{"points": [{id, ref, adjusted, diff, sigma, line}], "n", "rms", "mean", "max_abs"}``
+    (lengths in the block's object units; the statistics NaN per axis without check points).
     """
-    coords = adj.coordinates
+    coords, sig = adj.coordinates, adj.point_sigma
+    where = {str(pid): i for i, pid in enumerate(adj.problem.points.ids)}
+    if hasattr(block, "check"):                 # an SfM block
+        refs = [(cp.id, cp.xyz, cp.line) for cp in block.check]
+    else:
+        refs = [(p.id, p.ref, p.line) for p in block.points if p.status == "check" and p.ref is not None]
     rows = []
-    for i, p in enumerate(block.points):
-        if p.status != "check" or p.ref is None:
+    for pid, ref, line in refs:
+        i = where.get(str(pid))
+        if i is None:
             continue
-        d = coords[i] - np.asarray(p.ref)
-        rows.append({"id": p.id, "ref": list(p.ref), "adjusted": coords[i].tolist(), "diff": d.tolist(),
-                     "sigma": adj.point_sigma[i].tolist()})
-    diffs = np.array([r["diff"] for r in rows]).reshape(-1, 3)
-    rms = np.sqrt((diffs ** 2).mean(axis=0)).tolist() if rows else [float("nan")] * 3
-    return {"points": rows, "rms": rms}
+        d = coords[i] - np.asarray(ref, dtype=float)
+        rows.append({"id": pid, "ref": [float(v) for v in ref], "adjusted": coords[i].tolist(), "diff": d.tolist(),
+                     "sigma": sig[i].tolist(), "line": int(line)})
+    diffs = np.array([r["diff"] for r in rows], dtype=float).reshape(-1, 3)
+    nan3 = [float("nan")] * 3
+    return {"points": rows, "n": len(rows),
+            "rms": np.sqrt((diffs ** 2).mean(axis=0)).tolist() if rows else nan3,
+            "mean": diffs.mean(axis=0).tolist() if rows else nan3,
+            "max_abs": np.abs(diffs).max(axis=0).tolist() if rows else nan3}
+
+
+def has_check_points(block) -> bool:
+    """Whether ``block`` (a native or SfM block, or None) holds check points."""
+    if hasattr(block, "check"):                 # an SfM block: its points are ids
+        return bool(block.check)
+    return any(p.status == "check" for p in getattr(block, "points", ()))

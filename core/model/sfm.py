@@ -118,12 +118,14 @@ class SfmImage:
 
 @dataclass(frozen=True)
 class ControlPoint:
-    """Known coordinates of a block point (model units) with σ per axis, from ``line``."""
+    """Known coordinates of a block point (model units) with σ per axis, from ``line``; ``role``
+    ``"control"`` (an observation of the point) or ``"check"`` (compared after the adjustment)."""
 
     id: str
     xyz: tuple[float, float, float]
     sigma: tuple[float, float, float]
     line: int = 0
+    role: str = "control"
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,7 +137,8 @@ class SfmBlock:
     xy (n × 2): measured pixel coordinates; obs_line (n,): their source lines.
     convention: ``"bal"``, ``"bundler"`` or ``"colmap"`` (the sign s of the module docstring).
     sigma_px: σ of each image coordinate (pixels). refine_intrinsics: estimate the cameras'
-    parameters. control: weighted control points (they make the datum ``"fixed"``).
+    parameters. control: weighted control points (they make the datum ``"fixed"``). check: check
+    points (tie points of the adjustment, compared with their known coordinates afterwards).
     """
 
     cameras: tuple[SfmCamera, ...]
@@ -151,6 +154,7 @@ class SfmBlock:
     sigma_px: float = 1.0
     refine_intrinsics: bool = False
     control: tuple[ControlPoint, ...] = ()
+    check: tuple[ControlPoint, ...] = ()
     source: str = ""
     title: str = ""
     extra: dict = field(default_factory=dict)
@@ -272,9 +276,8 @@ def build_sfm_problem(block: SfmBlock) -> Problem:
     info = ObservationInfo(kind=Categorical(("image-x", "image-y", "control-x", "control-y", "control-z"), kind_codes),
                            ids=ids, value_file=l, unit=units, sigma_file=sfile, sigma_unit=units,
                            line=lines, group=group)
-    controlled = {cp.id for cp in block.control}
-    status = tuple("control" if pid in controlled else "tie" for pid in block.points) if controlled else \
-        ("tie",) * npt
+    role = {**{cp.id: "check" for cp in block.check}, **{cp.id: "control" for cp in block.control}}
+    status = tuple(role.get(pid, "tie") for pid in block.points) if role else ("tie",) * npt
     pts = PointInfo(tuple(block.points), index, status, 3)
     datum = Datum("fixed") if block.control else Datum("free", ())
     return Problem(params=params, sets=tuple(sets), l=l, cov=cov, info=info, points=pts, datum=datum,
@@ -348,10 +351,14 @@ def to_block(block: SfmBlock):
         images.append(Image(im.id, img_cam[im.id], float(C[0]), float(C[1]), float(C[2]),
                             float(w), float(p), float(k), line=im.line))
     ctrl = {cp.id: cp for cp in block.control}
+    checks = {cp.id: cp for cp in block.check}
     points = []
     for i, pid in enumerate(block.points):
         X = tuple(float(v) for v in block.X[i])
         cp = ctrl.get(pid)
+        if cp is None and pid in checks:
+            points.append(ObjectPoint(pid, *X, status="check", ref=checks[pid].xyz, line=checks[pid].line))
+            continue
         if cp is None:
             points.append(ObjectPoint(pid, *X, line=int(block.point_line[i])))
             continue

@@ -39,6 +39,8 @@ KIND_FAMILIES = {
     "image-x": "image observations", "image-y": "image observations",
     "control-x": "control", "control-y": "control", "control-z": "control",
     "model-x": "model observations", "model-y": "model observations",
+    "gnss-x": "GNSS", "gnss-y": "GNSS", "gnss-z": "GNSS",
+    "imu-omega": "IMU", "imu-phi": "IMU", "imu-kappa": "IMU",
 }
 
 
