@@ -453,7 +453,7 @@ def _test_cluster(problem, members, clean, keep, options):
     d = np.diag(h.W)
     w2 = float(np.max(np.where(d > 0, Wn ** 2 / np.maximum(d, 1e-300), 0.0)))
     crit = float(h.critical_T)
-    rejected = T > crit or w2 > float(adj_c.policy.critical_T(1))
+    rejected = T > crit or w2 > float(policy_of(adj_c).critical_T(1))
     return nabla, T, h.q, crit, rejected
 
 

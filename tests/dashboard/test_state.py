@@ -1154,12 +1154,12 @@ def test_policy_change_rebuilds_only_the_reliability_over_the_same_result(monkey
     assert st.results is adj and st.solution == sol
     assert st.reliability is not rel and st.reliability.result is adj
     assert st.reliability.policy == TestPolicy(0.02, 0.9, True, sigma0_mode)
-    ref = adjust(replace(adj.problem), Options(alpha0=0.02, beta0=0.9, b_method=True))
+    ref = reliability_of(adjust(replace(adj.problem), Options(alpha0=0.02, beta0=0.9, b_method=True)))
     np.testing.assert_allclose(st.reliability.mdb, ref.mdb, rtol=1e-12)
     np.testing.assert_allclose(st.reliability.external, ref.external, rtol=1e-12)
     assert st.reliability.delta0 == ref.delta0 == distributions.delta0(0.02, 0.9, 1)
-    stat, crit = (ref.tau, distributions.critical_tau(0.02, ref.dof)) if sigma0_mode == "aposteriori" \
-        else (ref.w, distributions.critical_normal(0.02))
+    stat, crit = (ref.result.tau, distributions.critical_tau(0.02, ref.result.dof)) if sigma0_mode == "aposteriori" \
+        else (ref.result.w, distributions.critical_normal(0.02))
     np.testing.assert_array_equal(st.reliability.rejected, np.nan_to_num(np.abs(stat)) > crit)
     obs, _ = st.frames()
     np.testing.assert_array_equal(obs["rejected"].to_numpy(), st.expand(st.reliability.rejected, fill=False))

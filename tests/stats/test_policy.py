@@ -75,7 +75,7 @@ def test_reliability_under_another_policy_equals_a_fresh_adjustment():
     factor = adj.factor
     policy = TestPolicy(alpha0=0.05, beta0=0.9, b_method=True)
     rel = Reliability(adj, policy)
-    ref = adjust(problem, Options(alpha0=0.05, beta0=0.9, b_method=True))
+    ref = reliability_of(adjust(problem, Options(alpha0=0.05, beta0=0.9, b_method=True)))
     assert rel.result is adj and adj.factor is factor
     np.testing.assert_allclose(rel.mdb, ref.mdb, rtol=1e-9)
     np.testing.assert_allclose(rel.external, ref.external, rtol=1e-9)
