@@ -18,11 +18,8 @@ import numpy as np
 from ..datum import far_points
 from ..model.bundle import check_points, has_check_points
 from ..stats.ap_tests import ap_tests
-<<<<<<< HEAD
-from ..stats.reliability import reliability_of
-=======
 from ..stats.hypotheses import strip_tests
->>>>>>> main
+from ..stats.reliability import reliability_of
 from ..text import number, printable
 from . import columns as columns_
 from .output import OutputError, atomic_write, csv_cell
