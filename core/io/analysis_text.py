@@ -153,7 +153,7 @@ def check_point_lines(rep: dict, top: int = 20) -> list[str]:
 
 
 def strip_test_lines(tests: list) -> list[str]:
-    """The tests of a shift of each strip's GNSS centres (:func:`baarda.stats.hypotheses.strip_tests`)."""
+    """The tests of a shift of each strip's GNSS centres (:func:`baarda.stats.gnss.strip_tests`)."""
     out = ["  GNSS strip tests (a shift common to a strip's centres, F80 eq. 10-12):"]
     for t in tests:
         nab = ", ".join(f"{number(a, '+.3g')} ± {number(b, '.2g')}" for a, b in zip(t["nabla"], t["nabla_sigma"]))

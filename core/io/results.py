@@ -18,7 +18,7 @@ import numpy as np
 from ..datum import far_points
 from ..model.bundle import check_points, has_check_points
 from ..stats.ap_tests import ap_tests
-from ..stats.hypotheses import strip_tests
+from ..stats.gnss import strip_tests
 from ..stats.reliability import reliability_of
 from ..text import number, printable
 from . import columns as columns_

@@ -281,9 +281,10 @@ def policy_of(adj) -> TestPolicy:
 
 
 def reliability_of(adj, policy: TestPolicy | None = None) -> "Reliability":
-    """The tests and reliability measures of an adjustment under a policy (F80 §4-7), made once per
-    result and policy and kept with the result (``adj.memo``): every caller asking for the same
-    policy shares one :class:`Reliability` and its cached arrays.
+    """The tests and reliability measures of an adjustment under a policy (F80 §4-7).
+
+    Made once per result and policy and kept with the result (``adj.memo``): every caller asking
+    for the same policy shares one :class:`Reliability` and its cached arrays.
 
     Parameters
     ----------
