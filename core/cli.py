@@ -42,6 +42,7 @@ from .io.geojson import write_geojson
 from .io.hypothesis import HYPOTHESIS_SPECS, parse_hypothesis
 from .io.native import write_native
 from .io.output import OutputError, check_outputs, write_text
+from .io.source import read_text
 from .model.sfm import SfmBlock, to_block
 from .sfm_defects import degenerate_geometry
 from .simulate import CAMERAS, RANGES as RECIPE_RANGES, check_recipe, simulate_to_files
@@ -616,11 +617,7 @@ def cmd_simulate(args) -> int:
     if args.recipe:
         where = f"{args.recipe}:0"
         try:
-            doc = json.loads(Path(args.recipe).read_bytes().decode("utf-8"))
-        except OSError as err:
-            raise InputError(args.recipe, 0, f"cannot read the recipe: {err.strerror or err}") from None
-        except UnicodeDecodeError as err:
-            raise InputError(args.recipe, 0, f"the recipe is not UTF-8 text (byte {err.start})") from None
+            doc = json.loads(read_text(args.recipe, small=True))   # at most BAARDA_MAX_SMALL_BYTES
         except json.JSONDecodeError as err:
             raise InputError(args.recipe, err.lineno, f"the recipe is not JSON: {err.msg}") from None
         except RecursionError:
