@@ -434,8 +434,6 @@ def _analyze(args) -> int:
     try:
         doc = analysis.to_dict()
     except SingularError as err:
-        if adj.converged and not args.robust:
-            raise
         return _diverged(args, analysis, err)
     adj.timings["reliability"] = time.perf_counter() - t1
     analysis._add_extras(doc, extras)
@@ -453,34 +451,47 @@ def _analyze(args) -> int:
 
 def _diverged(args, analysis, err) -> int:
     """An adjustment whose normal equations are singular at its last iterate (not converged, or
-    converged and asked for ``--robust``): no reliability can be computed there. Say so in one
-    line (exit status :data:`NOT_CONVERGED`), and run the robust estimation if asked — it is what
-    finds the gross error that makes least squares diverge (R84 §6: a medium or large error).
-    Where the least squares without its suspects converges, that adjustment's results are written
-    (JSON, CSV, the text), with the suspects left out named (``robust`` and
-    ``summary.robust_left_out``), exit 0."""
+    converged at a singular point): no reliability can be computed there. A gross error is the
+    usual cause (R84 §6: a medium or large error disturbs the convergence), and the robust
+    estimation is what finds it: it runs with ``--robust``'s method, or R84's when none is given
+    (and the block's geometry is not degenerate, which no robust estimation mends). Where the
+    least squares without its suspects converges, that adjustment's results are written (JSON,
+    CSV, the text) with the suspects left out named (``robust`` and ``summary.robust_left_out``),
+    one line on stderr saying so, exit 0. Otherwise one line (exit status :data:`NOT_CONVERGED`;
+    a converged adjustment at a singular point: the singular system's error, exit 2)."""
     adj = analysis.adjustment
     why = (adj.termination or "not converged").removeprefix("not converged: ")
     head = (f"baarda: {args.input}: {'converged' if adj.converged else 'NOT converged'} after {adj.iterations} "
             f"iterations ({why}) and the normal equations at the last iterate are singular ({err})")
-    rob = analysis.robust(args.robust) if args.robust else None
-    final = rob.final if rob is not None else None
-    doc = None
+    geometry = degenerate_geometry(analysis.problem.notes.local_model)     # the cause, when it is the geometry
+    method = args.robust or (None if geometry else "r84")
+    rob = final = doc = None
+    if method is not None:
+        try:
+            rob = analysis.robust(method)
+        except SingularError:
+            if args.robust:
+                raise
+        final = rob.final if rob is not None else None
     if final is not None and final.converged:
         try:
             doc = results.to_dict(final)
         except SingularError:
             doc = None
     if doc is None:
-        geometry = degenerate_geometry(analysis.problem.notes.local_model)     # the cause, when it is the geometry
-        hint = (f"; {geometry}" if geometry else "" if args.robust else
-                f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
-        print(printable(f"{head}: no reliability computed, no JSON/CSV written{hint}"), file=sys.stderr)
+        if adj.converged and not args.robust and isinstance(err, SingularError):
+            raise err
+        tried = (f"; the least squares without the suspects of the robust estimation ({method}) gives none "
+                 f"either" if method is not None else "")
+        hint = f"; {geometry}" if geometry else ""
+        print(printable(f"{head}: no reliability computed, no JSON/CSV written{tried}{hint}"), file=sys.stderr)
         if rob is not None and not args.quiet:
             print("\n".join(robust_lines(rob)))
         return NOT_CONVERGED
     left = [sp["ids"] for sp in rob.suspects]
-    print(printable(f"{head}; without the {len(left)} suspect(s) of the robust estimation the adjustment "
+    asked = "" if args.robust else (f", so the robust estimation ({method}, R84 §6-8) was run "
+                                    f"(choose its method with --robust)")
+    print(printable(f"{head}{asked}; without the {len(left)} suspect(s) of the robust estimation the adjustment "
                     f"converged: its results are written"), file=sys.stderr)
     doc["robust"] = results.finite(rob.as_dict())
     doc["summary"]["robust_left_out"] = left
@@ -488,6 +499,8 @@ def _diverged(args, analysis, err) -> int:
         results.write_json(final, args.json, doc)
     if args.csv:
         results.write_csv(final, args.csv, doc)
+    if getattr(args, "geojson", None):
+        write_geojson(final, args.geojson)
     if not args.quiet:
         print(results.text_summary(final, top=args.top))
         print("\n".join(robust_lines(rob)))
