@@ -450,15 +450,12 @@ def _analyze(args) -> int:
 
 
 def _diverged(args, analysis, err) -> int:
-    """An adjustment whose normal equations are singular at its last iterate (not converged, or
-    converged at a singular point): no reliability can be computed there. A gross error is the
-    usual cause (R84 §6: a medium or large error disturbs the convergence), and the robust
-    estimation is what finds it: it runs with ``--robust``'s method, or R84's when none is given
-    (and the block's geometry is not degenerate, which no robust estimation mends). Where the
-    least squares without its suspects converges, that adjustment's results are written (JSON,
-    CSV, the text) with the suspects left out named (``robust`` and ``summary.robust_left_out``),
-    one line on stderr saying so, exit 0. Otherwise one line (exit status :data:`NOT_CONVERGED`;
-    a converged adjustment at a singular point: the singular system's error, exit 2)."""
+    """Normal equations singular at the last iterate (not converged, or converged at a singular
+    point): no reliability there. A gross error is the usual cause (R84 §6), found by the robust
+    estimation: ``--robust``'s method, else R84's (not for a degenerate geometry). Where least
+    squares without its suspects converges, its results are written with them named (``robust``,
+    ``summary.robust_left_out``) and one stderr line, exit 0; else one line, exit
+    :data:`NOT_CONVERGED` (a converged adjustment: the singular system's error, exit 2)."""
     adj = analysis.adjustment
     why = (adj.termination or "not converged").removeprefix("not converged: ")
     head = (f"baarda: {args.input}: {'converged' if adj.converged else 'NOT converged'} after {adj.iterations} "
@@ -466,40 +463,33 @@ def _diverged(args, analysis, err) -> int:
     geometry = degenerate_geometry(analysis.problem.notes.local_model)     # the cause, when it is the geometry
     method = args.robust or (None if geometry else "r84")
     rob = final = doc = None
-    if method is not None:
-        try:
-            rob = analysis.robust(method)
-        except SingularError:
-            if args.robust:
-                raise
+    try:
+        rob = analysis.robust(method) if method else None
         final = rob.final if rob is not None else None
-    if final is not None and final.converged:
-        try:
-            doc = results.to_dict(final)
-        except SingularError:
-            doc = None
+        doc = results.to_dict(final) if final is not None and final.converged else None
+    except SingularError:
+        if args.robust and rob is None:
+            raise
     if doc is None:
         if adj.converged and not args.robust and isinstance(err, SingularError):
             raise err
-        tried = (f"; the least squares without the suspects of the robust estimation ({method}) gives none "
-                 f"either" if method is not None else "")
-        hint = f"; {geometry}" if geometry else ""
-        print(printable(f"{head}: no reliability computed, no JSON/CSV written{tried}{hint}"), file=sys.stderr)
+        tried = f"; the least squares without the suspects of the robust estimation ({method}) gives none either"
+        print(printable(f"{head}: no reliability computed, no JSON/CSV written{tried if method else ''}"
+                        f"{f'; {geometry}' if geometry else ''}"), file=sys.stderr)
         if rob is not None and not args.quiet:
             print("\n".join(robust_lines(rob)))
         return NOT_CONVERGED
     left = [sp["ids"] for sp in rob.suspects]
-    asked = "" if args.robust else (f", so the robust estimation ({method}, R84 §6-8) was run "
-                                    f"(choose its method with --robust)")
-    print(printable(f"{head}{asked}; without the {len(left)} suspect(s) of the robust estimation the adjustment "
-                    f"converged: its results are written"), file=sys.stderr)
+    asked = f", so the robust estimation ({method}, R84 §6-8) was run (choose its method with --robust)"
+    print(printable(f"{head}{'' if args.robust else asked}; without the {len(left)} suspect(s) of the robust "
+                    f"estimation the adjustment converged: its results are written"), file=sys.stderr)
     doc["robust"] = results.finite(rob.as_dict())
     doc["summary"]["robust_left_out"] = left
     if args.json:
         results.write_json(final, args.json, doc)
     if args.csv:
         results.write_csv(final, args.csv, doc)
-    if getattr(args, "geojson", None):
+    if args.geojson:
         write_geojson(final, args.geojson)
     if not args.quiet:
         print(results.text_summary(final, top=args.top))
