@@ -567,26 +567,37 @@ def _attribute(problem, tested, final, keep, options, point_of):
             siblings = [members[j] for j in np.flatnonzero(point_of == pt)
                         if j != c and np.isin(members[j], keep).all()]
             with_m = keep if kept_in else np.union1d(keep, m)
+            C = np.asarray(problem.cov.blocks[c])
+            small = float(entry[1] @ np.linalg.solve(C, entry[1])) <= 50.0 ** 2      # R84 §6: linear range
             try:
-                fit = final if kept_in else _fit(problem, with_m, options, final.x)
+                if kept_in:
+                    fit = final
+                elif small:
+                    fit = _fit(problem, with_m, options, final.x)
+                else:
+                    # a larger error would distort the fit that includes it: the geometry at x̂ with
+                    # the cluster at its computed values (as _test_cluster), its signature W ∇̂
+                    l_at = problem.l.copy()
+                    l_at[m] = l_at[m] - entry[1]
+                    fit = adjust(subset(dataclasses.replace(problem, l=l_at), with_m),
+                                 dataclasses.replace(options, max_iter=1), x0=final.x)
                 tests = [hypotheses.test(fit, hypotheses.selection(fit.n, _rows_in(with_m, mm)))
                          for mm in [m, *siblings]]
             except (BaardaError, np.linalg.LinAlgError):
                 alternatives.append(alts)
                 continue
             ratios = [_ratio(h, fit) for h in tests]
+            g1 = None if (kept_in or small) else tests[0].W @ np.asarray(entry[1], dtype=float)
             for mm, h in zip(siblings, tests[1:]):
                 if not (h.q and tests[0].q):
                     continue
                 cc, part = separability.shared_part(
                     fit, hypotheses.selection(fit.n, _rows_in(with_m, m)),
-                    hypotheses.selection(fit.n, _rows_in(with_m, mm)))
+                    hypotheses.selection(fit.n, _rows_in(with_m, mm)), g1=g1)
                 if cc.size and cc[0] >= separability.THRESHOLD and part >= SHARED_PART:
                     alts.append({"members": [int(j) for j in mm], "largest": float(cc[0]),
                                  "smallest": float(cc[-1])})
             best = int(np.argmax(ratios))
-            C = np.asarray(problem.cov.blocks[c])
-            small = float(entry[1] @ np.linalg.solve(C, entry[1])) <= 50.0 ** 2      # R84 §6: linear range
             if best and small and not kept_in and ratios[best] > ratios[0] * (1 + ATTRIBUTION_MARGIN):
                 other = siblings[best - 1]
                 keep2 = np.setdiff1d(with_m, other)
