@@ -94,6 +94,11 @@ def robust_lines(rob) -> list[str]:
                    f"{base} ({sp['class']}), T = {number(sp['T'], '.1f')}, robust weight {sp['weight']:.3g}")
         if sp.get("kept_in"):
             out.append(printable(f"           {sp['note']}"))
+        if sp.get("inseparable_from"):
+            twins = "; ".join(" ".join(f"{a}={b}" for a, b in alt["ids"].items() if a != "component")
+                              + f" (canonical correlations {', '.join(f'{c:.2f}' for c in alt['canonical_correlations'])})"
+                              for alt in sp["inseparable_from"])
+            out.append(printable(f"           not separable along a shared direction (F80 §7.4) from: {twins}"))
     for fl in rob.floored:
         out.append(f"    weight floor raised to {fl['floor']:.0e} for {printable(', '.join(fl['unknowns'])) or 'all'} "
                    f"(down-weighted, they would leave unknowns undetermined)")
