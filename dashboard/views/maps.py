@@ -28,7 +28,6 @@ import param
 from bokeh.events import Tap
 from bokeh.models import ColumnDataSource, FixedTicker
 
-from baarda.stats.hypotheses import HypothesisTest
 
 from .. import frames, geometry, specs
 from ..geometry import display_matrix, object_unit
@@ -65,8 +64,8 @@ STREAMS = {
     "results": ["results", "reliability"],     # a new test policy: same results, new reliability
     "selection": ["selected_point", "selected_obs"],
     "robust": ["robust"],
-    "hypothesis": ["hyp_results", "selected_hypothesis"],
-    "field": ["hyp_results", "selected_hypothesis", "selected_obs", "field_source"],
+    "hypothesis": ["outcomes", "selected_hypothesis"],
+    "field": ["outcomes", "selected_hypothesis", "selected_obs", "field_source"],
     "sbase": ["sbase"],
 }
 
@@ -261,10 +260,10 @@ class LayoutMap(MapView):
         """The selected 2D hypothesis' lower-bound ellipse on the map (label, n × 2) or (None, [])."""
         s = self.state
         k = s.selected_hypothesis
-        if k is None or k >= len(s.hyp_results) or k >= len(s.hypotheses):
+        if k is None or k >= len(s.outcomes) or k >= len(s.hypotheses):
             return None, []
-        h = s.hyp_results[k]
-        if not isinstance(h, HypothesisTest) or h.q != 2 or not np.isfinite(h.ellipse_axes).all():
+        h = s.outcomes[k].test
+        if h is None or h.q != 2 or not np.isfinite(h.ellipse_axes).all():
             return None, []
         pk = specs.point(s.problem, s.hypotheses[k], s.problem_index())
         if pk is None:
@@ -386,7 +385,7 @@ class ExternalMap(MapView):
 
     def _field(self):
         s = self.state
-        key = (s.reliability, s.hyp_results, s.selected_hypothesis, s.selected_obs, s.field_source)
+        key = (s.reliability, s.outcomes, s.selected_hypothesis, s.selected_obs, s.field_source)
         return self.cached("field", key, self._field_now)
 
     def _field_now(self):
