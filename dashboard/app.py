@@ -513,7 +513,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
             state.jobs.closed = True
             summary_shown()
             state.cancel()
-            files.cleanup()
+            files.uploads.close()          # temporary files removed, the session's data dropped
         pn.state.on_session_destroyed(destroyed)
     template.state = state
     template.files = files
