@@ -186,7 +186,8 @@ class State(param.Parameterized):
         self.snapshot = snap
         self.analysis = analysis
         self.reliability = analysis.reliability
-        self.results = analysis.adjustment
+        if self.results is not analysis.adjustment:     # the same (a new policy): triggered by the caller
+            self.results = analysis.adjustment
 
     # -- background computations ----------------------------------------------------------------
     def submit(self, label: str, fn, *args):

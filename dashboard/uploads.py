@@ -50,6 +50,8 @@ class BoundedDropper(pn.widgets.FileDropper):
     receiving = param.String(default="", doc="The name of the file arriving now, as plain text "
                              "(baarda.dashboard.text.plain): shown by the panel instead of the browser's raw name.")
 
+    _rename = {**pn.widgets.FileDropper._rename, "receiving": None}     # server side only
+
     #: the upload widget's own list shows no file name (it would show the browser's raw name,
     #: bidi and control characters included): the panel shows :attr:`receiving` instead
     HIDE_NAMES = ".filepond--file-info-main { display: none !important; }"
