@@ -204,13 +204,13 @@ def _hypotheses_html(session: State | None) -> str:
     if session is None or not session.hypotheses:
         return ""
     rows = []
-    for spec, h in zip(session.hypotheses, session.hyp_results):
-        if h is None or not hasattr(h, "T"):
+    for spec, o in zip(session.hypotheses, session.outcomes):
+        if not o.tested:
             continue
-        label = getattr(h, "label", "") or ", ".join(f"{k}={v}" for k, v in spec.items() if k != "active")
-        rejected = bool(getattr(h, "rejected_T", False))
-        rows.append(f"<tr><td>{html_text(label)}</td><td>{h.q}</td><td>{_fmt(h.T, '.4g')}</td>"
-                    f"<td>{_fmt(h.critical_T, '.4g')}</td><td class='{'bad' if rejected else 'ok'}'>"
+        label = o.label or ", ".join(f"{k}={v}" for k, v in spec.items() if k != "active")
+        rejected = o.rejected
+        rows.append(f"<tr><td>{html_text(label)}</td><td>{o.q}</td><td>{_fmt(o.T, '.4g')}</td>"
+                    f"<td>{_fmt(o.critical, '.4g')}</td><td class='{'bad' if rejected else 'ok'}'>"
                     f"{'rejected' if rejected else 'accepted'}</td></tr>")
     if not rows:
         return ""

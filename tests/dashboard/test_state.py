@@ -125,15 +125,15 @@ def test_toggle_observation_hypothesis_is_core_test(name):
     adj = st.results
     i = int(np.nanargmax(np.abs(adj.w)))
     k = st.add_hypothesis({"kind": "observation", "index": i})
-    h = st.hyp_results[k]
+    h = st.outcomes[k].test
     ref = reliability_of(adj).test(selection(adj.n, [i]))
     assert h.T == pytest.approx(ref.T, rel=1e-12)
     assert h.T == pytest.approx(adj.w[i] ** 2, rel=1e-9)
     assert h.critical_T == ref.critical_T and h.rejected_T == ref.rejected_T
     st.toggle_hypothesis(k)
-    assert st.hyp_results[k] is None
+    assert st.outcomes[k].status == "inactive"
     st.toggle_hypothesis(k)
-    assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-12)
+    assert st.outcomes[k].test.T == pytest.approx(ref.T, rel=1e-12)
 
 
 def test_group_hypothesis_matches_core_groups():
@@ -141,8 +141,8 @@ def test_group_hypothesis_matches_core_groups():
     adj = st.results
     g = reliability_of(adj).groups[0]
     k = st.add_hypothesis({"kind": "group", "group": g["group"]})
-    assert st.hyp_results[k].T == pytest.approx(g["T"], rel=1e-12)
-    assert st.hyp_results[k].q == g["dimension"]
+    assert st.outcomes[k].test.T == pytest.approx(g["T"], rel=1e-12)
+    assert st.outcomes[k].test.q == g["dimension"]
 
 
 def test_block_hypotheses_match_bundle_builders(block_problem):
@@ -157,9 +157,9 @@ def test_block_hypotheses_match_bundle_builders(block_problem):
             reliability_of(adj).test(hypotheses.h_control_point(adj.problem, "P1")),
             reliability_of(adj).test(hypotheses.h_image_point(adj.problem, "101", "P8"))]
     for k, ref in zip((k1, k2, k3), refs):
-        assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-10)
-        assert st.hyp_results[k].q == ref.q
-    assert st.hyp_results[k1].q == 2 and st.hyp_results[k1].ellipse().shape[1] == 2
+        assert st.outcomes[k].test.T == pytest.approx(ref.T, rel=1e-10)
+        assert st.outcomes[k].test.q == ref.q
+    assert st.outcomes[k1].test.q == 2 and st.outcomes[k1].test.ellipse().shape[1] == 2
 
 
 def test_hypothesis_table_shows_delta_bar0_of_the_core(block_problem):
@@ -173,7 +173,7 @@ def test_hypothesis_table_shows_delta_bar0_of_the_core(block_problem):
     k = st.add_hypothesis(spec)
     ref = reliability_of(st.results).test(hypotheses.hypothesis_matrix(st.results, spec))
     ext = hypotheses.external_reliability(st.results, ref)
-    assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-12)
+    assert st.outcomes[k].test.T == pytest.approx(ref.T, rel=1e-12)
     row = HypothesisPanel(state=st).frame().iloc[k]
     assert row["δ̄0max"] == round(ext.max, 2) and row["δ0'max"] == round(ref.delta0_prime_max, 2)
 
@@ -184,11 +184,11 @@ def test_hypothesis_follows_exclusion_and_alpha():
     st.exclude(3)
     adj = st.results
     j = int(st.reduced_index([10])[0])
-    assert st.hyp_results[k].T == pytest.approx(reliability_of(adj).test(selection(adj.n, [j])).T, rel=1e-12)
+    assert st.outcomes[k].test.T == pytest.approx(reliability_of(adj).test(selection(adj.n, [j])).T, rel=1e-12)
     st.alpha0 = 0.05
-    assert st.hyp_results[k].critical_T == pytest.approx(distributions.critical_chi2(0.05, 1))
+    assert st.outcomes[k].test.critical_T == pytest.approx(distributions.critical_chi2(0.05, 1))
     st.exclude(10)
-    assert isinstance(st.hyp_results[k], str) and "no (included) observations" in st.hyp_results[k]
+    assert st.outcomes[k].status == "refused" and "no (included) observations" in st.outcomes[k].message
 
 
 # --------------------------------------------------------------------------------------------
@@ -447,7 +447,7 @@ def test_upload_limits_and_odd_names(tmp_path, monkeypatch):
     import tempfile
 
     from baarda.dashboard.views import FilePanel
-    from baarda.dashboard.views import controls
+    from baarda.dashboard import uploads as controls
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     st = network_state("gama-local.gkf")
@@ -567,7 +567,7 @@ def test_hypothesis_deformation_is_drawn_on_external_map():
     root = pn.panel(view).get_root(Document())
     assert not any(len(s.data["shift_mm"]) for s in sources_with(root, "shift_mm"))
     k = st.add_hypothesis({"kind": "observation", "index": 20})
-    ref = st.results.point_shifts(deformation(st.results, st.hyp_results[k]))
+    ref = st.results.point_shifts(deformation(st.results, st.outcomes[k].test))
     label, shifts = st.external_field()
     assert label.startswith("hypothesis") and np.abs(ref).max() > 0
     np.testing.assert_allclose(shifts, ref, rtol=1e-12, atol=1e-15)
@@ -611,7 +611,8 @@ def test_ap_group_hypotheses_match_bundle(ap_block):
     assert list(panel.ap_group.options.values())[0] == "brown"     # the estimated one first
     panel.ap_group.value = "brown"
     panel.add.clicks += 1                       # the "Test" button
-    est = st.hyp_results[-1]
+    assert st.outcomes[-1].status == "ap-test"
+    est = st.outcomes[-1].ap
     ref = ap_tests.ap_test(adj, "RC30", "brown")
     assert isinstance(est, ap_tests.APTest)
     assert est.T == pytest.approx(ref.T, rel=1e-10) and est.q == ref.q == 7
@@ -619,7 +620,7 @@ def test_ap_group_hypotheses_match_bundle(ap_block):
     assert row["T"] == round(ref.T, 3) and "significant" in row["decision"].lower()
     k = st.add_hypothesis({"kind": "ap-group", "camera": "RC30", "group": "ebner"})
     ref2 = reliability_of(adj).test(hypotheses.h_ap_group(adj, "RC30", "ebner"))
-    assert st.hyp_results[k].T == pytest.approx(ref2.T, rel=1e-9) and st.hyp_results[k].q == 12
+    assert st.outcomes[k].test.T == pytest.approx(ref2.T, rel=1e-9) and st.outcomes[k].test.q == 12
     assert "not in the model" in st.hypotheses[k]["label"]
     st.selected_hypothesis = k          # its deformation field is drawn like any other
     assert np.abs(st.external_field()[1]).max() > 0
@@ -635,7 +636,7 @@ def test_ap_group_hypothesis_with_exclusions(block_problem):
     # the core's builder at the full problem's solution, cut to the kept rows: H differs only
     # by the (small) change of the solution the exclusion causes
     ref = reliability_of(adj).test(hypotheses.h_ap_group(adjust(block_problem), "cam", "brown").tocsr()[st.kept])
-    assert st.hyp_results[k].q == 7 and st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-4)
+    assert st.outcomes[k].test.q == 7 and st.outcomes[k].test.T == pytest.approx(ref.T, rel=1e-4)
 
 
 def test_robust_selector_runs_core_and_marks_suspects():
@@ -950,7 +951,7 @@ def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
             geometry.image_point_rows(st.problem_index(), iid, pid)
         # the hypothesis of one keypoint's image point: q = 2, the core's test of those two rows
         k = st.add_hypothesis({"kind": "image-point", "image": str(iid), "point": str(pid), "keypoint": kp})
-        h = st.hyp_results[k]
+        h = st.outcomes[k].test
         ref = reliability_of(st.results).test(selection(st.results.n, mine))
         assert h.q == 2 and h.T == pytest.approx(ref.T, rel=1e-12)
         assert f"keypoint {kp}" in specs.describe(st.problem, st.hypotheses[k], st.problem_index())
@@ -995,8 +996,8 @@ def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         k = st.add_hypothesis({"kind": "observation", "index": st.problem.n - 1})
-        assert st.hyp_results[k].q == 0
-        assert not measures.hypothesis_field(st.results, st.hyp_results[k], len(st.problem.points.ids)).any()
+        assert st.outcomes[k].test.q == 0
+        assert not measures.hypothesis_field(st.results, st.outcomes[k], len(st.problem.points.ids)).any()
 
 
 def test_cancelled_snooping_stops_within_its_step(monkeypatch):
