@@ -61,8 +61,11 @@ def reliability(adj) -> dict:
     """Every per-observation measure and the group tests, as the CLI's analysis computes them."""
     import numpy as np
 
-    r, w, mdb, ext = adj.r, adj.w, adj.mdb, adj.external
-    groups = adj.groups
+    from baarda.stats.reliability import reliability_of
+
+    rel = reliability_of(adj)
+    r, w, mdb, ext = adj.r, adj.w, rel.mdb, rel.external
+    groups = rel.groups
     return {"sum_r": float(r.sum()), "max_w": float(np.nanmax(np.abs(w))), "max_mdb": float(np.nanmax(mdb)),
             "finite_ext": int(np.isfinite(ext).sum()), "groups": len(groups)}
 

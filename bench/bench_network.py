@@ -19,6 +19,7 @@ import numpy as np
 from baarda.adjust import adjust
 from baarda.model.network import Cluster, NetObservation, NetPoint, Network
 from baarda.model.network_problem import build_problem
+from baarda.stats.reliability import reliability_of
 from tests.oracle import redundancy          # the tests' dense oracle, F80 §5
 
 
@@ -72,7 +73,8 @@ def main():
         t1 = time.perf_counter()
         adj = adjust(problem)
         t2 = time.perf_counter()
-        r, w, mdb, ext = adj.r, adj.w, adj.mdb, adj.external
+        rel = reliability_of(adj)
+        r, w, mdb, ext = adj.r, adj.w, rel.mdb, rel.external
         t3 = time.perf_counter()
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         dense_s = ratio = dr = float("nan")

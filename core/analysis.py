@@ -42,7 +42,7 @@ from .model.bundle import check_points as _check_points, has_check_points
 from .model.problem import without as problem_without
 from .network_defects import adjust_network
 from .sfm_defects import adjust_block
-from .stats import analyses, hypotheses, misidentification, precision, risk, robust, snooping, variance
+from .stats import analyses, gnss, hypotheses, misidentification, precision, risk, robust, snooping, variance
 from .stats.ap_tests import ap_test
 from .stats.policy import TestPolicy
 from .stats.reliability import Reliability
@@ -391,12 +391,12 @@ class Analysis:
 
     def gnss_strip_tests(self) -> list:
         """The test of a shift of each strip's GNSS centres (a cycle slip, F80 §2.2 eq. 10-12) whose
-        shift the model does not estimate (:func:`baarda.stats.hypotheses.strip_tests`); empty
+        shift the model does not estimate (:func:`baarda.stats.gnss.strip_tests`); empty
         without GNSS centres."""
-        gnss = getattr(self.problem.notes.local_model, "gnss", None)
-        if gnss is None or not gnss.centres:
+        spec = getattr(self.problem.notes.local_model, "gnss", None)
+        if spec is None or not spec.centres:
             return []
-        return self._cached("gnss_strip_tests", lambda: hypotheses.strip_tests(self.adjustment, self.reliability))
+        return self._cached("gnss_strip_tests", lambda: gnss.strip_tests(self.adjustment, self.reliability))
 
     def check_points(self) -> dict:
         """The check points (native ``status: check``, or ``role`` check in a control CSV): adjusted

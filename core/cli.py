@@ -42,6 +42,7 @@ from .io.geojson import write_geojson
 from .io.hypothesis import HYPOTHESIS_SPECS, parse_hypothesis
 from .io.native import write_native
 from .io.output import OutputError, check_outputs, write_text
+from .io.source import read_text
 from .model.sfm import SfmBlock, to_block
 from .sfm_defects import degenerate_geometry
 from .simulate import CAMERAS, RANGES as RECIPE_RANGES, check_recipe, gnss_path, simulate_to_files
@@ -438,8 +439,6 @@ def _analyze(args) -> int:
     try:
         doc = analysis.to_dict()
     except SingularError as err:
-        if adj.converged and not args.robust:
-            raise
         return _diverged(args, analysis, err)
     adj.timings["reliability"] = time.perf_counter() - t1
     analysis._add_extras(doc, extras)
@@ -456,42 +455,47 @@ def _analyze(args) -> int:
 
 
 def _diverged(args, analysis, err) -> int:
-    """An adjustment whose normal equations are singular at its last iterate (not converged, or
-    converged and asked for ``--robust``): no reliability can be computed there. Say so in one
-    line (exit status :data:`NOT_CONVERGED`), and run the robust estimation if asked — it is what
-    finds the gross error that makes least squares diverge (R84 §6: a medium or large error).
-    Where the least squares without its suspects converges, that adjustment's results are written
-    (JSON, CSV, the text), with the suspects left out named (``robust`` and
-    ``summary.robust_left_out``), exit 0."""
+    """Normal equations singular at the last iterate (not converged, or converged at a singular
+    point): no reliability there. A gross error is the usual cause (R84 §6), found by the robust
+    estimation: ``--robust``'s method, else R84's (not for a degenerate geometry). Where least
+    squares without its suspects converges, its results are written with them named (``robust``,
+    ``summary.robust_left_out``) and one stderr line, exit 0; else one line, exit
+    :data:`NOT_CONVERGED` (a converged adjustment: the singular system's error, exit 2)."""
     adj = analysis.adjustment
     why = (adj.termination or "not converged").removeprefix("not converged: ")
     head = (f"baarda: {args.input}: {'converged' if adj.converged else 'NOT converged'} after {adj.iterations} "
             f"iterations ({why}) and the normal equations at the last iterate are singular ({err})")
-    rob = analysis.robust(args.robust) if args.robust else None
-    final = rob.final if rob is not None else None
-    doc = None
-    if final is not None and final.converged:
-        try:
-            doc = results.to_dict(final)
-        except SingularError:
-            doc = None
+    geometry = degenerate_geometry(analysis.problem.notes.local_model)     # the cause, when it is the geometry
+    method = args.robust or (None if geometry else "r84")
+    rob = final = doc = None
+    try:
+        rob = analysis.robust(method) if method else None
+        final = rob.final if rob is not None else None
+        doc = results.to_dict(final) if final is not None and final.converged else None
+    except SingularError:
+        if args.robust and rob is None:
+            raise
     if doc is None:
-        geometry = degenerate_geometry(analysis.problem.notes.local_model)     # the cause, when it is the geometry
-        hint = (f"; {geometry}" if geometry else "" if args.robust else
-                f"; a gross error is the likely cause: try `baarda analyze {args.input} --robust r84`")
-        print(printable(f"{head}: no reliability computed, no JSON/CSV written{hint}"), file=sys.stderr)
+        if adj.converged and not args.robust and isinstance(err, SingularError):
+            raise err
+        tried = f"; the least squares without the suspects of the robust estimation ({method}) gives none either"
+        print(printable(f"{head}: no reliability computed, no JSON/CSV written{tried if method else ''}"
+                        f"{f'; {geometry}' if geometry else ''}"), file=sys.stderr)
         if rob is not None and not args.quiet:
             print("\n".join(robust_lines(rob)))
         return NOT_CONVERGED
     left = [sp["ids"] for sp in rob.suspects]
-    print(printable(f"{head}; without the {len(left)} suspect(s) of the robust estimation the adjustment "
-                    f"converged: its results are written"), file=sys.stderr)
+    asked = f", so the robust estimation ({method}, R84 §6-8) was run (choose its method with --robust)"
+    print(printable(f"{head}{'' if args.robust else asked}; without the {len(left)} suspect(s) of the robust "
+                    f"estimation the adjustment converged: its results are written"), file=sys.stderr)
     doc["robust"] = results.finite(rob.as_dict())
     doc["summary"]["robust_left_out"] = left
     if args.json:
         results.write_json(final, args.json, doc)
     if args.csv:
         results.write_csv(final, args.csv, doc)
+    if args.geojson:
+        write_geojson(final, args.geojson)
     if not args.quiet:
         print(results.text_summary(final, top=args.top))
         print("\n".join(robust_lines(rob)))
@@ -591,11 +595,7 @@ def cmd_simulate(args) -> int:
     if args.recipe:
         where = f"{args.recipe}:0"
         try:
-            doc = json.loads(Path(args.recipe).read_bytes().decode("utf-8"))
-        except OSError as err:
-            raise InputError(args.recipe, 0, f"cannot read the recipe: {err.strerror or err}") from None
-        except UnicodeDecodeError as err:
-            raise InputError(args.recipe, 0, f"the recipe is not UTF-8 text (byte {err.start})") from None
+            doc = json.loads(read_text(args.recipe, small=True))   # at most BAARDA_MAX_SMALL_BYTES
         except json.JSONDecodeError as err:
             raise InputError(args.recipe, err.lineno, f"the recipe is not JSON: {err.msg}") from None
         except RecursionError:

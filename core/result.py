@@ -27,7 +27,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -35,14 +34,11 @@ import scipy.sparse as sp
 from .model.problem import cluster_sizes, size_groups, size_weights
 from .solve import heap
 from .solve.linalg import SPDFactor, keep_columns
-from .solve.pairs import cluster_pairs, pair_products
+from .solve.pairs import cluster_blocks, cluster_pairs, pair_products
 from .solve.schur import SchurFactor, bmm, schur_structure
-from .stats import hypotheses
-from .stats.policy import TestPolicy
-from .stats.reliability import Reliability
 
 R_EPS = 1e-10
-#: clusters per chunk of the cluster group tests (:meth:`Adjustment._cluster_group_stacks`)
+#: clusters per chunk of the cluster passes (here and :func:`baarda.stats.groups.group_statistics`)
 GROUP_CHUNK = 1 << 17
 #: points per chunk of :attr:`Adjustment.point_cov`'s entries
 POINT_CHUNK = 1 << 15
@@ -51,16 +47,6 @@ POINT_CHUNK = 1 << 15
 def _mm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """Stacked small-matrix products (compiled loops when numba is there)."""
     return bmm(np.ascontiguousarray(X), np.ascontiguousarray(Y))
-
-
-def _cluster_blocks(cov, values):
-    """Split pair values laid out by :func:`cluster_pairs` into stacks (k, m, m) per size."""
-    pos = 0
-    for m, clusters, members, C in size_groups(cov):
-        k = clusters.size
-        block = values[pos:pos + k * m * m].reshape(k, m, m)
-        pos += k * m * m
-        yield m, members, C, block
 
 
 class _Stats:
@@ -98,22 +84,6 @@ class HeldColumns:
         return A
 
 
-class GroupStatistics(NamedTuple):
-    """The policy-free statistics of a problem's observation groups (F80 eq. 10, 13, 14), group k's
-    members at ``members[ptr[k]:ptr[k + 1]]``; per-member arrays in the members' order."""
-
-    keys: np.ndarray            # group ids, ascending
-    ptr: np.ndarray             # (groups + 1,) offsets into members
-    members: np.ndarray         # observation indices, sorted within each group
-    T: np.ndarray               # T = ĝᵀ W_s⁻¹ ĝ (F80 eq. 10), dimensionless
-    q: np.ndarray               # counted dimension of the test (rank of W_s)
-    redundancy: np.ndarray      # Σ r_i over the group's members
-    nabla: np.ndarray           # ∇ŝ per member, SI units of the observation
-    nabla_sigma: np.ndarray     # σ∇ŝ = √diag(W_s⁻¹) per member, SI units
-    w_eigenvalues: np.ndarray   # eigenvalues of W_s ascending (NaN where not counted)
-    mu_max: np.ndarray          # largest eigenvalue of the pencil (HᵀPH, W_s) (F80 eq. 14)
-
-
 @dataclass(frozen=True, eq=False)
 class Adjustment:
     """Result of :func:`baarda.adjust.adjust`; every derived quantity is a cached property."""
@@ -137,6 +107,9 @@ class Adjustment:
     damped: bool = False
     trace: tuple = ()
     far_held: int = 0
+    #: what other layers derive from this result and keep with it (the reliability under a policy,
+    #: the group statistics: :func:`baarda.stats.reliability.reliability_of`), keyed by them
+    memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self):
         if isinstance(self.__dict__.get("A"), HeldColumns):
@@ -261,27 +234,6 @@ class Adjustment:
         """σ̂0 = √(Ω / r); NaN when r = 0."""
         return float(np.sqrt(self.omega / self.dof)) if self.dof > 0 else float("nan")
 
-    # -- the test policy of ``options`` (σ0 a priori) and the reliability under it ----------------
-    @cached_property
-    def policy(self) -> TestPolicy:
-        """The test policy of ``options`` (α0, β0, B-method; decisions on w, σ0 a priori)."""
-        return TestPolicy.from_options(self.options)
-
-    @cached_property
-    def reliability(self) -> Reliability:
-        """Tests and reliability measures under :attr:`policy` (:class:`baarda.stats.reliability.Reliability`);
-        another policy is ``Reliability(adj, policy)`` over this same result."""
-        return Reliability(self, self.policy)
-
-    @property
-    def delta0(self) -> float:
-        return self.reliability.delta0
-
-    @property
-    def global_test(self) -> dict:
-        """The global test under :attr:`policy` (:attr:`baarda.stats.reliability.Reliability.global_test`)."""
-        return self.reliability.global_test
-
     # -- per-observation reliability ----------------------------------------------------------
     @cached_property
     def hat_blocks(self):
@@ -385,7 +337,7 @@ class Adjustment:
         r, pcp, php, phkp, uk = (res.get(name) for name in ("r", "pcp", "php", "phkp", "uk"))
         diag = lambda X: np.diagonal(X, axis1=1, axis2=2)  # noqa: E731
         for (m, members_all, C, Hc_all), (_, _, _, Htc_all), Pc_all in zip(
-                _cluster_blocks(cov, H), _cluster_blocks(cov, Ht), size_weights(cov)):
+                cluster_blocks(cov, H), cluster_blocks(cov, Ht), size_weights(cov)):
             # in chunks of clusters (each cluster's products are its own: the same numbers), so
             # that the stacks of H P, H_k P and P H P are not made for every image point at once
             for s in range(0, members_all.shape[0], GROUP_CHUNK):
@@ -412,7 +364,7 @@ class Adjustment:
         """Cluster blocks of C_vv = C − A Σ Aᵀ (F80 eq. 8), as stacks per cluster size:
         a list of (members (k, m), C (k, m, m), C_vv (k, m, m))."""
         H, _ = self.hat_blocks
-        return [(members, C, C - Hc) for m, members, C, Hc in _cluster_blocks(self.problem.cov, H)]
+        return [(members, C, C - Hc) for m, members, C, Hc in cluster_blocks(self.problem.cov, H)]
 
     def _nuisance_products(self, I, J):
         t = self.nuisance_columns
@@ -479,24 +431,6 @@ class Adjustment:
             return np.full(self.n, np.nan)
         return self.w * self.sigma0 / self.sigma0_post
 
-    @property
-    def critical_w(self) -> float:
-        return self.reliability.critical_w
-
-    @property
-    def critical_tau(self) -> float:
-        return self.reliability.critical_tau
-
-    @property
-    def rejected(self) -> np.ndarray:
-        """|w_i| above the critical value of the normal distribution at α0 (:attr:`reliability`)."""
-        return self.reliability.rejected
-
-    @property
-    def mdb(self) -> np.ndarray:
-        """Minimal detectable bias ∇0l_i (:attr:`reliability`)."""
-        return self.reliability.mdb
-
     @cached_property
     def u_t(self) -> np.ndarray:
         """Contribution of each observation to the nuisance parameters (F80 eq. 16)."""
@@ -521,142 +455,6 @@ class Adjustment:
     def php(self) -> np.ndarray:
         """(P H P)_ii ≥ 0 (the numerator of the external reliability over all unknowns)."""
         return np.maximum(self._cluster_stats[2], 0.0, out=self._cluster_stats[2])   # (in place)
-
-    @property
-    def external(self) -> np.ndarray:
-        """δ̄0,i (:attr:`reliability`, F80 eq. 18)."""
-        return self.reliability.external
-
-    @property
-    def external_all(self) -> np.ndarray:
-        """δ0 √((1 − r_i)/r_i) generalised (:attr:`reliability`)."""
-        return self.reliability.external_all
-
-    # -- groups -------------------------------------------------------------------------------
-    @property
-    def groups(self):
-        """Multi-dimensional tests of the problem's observation groups (:attr:`reliability`)."""
-        return self.reliability.groups
-
-    @cached_property
-    def group_statistics(self) -> "GroupStatistics | None":
-        """T, q and ∇ŝ of the problem's observation groups (vectors, image points), which do not
-        depend on the test policy: a :class:`GroupStatistics` (group ids, ptr, members, T, q,
-        redundancy, ∇ŝ, σ∇ŝ, λ(W_s), μmax) ordered by group id, members of group k at ``members[ptr[k]:ptr[k + 1]]`` (sorted,
-        ∇ŝ and σ∇ŝ = √diag(W_s⁻¹) in their order, F80 eq. 10); at the same positions the
-        eigenvalues of W_s ascending (NaN for those the test does not count), whose δ0/√λ are the
-        semi-axes of the lower-bound ellipse (F80 eq. 13); per group μmax, the largest eigenvalue
-        of the pencil (HᵀPH, W_s), δ0′max = δ0 √μmax (F80 eq. 14, §7.3; inf when q is below the
-        group's size). None without groups. A block of a million image points holds a few
-        arrays, not a million dicts; :attr:`baarda.stats.reliability.Reliability.groups` adds α_q,
-        δ0 and the decisions."""
-        gid = self.problem.info.group
-        if (gid < 0).all():
-            return None
-        order = np.argsort(gid, kind="stable")
-        g_sorted = gid[order]
-        starts = np.flatnonzero(np.r_[True, g_sorted[1:] != g_sorted[:-1]])
-        ends = np.r_[starts[1:], g_sorted.size]
-        valid = g_sorted[starts] >= 0
-        starts, ends = starts[valid], ends[valid]
-        keys = g_sorted[starts].astype(np.int64)
-        del g_sorted
-        ng = keys.size
-        ptr = np.concatenate([[0], np.cumsum(ends - starts)]).astype(np.int64)
-        members = np.empty(int(ptr[-1]), dtype=np.int64)
-        members_ok = np.zeros(ng, dtype=bool)
-        T, red = np.full(ng, np.nan), np.full(ng, np.nan)
-        q = np.zeros(ng, dtype=np.int64)
-        nabla = np.full(members.size, np.nan)
-        nabla_sigma = np.full(members.size, np.nan)
-        wlam = np.full(members.size, np.nan)
-        mu_max = np.full(ng, np.inf)
-        r = self.r
-        # groups that are exactly one covariance cluster: all at once from the cluster blocks
-        for mem, Tf, qf, nf, sf, lf, mf in self._cluster_group_stacks():
-            pos = np.searchsorted(keys, gid[mem[:, 0]])
-            msz = mem.shape[1]
-            dest = ptr[pos][:, None] + np.arange(msz)[None, :]
-            members[dest] = mem                               # sorted members
-            nabla[dest], nabla_sigma[dest], wlam[dest] = nf, sf, lf
-            T[pos], q[pos], mu_max[pos] = Tf, qf, mf
-            red[pos] = r[mem].sum(axis=1)
-            members_ok[pos] = True
-        for k in np.flatnonzero(~members_ok).tolist():
-            mem = np.sort(order[starts[k]:ends[k]])
-            h = hypotheses.test(self, hypotheses.selection(self.n, mem), label=f"group {keys[k]}")
-            sl = slice(ptr[k], ptr[k + 1])
-            members[sl] = mem
-            nabla[sl] = np.asarray(h.nabla, dtype=float).ravel()
-            nabla_sigma[sl] = h.nabla_sigma
-            seen = np.isfinite(h.ellipse_axes)
-            wlam[sl] = np.where(seen, (h.delta0 / np.where(seen, h.ellipse_axes, 1.0)) ** 2, np.nan)
-            mu_max[k] = (h.delta0_prime_max / h.delta0) ** 2
-            T[k], q[k] = h.T, h.q
-            red[k] = float(r[mem].sum())
-        heap.trim(self.n)
-        return GroupStatistics(keys, ptr, members, T, q, red, nabla, nabla_sigma, wlam, mu_max)
-
-    def cluster_group_tests(self) -> dict:
-        """{group: (T, q, ∇ŝ)} of the groups that are exactly one covariance cluster (an image
-        point, a GNSS vector): those :attr:`group_statistics` takes from the cluster blocks of
-        C_vv at once, without a test per group (for inspection; ∇ŝ in the order of the sorted
-        members)."""
-        gid = self.problem.info.group
-        out = {}
-        for mem, T, q, nabla, *_ in self._cluster_group_stacks():
-            for k in range(T.size):
-                out[int(gid[mem[k, 0]])] = (float(T[k]), int(q[k]), nabla[k])
-        return out
-
-    def _cluster_group_stacks(self):
-        """Tests of the groups that are exactly one covariance cluster (an image point, a GNSS
-        vector), all at once from the cluster blocks of C_vv: W = P_c C_vv P_c, T = gᵀW⁺g with
-        g = (Pv)_c, ∇ŝ = −W⁺g, q = rank W (:func:`baarda.stats.hypotheses.counted_directions`: the
-        eigenvalues above round-off whose statistic stays within vᵀPv) — the formulas of :func:`baarda.stats.hypotheses.test` with H the
-        selection of the cluster, without a solve per group. Yields, per cluster size and chunk of
-        at most :data:`GROUP_CHUNK` clusters (their temporaries are a chunk's), stacks (members (k, m) sorted per row, T (k,), q (k,), ∇ŝ (k, m) and σ∇ŝ (k, m) in the order of
-        the sorted members, the eigenvalues of W (k, m) ascending with NaN for those not counted,
-        μmax (k,) of the pencil (P_c, W), inf where q < m) — HᵀPH = P_c for the cluster's selection.
-        """
-        gid = self.problem.info.group
-        Pv, vPv = self.Pv, self.vPv
-        counts = np.bincount(gid[gid >= 0])
-        H, _ = self.hat_blocks
-        for (_, members, C, Hc), Pall in zip(_cluster_blocks(self.problem.cov, H), size_weights(self.problem.cov)):
-            g0 = gid[members]
-            same = (g0 >= 0).all(axis=1) & (g0 == g0[:, :1]).all(axis=1)
-            same &= counts[np.maximum(g0[:, 0], 0)] == members.shape[1]
-            if not same.any():
-                continue
-            sel = np.flatnonzero(same)
-            for s in range(0, sel.size, GROUP_CHUNK):     # (the temporaries of a chunk only)
-                part = sel[s:s + GROUP_CHUNK]
-                # C_vv = C − H of the chunk's clusters (not of all at once: the same numbers)
-                mem, Cv, Pc = members[part], C[part] - Hc[part], Pall[part]    # P_c: the cached cluster weights
-                W = Pc @ Cv @ Pc
-                del Cv
-                W = 0.5 * (W + np.swapaxes(W, 1, 2))
-                lam, V = np.linalg.eigh(W)
-                del W
-                tol = 1e-10 * np.maximum(np.maximum(lam.max(axis=1), np.abs(np.diagonal(Pc, axis1=1, axis2=2)).max(axis=1)), 1e-300)
-                g = Pv[mem]
-                pos, Tj = hypotheses.counted_directions(lam, V, g, tol, vPv)   # q = rank W_s, T ≤ vᵀPv
-                inv = np.where(pos, 1.0 / np.where(pos, lam, 1.0), 0.0)
-                Winv = np.einsum("kij,kj,klj->kil", V, inv, V)
-                U = V * np.sqrt(inv)[:, None, :]              # Uᵀ W U = I on the counted directions
-                mu = np.linalg.eigvalsh(np.einsum("kji,kjl,klm->kim", U, Pc, U))[:, -1]
-                q = pos.sum(axis=1)
-                mu = np.where(q == mem.shape[1], mu, np.inf)
-                lam = np.where(pos, lam, np.nan)
-                del V, inv, U
-                nabla = -np.einsum("kij,kj->ki", Winv, g)
-                sig = np.sqrt(np.maximum(np.diagonal(Winv, axis1=1, axis2=2), 0.0))
-                del Winv
-                T = Tj.sum(axis=1)
-                srt = np.argsort(mem, axis=1)
-                yield (np.take_along_axis(mem, srt, 1), T, q, np.take_along_axis(nabla, srt, 1),
-                       np.take_along_axis(sig, srt, 1), lam, mu)
 
     # -- covariance of the unknowns -----------------------------------------------------------
     def expand(self, vec_keep: np.ndarray) -> np.ndarray:
@@ -739,12 +537,7 @@ class Adjustment:
         out[idx >= 0] = self.x[idx[idx >= 0]]
         return out
 
-    # -- hypotheses and deformations -----------------------------------------------------------
-    def test(self, H, label: str = ""):
-        """Multi-dimensional test of an arbitrary hypothesis matrix H (n × q), F80 eq. 10-15,
-        under :attr:`policy`."""
-        return self.reliability.test(H, label=label)
-
+    # -- deformations ---------------------------------------------------------------------------
     def deformation(self, error: np.ndarray) -> np.ndarray:
         """Effect ∇x = Σ AᵀP ∇l of an observation error vector ∇l on all free parameters (F80 §6).
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import BaardaError
-from .stats import hypotheses
+from .stats import gnss, hypotheses
 from .stats.ap_tests import ap_test
+from .stats.reliability import reliability_of
 
 
 def _hypothesis(adj, e):
@@ -22,9 +23,9 @@ def _hypothesis(adj, e):
         if kind == "transfer":
             return "point transfer", hypotheses.h_point_transfer(adj.problem, ids["point"], ids["images"])
         if kind == "gnss":
-            return "GNSS centre", hypotheses.h_gnss_centre(adj.problem, ids["image"])
+            return "GNSS centre", gnss.h_gnss_centre(adj.problem, ids["image"])
         if kind == "gnss-strip":
-            return "GNSS strip shift", hypotheses.h_gnss_strip(adj.problem, ids["images"])
+            return "GNSS strip shift", gnss.h_gnss_strip(adj.problem, ids["images"])
         if kind == "control":
             return "control point", hypotheses.h_control_point(adj.problem, ids.get("point", ids.get("id")))
         if "image" in ids and "point" in ids:
@@ -38,7 +39,7 @@ def compare(adj, truth: dict, reliability=None) -> list[dict]:
     """One entry per planted error: kind, ids, class, max |w| of its observations, whether data
     snooping rejects one of them, and T/critical/decision of the matching hypothesis, under
     ``reliability``'s policy (default the adjustment's own)."""
-    rel = adj.reliability if reliability is None else reliability
+    rel = reliability_of(adj) if reliability is None else reliability
     kept = adj.problem.notes.kept_rows
     out = []
     for k, e in enumerate(truth.get("errors", [])):

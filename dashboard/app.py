@@ -514,7 +514,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
             state.jobs.closed = True
             summary_shown()
             state.cancel()
-            files.cleanup()
+            files.uploads.close()          # temporary files removed, the session's data dropped
         pn.state.on_session_destroyed(destroyed)
     template.state = state
     template.files = files
@@ -555,6 +555,14 @@ def main_views(state, make=None):
         map_tabs = pn.Tabs(*maps, dynamic=True, sizing_mode="stretch_width", min_height=660,
                            min_width=MAP_MIN_WIDTH, styles={"flex": f"1 1 {MAP_MIN_WIDTH}px"},
                            stylesheets=[WRAP_TAB_HEADERS], css_classes=["map-tabs"])
+
+        def shown(*_):
+            # only the map on screen follows the state; the others catch up when shown
+            for k, (_, view) in enumerate(maps):
+                if hasattr(view, "set_shown"):
+                    view.set_shown(k == map_tabs.active)
+        map_tabs.param.watch(shown, "active")
+        shown()
         right = pn.Tabs(("Suspects", suspects), ("Tests table", table), ("Hypotheses", hypotheses),
                         ("Find errors", analysis), ("Teaching", teaching),
                         dynamic=True, sizing_mode="stretch_width", min_width=RIGHT_MIN_WIDTH, height=660,

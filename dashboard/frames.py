@@ -32,14 +32,17 @@ def frames(problem, adj, rel, kept, excluded, index: dict, robust=None) -> tuple
     MDB/σ, the decision, the exclusion flag (``excluded``: full indices) and the robust weight
     factor (NaN without robust reweighting). points: one row per point with its map position,
     status, σ and the extreme values over its observations (min r, max |w|, max δ̄0, max MDB/σ).
+    :func:`base_frames` (what does not depend on the test policy) and :func:`with_policy`.
     """
+    return with_policy(base_frames(problem, adj, kept, excluded, index), problem, rel, kept, index, robust)
+
+
+def base_frames(problem, adj, kept, excluded, index: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The columns of :func:`frames` that do not depend on the test policy (v, w, τ, r, σ, …):
+    the same for every α0, β0 and B-method."""
     p, n = problem, problem.n
     factor, units = index["factor"]
-    sig_si = p.cov.sigma()
     w = expand(adj.w, kept, n)
-    tau = expand(adj.tau, kept, n)
-    rejected = expand(rel.rejected, kept, n, fill=False).astype(bool)
-    mdb = expand(rel.mdb, kept, n)
     excl = np.zeros(p.n, dtype=bool)
     excl[sorted(excluded)] = True
     obs = pd.DataFrame({
@@ -47,15 +50,10 @@ def frames(problem, adj, rel, kept, excluded, index: dict, robust=None) -> tuple
         "ids": index["labels"],
         "v": expand(adj.v, kept, n) * factor,
         "w": w,
-        "tau": tau,
+        "tau": expand(adj.tau, kept, n),
         "r": expand(adj.r, kept, n),
-        "mdb": mdb * factor,
-        "mdb_sigma": mdb / np.where(sig_si > 0, sig_si, np.nan),
-        "ext": expand(rel.external, kept, n),
         "unit": list(units),
-        "rejected": rejected,
         "excluded": excl,
-        "robust_w": expand(robust.weights, kept, n) if robust is not None else np.full(p.n, np.nan),
     })
     obs.index.name = "index"
     coords = adj.coordinates
@@ -63,23 +61,54 @@ def frames(problem, adj, rel, kept, excluded, index: dict, robust=None) -> tuple
     m = len(p.points.ids)
     live = ~excl[index["inc_obs"]]
     io, ip = index["inc_obs"][live], index["inc_pt"][live]
-
-    def extreme(ufunc, values):
-        out = np.full(m, np.nan)
-        ufunc.at(out, ip, values[io])
-        return out
-
     sig = adj.point_sigma * 1000.0
     pts = pd.DataFrame({
         "id": [plain(i) for i in p.points.ids], "status": list(p.points.status),
         "x": east, "y": north,
         "sx_mm": sig[:, 0], "sy_mm": sig[:, 1], "sz_mm": sig[:, 2],
         "n_obs": np.bincount(ip, minlength=m),
-        "min_r": extreme(np.fmin, obs["r"].to_numpy()),
-        "max_w": extreme(np.fmax, np.abs(w)),
-        "max_ext": extreme(np.fmax, obs["ext"].to_numpy()),
-        "max_mdb_sigma": extreme(np.fmax, obs["mdb_sigma"].to_numpy()),
+        "min_r": _extreme(np.fmin, m, io, ip, obs["r"].to_numpy()),
+        "max_w": _extreme(np.fmax, m, io, ip, np.abs(w)),
     })
+    return obs, pts
+
+
+def _extreme(ufunc, m, io, ip, values) -> np.ndarray:
+    out = np.full(m, np.nan)
+    ufunc.at(out, ip, values[io])
+    return out
+
+
+OBS_COLUMNS = ["kind", "ids", "v", "w", "tau", "r", "mdb", "mdb_sigma", "ext", "unit", "rejected", "excluded",
+               "robust_w"]
+POINT_COLUMNS = ["id", "status", "x", "y", "sx_mm", "sy_mm", "sz_mm", "n_obs", "min_r", "max_w", "max_ext",
+                 "max_mdb_sigma"]
+
+
+def with_policy(base, problem, rel, kept, index: dict, robust=None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """:func:`frames` from the :func:`base_frames` ``base`` and the reliability ``rel`` under a
+    test policy (decision, MDB, δ̄0) and a robust result (its weights); ``base`` unchanged."""
+    obs0, pts0 = base
+    n = problem.n
+    factor, _ = index["factor"]
+    sig_si = problem.cov.sigma()
+    mdb = expand(rel.mdb, kept, n)
+    cols = {c: obs0[c] for c in obs0.columns}
+    cols.update({
+        "mdb": mdb * factor,
+        "mdb_sigma": mdb / np.where(sig_si > 0, sig_si, np.nan),
+        "ext": expand(rel.external, kept, n),
+        "rejected": expand(rel.rejected, kept, n, fill=False).astype(bool),
+        "robust_w": expand(robust.weights, kept, n) if robust is not None else np.full(n, np.nan),
+    })
+    obs = pd.DataFrame({c: cols[c] for c in OBS_COLUMNS}, index=obs0.index)
+    m = len(pts0)
+    live = ~obs0["excluded"].to_numpy()[index["inc_obs"]]
+    io, ip = index["inc_obs"][live], index["inc_pt"][live]
+    pcols = {c: pts0[c] for c in pts0.columns}
+    pcols["max_ext"] = _extreme(np.fmax, m, io, ip, obs["ext"].to_numpy())
+    pcols["max_mdb_sigma"] = _extreme(np.fmax, m, io, ip, obs["mdb_sigma"].to_numpy())
+    pts = pd.DataFrame({c: pcols[c] for c in POINT_COLUMNS}, index=pts0.index)
     return obs, pts
 
 

@@ -18,10 +18,12 @@ from dataclasses import replace
 import numpy as np
 
 from baarda.adjust import adjust
+from baarda.analysis import Analysis
 from baarda.errors import BaardaError
+from baarda.exclusion import exclude
 from baarda.model.problem import without
 from baarda.stats import analyses, risk, snooping, variance
-from baarda.stats.hypotheses import HypothesisTest, deformation
+from baarda.stats.hypotheses import deformation
 from baarda.stats.reliability import Reliability
 
 from .geometry import observation_label, reduced_index
@@ -30,13 +32,19 @@ from .geometry import observation_label, reduced_index
 LOO_SUSPECTS = 5
 
 
-def adjust_without(problem, excluded, sigma_act: str, options, progress=None) -> tuple:
+def adjust_without(problem, excluded, sigma_act: str, options, progress=None, x0=None) -> tuple:
     """The core's adjustment of ``problem`` without the ``excluded`` observations (full indices,
-    :func:`baarda.model.problem.without`) with σ0 ``sigma_act`` ("apriori" or "aposteriori"):
-    ``(Adjustment, kept)``, ``kept[k]`` the full index of the reduced observation k."""
+    :func:`baarda.model.problem.without`) with σ0 ``sigma_act`` ("apriori" or "aposteriori"),
+    started at ``x0`` (default: the file's values): ``(Adjustment, kept)``, ``kept[k]`` the full
+    index of the reduced observation k."""
     reduced, kept = without(problem, excluded)
-    reduced = replace(reduced, sigma_act=sigma_act)
-    return adjust(reduced, options, progress=progress), kept
+    if reduced.sigma_act != sigma_act:
+        reduced = replace(reduced, sigma_act=sigma_act)
+    if x0 is not None:          # the unknowns held (a set without observations) at the file's values
+        start, free = reduced.params.x0.astype(float).copy(), reduced.params.free
+        start[free] = np.asarray(x0, dtype=float)[free]
+        x0 = start
+    return adjust(reduced, options, x0=x0, progress=progress), kept
 
 
 # -- deformation fields (external reliability) -----------------------------------------------------
@@ -55,11 +63,13 @@ def observation_field(adj, rel, kept, n_full: int, m: int, index: int | None) ->
     return adj.point_shifts(adj.deformation(err))
 
 
-def hypothesis_field(adj, h, m: int) -> np.ndarray:
-    """∇0x of a tested hypothesis ``h`` as point shifts (m × 3, metres): the core's
-    :func:`baarda.stats.hypotheses.deformation` — the lower bound ∇0s in the direction the test
-    sees worst. Zero for anything but a HypothesisTest with finite δ0 and q > 0."""
-    if not isinstance(h, HypothesisTest) or not np.isfinite(h.delta0) or h.q == 0:
+def hypothesis_field(adj, outcome, m: int) -> np.ndarray:
+    """∇0x of a tested hypothesis (its :class:`~baarda.dashboard.outcomes.Outcome`) as point
+    shifts (m × 3, metres): the core's :func:`baarda.stats.hypotheses.deformation` — the lower
+    bound ∇0s in the direction the test sees worst. Zero for anything but a hypothesis test with
+    finite δ0 and q > 0."""
+    h = outcome.test if outcome is not None else None
+    if h is None or not np.isfinite(h.delta0) or h.q == 0:
         return np.zeros((m, 3))
     return adj.point_shifts(deformation(adj, h))
 
@@ -163,7 +173,7 @@ def injection(problem, adj, rel, kept, new, e: np.ndarray, index: int, size: flo
             "largest_label": observation_label(problem, int(kept[top])),
             "group_T": None if group is None else float(group["T"]),
             "group_critical": None if group is None else float(group["critical"]),
-            "global_passed": new.global_test.get("passed"),
+            "global_passed": new_rel.global_test.get("passed"),
             "sigma0_post": float(new.sigma0_post), "error_vector": e}
 
 
@@ -191,3 +201,43 @@ def variance_components(problem, options, model: str) -> tuple:
         structure = "isotropic" if model == "radial-isotropic" else "radial"
         return None, analyses.radial_variance(problem, options, structure)
     return variance.estimate(problem, options=options), None
+
+
+# -- exclusion: an exact downdate at once, the exact re-adjustment after it --------------------------
+#: :func:`downdated` answers an exclusion of at most this many observations (more: re-adjusted).
+DOWNDATE_MAX = 64
+
+
+def downdated(base, excluded) -> "Analysis | None":
+    """``base`` (an :class:`~baarda.analysis.Analysis`) without the observations ``excluded``
+    (full indices, a superset of ``base.excluded``) from a rank-k downdate of its factor
+    (:func:`baarda.exclusion.exclude`, Woodbury's identity): one Gauss-Newton step of the reduced
+    problem at ``base``'s solution, so for a linear model the exact adjustment without them, for
+    a non-linear one its first iteration from ``base``. None when it does not apply (nothing
+    added to the exclusions, more than :data:`DOWNDATE_MAX` added)."""
+    excluded = frozenset(int(i) for i in excluded)
+    added = excluded - base.excluded
+    if not added or not base.excluded <= excluded or len(added) > DOWNDATE_MAX:
+        return None
+    kept = np.asarray(base.kept)
+    red = reduced_index(kept, base.problem.n, sorted(added))
+    if (red < 0).any():
+        return None
+    adj = exclude(base.adjustment, red)
+    mask = np.ones(kept.size, dtype=bool)
+    mask[red] = False
+    return Analysis(base.problem, adj, base.policy, base.solver, name=base.name, excluded=excluded,
+                    kept=kept[mask])
+
+
+def readjusted(analysis, excluded=None, x0=None, progress=None) -> "Analysis":
+    """The exact adjustment of ``analysis``' problem without the observations ``excluded`` (full
+    indices; default: its own exclusions) with the σ0 of its adjustment, iterated to convergence
+    from ``x0`` (default: its solution) — the re-adjustment that replaces a :func:`downdated`
+    answer, or an exclusion started from the current solution."""
+    problem = analysis.problem
+    excluded = analysis.excluded if excluded is None else frozenset(int(i) for i in excluded)
+    adj, kept = adjust_without(problem, excluded, analysis.adjustment.problem.sigma_act, analysis.options,
+                               progress=progress, x0=analysis.adjustment.x if x0 is None else x0)
+    return Analysis(problem, adj, analysis.policy, analysis.solver, name=analysis.name, excluded=excluded,
+                    kept=np.asarray(kept))

@@ -30,6 +30,7 @@ from bokeh.resources import Resources
 
 from baarda.io.output import write_text
 from baarda.stats.distributions import STRICT
+from baarda.stats.reliability import policy_of
 
 from . import geometry, render
 from .frames import R_UNCONTROLLED
@@ -203,13 +204,13 @@ def _hypotheses_html(session: State | None) -> str:
     if session is None or not session.hypotheses:
         return ""
     rows = []
-    for spec, h in zip(session.hypotheses, session.hyp_results):
-        if h is None or not hasattr(h, "T"):
+    for spec, o in zip(session.hypotheses, session.outcomes):
+        if not o.tested:
             continue
-        label = getattr(h, "label", "") or ", ".join(f"{k}={v}" for k, v in spec.items() if k != "active")
-        rejected = bool(getattr(h, "rejected_T", False))
-        rows.append(f"<tr><td>{html_text(label)}</td><td>{h.q}</td><td>{_fmt(h.T, '.4g')}</td>"
-                    f"<td>{_fmt(h.critical_T, '.4g')}</td><td class='{'bad' if rejected else 'ok'}'>"
+        label = o.label or ", ".join(f"{k}={v}" for k, v in spec.items() if k != "active")
+        rejected = o.rejected
+        rows.append(f"<tr><td>{html_text(label)}</td><td>{o.q}</td><td>{_fmt(o.T, '.4g')}</td>"
+                    f"<td>{_fmt(o.critical, '.4g')}</td><td class='{'bad' if rejected else 'ok'}'>"
                     f"{'rejected' if rejected else 'accepted'}</td></tr>")
     if not rows:
         return ""
@@ -253,7 +254,7 @@ def report_html(adj, state: State | None = None) -> str:
     exclusions and its hypotheses are reported; nothing of its view is.
     """
     session = state if state is not None and state.results is adj else None
-    clean = State.from_adjustment(adj, policy=session.policy() if session is not None else getattr(adj, "policy", None))
+    clean = State.from_adjustment(adj, policy=session.policy() if session is not None else policy_of(adj))
     if session is not None:
         clean.param.update(alpha0=session.alpha0, beta0=session.beta0, b_method=session.b_method)
     hv.extension("bokeh", logo=False)

@@ -30,6 +30,7 @@ from baarda.stats.ap_tests import ap_test
 from baarda.stats.hypotheses import common_error, external_reliability, h_ap_group, hypothesis_rows, selection
 
 from .geometry import observation_label, reduced_index
+from .outcomes import Outcome
 
 
 def rows(problem, spec: dict, index: dict) -> list[np.ndarray]:
@@ -64,23 +65,33 @@ def matrix(problem, adj, kept, spec: dict, index: dict):
     return selection(n, red[0])
 
 
-def evaluate(problem, adj, rel, kept, spec: dict, index: dict):
-    """The core's test of one hypothesis: a :class:`~baarda.stats.hypotheses.HypothesisTest`
-    (with δ̄0(s) at its maximum, F80 eq. 17, in ``extra["external"]``) or an
-    :class:`~baarda.stats.ap_tests.APTest` of an estimated AP group; None if the hypothesis is
-    inactive or there is no adjustment; a message if the core refuses it."""
+def evaluate(problem, adj, rel, kept, spec: dict, index: dict) -> Outcome:
+    """The core's test of one hypothesis as an :class:`~baarda.dashboard.outcomes.Outcome`: a
+    :class:`~baarda.stats.hypotheses.HypothesisTest` (with δ̄0(s) at its maximum, F80 eq. 17,
+    in ``external``) or an :class:`~baarda.stats.ap_tests.APTest` of an estimated AP group;
+    "inactive" if the hypothesis is switched off or there is no adjustment; "refused" with the
+    core's message."""
+    label = spec.get("label", "")
     if not spec.get("active", True) or adj is None:
-        return None
+        return Outcome("inactive", label)
+    policy = rel.policy
     try:
         if spec["kind"] == "ap-group" and ap_estimated(problem, spec):
-            return ap_test(adj, str(spec["camera"]), str(spec["group"]), policy=rel.policy)
+            return Outcome("ap-test", label, ap=ap_test(adj, str(spec["camera"]), str(spec["group"]), policy=policy),
+                           policy=policy)
         H = matrix(problem, adj, kept, spec, index)
-        h = rel.test(H, label=spec.get("label", ""))
-        if h.q:      # δ̄0(s) at its maximum (F80 eq. 17), shown beside δ0′max
-            h.extra["external"] = external_reliability(adj, h)
-        return h
+        h = rel.test(H, label=label)
+        # δ̄0(s) at its maximum (F80 eq. 17), shown beside δ0′max
+        ext = external_reliability(adj, h) if h.q else None
+        return Outcome("test", label, test=h, external=ext, policy=policy)
     except (ValueError, KeyError, BaardaError, np.linalg.LinAlgError) as err:
-        return f"{spec.get('label', '')}: {err}"
+        return Outcome("refused", label, message=f"{label}: {err}", policy=policy)
+
+
+def key(spec: dict) -> tuple:
+    """What a hypothesis' test depends on in its specification (not ``active`` or ``label``)."""
+    return tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in spec.items()
+                        if k not in ("active", "label")))
 
 
 def describe(problem, spec: dict, index: dict) -> str:

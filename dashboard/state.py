@@ -37,14 +37,14 @@ from baarda.adjust import Options
 from baarda.analysis import Analysis, analyze
 from baarda.build import read_problem
 from baarda.errors import BaardaError
-from baarda.io.results import summary as core_summary
 from baarda.io.source import checking
-from baarda.stats import precision, robust
+from baarda.stats import robust
 from baarda.stats.policy import TestPolicy
 
-from . import frames as tables
 from . import geometry, measures, specs
 from . import sbase as sbase_lesson
+from .outcomes import Outcome
+from .snapshot import Snapshot
 from .jobs import Cancelled, Jobs, cached, file_key, file_lock, on_worker_thread, store
 from .text import plain
 
@@ -72,13 +72,18 @@ class State(param.Parameterized):
                                      "α_r (F80 §7.2).")
     excluded = param.Parameter(default=frozenset(), doc="Excluded observations (full indices).")
     hypotheses = param.List(default=[], doc="Hypothesis specifications (module docstring).")
-    hyp_results = param.List(default=[], doc="Per hypothesis: HypothesisTest, an error text or None.")
+    outcomes = param.List(default=[], doc="Per hypothesis its Outcome (baarda.dashboard.outcomes): "
+                          "inactive, refused (with the core's message), a test or an AP group's test.")
     selected_point = param.Integer(default=None, allow_None=True, doc="Selected point index.")
     selected_obs = param.Integer(default=None, allow_None=True, doc="Selected observation (full index).")
     selected_hypothesis = param.Integer(default=None, allow_None=True)
     selected_image = param.Parameter(default=None, doc="Image shown in the image-space view (blocks).")
     exaggeration = param.Number(default=1.0, bounds=(0.0, None),
                                 doc="Exaggeration of image residual vectors.")
+    snapshot = param.Parameter(default=None, doc="The Snapshot shown (baarda.dashboard.snapshot): "
+                               "``analysis`` and the tables derived from it, made once.")
+    exact = param.Boolean(default=True, doc="False while the result shown is the downdate of an "
+                          "exclusion and its exact re-adjustment runs (measures.downdated).")
     analysis = param.Parameter(default=None, doc="The core's Analysis (baarda.analysis) of ``problem`` "
                                "without the excluded observations under the state's test policy: "
                                "``results``, ``reliability`` and ``kept`` are its adjustment, reliability "
@@ -117,6 +122,9 @@ class State(param.Parameterized):
                                     doc="Variance components per family, or the radial model of a block "
                                         "(b on the radial component, F80 §2.1; or isotropic).")
     components = param.Parameter(default=None, doc="The core's ComponentEstimate (radial model), or None.")
+    merge_groups = param.String(default="", doc="Families estimated with one variance factor together, "
+                                "\"A+B[,C+D]\" (``baarda analyze --merge-groups``; "
+                                "baarda.stats.variance.merge_groups); '' = one factor per family.")
     criterion = param.Dict(default=None, allow_None=True, doc="The last criterion comparison (criterion_*).")
     criterion_error = param.String(default="", doc="Why the criterion comparison was refused.")
 
@@ -125,9 +133,11 @@ class State(param.Parameterized):
         to (a session's, for a state made on its worker thread to read a file); default self."""
         super().__init__(**params)
         self._progress_to = progress_to
-        self._frames = None
         self._index, self._index_for = None, None
-        self._cov = None
+        #: the analysis of the current problem without exclusions (the exclusions' downdates start there)
+        self._full = None
+        #: (exclusions, snapshot) before the last downdate (:meth:`downdate`; restored if its refinement fails)
+        self._before = (frozenset(), None)
         #: the session's background computations (:class:`~baarda.dashboard.jobs.Jobs`): the
         #: served app sets its ``loop_call`` and ``closed``
         self.jobs = Jobs()
@@ -161,17 +171,23 @@ class State(param.Parameterized):
             st.param.update(problem=analysis.problem, source=str(analysis.problem.source or analysis.name),
                             sigma0_mode=pol.sigma0, global_test=pol.global_test, alpha0=pol.alpha0,
                             beta0=pol.beta0, b_method=pol.b_method, excluded=frozenset(analysis.excluded))
-            st._set_analysis(analysis)
+            st._set_snapshot(Snapshot(analysis))
             images = geometry.images(st.problem)
             st.selected_image = images[0]["id"] if images else None
         return st
 
-    def _set_analysis(self, analysis: Analysis) -> None:
-        """Make ``analysis`` current: its adjustment, reliability and kept indices."""
+    def _set_snapshot(self, snap: Snapshot) -> None:
+        """Make ``snap`` current: its analysis' adjustment, reliability and kept indices."""
+        analysis = snap.analysis
+        if not analysis.excluded and (self._full is None or self._full.problem is not analysis.problem
+                                      or self._full.adjustment is not analysis.adjustment):
+            self._full = analysis
         self.kept = np.asarray(analysis.kept)
+        self.snapshot = snap
         self.analysis = analysis
         self.reliability = analysis.reliability
-        self.results = analysis.adjustment
+        if self.results is not analysis.adjustment:     # the same (a new policy): triggered by the caller
+            self.results = analysis.adjustment
 
     # -- background computations ----------------------------------------------------------------
     def submit(self, label: str, fn, *args):
@@ -263,7 +279,7 @@ class State(param.Parameterized):
                     self.error = message(fresh.error)
                     return False
                 fresh.frames()
-                hit = (fresh.analysis, fresh.problem_index(), fresh._frames)
+                hit = fresh.snapshot
                 if key is not None:
                     store(key, hit)
         self._check_cancel()
@@ -283,8 +299,8 @@ class State(param.Parameterized):
         return True
 
     def _set_loaded(self, hit, source: str) -> bool:
-        """Make a cached (problem, adjustment, …) current without adjusting again."""
-        analysis, index, frames = hit
+        """Make a cached snapshot current without adjusting again."""
+        analysis = hit.analysis
         problem = analysis.problem
         if self.problem is not None:
             self.param.trigger("replacing")
@@ -293,21 +309,21 @@ class State(param.Parameterized):
             self.sigma0_mode = (problem.sigma_act if problem.sigma_act in ("apriori", "aposteriori")
                                 else "apriori")     # as the cached adjustment was made
             self.excluded = frozenset()
-            self.sbase, self.sbase_error, self.hypotheses, self.hyp_results = [], "", [], []
+            self.sbase, self.sbase_error, self.hypotheses, self.outcomes = [], "", [], []
             self.selected_point = self.selected_obs = self.selected_hypothesis = None
             images = geometry.images(self.problem)
             self.selected_image = images[0]["id"] if images else None
             self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
             self.components, self.criterion, self.criterion_error, self.analysis_error = None, None, "", ""
             self.robust = None
-        self._index, self._index_for = index, problem
-        self._frames = frames if self.robust_method == "none" else None
-        self._cov = None
+        self._index, self._index_for = hit.index, problem
         with param.parameterized.batch_call_watchers(self):
             # a session's own Analysis over the shared adjustment: its reliability and the
             # computations cached on it are this session's, as they were before the cache
-            self._set_analysis(Analysis(analysis.problem, analysis.adjustment, self.policy(), analysis.solver,
-                                        name=analysis.name, excluded=analysis.excluded, kept=analysis.kept))
+            self._set_snapshot(hit.for_session(Analysis(
+                analysis.problem, analysis.adjustment, self.policy(), analysis.solver, name=analysis.name,
+                excluded=analysis.excluded, kept=analysis.kept)))
+            self.exact = True
             self.solution += 1
             self._run_robust()
         self.param.update(source=source, file_name=plain(Path(source).name))
@@ -322,8 +338,8 @@ class State(param.Parameterized):
 
         error_path: a server path (an upload's temporary file) that a failure message shows as
         ``error_name`` instead."""
-        old = (self.problem, self.analysis, self.results, self.kept, self.excluded, self.hypotheses,
-               self.hyp_results)
+        old = (self.problem, self.snapshot, self.analysis, self.results, self.kept, self.excluded,
+               self.hypotheses, self.outcomes)
         mode = problem.sigma_act if problem.sigma_act in ("apriori", "aposteriori") else "apriori"
         with param.parameterized.discard_events(self):
             self.problem = problem
@@ -331,7 +347,7 @@ class State(param.Parameterized):
             self.sbase = []
             self.sbase_error = ""
             self.hypotheses = []
-            self.hyp_results = []
+            self.outcomes = []
             self.selected_point = None
             self.selected_obs = None
             self.selected_hypothesis = None
@@ -340,8 +356,8 @@ class State(param.Parameterized):
             self.selected_image = images[0]["id"] if images else None
         if not self._readjust() or (self.jobs.cancel_event.is_set() and self.task):
             with param.parameterized.discard_events(self):
-                (self.problem, self.analysis, self.results, self.kept, self.excluded, self.hypotheses,
-                 self.hyp_results) = old
+                (self.problem, self.snapshot, self.analysis, self.results, self.kept, self.excluded,
+                 self.hypotheses, self.outcomes) = old
             if error_path and error_name:
                 self.error = self.error.replace(error_path, error_name)
             self._check_cancel()
@@ -352,6 +368,19 @@ class State(param.Parameterized):
         self.error = ""
         self.param.trigger("problem")
         return True
+
+    def release(self) -> None:
+        """Drop everything the session's state holds of its data (the session ended): the
+        problem, its analyses and every result made from them; the choices stay. Panel and Bokeh
+        may keep a closed session's objects a while; its data are freed at once."""
+        with param.parameterized.discard_events(self):
+            self.param.update(problem=None, snapshot=None, analysis=None, results=None, reliability=None,
+                              kept=np.zeros(0, dtype=np.int64), outcomes=[], hypotheses=[], robust=None,
+                              snoop=None, snoop_loo=[], variance=None, components=None, injection=None,
+                              criterion=None, excluded=frozenset())
+        self._full, self._before = None, (frozenset(), None)
+        self._index, self._index_for = None, None
+        self.free_block_cache = {}
 
     @contextlib.contextmanager
     def _busy(self):
@@ -394,7 +423,15 @@ class State(param.Parameterized):
             with self._busy():
                 if base is None:          # a new problem: the core's analysis, local defects set aside
                     base = analyze(problem, policy=policy, progress=self._iteration)
-                analysis = base.with_policy(policy).without(excluded, sigma_act=mode, progress=self._iteration)
+                    analysis = base.with_policy(policy).without(excluded, sigma_act=mode, progress=self._iteration)
+                elif not excluded and self._full is not None and self._full.problem is problem and \
+                        self._full.adjustment.problem.sigma_act == mode:
+                    analysis = self._full.with_policy(policy)      # every observation back: as first adjusted
+                else:                     # started from the current solution
+                    analysis = measures.readjusted(base.with_policy(policy), excluded,
+                                                   progress=self._iteration) \
+                        if base.adjustment.problem.sigma_act == mode else \
+                        base.with_policy(policy).without(excluded, sigma_act=mode, progress=self._iteration)
         except Cancelled:
             raise
         except BaardaError as err:
@@ -411,33 +448,39 @@ class State(param.Parameterized):
         def apply() -> bool:
             if self.problem is not problem or self.excluded != excluded:
                 return False                  # changed meanwhile: this result is stale
-            self._frames = None
-            self._cov = None
-            with param.parameterized.batch_call_watchers(self):
-                if analysis.problem is not problem:      # local defects set aside
-                    with param.parameterized.discard_events(self):
-                        self.problem = analysis.problem
-                self._set_analysis(analysis)
-                self.solution += 1
-                self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
-                self.components, self.criterion, self.criterion_error = None, None, ""
-                self.analysis_error = ""
-                self._run_hypotheses()
-                self._run_robust()
-                self.timings = {**self.timings, "adjust": time.perf_counter() - t0}
+            self._show(analysis, exact=True)
+            self.timings = {**self.timings, "adjust": time.perf_counter() - t0}
             return True
         return bool(self.on_loop(apply))
+
+    def _show(self, analysis: Analysis, exact: bool) -> None:
+        """Make a new analysis of the problem current (a new solution: the results of the
+        analysis panel dropped, the hypotheses tested again)."""
+        with param.parameterized.batch_call_watchers(self):
+            if analysis.problem is not self.problem:      # local defects set aside
+                with param.parameterized.discard_events(self):
+                    self.problem = analysis.problem
+            self._set_snapshot(Snapshot(analysis, self.problem_index()))
+            self.exact = exact
+            self.solution += 1
+            self.snoop, self.snoop_loo, self.variance, self.injection = None, [], None, None
+            self.components, self.criterion, self.criterion_error = None, None, ""
+            self.analysis_error = ""
+            self._run_hypotheses()
+            self._run_robust()
 
     @param.depends("alpha0", "beta0", "b_method", "global_test", watch=True)
     def _options_changed(self):
         if self.results is None:
             return
-        self._frames = None
+        t0 = time.perf_counter()
         with param.parameterized.batch_call_watchers(self):
-            self._set_analysis(self.analysis.with_policy(self.policy()))   # same result: nothing solved
+            # same adjustment: nothing solved, the policy-free tables and tests shared
+            self._set_snapshot(self.snapshot.with_policy(self.policy()))
             self.param.trigger("results")
             self._run_hypotheses()
             self._run_robust()
+        self.timings = {**self.timings, "policy": time.perf_counter() - t0}
 
     @param.depends("sigma0_mode", watch=True)
     def _sigma_changed(self):
@@ -464,7 +507,11 @@ class State(param.Parameterized):
         if new == self.excluded:
             return True
         if self.background and not on_worker_thread():
+            if not self.task and self.downdate(new):           # answered at once
+                return self.submit("adjusting again exactly", self.refine, new)
             return self.submit("excluding and adjusting again", self._set_excluded, new)
+        if self.downdate(new):
+            return self.refine(new)
         old = self.excluded
         with param.parameterized.discard_events(self):
             self.excluded = new
@@ -478,6 +525,70 @@ class State(param.Parameterized):
         if ok:
             self.on_loop(lambda: self.param.trigger("excluded"))
         return ok
+
+    def downdate(self, new) -> bool:
+        """Show the analysis without the observations ``new`` (full indices) at once, from an
+        exact downdate of the current factor (:func:`baarda.dashboard.measures.downdated`,
+        ``exact`` False until :meth:`refine` replaces it); False (nothing changed) where it does
+        not apply: fewer exclusions, more than :data:`~baarda.dashboard.measures.DOWNDATE_MAX`
+        new ones, or σ0 a posteriori."""
+        t0 = time.perf_counter()
+        new = frozenset(int(i) for i in new)
+        base = self.analysis
+        if base is None or base.problem is not self.problem or self.sigma0_mode != "apriori":
+            return False
+        if not base.excluded <= new and self._full is not None and self._full.problem is self.problem:
+            base = self._full.with_policy(self.policy())   # re-included: downdated from every observation
+        try:
+            quick = measures.downdated(base, new)
+        except Exception:  # noqa: BLE001 - e.g. singular after the update: the re-adjustment says why
+            quick = None
+        if quick is None:
+            return False
+        self._before = (self.excluded, self.snapshot)
+        with param.parameterized.discard_events(self):
+            self.excluded = new
+        self._show(quick, exact=False)
+        self.param.trigger("excluded")
+        self.timings = {**self.timings, "downdate": time.perf_counter() - t0}
+        return True
+
+    def refine(self, excluded) -> bool:
+        """Replace a downdated analysis (:meth:`downdate`) by the exact re-adjustment without
+        ``excluded``, iterated from the downdate's solution; False if the exclusions changed
+        meanwhile or it fails (then the exclusion is undone and ``error`` says why)."""
+        quick = self.analysis
+        if self.exact or quick is None or quick.excluded != frozenset(excluded):
+            return False
+        t0 = time.perf_counter()
+        try:
+            with self._busy():
+                analysis = measures.readjusted(quick, progress=self._iteration)
+        except Cancelled:
+            raise
+        except (BaardaError, np.linalg.LinAlgError) as err:
+            msg = plain(f"Adjustment failed: {err}")
+            old, snap = self._before
+
+            def undo():                        # the exclusion is undone: the analysis before it
+                if self.analysis is quick:
+                    with param.parameterized.discard_events(self):
+                        self.excluded = old
+                    self._show(snap.analysis, exact=True)
+                    self.param.trigger("excluded")
+                self.error = msg
+            self.on_loop(undo)
+            return False
+        if self.jobs.cancelled():
+            return False
+
+        def apply() -> bool:
+            if self.analysis is not quick:
+                return False                   # changed meanwhile
+            self._show(analysis, exact=True)
+            self.timings = {**self.timings, "adjust": time.perf_counter() - t0}
+            return True
+        return bool(self.on_loop(apply))
 
     def reduced_index(self, full) -> np.ndarray:
         """Reduced indices of full observation indices (−1 where excluded)."""
@@ -513,31 +624,30 @@ class State(param.Parameterized):
         self._run_hypotheses()
 
     def _run_hypotheses(self):
+        """The outcome of every hypothesis under the current snapshot (tested once per
+        adjustment, :meth:`baarda.dashboard.snapshot.Snapshot.outcome`)."""
         t0 = time.perf_counter()
-        out = [specs.evaluate(self.problem, self.results, self.reliability, self.kept, spec,
-                              self.problem_index() if self.results is not None else None)
+        snap = self.snapshot
+        out = [snap.outcome(spec) if snap is not None else Outcome("inactive", spec.get("label", ""))
                for spec in self.hypotheses]
-        self.hyp_results = out
+        self.outcomes = out
         self.timings = {**self.timings, "hypotheses": time.perf_counter() - t0}
 
     # -- derived data for the views -------------------------------------------------------------
     def problem_index(self) -> dict:
         """:func:`~baarda.dashboard.geometry.problem_index` of the current problem, built once
         per problem (the problem is immutable)."""
+        snap = self.snapshot
+        if snap is not None and snap.problem is self.problem:
+            return snap.index
         if self._index is None or self._index_for is not self.problem:
             self._index, self._index_for = geometry.problem_index(self.problem), self.problem
         return self._index
 
     def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
         """``(observations, points)`` tables of the current results (:func:`baarda.dashboard.frames.frames`),
-        cached until they change."""
-        if self._frames is not None and self._frames[0] is self.reliability:
-            return self._frames[1], self._frames[2]
-        rel = self.reliability
-        obs, pts = tables.frames(self.problem, self.results, rel, self.kept, self.excluded, self.problem_index(),
-                                 self.robust)
-        self._frames = (rel, obs, pts)
-        return obs, pts
+        made once per snapshot (:attr:`baarda.dashboard.snapshot.Snapshot.frames`)."""
+        return self.snapshot.frames
 
     def external_field(self) -> tuple[str, np.ndarray]:
         """The deformation field the external-reliability map shows: ``(label, shifts)`` of the
@@ -545,7 +655,7 @@ class State(param.Parameterized):
         m = len(self.problem.points.ids)
         k = self.selected_hypothesis
         if self.field_source == "hypothesis" and k is not None and k < len(self.hypotheses):
-            h = self.hyp_results[k] if k < len(self.hyp_results) else None
+            h = self.outcomes[k] if k < len(self.outcomes) else None
             shifts = measures.hypothesis_field(self.results, h, m)
             if np.abs(shifts).max(initial=0.0) > 0:
                 return f"hypothesis {self.hypotheses[k].get('label', k)}", shifts
@@ -569,16 +679,9 @@ class State(param.Parameterized):
         """The core's :class:`~baarda.stats.precision.CoordinateCovariance` in the chosen S-base
         (``sbase``; [] = the problem's datum), or None if the core refuses that base
         (``sbase_error`` says why)."""
-        key = (self.results, tuple(self.sbase))
-        if self._cov is not None and self._cov[0] == key:
-            return self._cov[1]
-        try:
-            cc = precision.covariance(self.results, list(self.sbase) or None)
-            self.sbase_error = ""
-        except (BaardaError, np.linalg.LinAlgError) as err:
-            cc = None
-            self.sbase_error = f"S-base {', '.join(self.sbase)}: {err}"
-        self._cov = (key, cc)
+        cc, err = self.snapshot.covariance(tuple(self.sbase))
+        if self.sbase_error != err:
+            self.sbase_error = err
         return cc
 
     def point_cov2(self) -> np.ndarray:
@@ -624,7 +727,8 @@ class State(param.Parameterized):
 
     @param.depends("robust", watch=True)
     def _robust_done(self):
-        self._frames = None
+        if self.snapshot is not None:
+            self.snapshot = self.snapshot.with_robust(self.robust)
 
     def run_snooping(self) -> bool:
         """Iterative data snooping (:func:`baarda.stats.snooping.iterate`) of the current problem with
@@ -658,11 +762,15 @@ class State(param.Parameterized):
         """Variance components per observation family (:func:`baarda.stats.variance.estimate`), or
         with ``variance_model`` "radial" (or "radial-isotropic") the radial model σ² = a² + b²c²/cos⁴α of a block
         (:func:`baarda.stats.variance.radial_components`, :func:`~baarda.stats.variance.estimate_components`,
-        F80 §2.1) started at θ0 = (σ²/2, σ²/2, 1), σ² the median a priori image variance."""
+        F80 §2.1) started at θ0 = (σ²/2, σ²/2, 1), σ² the median a priori image variance; the
+        core's :meth:`baarda.analysis.Analysis.variance_components`, families merged as
+        ``merge_groups`` says (``baarda analyze --merge-groups``)."""
+        analysis, model, merge = self.analysis, self.variance_model, self.merge_groups.strip() or None
         try:
             with self._busy():
                 problem = self.results.problem
-                vc, est = measures.variance_components(problem, self.options(), self.variance_model)
+                got = analysis.variance_components(model, merge if model == "families" else None)
+                vc, est = (got, None) if model == "families" else (None, got)
                 self._check_cancel()
         except (BaardaError, np.linalg.LinAlgError) as err:
             self.param.update(variance=None, components=None,
@@ -733,7 +841,4 @@ class State(param.Parameterized):
     # -- summary --------------------------------------------------------------------------------
     def summary(self) -> dict:
         """The numbers of the summary header, taken from the core's results."""
-        s = core_summary(self.results, self.reliability)
-        obs, pts = self.frames()
-        s.update(tables.summary_counts(obs, pts, self.excluded, geometry.images(self.problem)))
-        return s
+        return dict(self.snapshot.summary)

@@ -31,7 +31,9 @@ observations), and the MDB ratio √T / δ0(q): the length of ∇ŝ over the low
 own direction (F80 eq. 13, ∇0s = s δ0 / √(sᵀ W s) with s = ∇ŝ and ∇ŝᵀ W ∇ŝ = T); for one
 observation |∇ŝ| / MDB = |w| / δ0. Hypotheses whose statistics are (near-)perfectly correlated
 (|ρ| ≥ :data:`baarda.stats.separability.THRESHOLD`; F80 §7.4, M84 §3.3) cannot be told apart by
-the data: each row names its twins.
+the data: each row names its twins; two group or transfer hypotheses that share only one
+direction (largest canonical correlation ≥ the threshold, smallest below it) are named "partly
+inseparable" as ``baarda test`` names them (:func:`baarda.stats.separability.partly_inseparable`).
 
 The dashboard computes no statistic here: every T (of a hypothesis alone or with the suspects
 above it) is the core's test (:meth:`baarda.stats.reliability.Reliability.test`); the list orders,
@@ -410,6 +412,13 @@ def _mark_twins(state, rows: list[dict]) -> None:
             members = [multi[int(m)] for m in grp.members]
             for r in members:
                 r["_twins"] += [f"{o['what']} {o['hypothesis']}" for o in members if o is not r]
+        # partly inseparable (F80 §7.4), named as `baarda test` names them: one direction of
+        # their test spaces shared (largest canonical correlation ≥ 0.99), the others not
+        for pair in separability.partly_inseparable(adj, [(lab, r["_H"]) for lab, r in zip(labels, multi)]):
+            a, b = (multi[int(m)] for m in pair.members)
+            corr = f"canonical correlations {pair.largest:.2f} … {pair.smallest:.2f}"
+            a["_twins"].append(f"partly inseparable from {b['what']} {b['hypothesis']} ({corr})")
+            b["_twins"].append(f"partly inseparable from {a['what']} {a['hypothesis']} ({corr})")
 
 
 def suspects(state) -> pd.DataFrame:

@@ -18,6 +18,7 @@ from baarda.model.problem import Covariance
 from baarda.solve.linalg import SPDFactor
 from baarda.simulate import simulate_block
 from baarda.stats import distributions, risk
+from baarda.stats.reliability import reliability_of
 
 from tests.networks import grid_network, problem
 
@@ -75,7 +76,7 @@ def test_hypothesis_error_carries_the_sizes():
     adj = adjust(problem(grid_network(3, 3, noise_seed=1)))
     H = sp.csc_matrix(np.ones((adj.n + 1, 1)))
     with pytest.raises(HypothesisError) as info:
-        adj.test(H)
+        reliability_of(adj).test(H)
     assert (info.value.rows, info.value.n) == (adj.n + 1, adj.n)
     assert str(info.value) == f"H has {adj.n + 1} rows for {adj.n} observations"
 

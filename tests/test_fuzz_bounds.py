@@ -223,3 +223,68 @@ def test_ceiling_context_is_tighter_only():
         with ceiling(10 ** 12):
             assert max_input_bytes() == 1000
     assert max_input_bytes() == base
+
+
+# small files read beside an input (a truth file, a hypothesis file, a simulation recipe): at most
+# BAARDA_MAX_SMALL_BYTES (16 MiB) decompressed, so the default ceiling is cheap to reach
+LEVELLING = VALID / "levelling-valid.json"
+SMALL_FILES = {
+    # name: (argv, file name, compression, head, fill)
+    "truth-beside-bz2": (["analyze", "a.json"], "a.truth.json", "bz2",
+                         b'{"format": "baarda-truth", "title": "', b"a"),
+    "truth-given-xz": (["analyze", "a.json", "--truth", "t.json.xz"], "t.json.xz", "xz",
+                       b'{"format": "baarda-truth", "errors": [{"kind": "', b"a"),
+    "hypothesis-lines-gz": (["test", "a.json", "-H", "file:h.txt"], "h.txt", "gz", b"", b"0 0 1\n"),
+    "recipe-bz2": (["simulate", "s.json", "--recipe", "r.json.bz2"], "r.json.bz2", "bz2", b'{"title": "', b"a"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SMALL_FILES))
+def test_small_file_bombs_refused_at_the_default_ceiling(tmp_path, name):
+    """A 2 GB (64 MB of lines) truth, hypothesis or recipe file in a few KB: refused at 16 MiB of decompressed
+    text, one line naming the file and the setting, within the child's 4 GiB and seconds."""
+    argv, fname, kind, head, fill = SMALL_FILES[name]
+    data = bomb(kind, head, fill, 2 << 30 if len(fill) == 1 else 64 << 20)
+    assert len(data) < 1 << 20
+    (tmp_path / "a.json").write_bytes(LEVELLING.read_bytes())
+    (tmp_path / fname).write_bytes(data)
+    env = {k: "" for k in (*SMALL, "BAARDA_MAX_SMALL_BYTES")}
+    err = assert_refused(argv, env=env, cwd=tmp_path,
+                         contains="more than 16 MiB of decompressed content, the ceiling (BAARDA_MAX_SMALL_BYTES)")
+    assert err.startswith(f"baarda: error: {fname}:0: "), err
+
+
+@pytest.mark.parametrize("kind", ["truth", "hypothesis", "recipe"])
+def test_small_file_over_its_ceiling_plain(tmp_path, kind, monkeypatch, capsys):
+    """An uncompressed file over BAARDA_MAX_SMALL_BYTES (here 1,000 bytes) is refused as it is read."""
+    from baarda.cli import main
+
+    (tmp_path / "a.json").write_bytes(LEVELLING.read_bytes())
+    (tmp_path / "f.txt").write_bytes(b" " * 5000)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("BAARDA_MAX_SMALL_BYTES", "1000")
+    argv = {"truth": ["analyze", "a.json", "--truth", "f.txt"], "hypothesis": ["test", "a.json", "-H", "file:f.txt"],
+            "recipe": ["simulate", "s.json", "--recipe", "f.txt"]}[kind]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err == ("baarda: error: f.txt:0: more than 1,000 bytes of content, the ceiling "
+                   "(BAARDA_MAX_SMALL_BYTES)\n"), err
+    assert not (tmp_path / "s.json").exists()
+
+
+def test_small_files_may_come_compressed(tmp_path):
+    """The bound reading is the inputs' own: a gzip hypothesis file reads as its text."""
+    (tmp_path / "a.json").write_bytes(LEVELLING.read_bytes())
+    (tmp_path / "h.txt.gz").write_bytes(gzip.compress(b"0 0 1\n"))
+    code, err, _ = run_child(["test", "a.json", "-H", "file:h.txt.gz"], cwd=tmp_path)
+    assert code == 0, err
+
+
+def test_small_ceiling_is_at_most_the_document_ceiling(monkeypatch):
+    from baarda.io.source import MAX_SMALL_BYTES, max_small_bytes
+
+    monkeypatch.delenv("BAARDA_MAX_SMALL_BYTES", raising=False)
+    monkeypatch.setenv("BAARDA_MAX_DOCUMENT_BYTES", "5000")
+    assert MAX_SMALL_BYTES == 16 << 20 and max_small_bytes() == 5000
+    monkeypatch.setenv("BAARDA_MAX_SMALL_BYTES", "300")
+    assert max_small_bytes() == 300

@@ -11,6 +11,7 @@ import pytest
 from baarda.adjust import Options, adjust
 from baarda.exclusion import exclude
 from baarda.model.problem import subset
+from baarda.stats.reliability import reliability_of
 
 from tests.networks import grid_network, problem, vector_network
 from tests.oracle import dense, normal_inverse, nuisance_share, redundancy, reduced_design
@@ -116,7 +117,7 @@ def test_correlated_component_with_negative_r_is_tested():
     d = dense(adj)
     pcp = np.diag(d.P @ d.Cvv @ d.P)
     assert adj.w[i] == pytest.approx((d.P @ d.v)[i] / np.sqrt(pcp[i]), rel=1e-8)
-    assert np.isfinite(adj.mdb[i])
+    assert np.isfinite(reliability_of(adj).mdb[i])
     # the rule's scale: P_ii, so that for an uncorrelated observation it reads r_i ≤ R_EPS
     np.testing.assert_allclose(adj.weight_diagonal, np.diag(d.P), rtol=1e-12)
 

@@ -20,7 +20,7 @@ from .bundler import looks_like_bundler, read_bundler
 from .colmap import find_file, read_colmap
 from .gama import read_gama
 from .native import read_native
-from .source import head as read_head, logical_path
+from .source import head as read_head, logical_path, read_text
 
 FORMATS = ("auto", "gama", "native", "bal", "bundler", "colmap")
 SFM_FORMATS = ("bal", "bundler", "colmap")
@@ -107,13 +107,8 @@ def read_truth(path) -> dict | None:
     ``rows`` (observation indices) and optional ``class`` (text) and ``size_sigma`` (a number)."""
     if path is None:
         return None
-    p = Path(path)
     try:
-        doc = json.loads(p.read_bytes().decode("utf-8"))
-    except OSError as err:
-        raise InputError(path, 0, f"cannot read: {err.strerror}") from None
-    except UnicodeDecodeError as err:
-        raise InputError(path, 0, f"not UTF-8 text (byte {err.start})") from None
+        doc = json.loads(read_text(path, small=True))     # at most BAARDA_MAX_SMALL_BYTES, decompressed
     except json.JSONDecodeError as err:
         raise InputError(path, err.lineno, f"JSON syntax error: {err.msg}") from None
     except RecursionError:

@@ -16,6 +16,7 @@ import numpy as np
 from .. import truth
 from ..errors import BaardaError
 from ..stats import analyses
+from ..stats.reliability import reliability_of
 from ..text import number, printable, printable_lines
 
 
@@ -45,7 +46,7 @@ def risk_lines(r, adj, top: int) -> list[str]:
     out = [printable(f"  risk minimisation (M84 §3.3; p = {r.p:g}, L1 = {r.L1:g}, L2 = {r.L2:g}, tolerance "
                      f"{r.tolerance}): C_i from {number(r.C[fin].min() if fin.any() else np.nan, '.3g')} to "
                      f"{number(r.C[fin].max() if fin.any() else np.nan, '.3g')}; {int(r.rejected.sum())} rejected "
-                     f"(|w| > C_i), {int(adj.rejected.sum())} at α0")]
+                     f"(|w| > C_i), {int(reliability_of(adj).rejected.sum())} at α0")]
     info = adj.problem.info
     for i in np.argsort(-np.nan_to_num(r.r_C), kind="stable")[:top]:
         out.append(f"    #{i:<5d} {info.kind[i]:<15s} {_ids(info, i):<40s} λtol = {number(r.lam_tol[i], '9.3g')}  "
@@ -93,14 +94,19 @@ def robust_lines(rob) -> list[str]:
                    f"{base} ({sp['class']}), T = {number(sp['T'], '.1f')}, robust weight {sp['weight']:.3g}")
         if sp.get("kept_in"):
             out.append(printable(f"           {sp['note']}"))
+        if sp.get("inseparable_from"):
+            twins = "; ".join(" ".join(f"{a}={b}" for a, b in alt["ids"].items() if a != "component")
+                              + f" (canonical correlations {', '.join(f'{c:.2f}' for c in alt['canonical_correlations'])})"
+                              for alt in sp["inseparable_from"])
+            out.append(printable(f"           not separable along a shared direction (F80 §7.4) from: {twins}"))
     for fl in rob.floored:
         out.append(f"    weight floor raised to {fl['floor']:.0e} for {printable(', '.join(fl['unknowns'])) or 'all'} "
                    f"(down-weighted, they would leave unknowns undetermined)")
     if rob.final is not None:
-        out.append(f"    least squares without them: {int(rob.final.rejected.sum())} rejected by data snooping, "
+        out.append(f"    least squares without them: {int(reliability_of(rob.final).rejected.sum())} rejected by data snooping, "
                    f"σ̂0 = {number(rob.final.sigma0_post)}")
         if not rob.cleaned["complete"]:
-            g = rob.final.global_test
+            g = reliability_of(rob.final).global_test
             out.append(f"    the robust step did NOT clean the block: without its suspects least squares still fails "
                        f"the global test (vᵀPv = {number(g['statistic'])} > {number(g['upper'])}, σ̂0 = "
                        f"{number(rob.final.sigma0_post)}): gross errors remain, or σ0 a priori is too optimistic")
@@ -128,8 +134,8 @@ def variance_lines(analysis, kind: str, merge: str | None = None) -> list[str]:
         out.append(printable(f"    {d['group']:<20s} σ̂²/σ² = {number(d['factor'], '8.4f')} ± "
                              f"{number(d['std_error'], '.4f')}   redundancy {d['redundancy']:.2f}"))
     va, adj = est.adjustment, analysis.adjustment
-    out.append(f"    with these components: {int(va.rejected.sum())} observation(s) rejected "
-               f"(before: {int(adj.rejected.sum())}), global test {'passed' if va.global_test['passed'] else 'FAILED'}")
+    out.append(f"    with these components: {int(reliability_of(va).rejected.sum())} observation(s) rejected "
+               f"(before: {int(reliability_of(adj).rejected.sum())}), global test {'passed' if reliability_of(va).global_test['passed'] else 'FAILED'}")
     return out
 
 
@@ -152,7 +158,7 @@ def check_point_lines(rep: dict, top: int = 20) -> list[str]:
 
 
 def strip_test_lines(tests: list) -> list[str]:
-    """The tests of a shift of each strip's GNSS centres (:func:`baarda.stats.hypotheses.strip_tests`)."""
+    """The tests of a shift of each strip's GNSS centres (:func:`baarda.stats.gnss.strip_tests`)."""
     out = ["  GNSS strip tests (a shift common to a strip's centres, F80 eq. 10-12):"]
     for t in tests:
         nab = ", ".join(f"{number(a, '+.3g')} ± {number(b, '.2g')}" for a, b in zip(t["nabla"], t["nabla_sigma"]))

@@ -29,6 +29,7 @@ import scipy.sparse as sp
 from baarda.model.network import east_north_matrix
 
 from .output import write_text
+from ..stats.reliability import reliability_of
 
 
 def _num(x):
@@ -65,7 +66,8 @@ def features(adj) -> list[dict]:
     xyz = np.nan_to_num(adj.coordinates)
     en = _east_north(problem, xyz)
     sig = adj.point_sigma
-    r, mdb, ext, w, rej = adj.r, adj.mdb, adj.external, np.abs(adj.w), adj.rejected
+    rel = reliability_of(adj)
+    r, mdb, ext, w, rej = adj.r, rel.mdb, rel.external, np.abs(adj.w), rel.rejected
     units = problem.info.unit
     out = []
     for k, pid in enumerate(pts.ids):

@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, UsageError
+from .source import read_text
 
 FIELDS = ("observation", "column", "value")
 
@@ -30,12 +31,7 @@ def read_hypothesis(path, n: int) -> sp.csc_matrix:
     """H (n × q) of the file ``path`` for a problem of ``n`` observations; InputError naming
     the file, line and field at fault."""
     path = Path(path)
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except OSError as err:
-        raise InputError(path, 0, f"cannot read the hypothesis file: {err.strerror or err}") from None
-    except UnicodeDecodeError as err:
-        raise InputError(path, 0, f"the hypothesis file is not UTF-8 text (byte {err.start})") from None
+    text = read_text(path, small=True)      # at most BAARDA_MAX_SMALL_BYTES, decompressed; UTF-8
     rows, cols, vals, seen = [], [], [], {}
     for lineno, raw in enumerate(text.splitlines(), 1):
         line = raw.split("#", 1)[0].replace(",", " ").split()

@@ -18,7 +18,8 @@ import numpy as np
 from ..datum import far_points
 from ..model.bundle import check_points, has_check_points
 from ..stats.ap_tests import ap_tests
-from ..stats.hypotheses import strip_tests
+from ..stats.gnss import strip_tests
+from ..stats.reliability import reliability_of
 from ..text import number, printable
 from . import columns as columns_
 from .output import OutputError, atomic_write, csv_cell
@@ -34,9 +35,9 @@ def _num(x):
 
 
 def summary(adj, reliability=None) -> dict:
-    """The summary numbers of ``adj``; the tests under ``reliability`` (default ``adj.reliability``,
+    """The summary numbers of ``adj``; the tests under ``reliability`` (default ``reliability_of(adj)``,
     the policy of the adjustment's options)."""
-    rel = adj.reliability if reliability is None else reliability
+    rel = reliability_of(adj) if reliability is None else reliability
     p = adj.problem
     g = rel.global_test
     return {
@@ -174,7 +175,7 @@ class Records(Sequence):
 def observations(adj, reliability=None) -> Records:
     """One record per observation; ``rejected`` by the statistic of ``reliability``'s policy (w
     or τ), ``rejected_w`` and ``rejected_tau`` by each."""
-    rel = adj.reliability if reliability is None else reliability
+    rel = reliability_of(adj) if reliability is None else reliability
     info = adj.problem.info
     sig = adj.problem.cov.sigma()
     r, w, tau, mdb, ext = adj.r, adj.w, adj.tau, rel.mdb, rel.external
@@ -307,7 +308,7 @@ def points(adj) -> Records:
 
 
 def groups(adj, reliability=None) -> Records:
-    rel = adj.reliability if reliability is None else reliability
+    rel = reliability_of(adj) if reliability is None else reliability
     gs = rel.groups
 
     def make(i):
@@ -380,8 +381,8 @@ def risk_fields(r, n: int) -> list:
 
 def to_dict(adj, reliability=None) -> dict:
     """The whole result document (schema version ``SCHEMA_VERSION``), the tests under
-    ``reliability`` (default ``adj.reliability``)."""
-    rel = adj.reliability if reliability is None else reliability
+    ``reliability`` (default ``reliability_of(adj)``)."""
+    rel = reliability_of(adj) if reliability is None else reliability
     doc = {"schema": f"baarda-analysis/{SCHEMA_VERSION}", "summary": summary(adj, rel),
            "observations": observations(adj, rel), "points": points(adj), "groups": groups(adj, rel)}
     if adj.problem.notes.ap_groups:
@@ -545,8 +546,8 @@ def _csv_from_fields(fields, n: int, path, mark: dict) -> None:
 
 def text_summary(adj, top: int = 8, reliability=None) -> str:
     """A readable summary: global test, worst w-tests, weakest r_i, largest δ̄0 (the tests under
-    ``reliability``, default ``adj.reliability``)."""
-    rel = adj.reliability if reliability is None else reliability
+    ``reliability``, default ``reliability_of(adj)``)."""
+    rel = reliability_of(adj) if reliability is None else reliability
     s = summary(adj, rel)
     g = s["global_test"]
     info = adj.problem.info

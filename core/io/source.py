@@ -55,6 +55,9 @@ _CORRUPT = (OSError, EOFError, lzma.LZMAError, zlib.error)
 MAX_INPUT_BYTES = 4 << 30
 #: default ceiling of content read as a whole or through a pipe, bytes (BAARDA_MAX_DOCUMENT_BYTES)
 MAX_DOCUMENT_BYTES = 1 << 30
+#: default ceiling of a small file read beside an input (a truth file, a hypothesis file, a
+#: simulation recipe), bytes (BAARDA_MAX_SMALL_BYTES)
+MAX_SMALL_BYTES = 16 << 20
 #: the longest run without whitespace in number text (no number is longer)
 MAX_TOKEN_BYTES = 1 << 20
 #: the longest line of number text with comments (a COLMAP points3D.txt line)
@@ -89,6 +92,13 @@ def max_document_bytes() -> int:
     """The ceiling of content read as a whole or through a pipe: ``BAARDA_MAX_DOCUMENT_BYTES``
     (default :data:`MAX_DOCUMENT_BYTES`), at most :func:`max_input_bytes`."""
     return min(_env_bytes("BAARDA_MAX_DOCUMENT_BYTES", MAX_DOCUMENT_BYTES), max_input_bytes())
+
+
+def max_small_bytes() -> int:
+    """The ceiling of a small file read beside an input (a truth, hypothesis or recipe file):
+    ``BAARDA_MAX_SMALL_BYTES`` (default :data:`MAX_SMALL_BYTES`), at most :func:`max_document_bytes`.
+    Such a file is parsed into Python objects, tens of bytes for each byte of text."""
+    return min(_env_bytes("BAARDA_MAX_SMALL_BYTES", MAX_SMALL_BYTES), max_document_bytes())
 
 
 @contextlib.contextmanager
@@ -247,11 +257,13 @@ class Source(io.RawIOBase):
         super().close()
 
 
-def open_binary(path, whole: bool = False) -> io.BufferedReader:
+def open_binary(path, whole: bool | str = False) -> io.BufferedReader:
     """The content of ``path`` as a buffered binary stream, decompressed (module docstring).
 
-    whole: the content is held as a whole (a document): at most :func:`max_document_bytes`."""
-    limit, name = ((max_document_bytes(), "BAARDA_MAX_DOCUMENT_BYTES") if whole
+    whole: the content is held as a whole (a document): at most :func:`max_document_bytes`;
+    ``"small"``: a small file beside an input, at most :func:`max_small_bytes`."""
+    limit, name = ((max_small_bytes(), "BAARDA_MAX_SMALL_BYTES") if whole == "small"
+                   else (max_document_bytes(), "BAARDA_MAX_DOCUMENT_BYTES") if whole
                    else (max_input_bytes(), "BAARDA_MAX_INPUT_BYTES"))
     src = Source(path, compression(path), limit=limit, limit_name=name)
     buf = io.BufferedReader(src, buffer_size=1 << 20)
@@ -259,10 +271,11 @@ def open_binary(path, whole: bool = False) -> io.BufferedReader:
     return buf
 
 
-def read_bytes(path) -> bytes:
-    """The whole (decompressed) content of ``path``, at most :func:`max_document_bytes`."""
+def read_bytes(path, small: bool = False) -> bytes:
+    """The whole (decompressed) content of ``path``, at most :func:`max_document_bytes` (small:
+    at most :func:`max_small_bytes`)."""
     pieces = []
-    with open_binary(path, whole=True) as f:
+    with open_binary(path, whole="small" if small else True) as f:
         while True:
             piece = f.read(1 << 22)
             if not piece:
@@ -286,9 +299,9 @@ def decode(path, data: bytes, first_line: int = 1) -> str:
         raise InputError(path, line, f"not UTF-8 text (byte {err.start})") from None
 
 
-def read_text(path) -> str:
-    """The (decompressed) text of ``path`` as UTF-8, or InputError."""
-    return decode(path, read_bytes(path))
+def read_text(path, small: bool = False) -> str:
+    """The (decompressed) text of ``path`` as UTF-8, or InputError (small: :func:`read_bytes`)."""
+    return decode(path, read_bytes(path, small=small))
 
 
 # --------------------------------------------------------------------------------------------

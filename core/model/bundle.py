@@ -367,6 +367,16 @@ def control_rows(problem, point: str) -> np.ndarray:
     return np.array(rows, dtype=np.int64)
 
 
+def gnss_rows(problem, image: str) -> np.ndarray:
+    """Rows (x, y, z) of the GNSS observation of ``image``'s projection centre."""
+    problem = problem_of(problem)
+    rows = [i for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids))
+            if k.startswith("gnss-") and str(ids.get("image")) == str(image)]
+    if not rows:
+        raise NotFoundError("GNSS centre", {"image": image}, f"no GNSS observation of image {image}")
+    return np.array(rows, dtype=np.int64)
+
+
 # --------------------------------------------------------------------------------------------
 # check points
 # --------------------------------------------------------------------------------------------

@@ -31,13 +31,38 @@ from .rotation import R_opk_derivatives, opk_from_R
 
 
 def angles_of(R: np.ndarray) -> np.ndarray:
-    """(ω, φ, κ) of rotation matrices R (..., 3, 3) built as R_ω R_φ R_κ; (..., 3) radians
-    (:func:`baarda.observations.rotation.opk_from_R`, stacked)."""
+    """The angles (ω, φ, κ) of rotation matrices built as R = R_ω R_φ R_κ (K07, the IMU's attitude).
+
+    :func:`baarda.observations.rotation.opk_from_R`, stacked.
+
+    Parameters
+    ----------
+    R : numpy.ndarray
+        (..., 3, 3) rotation matrices, dimensionless.
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3) angles ω, φ, κ in radians.
+    """
     return np.stack(opk_from_R(R), axis=-1)
 
 
 def angle_derivatives(R: np.ndarray, dR: np.ndarray) -> np.ndarray:
-    """d(ω, φ, κ) for a change dR (..., 3, 3) of R (..., 3, 3): (..., 3)."""
+    """The change d(ω, φ, κ) of the angles of R for a change dR of R (the IMU Jacobian's chain rule).
+
+    Parameters
+    ----------
+    R : numpy.ndarray
+        (..., 3, 3) rotation matrices R_ω R_φ R_κ, dimensionless.
+    dR : numpy.ndarray
+        (..., 3, 3) their changes (derivatives with respect to one unknown).
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3) dω, dφ, dκ in radians per unit of that unknown.
+    """
     dw = (-R[..., 2, 2] * dR[..., 1, 2] + R[..., 1, 2] * dR[..., 2, 2]) / (R[..., 1, 2] ** 2 + R[..., 2, 2] ** 2)
     dp = dR[..., 0, 2] / np.sqrt(np.maximum(1.0 - R[..., 0, 2] ** 2, 1e-300))
     dk = (-R[..., 0, 0] * dR[..., 0, 1] + R[..., 0, 1] * dR[..., 0, 0]) / (R[..., 0, 1] ** 2 + R[..., 0, 0] ** 2)

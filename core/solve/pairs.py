@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..model.problem import by_size
+from ..model.problem import by_size, size_groups
 from .linalg import SPDFactor
 
 
@@ -59,3 +59,13 @@ def cluster_pairs(cov) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         J.append(b.ravel())
         Cl.append(np.repeat(clusters, m * m))
     return np.concatenate(I), np.concatenate(J), np.concatenate(Cl)
+
+
+def cluster_blocks(cov, values):
+    """Split pair values laid out by :func:`cluster_pairs` into stacks (k, m, m) per size."""
+    pos = 0
+    for m, clusters, members, C in size_groups(cov):
+        k = clusters.size
+        block = values[pos:pos + k * m * m].reshape(k, m, m)
+        pos += k * m * m
+        yield m, members, C, block

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from ..lazy import lazy
 from . import hypotheses, precision, risk, variance
+from .reliability import reliability_of
 from ..errors import BaardaError
 
 sps = lazy("scipy.stats")                # imported when first used (start-up)
@@ -334,7 +335,7 @@ def hypothesis_analysis(adj, H, label: str = "", reliability=None) -> dict:
     label : str
         Name of the hypothesis, echoed in the result.
     reliability : baarda.stats.reliability.Reliability, optional
-        Its test policy (default ``adj.reliability``).
+        Its test policy (default :func:`~baarda.stats.reliability.reliability_of` ``(adj)``).
 
     Returns
     -------
@@ -343,7 +344,7 @@ def hypothesis_analysis(adj, H, label: str = "", reliability=None) -> dict:
         the observations; the deformation in the units of the coordinates (metres); ``rows`` the
         observations H acts on.
     """
-    rel = adj.reliability if reliability is None else reliability
+    rel = reliability_of(adj) if reliability is None else reliability
     h = rel.test(H, label=label)
     decide_R = rel.policy.sigma0 == "aposteriori"
     seen = np.isfinite(h.ellipse_axes)

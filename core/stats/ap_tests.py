@@ -10,6 +10,7 @@ import scipy.linalg as la
 
 from ..errors import NotFoundError
 from .hypotheses import coordinate_norm
+from .reliability import policy_of
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,7 +72,7 @@ def ap_tests(adj, policy=None) -> list[dict]:
     adj : baarda.result.Adjustment
         The adjustment of a bundle block with additional parameters.
     policy : baarda.stats.policy.TestPolicy, optional
-        α0, β0 and the B-method (default ``adj.policy``).
+        α0, β0 and the B-method (default :func:`~baarda.stats.reliability.policy_of` ``(adj)``).
 
     Returns
     -------
@@ -104,7 +105,7 @@ def ap_test(adj, camera: str, group: str, policy=None) -> APTest:
     group : str
         AP group name of that camera (a key of ``problem.notes.ap_groups`` is ``camera:group``).
     policy : baarda.stats.policy.TestPolicy, optional
-        Gives α_q, δ0 and the critical value (default ``adj.policy``).
+        Gives α_q, δ0 and the critical value (default :func:`~baarda.stats.reliability.policy_of` ``(adj)``).
 
     Returns
     -------
@@ -117,7 +118,7 @@ def ap_test(adj, camera: str, group: str, policy=None) -> APTest:
     baarda.errors.NotFoundError
         When a parameter of the group is not estimated.
     """
-    policy = adj.policy if policy is None else policy
+    policy = policy_of(adj) if policy is None else policy
     problem = adj.problem
     labels = problem.notes.ap_groups[f"{camera}:{group}"]
     # the group's parameters found by one pass over the labels (no array of every label)

@@ -31,10 +31,11 @@ import scipy.linalg as la
 import scipy.sparse as sp
 
 from ..errors import HypothesisError, NotFoundError
-from ..model.bundle import control_rows, image_rows, problem_of
+from ..model.bundle import control_rows, gnss_rows, image_rows, problem_of
 from ..model.problem import image_point_index
 from ..observations.collinearity import AP_GROUPS, BASES, CollinearitySet
 from ..solve.linalg import SPDFactor
+from .policy import TestPolicy
 
 
 #: slack of the bound T_j ≤ vᵀPv of :func:`counted_directions` (relative, absolute)
@@ -207,7 +208,7 @@ def test(adj, H, label: str = "", policy=None) -> HypothesisTest:
     label : str
         Name of the hypothesis.
     policy : baarda.stats.policy.TestPolicy, optional
-        Gives α_q, the critical values and δ0 (the B-method rule); default ``adj.policy``.
+        Gives α_q, the critical values and δ0 (the B-method rule); default the policy of ``adj.options``.
 
     Returns
     -------
@@ -241,7 +242,7 @@ def test(adj, H, label: str = "", policy=None) -> HypothesisTest:
     nabla = -Winv @ g
     T = float(Tj.sum())
     R = float((T / q) / ((vPv - T) / (dof - q))) if (q and dof > q and vPv > T) else float("nan")
-    policy = adj.policy if policy is None else policy
+    policy = TestPolicy.from_options(adj.options) if policy is None else policy
     alpha = policy.alpha(q)
     d0 = policy.delta0(q)
     crit_T = policy.critical_T(q)
@@ -457,54 +458,6 @@ def h_control_point(problem, point: str):
     """
     problem = problem_of(problem)
     return selection(problem.n, control_rows(problem, point))
-
-
-def gnss_rows(problem, image: str) -> np.ndarray:
-    """Rows (x, y, z) of the GNSS observation of ``image``'s projection centre."""
-    problem = problem_of(problem)
-    rows = [i for i, (k, ids) in enumerate(zip(problem.info.kind, problem.info.ids))
-            if k.startswith("gnss-") and str(ids.get("image")) == str(image)]
-    if not rows:
-        raise NotFoundError("GNSS centre", {"image": image}, f"no GNSS observation of image {image}")
-    return np.array(rows, dtype=np.int64)
-
-
-def h_gnss_centre(problem, image: str):
-    """H (n × 3) of a 3-D error in the GNSS position of one projection centre (F80 §2.2, q = 3)."""
-    problem = problem_of(problem)
-    return selection(problem.n, gnss_rows(problem, image))
-
-
-def strip_tests(adj, reliability) -> list[dict]:
-    """The test of a shift of each strip's GNSS positions (a cycle slip; F80 §2.2, eq. 10-12,
-    H = :func:`h_gnss_strip`), for the strips whose shift the model does not estimate (those have
-    their AP-group test, F80 §7.2). One dict per strip: ``strip``, ``images``, ``q``, ``T``,
-    ``critical``, ``R``, ``critical_R``, ``rejected`` (on T, or on R when σ0 is a posteriori),
-    ``nabla``, ``nabla_sigma`` (m)."""
-    problem = adj.problem
-    strips: dict = {}
-    for k, ids in zip(problem.info.kind, problem.info.ids):
-        if k == "gnss-x" and "strip" in ids:
-            strips.setdefault(str(ids["strip"]), []).append(str(ids["image"]))
-    out = []
-    for s, images in strips.items():
-        if f"{s}:gnss-shift" in problem.notes.ap_groups:
-            continue
-        h = reliability.test(h_gnss_strip(problem, images), label=f"GNSS strip {s}")
-        rejected = h.rejected_R if reliability.policy.sigma0 == "aposteriori" else h.rejected_T
-        out.append({"strip": s, "images": images, "q": int(h.q), "T": float(h.T), "critical": float(h.critical_T),
-                    "R": float(h.R), "critical_R": float(h.critical_R), "rejected": bool(rejected),
-                    "nabla": h.nabla.tolist(), "nabla_sigma": h.nabla_sigma.tolist()})
-    return out
-
-
-def h_gnss_strip(problem, images) -> sp.csc_matrix:
-    """H (n × 3) of one 3-D shift common to the GNSS positions of ``images`` (a strip's cycle
-    slip, F80 §2.2: H = (0 … I₃ … I₃ … 0)ᵀ). Not testable where the model estimates that strip's
-    shift (H then lies in the column space of A): the shift's AP-group test is its test (§7.2)."""
-    problem = problem_of(problem)
-    rows = np.array([gnss_rows(problem, im) for im in images], dtype=np.int64).reshape(-1, 3)
-    return common_error(problem.n, [rows[:, a] for a in range(3)])
 
 
 def h_point_transfer(problem, point: str, images) -> sp.csc_matrix:

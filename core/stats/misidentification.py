@@ -44,6 +44,7 @@ from ..errors import BaardaError
 from ..model.bundle import image_rows
 from ..model.problem import subset
 from .hypotheses import HypothesisTest, h_exchanged, test
+from .reliability import policy_of
 
 #: errors up to this many σ are "small" (R84 §6): the linearised test is trusted
 LINEAR_LIMIT_SIGMA = 50.0
@@ -164,7 +165,7 @@ def exchange_test(adj, image: str, point_a: str, point_b: str, both: bool = True
     both : bool
         An exchange (both measurements swapped) rather than a misidentification of a alone.
     policy : baarda.stats.policy.TestPolicy, optional
-        Gives the critical value (default ``adj.policy``).
+        Gives the critical value (default :func:`~baarda.stats.reliability.policy_of` ``(adj)``).
 
     Returns
     -------
@@ -172,7 +173,7 @@ def exchange_test(adj, image: str, point_a: str, point_b: str, both: bool = True
         T, ŝ, the hypothesised error in multiples of σ and the critical value (dimensionless);
         Ω0, Ω1 (vᵀPv, σ0 absorbed, dimensionless).
     """
-    policy = adj.policy if policy is None else policy
+    policy = policy_of(adj) if policy is None else policy
     ra, rb = image_rows(adj.problem, image, point_a), image_rows(adj.problem, image, point_b)
     H = h_exchanged(adj, image, point_a, point_b, both=both)
     rows = H.indices

@@ -23,6 +23,7 @@ from functools import cached_property
 import numpy as np
 
 from . import hypotheses
+from .groups import group_statistics
 from .policy import TestPolicy
 from ..model.problem import LazySequence
 
@@ -232,11 +233,11 @@ class Reliability:
     @cached_property
     def groups(self) -> GroupTests:
         """Multi-dimensional tests of the problem's observation groups (vectors, image points):
-        T, q, ∇ŝ, σ∇ŝ and the eigenvalues of W_s from :attr:`baarda.result.Adjustment.group_statistics`;
+        T, q, ∇ŝ, σ∇ŝ and the eigenvalues of W_s from :func:`baarda.stats.groups.group_statistics`;
         α_q, the critical values χ²_{1−α_q}(q) of T and F_{1−α_q}(q, r − q) of
         R = (T/q)/((vᵀPv − T)/(r − q)), δ0(q), the lower-bound semi-axes δ0/√λ(W_s) and
         δ0′max = δ0 √μmax from the policy (Förstner 1980, eq. 10-14)."""
-        g = self.result.group_statistics
+        g = group_statistics(self.result)
         if g is None:
             return GroupTests.empty()
         keys, ptr, members, T, q = g.keys, g.ptr, g.members, g.T, g.q
@@ -255,3 +256,52 @@ class Reliability:
         """Multi-dimensional test of a hypothesis matrix H (n × q) under the policy
         (:func:`baarda.stats.hypotheses.test`; Förstner 1980, eq. 10-15)."""
         return hypotheses.test(self.result, H, label=label, policy=self.policy)
+
+
+def policy_of(adj) -> TestPolicy:
+    """The test policy that an adjustment's options name (:meth:`TestPolicy.from_options`).
+
+    The result of :func:`baarda.adjust.adjust` knows no policy; a caller that wants the decisions
+    of the options it adjusted with gets them here, made once per result (``adj.memo``).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        An adjustment result.
+
+    Returns
+    -------
+    TestPolicy
+        α0, β0, B-method, σ0 of the decisions and global test of ``adj.options``.
+    """
+    policy = adj.memo.get("policy")
+    if policy is None:
+        policy = adj.memo["policy"] = TestPolicy.from_options(adj.options)
+    return policy
+
+
+def reliability_of(adj, policy: TestPolicy | None = None) -> "Reliability":
+    """The tests and reliability measures of an adjustment under a policy (F80 §4-7).
+
+    Made once per result and policy and kept with the result (``adj.memo``): every caller asking
+    for the same policy shares one :class:`Reliability` and its cached arrays.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        An adjustment result.
+    policy : TestPolicy, optional
+        The test policy; default :func:`policy_of` ``(adj)``, the policy of its options.
+
+    Returns
+    -------
+    Reliability
+        Decisions, MDBs (units of the observations), external reliability (dimensionless) and
+        group tests of ``adj`` under ``policy``.
+    """
+    policy = policy_of(adj) if policy is None else policy
+    key = ("reliability", policy)
+    rel = adj.memo.get(key)
+    if rel is None:
+        rel = adj.memo[key] = Reliability(adj, policy)
+    return rel

@@ -80,7 +80,9 @@ import numpy as np
 from ..adjust import Options, adjust
 from ..errors import BaardaError, DatumDefectError, SingularError
 from ..model.problem import subset
-from . import hypotheses
+from . import hypotheses, separability
+from .reliability import policy_of, reliability_of
+from .weights import danish, error_class, global_score, huber, start_factor
 
 METHODS = ("huber", "danish", "r84")
 #: smallest weight factor: keeps a downweighted observation's parameters determined
@@ -96,113 +98,14 @@ R84_START_NONPHOTO = 1e-2
 START_STEP = 1.0
 #: how often a step-3 pass (readmission, data snooping) is repeated at most
 MAX_CONFIRM_PASSES = 3
-
-
-def huber(u, k=2.0):
-    """Huber's weight function f(u) = 1 for u ≤ k, k/u above (H64; M84 §3.1).
-
-    Parameters
-    ----------
-    u : array_like of float
-        Normalised residuals |v_i| / (σ_i √r_i), dimensionless.
-    k : float
-        Threshold, dimensionless.
-
-    Returns
-    -------
-    numpy.ndarray
-        Weight factors in (0, 1], dimensionless.
-    """
-    u = np.asarray(u, dtype=float)
-    return np.where(u <= k, 1.0, k / np.maximum(u, 1e-300))
-
-
-def danish(u, c=3.0):
-    """The Danish method's weight function f(u) = 1 for u ≤ c, exp(1 − (u/c)²) above (KJK80; R84 §7).
-
-    Parameters
-    ----------
-    u : array_like of float
-        Normalised residuals, dimensionless.
-    c : float
-        Threshold, dimensionless.
-
-    Returns
-    -------
-    numpy.ndarray
-        Weight factors in [0, 1], dimensionless.
-    """
-    u = np.asarray(u, dtype=float)
-    t = np.minimum(u / c, 1e10)           # exp(1 − 10²⁰) is 0 already; (10²⁰⁰)² would overflow
-    return np.where(u <= c, 1.0, np.exp(np.minimum(0.0, 1.0 - t * t)))
-
-
-def error_class(size_sigma: float, size_base: float | None = None, medium_base: float = 2.5) -> str:
-    """R84 §6 class of a gross error of ``size_sigma`` σ and ``size_base`` base lengths.
-
-    Below 4σ random; 4σ-50σ small; above 50σ medium up to ``medium_base`` base lengths (R84:
-    "between 50σ and 2-3 base lengths"), large above ("bigger than 3 base lengths"). Without a
-    base length (no block geometry) an error above 50σ is medium.
-
-    Parameters
-    ----------
-    size_sigma : float
-        Size of the error in multiples of σ, dimensionless.
-    size_base : float, optional
-        Size in base lengths, dimensionless.
-    medium_base : float
-        Upper end of the medium class, base lengths.
-
-    Returns
-    -------
-    str
-        "random", "small", "medium" or "large".
-    """
-    if size_sigma < 4:
-        return "random"
-    if size_sigma <= 50:
-        return "small"
-    if size_base is None or size_base <= medium_base:
-        return "medium"
-    return "large"
-
-
-def global_score(omega: float, dof: int) -> float:
-    """z = (Ω/σ0² − r) / √(2r), the global test's statistic as a normal score (F80 §4.1).
-
-    Ω/σ0² ~ χ²(r) under H0; Ω is already divided by σ0².
-
-    Parameters
-    ----------
-    omega : float
-        Ω/σ0², dimensionless.
-    dof : int
-        Redundancy r.
-
-    Returns
-    -------
-    float
-        z, dimensionless (0 when r ≤ 0).
-    """
-    return (omega - dof) / np.sqrt(2.0 * dof) if dof > 0 else 0.0
-
-
-def start_factor(start: np.ndarray, g: float) -> np.ndarray:
-    """R84 §8: the start weight factor tends to 1 as g = f(z) goes from 0 to 1, s = s_start^(1 − g).
-
-    Parameters
-    ----------
-    start : numpy.ndarray
-        Start weight factors s_start (1 or 1/100), dimensionless.
-    g : float
-        The Danish function of the global score, in [0, 1].
-
-    Returns
-    -------
-    numpy.ndarray
-        Weight factors s, dimensionless.
-    """
-    return np.asarray(start, dtype=float) ** (1.0 - g)
+#: an alternative at the same point replaces a suspect only where its test's ratio to the critical
+#: value is larger by more than this (relative): the w-tests of twins along a shared direction
+#: are equal but for round-off and the curvature of the model (F80 §7.4), and the robust step's
+#: choice stays among them
+ATTRIBUTION_MARGIN = 0.01
+#: an alternative is named inseparable from a suspect where their tests share a direction and at
+#: least this part of the suspect's statistic lies along it (the error is seen there alike)
+SHARED_PART = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -228,7 +131,7 @@ class RobustResult:
         did not take out every gross error (or σ0 a priori is too optimistic). None without it."""
         if self.final is None:
             return None
-        g = self.final.global_test
+        g = reliability_of(self.final).global_test
         return {"sigma0_aposteriori": float(self.final.sigma0_post), "global_test_passed": g["passed"],
                 "complete": not (g["passed"] is False and g["side"] == "high")}
 
@@ -452,13 +355,13 @@ def _test_cluster(problem, members, clean, keep, options):
     d = np.diag(h.W)
     w2 = float(np.max(np.where(d > 0, Wn ** 2 / np.maximum(d, 1e-300), 0.0)))
     crit = float(h.critical_T)
-    rejected = T > crit or w2 > float(adj_c.policy.critical_T(1))
+    rejected = T > crit or w2 > float(policy_of(adj_c).critical_T(1))
     return nabla, T, h.q, crit, rejected
 
 
 def _smallest_critical(adj, q: int) -> float:
     """The smallest critical value of a test of up to ``q`` dimensions under ``adj``'s policy."""
-    return min(float(adj.policy.critical_T(j)) for j in range(1, q + 1))
+    return min(float(policy_of(adj).critical_T(j)) for j in range(1, q + 1))
 
 
 def _fit(problem, keep, options, x0):
@@ -502,8 +405,8 @@ def snoop_clusters(problem, keep, options, x0=None, point_of=None, held=None):
     adj = _fit(problem, keep, options, x0)
     while True:
         first, T, q, w2 = cluster_tests(adj)
-        crit = np.array([float(adj.policy.critical_T(int(j))) if j > 0 else np.inf for j in q])
-        ratio = np.maximum(T / crit, w2 / float(adj.policy.critical_T(1)))
+        crit = np.array([float(policy_of(adj).critical_T(int(j))) if j > 0 else np.inf for j in q])
+        ratio = np.maximum(T / crit, w2 / float(policy_of(adj).critical_T(1)))
         k = int(np.argmax(ratio))
         if ratio[k] <= 1.0:
             return adj, keep, removed
@@ -622,7 +525,100 @@ def _confirm(problem, candidates, options, x0):
         if h.q and h.T > h.critical_T:
             tested.append((m, np.asarray(h.nabla, dtype=float), float(h.T), h.q, float(h.critical_T), True,
                            "kept in"))
-    return tested, final, readmitted
+    tested, final, keep, alternatives = _attribute(problem, tested, final, keep, options, point_of)
+    return tested, final, readmitted, alternatives
+
+
+def _ratio(h, adj) -> float:
+    """A test's statistic over its critical value, the larger of T/T_crit(q) and the largest
+    member's w²/T_crit(1) (the two tests of :func:`snoop_clusters`); 0 for an untestable one."""
+    if not h.q:
+        return 0.0
+    d = np.diag(h.W)
+    Wn = h.W @ h.nabla
+    w2 = float(np.max(np.where(d > 0, Wn ** 2 / np.maximum(d, 1e-300), 0.0)))
+    return max(float(h.T) / float(h.critical_T), w2 / float(policy_of(adj).critical_T(1)))
+
+
+def _attribute(problem, tested, final, keep, options, point_of):
+    """Attribution among the clusters of one object point (F80 §7.4, M84 §3.1, §3.3).
+
+    A suspect left out by the robust step was confirmed by its own test against the fit without
+    it; an error in another image (or the control) of the same point may pass that test too,
+    their statistics being correlated. So each suspect at a point is tested with its alternatives
+    — the point's other image points and control still in the adjustment — in one adjustment
+    that includes them all (data snooping's rule: the alternative whose statistic is largest
+    against its critical value). Where an alternative's ratio is the larger (by more than
+    :data:`ATTRIBUTION_MARGIN`) and the suspect's error is small (R84 §6, at most 50σ: a larger
+    one distorts the fit that includes it beyond the tests' linear range), it becomes the
+    suspect (the first goes back in) if the point stays determined and its own test, against the
+    fit without it, rejects it. The alternatives whose test space shares a direction with the
+    suspect's (largest canonical correlation ≥ :data:`~baarda.stats.separability.THRESHOLD`) along
+    which lies at least :data:`SHARED_PART` of the suspect's statistic are returned with it: along
+    that direction the data cannot tell them apart, and the error lies mostly there.
+
+    Returns (tested, final, keep, alternatives per tested entry)."""
+    cluster = problem.cov.cluster
+    members = problem.cov.members
+    alternatives = []
+    out = list(tested)
+    for k, entry in enumerate(tested):
+        m, kept_in = entry[0], len(entry) > 6
+        c = int(cluster[m[0]])
+        pt = point_of[c]
+        alts = []
+        if pt:
+            siblings = [members[j] for j in np.flatnonzero(point_of == pt)
+                        if j != c and np.isin(members[j], keep).all()]
+            with_m = keep if kept_in else np.union1d(keep, m)
+            C = np.asarray(problem.cov.blocks[c])
+            small = float(entry[1] @ np.linalg.solve(C, entry[1])) <= 50.0 ** 2      # R84 §6: linear range
+            try:
+                if kept_in:
+                    fit = final
+                elif small:
+                    fit = _fit(problem, with_m, options, final.x)
+                else:
+                    # a larger error would distort the fit that includes it: the geometry at x̂ with
+                    # the cluster at its computed values (as _test_cluster), its signature W ∇̂
+                    l_at = problem.l.copy()
+                    l_at[m] = l_at[m] - entry[1]
+                    fit = adjust(subset(dataclasses.replace(problem, l=l_at), with_m),
+                                 dataclasses.replace(options, max_iter=1), x0=final.x)
+                tests = [hypotheses.test(fit, hypotheses.selection(fit.n, _rows_in(with_m, mm)))
+                         for mm in [m, *siblings]]
+            except (BaardaError, np.linalg.LinAlgError):
+                alternatives.append(alts)
+                continue
+            ratios = [_ratio(h, fit) for h in tests]
+            g1 = None if (kept_in or small) else tests[0].W @ np.asarray(entry[1], dtype=float)
+            for mm, h in zip(siblings, tests[1:]):
+                if not (h.q and tests[0].q):
+                    continue
+                cc, part = separability.shared_part(
+                    fit, hypotheses.selection(fit.n, _rows_in(with_m, m)),
+                    hypotheses.selection(fit.n, _rows_in(with_m, mm)), g1=g1)
+                if cc.size and cc[0] >= separability.THRESHOLD and part >= SHARED_PART:
+                    alts.append({"members": [int(j) for j in mm], "largest": float(cc[0]),
+                                 "smallest": float(cc[-1])})
+            best = int(np.argmax(ratios))
+            if best and small and not kept_in and ratios[best] > ratios[0] * (1 + ATTRIBUTION_MARGIN):
+                other = siblings[best - 1]
+                keep2 = np.setdiff1d(with_m, other)
+                stay, back = _determined(problem, [other], point_of)
+                if stay and not back:
+                    try:
+                        fit2 = _fit(problem, keep2, options, fit.x)
+                        new = _test_cluster(problem, other, fit2, keep2, options)
+                    except (BaardaError, np.linalg.LinAlgError):
+                        new = None
+                    if new is not None and new[4]:
+                        out[k] = (other, *new)
+                        alts = [{"members": [int(j) for j in m], "largest": a["largest"], "smallest": a["smallest"]}
+                                if a["members"] == [int(j) for j in other] else a for a in alts]
+                        final, keep = fit2, keep2
+        alternatives.append(alts)
+    return out, final, keep, alternatives
 
 
 def estimate(problem, method: str = "r84", options: Options | None = None, tol: float = 1e-3,
@@ -671,16 +667,16 @@ def estimate(problem, method: str = "r84", options: Options | None = None, tol: 
     adj, f, u_obs, it, converged, history, floored = _irls(problem, method, options, tol, max_iter, k)
     members = problem.cov.members
     w_obs = _per_observation(f, members, problem.n)
-    crit = adj.critical_w
+    crit = reliability_of(adj).critical_w
     cand = [(float(u_obs[m].max()), c) for c, m in enumerate(members) if u_obs[m].max() > crit]
     cand.sort(reverse=True)
     candidates = [members[c] for _, c in cand]
-    tested, final, readmitted = _confirm(problem, candidates, options, adj.x)
+    tested, final, readmitted, alternatives = _confirm(problem, candidates, options, adj.x)
     b_img, B = _bases(problem)
     kinds = problem.info.kind
     sigma_c = problem.cov.blocks
     suspects = []
-    for m, nabla, T, q, crit_T, _, *kept_in in tested:
+    for (m, nabla, T, q, crit_T, _, *kept_in), alts in zip(tested, alternatives):
         c = int(problem.cov.cluster[m[0]])
         C = np.asarray(sigma_c[c])
         size = float(np.sqrt(max(nabla @ np.linalg.solve(C, nabla), 0.0)))
@@ -696,6 +692,11 @@ def estimate(problem, method: str = "r84", options: Options | None = None, tol: 
                          "nabla": [float(v) for v in nabla], "T": T, "q": int(q), "critical_T": crit_T,
                          "size_sigma": size, "size_base": size_base,
                          "class": error_class(size, size_base, medium_base)})
+        if alts:
+            # F80 §7.4, M84 §3.3: tests sharing a direction with this one (largest canonical correlation)
+            suspects[-1]["inseparable_from"] = [
+                {"ids": problem.info.ids[int(a["members"][0])], "kind": kinds[int(a["members"][0])],
+                 "canonical_correlations": [a["largest"], a["smallest"]]} for a in alts]
         if kept_in:
             suspects[-1]["kept_in"] = True
             suspects[-1]["note"] = ("kept in the adjustment (its point would be undetermined without it) and "

@@ -134,6 +134,23 @@ def canonical_correlations(adj, H1, H2) -> np.ndarray:
     return _canonical(a.w_with(a), a.w_with(b), b.w_with(b))
 
 
+def shared_part(adj, H1, H2, g1=None) -> tuple[np.ndarray, float]:
+    """(the canonical correlations of H1's and H2's tests, descending; the part of H1's statistic
+    T1 = g1ᵀ W11⁻¹ g1 that lies along the first canonical direction, (u1ᵀ W11^(−½) g1)² / T1 ∈ [0, 1],
+    g1 = H1ᵀ P v of ``adj``, or the given ``g1``: W11 ∇ is the signature of an error ∇, F80 eq. 10). Where the largest canonical correlation is 1, H2's test sees that
+    direction alike (F80 §7.4): the larger the part, the less the data tell H1 from H2 (0 when T1 = 0)."""
+    a, b = _Reduced(adj, H1), _Reduced(adj, H2)
+    W11, W12, W22 = a.w_with(a), a.w_with(b), b.w_with(b)
+    X1, X2 = _inverse_sqrt(W11), _inverse_sqrt(W22)
+    if X1.shape[1] == 0 or X2.shape[1] == 0:
+        return np.zeros(0), 0.0
+    U, c, _ = np.linalg.svd(X1.T @ W12 @ X2)
+    z = X1.T @ (np.asarray(a.H.T @ adj.Pv).ravel() if g1 is None else np.asarray(g1, dtype=float).ravel())
+    T = float(z @ z)
+    part = float((U[:, 0] @ z) ** 2 / T) if T > 0 else 0.0
+    return np.clip(c, 0.0, 1.0), min(part, 1.0)
+
+
 def correlation(adj, H1, H2) -> float:
     """Correlation of the test statistics of two hypotheses (M84 §3.3, F80 §7.4).
 

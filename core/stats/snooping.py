@@ -25,6 +25,7 @@ from ..adjust import Options, adjust
 from ..errors import BaardaError
 from ..model.problem import subset
 from .separability import THRESHOLD, twins
+from .reliability import reliability_of
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,7 @@ def iterate(problem, options: Options | None = None, use_tau: bool = False, max_
     limit = max_steps if max_steps is not None else problem.n
     while len(steps) < limit:
         stat = np.abs(np.nan_to_num(adj.tau if use_tau else adj.w))
-        crit = adj.critical_tau if use_tau else adj.critical_w
+        crit = reliability_of(adj).critical_tau if use_tau else reliability_of(adj).critical_w
         i = int(np.argmax(stat))
         if stat[i] <= crit or adj.dof - 1 < min_dof:
             break

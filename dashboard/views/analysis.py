@@ -12,10 +12,13 @@ import pandas as pd
 import panel as pn
 import param
 
+from baarda.stats.variance import groups_by_kind
+
 from .. import frames
 from ..geometry import observation_label
 from ..state import VARIANCE_MODELS, State
-from ..text import md_text
+from ..text import md_text, plain
+from baarda.stats.reliability import reliability_of
 
 TABLE = dict(show_index=False, disabled=True, sizing_mode="stretch_width", layout="fit_data_stretch",
              stylesheets=[".tabulator { font-size: 12px; }"])
@@ -72,6 +75,12 @@ class AnalysisPanel(pn.viewable.Viewer):
                                                           color="primary", variant="outline", width=300,
                                                           css_classes=["variance-model"])
         self.variance_model.link(s, value="variance_model")
+        # families given one factor together (baarda analyze --merge-groups)
+        self.merge = pn.widgets.TextInput(label="Merge families (A+B, C+D)", value=s.merge_groups, width=300,
+                                          css_classes=["variance-merge"])
+        self.merge.link(s, value="merge_groups", bidirectional=True)
+        s.param.watch(self._families, ["problem"])
+        self._families()
         self.variance_table = _table("variance-table", 110)
         self.snoop_button.on_click(lambda e: s.submit("iterative data snooping", s.run_snooping))
         self.accept.on_click(lambda e: s.accept_snooping())
@@ -103,7 +112,7 @@ class AnalysisPanel(pn.viewable.Viewer):
         rejected = obs.index[obs["rejected"] & ~obs["excluded"]].tolist()
         final = ""
         if rr.final is not None:
-            g = rr.final.global_test
+            g = reliability_of(rr.final).global_test
             final = (f" Least squares without them: σ̂0 = {rr.final.sigma0_post:.4g}, global test "
                      f"{'passed' if g.get('passed') else 'FAILED'}.")
         self.robust_info.object = (
@@ -128,6 +137,13 @@ class AnalysisPanel(pn.viewable.Viewer):
                                   f"{res.adjustment.sigma0_post:.4g}. Below: σ̂0 with each of the largest "
                                   f"|w| left out in turn (the likeliest error lowers it most).")
 
+    def _families(self, *_):
+        """The families of the problem, as the merge field's placeholder."""
+        p = self.state.problem
+        names = list(groups_by_kind(p)) if p is not None else []
+        self.merge.placeholder = plain("+".join(names[:2])) if len(names) >= 2 else "(one family)"
+        self.merge.description = plain("Families: " + ", ".join(names)) if names else None
+
     def _variance(self, *_):
         self.variance_table.show(frames.variance_table(self.state.variance, self.state.components),
                                  self.state.variance is not None or self.state.components is not None)
@@ -139,7 +155,7 @@ class AnalysisPanel(pn.viewable.Viewer):
             "#### Iterative data snooping", pn.Row(self.snoop_button, self.accept), self.snoop_info,
             self.snoop_table.panel, self.loo_table.panel,
             "#### Variance components (F80 eq. 9): per observation family, or the radial model "
-            "σ² = a² + b²c²/cos⁴α of a block (F80 §2.1)", pn.Row(self.variance_model, self.variance_button),
+            "σ² = a² + b²c²/cos⁴α of a block (F80 §2.1)", pn.Row(self.variance_model, self.variance_button), self.merge,
             self.variance_table.panel, sizing_mode="stretch_width", scroll=True, height=640)
 
 

@@ -5,25 +5,21 @@ from __future__ import annotations
 
 import functools
 import io
-import re
-import shutil
-import tempfile
-import threading
-from pathlib import Path
 
 import panel as pn
 import param
-
-from baarda.io.source import ceiling
 
 from .. import geometry
 from ..geometry import observation_label
 from ..state import ROBUST_METHODS, State
 from ..tables import TABLES, table_csv
 from ..text import html_text, md_text, plain
+from ..uploads import MAX_UPLOAD_MB, UPLOAD_CHUNK, UPLOAD_MAX_CONTENT, BoundedDropper, Uploads, upload_name
+
+__all__ = ["Controls", "FilePanel", "SelectionPanel", "TaskPanel", "MAX_UPLOAD_MB", "UPLOAD_CHUNK",
+           "UPLOAD_MAX_CONTENT", "BoundedDropper", "upload_name"]
 
 ALPHAS = [1e-5, 1e-4, 2e-4, 5e-4, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1]
-MAX_UPLOAD_MB = 50
 
 
 def _two_way(widget, state, name):
@@ -153,80 +149,6 @@ class SelectionPanel(pn.viewable.Viewer):
                          sizing_mode="stretch_width")
 
 
-#: An uploaded file keeps its own name on the server only if the name is this simple.
-SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._ -]{0,100}")
-SAFE_SUFFIX = re.compile(r"\.[A-Za-z0-9]{1,8}")
-#: Uploads travel in chunks of this size (well under the server's websocket message limit).
-UPLOAD_CHUNK = 4 * 1024 * 1024
-#: The most an upload may hold once decompressed (a .bz2, .gz or .xz upload; a tighter
-#: :func:`baarda.io.source.ceiling` while it is read).
-UPLOAD_MAX_CONTENT = 256 * 1024 * 1024
-
-
-class BoundedDropper(pn.widgets.FileDropper):
-    """:class:`panel.widgets.FileDropper` whose server side holds at most ``max_bytes`` of
-    upload chunks at a time, whatever the page sends (a page script can raise the widget's own
-    limit or send chunks itself): the chunk that would pass it, a chunk out of order or a
-    chunk count that announces more is refused at once, everything held is dropped, and
-    ``on_refused(name)`` is called. Panel's widget holds every chunk until the last arrives."""
-
-    def __init__(self, max_bytes: int, on_refused=None, **params):
-        super().__init__(**params)
-        self._max_bytes = int(max_bytes)
-        self._on_refused = on_refused
-        self._held = {}              # name -> bytes held for it
-        self._refused = set()        # names whose remaining chunks are ignored
-
-    def held_bytes(self) -> int:
-        return sum(self._held.values())
-
-    def _refuse(self, name) -> None:
-        self._file_buffer.clear()
-        self._held.clear()
-        self._refused.add(name)
-        if self._on_refused is not None:
-            self._on_refused(name)
-
-    def _process_event(self, event):
-        if event.event_name != "upload_event":
-            return super()._process_event(event)
-        data = event.data if isinstance(event.data, dict) else {}
-        name, chunk, total, payload = (data.get("name"), data.get("chunk"), data.get("total_chunks"),
-                                       data.get("data"))
-        if not isinstance(name, str):
-            return None
-        if chunk == 1:
-            self._refused.discard(name)
-            self._file_buffer.pop(name, None)
-            self._held.pop(name, None)
-        elif name in self._refused:
-            return None
-        size = len(payload) if isinstance(payload, (bytes, bytearray, memoryview, str)) else -1
-        ok = (isinstance(chunk, int) and isinstance(total, int) and 1 <= chunk <= total and size >= 0
-              and len(self._file_buffer.get(name, ())) == chunk - 1
-              and (total - 1) * min(self.chunk_size, UPLOAD_CHUNK) <= self._max_bytes
-              and self.held_bytes() + size <= self._max_bytes)
-        if not ok:
-            self._refuse(name)
-            return None
-        self._held[name] = self._held.get(name, 0) + size
-        if chunk == total:
-            self._held.pop(name, None)
-        return super()._process_event(event)
-
-
-def upload_name(name) -> str:
-    """A file name for an upload on the server: its own name when it is plain
-    (:data:`SAFE_NAME`; never ``.``, ``..``, a path or control characters), else ``upload``
-    with the name's extension if that is plain (the format is recognised by it)."""
-    name = str(name or "")
-    base = name.replace("\\", "/").rsplit("/", 1)[-1]
-    if SAFE_NAME.fullmatch(base) and base not in (".", ".."):
-        return base
-    suffix = Path(base).suffix if base not in (".", "..") else ""
-    return "upload" + (suffix.lower() if SAFE_SUFFIX.fullmatch(suffix) else "")
-
-
 class FilePanel(pn.viewable.Viewer):
     """Upload a problem file and export the report.
 
@@ -271,13 +193,16 @@ class FilePanel(pn.viewable.Viewer):
         self.source = pn.pane.HTML(pn.bind(lambda name: f"File: <code>{html_text(name)}</code>"
                                            if name else "", s.param.file_name),
                                    sizing_mode="stretch_width", css_classes=["file-source"])
-        self._dirs: list[Path] = []
-        self._lock = threading.Lock()
+        #: the file being received, as plain text (the widget's own list hides the browser's raw name)
+        self.receiving = pn.pane.HTML(pn.bind(lambda name: f"<small>Receiving <code>{html_text(name)}</code></small>"
+                                              if name else "", self.upload.param.receiving),
+                                      sizing_mode="stretch_width", css_classes=["file-receiving"])
+        #: the checks, temporary copies and reading of uploads (baarda.dashboard.uploads)
+        self.uploads = Uploads(s)
         self._show_error()
 
     def _refused(self, name) -> None:
-        shown = plain(name) if name not in (None, "") else "the upload"
-        self.state.error = f"{shown} is larger than {MAX_UPLOAD_MB} MB; run `baarda` on it instead."
+        self.uploads.refused(name)
 
     def _uploaded(self, event):
         if not event.new:
@@ -287,51 +212,12 @@ class FilePanel(pn.viewable.Viewer):
         self.receive(name, data)
 
     def receive(self, name, data) -> bool:
-        """Check an uploaded file and read it (on a worker thread when served); False and a
-        message in ``state.error`` if it is refused."""
-        shown = plain(name) if name not in (None, "") else "the upload"
-        if isinstance(data, str):
-            data = data.encode("utf-8")
-        data = b"" if data is None else bytes(data)
-        if len(data) > MAX_UPLOAD_MB * 1024 * 1024:
-            self.state.error = f"{shown} is larger than {MAX_UPLOAD_MB} MB; run `baarda` on it instead."
-            return False
-        if not data:
-            self.state.error = f"{shown} is empty (0 bytes)."
-            return False
-        if not data.strip():
-            self.state.error = f"{shown} contains only whitespace ({len(data)} bytes)."
-            return False
-        folder = Path(tempfile.mkdtemp(prefix="baarda-upload-"))
-        with self._lock:
-            self._dirs.append(folder)
-        tmp = folder / upload_name(name)
-        tmp.write_bytes(data)
-
-        def read():
-            try:
-                with ceiling(UPLOAD_MAX_CONTENT):        # a compressed upload's content, bounded
-                    return self.state.load(tmp, name=shown)
-            finally:
-                self._remove(folder)
-
-        started = self.state.submit(f"reading {shown}", read)
-        if started is None:
-            self._remove(folder)
-            self.state.error = f"{shown}: wait until the running computation ends, or cancel it."
-            return False
-        return bool(started) if isinstance(started, bool) else True
-
-    def _remove(self, folder: Path) -> None:
-        shutil.rmtree(folder, ignore_errors=True)
-        with self._lock:
-            if folder in self._dirs:
-                self._dirs.remove(folder)
+        """Check an uploaded file and read it (:meth:`baarda.dashboard.uploads.Uploads.receive`)."""
+        return self.uploads.receive(name, data)
 
     def cleanup(self, *_) -> None:
         """Remove every temporary upload directory of this panel (session ended)."""
-        for folder in list(self._dirs):
-            self._remove(folder)
+        self.uploads.cleanup()
 
     def _show_error(self, *_):
         self.alert.object = md_text(self.state.error)
@@ -352,7 +238,7 @@ class FilePanel(pn.viewable.Viewer):
         return table_csv(self.state, name)
 
     def __panel__(self):
-        return pn.Column("### File", self.source, self.upload, self.limit, self.alert, self.download,
+        return pn.Column("### File", self.source, self.upload, self.receiving, self.limit, self.alert, self.download,
                          pn.pane.HTML("<small>Full tables for spreadsheets:</small>", margin=(4, 10, 0, 10)),
                          *self.tables.values(), sizing_mode="stretch_width")
 

@@ -12,11 +12,10 @@ import param
 from bokeh.models.widgets.tables import CheckboxEditor, HTMLTemplateFormatter
 
 from baarda.observations.collinearity import AP_GROUPS
-from baarda.stats.ap_tests import APTest
-from baarda.stats.hypotheses import HypothesisTest
 
 from .. import geometry, specs
 from ..geometry import observation_label
+from ..outcomes import Outcome
 from ..state import State
 from ..text import fit_title, labels, md_text, plain
 
@@ -48,9 +47,9 @@ def with_selection(widget, options) -> None:
 
 
 def rank_deficient(h) -> bool:
-    """The test sees fewer dimensions than H has columns (W singular, F80 eq. 12): part of the
-    error is absorbed by the unknowns and cannot be tested."""
-    return not isinstance(h, APTest) and h.q < h.H.shape[1]
+    """The test (a HypothesisTest) sees fewer dimensions than H has columns (W singular, F80
+    eq. 12): part of the error is absorbed by the unknowns and cannot be tested."""
+    return h.q < h.H.shape[1]
 
 
 def not_testable(state, h, partly: bool = False) -> str:
@@ -117,11 +116,11 @@ class HypothesisPanel(pn.viewable.Viewer):
         self.results.on_edit(self._edited)
         self.results.param.watch(self._selected, "selection")
         s.param.watch(self._refresh_options, ["problem"])
-        s.param.watch(self._refresh_table, ["hyp_results", "hypotheses"])
+        s.param.watch(self._refresh_table, ["outcomes", "hypotheses"])
         s.param.watch(self._sync_selection, ["selected_hypothesis"])
         s.param.watch(self._follow_selection, ["selected_obs", "selected_point"])
         self.plot = hv.DynamicMap(self._ellipse_plot, streams=[hv.streams.Params(
-            s, ["hyp_results", "selected_hypothesis"])])
+            s, ["outcomes", "selected_hypothesis"])])
         self._refresh_options()
         self._refresh_table()
 
@@ -290,23 +289,26 @@ class HypothesisPanel(pn.viewable.Viewer):
         s = self.state
         factor, units = s.problem_index()["factor"]
         rows = []
-        for spec, h in zip(s.hypotheses, s.hyp_results + [None] * (len(s.hypotheses) - len(s.hyp_results))):
+        missing = [Outcome()] * (len(s.hypotheses) - len(s.outcomes))
+        for spec, o in zip(s.hypotheses, s.outcomes + missing):
             row = {"active": bool(spec.get("active", True)), "hypothesis": plain(spec.get("label", "")),
                    "q": None, "T": None, "critical T": None, "R": None, "decision": "",
                    "∇ŝ": "", "σ∇ŝ": "", "δ0'max": None, "δ̄0max": None}
-            if isinstance(h, str):
-                row["decision"] = plain(h)
-            elif isinstance(h, APTest):
+            h = o.test
+            if o.status == "refused":
+                row["decision"] = plain(o.message)
+            elif o.status == "ap-test":
+                h = o.ap
                 row.update({"q": h.q, "T": round(h.T, 3), "critical T": round(h.critical, 3),
                             "decision": "SIGNIFICANT" if h.significant else "not significant",
                             "∇ŝ": ", ".join(f"{x:.3g}" for x in h.estimate) + " (ŝ)",
                             "σ∇ŝ": ", ".join(f"{x:.3g}" for x in h.sigma),
                             "δ0'max": round(h.delta0_prime_max, 2) if np.isfinite(h.delta0_prime_max) else None,
                             "δ̄0max": round(h.reliability_max, 2) if np.isfinite(h.reliability_max) else None})
-            elif h is not None and rank_deficient(h) and h.q == 0:
+            elif o.status == "test" and o.rank_deficient and h.q == 0:
                 row["q"] = 0
                 row["decision"] = plain(not_testable(s, h))
-            elif h is not None:
+            elif o.status == "test":
                 first = specs.rows(s.problem, spec, s.problem_index())[0]
                 f = factor[int(first[0])] if len(first) else 1.0
                 u = units[int(first[0])] if len(first) else ""
@@ -317,9 +319,8 @@ class HypothesisPanel(pn.viewable.Viewer):
                             "∇ŝ": ", ".join(f"{x * f:.3g}" for x in h.nabla) + f" {u}",
                             "σ∇ŝ": ", ".join(f"{x * f:.3g}" for x in h.nabla_sigma) + f" {u}",
                             "δ0'max": round(h.delta0_prime_max, 2) if np.isfinite(h.delta0_prime_max) else None})
-                ext = h.extra.get("external")
-                if ext is not None and np.isfinite(ext.max):
-                    row["δ̄0max"] = round(ext.max, 2)
+                if np.isfinite(o.external_max):
+                    row["δ̄0max"] = round(o.external_max, 2)
             rows.append(row)
         return pd.DataFrame(rows, columns=["active", "hypothesis", "q", "T", "critical T", "R", "decision",
                                            "∇ŝ", "σ∇ŝ", "δ0'max", "δ̄0max"])
@@ -347,14 +348,15 @@ class HypothesisPanel(pn.viewable.Viewer):
     def _ellipse_plot(self, **_):
         s = self.state
         k = s.selected_hypothesis
-        h = s.hyp_results[k] if k is not None and k < len(s.hyp_results) else None
+        o = s.outcomes[k] if k is not None and k < len(s.outcomes) else Outcome()
+        h = o.test
         ell, est, title = [], pd.DataFrame({"s1": [], "s2": []}), "Select a hypothesis"
-        if isinstance(h, APTest):
-            title = (f"AP group, q = {h.q}: T = {h.T:.2f}, semi-axes "
-                     + ", ".join(f"{x:.3g}" for x in h.ellipsoid_axes))
-        elif h is not None and not isinstance(h, str) and rank_deficient(h) and h.q == 0:
+        if o.status == "ap-test":
+            title = (f"AP group, q = {o.ap.q}: T = {o.ap.T:.2f}, semi-axes "
+                     + ", ".join(f"{x:.3g}" for x in o.ap.ellipsoid_axes))
+        elif o.status == "test" and o.rank_deficient and h.q == 0:
             title = "Not testable: rank-deficient (see the table)"
-        elif h is not None and not isinstance(h, str):
+        elif o.status == "test":
             spec = s.hypotheses[k]
             factor, units = s.problem_index()["factor"]
             first = specs.rows(s.problem, spec, s.problem_index())[0]
@@ -381,7 +383,7 @@ class HypothesisPanel(pn.viewable.Viewer):
         # the critical region's boundary ∇ŝᵀ W ∇ŝ = k (rejected outside; F80 eq. 12), drawn over
         # the lower bound ∇0sᵀ W ∇0s = δ0² (F80 eq. 13): the same ellipse scaled by √k / δ0
         crit = ([e * np.sqrt(h.critical_T) / h.delta0 for e in ell]
-                if ell and isinstance(h, HypothesisTest) and h.delta0 > 0 else [])
+                if ell and h is not None and h.delta0 > 0 else [])
         pts = ell + crit + ([est[["s1", "s2"]].to_numpy(dtype=float)] if len(est) else [])
         extent = float(np.nanmax(np.abs(np.concatenate(pts)))) * 1.15 if ell else 1.0
         return (hv.Path(ell, ["s1", "s2"], label="∇0s: lower bound (β0)").opts(

@@ -28,7 +28,6 @@ import param
 from bokeh.events import Tap
 from bokeh.models import ColumnDataSource, FixedTicker
 
-from baarda.stats.hypotheses import HypothesisTest
 
 from .. import frames, geometry, specs
 from ..geometry import display_matrix, object_unit
@@ -62,13 +61,21 @@ def suspect_opts() -> tuple:
 #: The state parameters behind each kind of layer (one ``Params`` stream per kind and view).
 STREAMS = {
     "solution": ["solution"],
-    "results": ["results", "reliability"],     # a new test policy: same results, new reliability
+    # a new test policy: same results, new reliability, and "results" triggered after it
+    # (State._options_changed); both are set together otherwise, reliability first
+    "results": ["results"],
     "selection": ["selected_point", "selected_obs"],
     "robust": ["robust"],
-    "hypothesis": ["hyp_results", "selected_hypothesis"],
-    "field": ["hyp_results", "selected_hypothesis", "selected_obs", "field_source"],
+    "hypothesis": ["outcomes", "selected_hypothesis"],
+    "field": ["outcomes", "selected_hypothesis", "selected_obs", "field_source"],
     "sbase": ["sbase"],
 }
+
+
+class Changed(hv.streams.Stream):
+    """A layer's trigger: ``n`` counts the changes of the state parameters behind it."""
+
+    n = param.Integer(default=0)
 
 
 def tips(columns) -> list:
@@ -96,6 +103,9 @@ class MapView(pn.viewable.Viewer):
         super().__init__(**params)
         self._streams = {}
         self._memo = {}
+        #: on screen (the app tells, :meth:`set_shown`); a hidden map redraws nothing until shown
+        self.shown = True
+        self._pending: set = set()
         # A Tap stream with the overlay as its source receives no events in HoloViews 1.23, so
         # the figure's Bokeh Tap event is forwarded to the stream by a plot hook.
         self.tap = hv.streams.Tap(x=None, y=None)
@@ -111,6 +121,8 @@ class MapView(pn.viewable.Viewer):
                                streams=[self._stream(k) for k in kinds]).opts(*opts)
                  for render, kinds, opts in self._layers]
         self.dmap = functools.reduce(operator.mul, [block_context(s), *dmaps]).opts(self._overlay_opts())
+        s.param.watch(self._state_changed, sorted({p for k in self._streams for p in STREAMS.get(k, ())}))
+
         self._pane = pn.pane.HoloViews(self.dmap, css_classes=[f"map-{self.key}"], linked_axes=False)
         self.far_note = pn.pane.HTML("", css_classes=["far-note"], sizing_mode="stretch_width", visible=False)
         self._far_changed()
@@ -149,11 +161,36 @@ class MapView(pn.viewable.Viewer):
         layer (cheaper than on every element of a layer that changes often)."""
         return render, kinds, tuple(opts)
 
-    def _stream(self, kind) -> hv.streams.Params:
-        """The view's one ``Params`` stream of a kind of layer (shared by its layers)."""
+    def _stream(self, kind) -> Changed:
+        """The view's one stream of a kind of layer (shared by its layers): triggered when the
+        state parameters of that kind (:data:`STREAMS`) change while the map is shown."""
         if kind not in self._streams:
-            self._streams[kind] = hv.streams.Params(self.state, STREAMS[kind])
+            self._streams[kind] = Changed(rename={"n": f"{kind}_changes"})
         return self._streams[kind]
+
+    def _state_changed(self, *events):
+        """Redraw the layers behind the changed parameters now, or once shown (:meth:`set_shown`)."""
+        names = {e.name for e in events}
+        kinds = {k for k in self._streams if names & set(STREAMS.get(k, ()))}
+        if self.shown:
+            self._redraw(kinds)
+        else:
+            self._pending |= kinds
+
+    def _redraw(self, kinds) -> None:
+        streams = [self._streams[k] for k in sorted(kinds)]
+        for st in streams:
+            st.update(n=st.n + 1)
+        if streams:
+            hv.streams.Stream.trigger(streams)
+
+    def set_shown(self, shown: bool) -> None:
+        """The map is on screen (``shown``) or not: a hidden map's layers are not redrawn while
+        the state changes, and are redrawn once, with what changed meanwhile, when shown."""
+        self.shown = bool(shown)
+        if self.shown and self._pending:
+            kinds, self._pending = self._pending, set()
+            self._redraw(kinds)
 
     def static(self) -> hv.Overlay:
         """The map as it is now, as a plain overlay (for the HTML report)."""
@@ -261,10 +298,10 @@ class LayoutMap(MapView):
         """The selected 2D hypothesis' lower-bound ellipse on the map (label, n × 2) or (None, [])."""
         s = self.state
         k = s.selected_hypothesis
-        if k is None or k >= len(s.hyp_results) or k >= len(s.hypotheses):
+        if k is None or k >= len(s.outcomes) or k >= len(s.hypotheses):
             return None, []
-        h = s.hyp_results[k]
-        if not isinstance(h, HypothesisTest) or h.q != 2 or not np.isfinite(h.ellipse_axes).all():
+        h = s.outcomes[k].test
+        if h is None or h.q != 2 or not np.isfinite(h.ellipse_axes).all():
             return None, []
         pk = specs.point(s.problem, s.hypotheses[k], s.problem_index())
         if pk is None:
@@ -386,7 +423,7 @@ class ExternalMap(MapView):
 
     def _field(self):
         s = self.state
-        key = (s.reliability, s.hyp_results, s.selected_hypothesis, s.selected_obs, s.field_source)
+        key = (s.reliability, s.outcomes, s.selected_hypothesis, s.selected_obs, s.field_source)
         return self.cached("field", key, self._field_now)
 
     def _field_now(self):

@@ -212,8 +212,8 @@ def test_hypothesis_shows_T_and_ellipse(page, block_app, screenshots):
     page.locator(".hyp-point select").first.select_option(str(ids["point"]))   # waits for the option
     page.locator(".hyp-image select").first.select_option(str(ids["image"]))
     page.get_by_role("button", name="Test", exact=True).click()
-    assert wait_until(lambda: state.hyp_results and state.hyp_results[-1] is not None)
-    h = state.hyp_results[-1]
+    assert wait_until(lambda: state.outcomes and state.outcomes[-1].status != "inactive")
+    h = state.outcomes[-1].test
     assert state.hypotheses[-1] == {**state.hypotheses[-1], "kind": "image-point", "image": str(ids["image"]),
                                     "point": str(ids["point"])}
     assert h.q == 2
@@ -236,8 +236,8 @@ def test_network_hypothesis_T_in_table(page, network_app):
     box.fill("17")
     box.press("Enter")
     page.get_by_role("button", name="Test", exact=True).click()
-    assert wait_until(lambda: state.hyp_results and state.hyp_results[-1] is not None)
-    h = state.hyp_results[-1]
+    assert wait_until(lambda: state.outcomes and state.outcomes[-1].status != "inactive")
+    h = state.outcomes[-1].test
     assert state.hypotheses[-1]["index"] == 17
     assert h.T == pytest.approx(state.results.w[17] ** 2, rel=1e-9)
     expect(page.get_by_text(f"{round(h.T, 3)}").first).to_be_visible(timeout=30_000)

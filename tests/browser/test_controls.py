@@ -22,11 +22,11 @@ def test_hypothesis_controls(page, block_app, screenshots):
     assert kind.evaluate("(s) => s.value") != ""                # a selection, not blank
     assert kind.evaluate("(s) => s.options[s.selectedIndex].text") == "one observation"
     page.get_by_role("button", name="Test", exact=True).click()
-    assert wait_until(lambda: len(state.hyp_results) == 1 and state.hyp_results[0] is not None)
+    assert wait_until(lambda: len(state.outcomes) == 1 and state.outcomes[0].tested)
     page.locator(".hyp-obs input").first.fill("301")
     page.locator(".hyp-obs input").first.press("Enter")
     page.get_by_role("button", name="Test", exact=True).click()
-    assert wait_until(lambda: len(state.hyp_results) == 2 and state.hyp_results[1] is not None)
+    assert wait_until(lambda: len(state.outcomes) == 2 and state.outcomes[1].tested)
     # the new hypothesis is the highlighted row
     rows = page.locator(".hyp-table .tabulator-row")
     assert wait_until(lambda: "tabulator-selected" in (rows.nth(1).get_attribute("class") or ""))
@@ -38,7 +38,7 @@ def test_hypothesis_controls(page, block_app, screenshots):
     if box.count():
         box.first.click()
     page.keyboard.press("Enter")
-    assert wait_until(lambda: state.hypotheses[0]["active"] is False and state.hyp_results[0] is None, 20)
+    assert wait_until(lambda: state.hypotheses[0]["active"] is False and state.outcomes[0].status == "inactive", 20)
     page.screenshot(path=str(screenshots / "block-hypothesis-controls.png"))
     assert real_errors(errors) == []
 

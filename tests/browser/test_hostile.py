@@ -166,6 +166,15 @@ def test_hostile_ids_are_text_everywhere(page, hostile_app, tmp_path, screenshot
     assert "/tmp" not in alert.inner_text() and "baarda-upload" not in alert.inner_text()
     assert alert.locator("iframe, b:has-text('bold')").count() == 0
     page.screenshot(path=str(screenshots / "hostile-upload-error.png"))
+    # a name with a right-to-left override: the widget's list shows no raw control character,
+    # the panel names the file neutralised (issue 25)
+    file_input.set_input_files(files=[{"name": "gnp\u202eexe.gkf", "mimeType": "application/xml",
+                                        "buffer": b"<gama-local>broken"}])
+    expect(alert).to_contain_text("Cannot read gnp", timeout=60_000)
+    expect(page.locator(".file-receiving")).to_contain_text("gnp", timeout=30_000)
+    assert "\u202e" not in page.locator(".file-input").first.inner_text()
+    assert "\u202e" not in page.locator(".file-receiving").first.inner_text()
+    page.screenshot(path=str(screenshots / "hostile-upload-rlo.png"))
 
     # the report of the block, opened in the browser
     with page.expect_download(timeout=120_000) as dl:

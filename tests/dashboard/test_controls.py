@@ -54,7 +54,7 @@ def test_active_is_a_checkbox_and_false_deactivates(demo):
     # the new hypothesis is the highlighted row, not the previous one
     assert panel.results.selection == [1] and st.selected_hypothesis == 1
     panel.edited(SimpleNamespace(column="active", row=0, value="false"))
-    assert st.hypotheses[0]["active"] is False and st.hyp_results[0] is None
+    assert st.hypotheses[0]["active"] is False and st.outcomes[0].status == "inactive"
     panel.edited(SimpleNamespace(column="active", row=0, value=True))
     assert st.hypotheses[0]["active"] is True
     df = panel.frame()
@@ -66,7 +66,7 @@ def test_partly_testable_image_point_names_the_absorbing_point(demo):
     panel = HypothesisPanel(state=st)
     # P00001 is seen in two images: one of its two image-point dimensions is absorbed by it
     st.add_hypothesis({"kind": "image-point", "image": "101", "point": "P00001"})
-    h = st.hyp_results[0]
+    h = st.outcomes[0].test
     assert h.q == 1 and h.H.shape[1] == 2
     row = panel.frame().iloc[0]
     assert row["decision"].startswith("rejected") and "tests 1 of 2 dimensions" in row["decision"]
@@ -82,7 +82,7 @@ def test_untestable_hypothesis_says_why():
     assert st.results.uncontrolled[0]
     panel = HypothesisPanel(state=st)
     st.add_hypothesis({"kind": "observation", "index": 0})
-    h = st.hyp_results[0]
+    h = st.outcomes[0].test
     assert h.q == 0
     row = panel.frame().iloc[0]
     assert row["decision"].startswith("not testable: rank-deficient (W = 0)")
@@ -95,7 +95,7 @@ def test_critical_ellipse_is_drawn_over_the_lower_bound(demo):
     st = State(demo)
     panel = HypothesisPanel(state=st)
     st.add_hypothesis({"kind": "image-point", "image": "302", "point": "P05003"})
-    h = st.hyp_results[0]
+    h = st.outcomes[0].test
     assert h.q == 2
     el = panel.ellipse_plot()
     lower, crit = el.get(0), el.get(1)

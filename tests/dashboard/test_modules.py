@@ -21,6 +21,7 @@ import pandas as pd  # noqa: E402
 
 from baarda.dashboard import frames, geometry, jobs, mapgeometry, measures, sbase, specs  # noqa: E402
 from baarda.dashboard.state import State  # noqa: E402
+from baarda.dashboard.outcomes import Outcome  # noqa: E402
 from baarda.stats.hypotheses import selection  # noqa: E402
 from tests.extdata import GAMA, require_extdata  # noqa: E402
 
@@ -163,9 +164,9 @@ def test_specs_translate_to_the_cores_tests(st):
     assert (H != selection(st.results.n, [2])).nnz == 0
     h = specs.evaluate(st.problem, st.results, st.reliability, st.kept, spec, st.problem_index())
     ref = st.reliability.test(selection(st.results.n, [2]), label="x")
-    assert h.T == pytest.approx(ref.T, rel=1e-12)
+    assert h.status == "test" and h.T == pytest.approx(ref.T, rel=1e-12) and h.test.T == h.T
     assert specs.evaluate(st.problem, st.results, st.reliability, st.kept, {**spec, "active": False},
-                          st.problem_index()) is None
+                          st.problem_index()).status == "inactive"
     assert specs.describe(st.problem, spec, st.problem_index()).startswith("obs 2 ")
     assert specs.point(st.problem, spec, st.problem_index()) == st.problem_index()["obs_points"][2][-1]
 
@@ -181,7 +182,7 @@ def test_measures_and_sbase_are_the_states(st):
     finally:
         st.selected_obs = old
     assert not measures.observation_field(st.results, st.reliability, st.kept, st.problem.n, m, None).any()
-    assert not measures.hypothesis_field(st.results, "refused", m).any()
+    assert not measures.hypothesis_field(st.results, Outcome("refused", message="x"), m).any()
     e = measures.injected_error(st.results, st.reliability, st.kept, st.problem.n, i, 5.0)
     assert np.flatnonzero(e).tolist() == [i]
     rc = measures.risk_curve(0.1, 1.0, 1.0, st.reliability.delta0 ** 2, n=20)

@@ -48,6 +48,7 @@ NETWORKS = ["gama-local.gkf", "krumm/1D/Niemeier_Height_free.gkf", "tetrahedron.
 
 from baarda.model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint, build_block_problem
 from baarda.observations.collinearity import project
+from baarda.stats.reliability import reliability_of
 
 
 def tiny_block_problem(seed: int = 1):
@@ -124,24 +125,24 @@ def test_toggle_observation_hypothesis_is_core_test(name):
     adj = st.results
     i = int(np.nanargmax(np.abs(adj.w)))
     k = st.add_hypothesis({"kind": "observation", "index": i})
-    h = st.hyp_results[k]
-    ref = adj.test(selection(adj.n, [i]))
+    h = st.outcomes[k].test
+    ref = reliability_of(adj).test(selection(adj.n, [i]))
     assert h.T == pytest.approx(ref.T, rel=1e-12)
     assert h.T == pytest.approx(adj.w[i] ** 2, rel=1e-9)
     assert h.critical_T == ref.critical_T and h.rejected_T == ref.rejected_T
     st.toggle_hypothesis(k)
-    assert st.hyp_results[k] is None
+    assert st.outcomes[k].status == "inactive"
     st.toggle_hypothesis(k)
-    assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-12)
+    assert st.outcomes[k].test.T == pytest.approx(ref.T, rel=1e-12)
 
 
 def test_group_hypothesis_matches_core_groups():
     st = network_state("tetrahedron.gkf")
     adj = st.results
-    g = adj.groups[0]
+    g = reliability_of(adj).groups[0]
     k = st.add_hypothesis({"kind": "group", "group": g["group"]})
-    assert st.hyp_results[k].T == pytest.approx(g["T"], rel=1e-12)
-    assert st.hyp_results[k].q == g["dimension"]
+    assert st.outcomes[k].test.T == pytest.approx(g["T"], rel=1e-12)
+    assert st.outcomes[k].test.q == g["dimension"]
 
 
 def test_block_hypotheses_match_bundle_builders(block_problem):
@@ -152,13 +153,13 @@ def test_block_hypotheses_match_bundle_builders(block_problem):
     k1 = st.add_hypothesis({"kind": "transfer", "point": "P8", "images": ["101", "102"]})
     k2 = st.add_hypothesis({"kind": "control", "point": "P1"})
     k3 = st.add_hypothesis({"kind": "image-point", "image": "101", "point": "P8"})
-    refs = [adj.test(hypotheses.h_point_transfer(adj.problem, "P8", ["101", "102"])),
-            adj.test(hypotheses.h_control_point(adj.problem, "P1")),
-            adj.test(hypotheses.h_image_point(adj.problem, "101", "P8"))]
+    refs = [reliability_of(adj).test(hypotheses.h_point_transfer(adj.problem, "P8", ["101", "102"])),
+            reliability_of(adj).test(hypotheses.h_control_point(adj.problem, "P1")),
+            reliability_of(adj).test(hypotheses.h_image_point(adj.problem, "101", "P8"))]
     for k, ref in zip((k1, k2, k3), refs):
-        assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-10)
-        assert st.hyp_results[k].q == ref.q
-    assert st.hyp_results[k1].q == 2 and st.hyp_results[k1].ellipse().shape[1] == 2
+        assert st.outcomes[k].test.T == pytest.approx(ref.T, rel=1e-10)
+        assert st.outcomes[k].test.q == ref.q
+    assert st.outcomes[k1].test.q == 2 and st.outcomes[k1].test.ellipse().shape[1] == 2
 
 
 def test_hypothesis_table_shows_delta_bar0_of_the_core(block_problem):
@@ -170,9 +171,9 @@ def test_hypothesis_table_shows_delta_bar0_of_the_core(block_problem):
     st = State(problem=block_problem)
     spec = {"kind": "transfer", "point": "P8", "images": ["101", "102"]}
     k = st.add_hypothesis(spec)
-    ref = st.results.test(hypotheses.hypothesis_matrix(st.results, spec))
+    ref = reliability_of(st.results).test(hypotheses.hypothesis_matrix(st.results, spec))
     ext = hypotheses.external_reliability(st.results, ref)
-    assert st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-12)
+    assert st.outcomes[k].test.T == pytest.approx(ref.T, rel=1e-12)
     row = HypothesisPanel(state=st).frame().iloc[k]
     assert row["δ̄0max"] == round(ext.max, 2) and row["δ0'max"] == round(ref.delta0_prime_max, 2)
 
@@ -183,11 +184,11 @@ def test_hypothesis_follows_exclusion_and_alpha():
     st.exclude(3)
     adj = st.results
     j = int(st.reduced_index([10])[0])
-    assert st.hyp_results[k].T == pytest.approx(adj.test(selection(adj.n, [j])).T, rel=1e-12)
+    assert st.outcomes[k].test.T == pytest.approx(reliability_of(adj).test(selection(adj.n, [j])).T, rel=1e-12)
     st.alpha0 = 0.05
-    assert st.hyp_results[k].critical_T == pytest.approx(distributions.critical_chi2(0.05, 1))
+    assert st.outcomes[k].test.critical_T == pytest.approx(distributions.critical_chi2(0.05, 1))
     st.exclude(10)
-    assert isinstance(st.hyp_results[k], str) and "no (included) observations" in st.hyp_results[k]
+    assert st.outcomes[k].status == "refused" and "no (included) observations" in st.outcomes[k].message
 
 
 # --------------------------------------------------------------------------------------------
@@ -205,7 +206,7 @@ def test_exclusion_equals_fresh_adjustment(name):
     assert adj.dof == ref.dof
     np.testing.assert_allclose(adj.r, ref.r, atol=1e-12)
     np.testing.assert_allclose(adj.w, ref.w, atol=1e-9, equal_nan=True)
-    np.testing.assert_allclose(adj.mdb, ref.mdb, rtol=1e-9)
+    np.testing.assert_allclose(reliability_of(adj).mdb, reliability_of(ref).mdb, rtol=1e-9)
     obs, _ = st.frames()
     assert obs["excluded"].sum() == 1 and np.isnan(obs["r"].iat[i])
     assert st.include(i)
@@ -272,7 +273,7 @@ def test_alpha_changes_delta0_and_mdb_plot_data():
     st.alpha0 = 0.01
     assert st.reliability.delta0 == pytest.approx(distributions.delta0(0.01, 0.8, 1))
     ref = adjust(replace(st.results.problem), Options(alpha0=0.01))
-    np.testing.assert_allclose(st.reliability.mdb, ref.mdb, rtol=1e-9)
+    np.testing.assert_allclose(st.reliability.mdb, reliability_of(ref).mdb, rtol=1e-9)
     after = [np.asarray(s.data["mdb_sigma"], dtype=float) for s in sources_with(root, "mdb_sigma")]
     ratio = st.reliability.delta0 / d_old
     for b, a in zip(before, after):
@@ -417,7 +418,7 @@ def test_controls_drive_state():
     c = Controls(state=st)
     c.alpha.value = 0.05
     assert st.alpha0 == 0.05 and st.reliability.delta0 == pytest.approx(distributions.delta0(0.05, 0.8, 1))
-    assert "δ0 = " in c.delta_text(st.results)
+    assert "δ0 = " in c.delta_text(st.reliability)
     st.beta0 = 0.9
     assert c.beta.value == 0.9
 
@@ -446,7 +447,7 @@ def test_upload_limits_and_odd_names(tmp_path, monkeypatch):
     import tempfile
 
     from baarda.dashboard.views import FilePanel
-    from baarda.dashboard.views import controls
+    from baarda.dashboard import uploads as controls
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     st = network_state("gama-local.gkf")
@@ -571,7 +572,7 @@ def test_hypothesis_deformation_is_drawn_on_external_map():
     root = pn.panel(view).get_root(Document())
     assert not any(len(s.data["shift_mm"]) for s in sources_with(root, "shift_mm"))
     k = st.add_hypothesis({"kind": "observation", "index": 20})
-    ref = st.results.point_shifts(deformation(st.results, st.hyp_results[k]))
+    ref = st.results.point_shifts(deformation(st.results, st.outcomes[k].test))
     label, shifts = st.external_field()
     assert label.startswith("hypothesis") and np.abs(ref).max() > 0
     np.testing.assert_allclose(shifts, ref, rtol=1e-12, atol=1e-15)
@@ -615,15 +616,16 @@ def test_ap_group_hypotheses_match_bundle(ap_block):
     assert list(panel.ap_group.options.values())[0] == "brown"     # the estimated one first
     panel.ap_group.value = "brown"
     panel.add.clicks += 1                       # the "Test" button
-    est = st.hyp_results[-1]
+    assert st.outcomes[-1].status == "ap-test"
+    est = st.outcomes[-1].ap
     ref = ap_tests.ap_test(adj, "RC30", "brown")
     assert isinstance(est, ap_tests.APTest)
     assert est.T == pytest.approx(ref.T, rel=1e-10) and est.q == ref.q == 7
     row = panel.frame().iloc[-1]
     assert row["T"] == round(ref.T, 3) and "significant" in row["decision"].lower()
     k = st.add_hypothesis({"kind": "ap-group", "camera": "RC30", "group": "ebner"})
-    ref2 = adj.test(hypotheses.h_ap_group(adj, "RC30", "ebner"))
-    assert st.hyp_results[k].T == pytest.approx(ref2.T, rel=1e-9) and st.hyp_results[k].q == 12
+    ref2 = reliability_of(adj).test(hypotheses.h_ap_group(adj, "RC30", "ebner"))
+    assert st.outcomes[k].test.T == pytest.approx(ref2.T, rel=1e-9) and st.outcomes[k].test.q == 12
     assert "not in the model" in st.hypotheses[k]["label"]
     st.selected_hypothesis = k          # its deformation field is drawn like any other
     assert np.abs(st.external_field()[1]).max() > 0
@@ -638,8 +640,8 @@ def test_ap_group_hypothesis_with_exclusions(block_problem):
     adj = st.results
     # the core's builder at the full problem's solution, cut to the kept rows: H differs only
     # by the (small) change of the solution the exclusion causes
-    ref = adj.test(hypotheses.h_ap_group(adjust(block_problem), "cam", "brown").tocsr()[st.kept])
-    assert st.hyp_results[k].q == 7 and st.hyp_results[k].T == pytest.approx(ref.T, rel=1e-4)
+    ref = reliability_of(adj).test(hypotheses.h_ap_group(adjust(block_problem), "cam", "brown").tocsr()[st.kept])
+    assert st.outcomes[k].test.q == 7 and st.outcomes[k].test.T == pytest.approx(ref.T, rel=1e-4)
 
 
 def test_robust_selector_runs_core_and_marks_suspects():
@@ -723,13 +725,13 @@ def test_inject_error_on_a_copy_and_keep(block_problem):
     panel.run.clicks += 1
     inj = st.injection
     e = np.zeros(adj.n)
-    e[i] = 1.5 * adj.mdb[i]
+    e[i] = 1.5 * reliability_of(adj).mdb[i]
     ref = adjust(replace(adj.problem, l=adj.problem.l + e), adj.options)
     assert inj["w_after"] == pytest.approx(ref.w[i], rel=1e-9)
     assert inj["w_before"] == pytest.approx(adj.w[i], rel=1e-12)
-    assert inj["rejected"] == bool(abs(ref.w[i]) > ref.critical_w)
+    assert inj["rejected"] == bool(abs(ref.w[i]) > reliability_of(ref).critical_w)
     assert inj["largest"] == pytest.approx(np.nanmax(np.abs(ref.w)))
-    g = next(g for g in ref.groups if i in g["members"])
+    g = next(g for g in reliability_of(ref).groups if i in g["members"])
     assert inj["group_T"] == pytest.approx(g["T"])
     assert "**rejected**" in panel.result.object or "**not rejected**" in panel.result.object
     assert "δ0 (δ0 = " in panel.result.object
@@ -954,8 +956,8 @@ def test_duplicate_keypoints_are_image_points_of_their_own(tmp_path):
             geometry.image_point_rows(st.problem_index(), iid, pid)
         # the hypothesis of one keypoint's image point: q = 2, the core's test of those two rows
         k = st.add_hypothesis({"kind": "image-point", "image": str(iid), "point": str(pid), "keypoint": kp})
-        h = st.hyp_results[k]
-        ref = st.results.test(selection(st.results.n, mine))
+        h = st.outcomes[k].test
+        ref = reliability_of(st.results).test(selection(st.results.n, mine))
         assert h.q == 2 and h.T == pytest.approx(ref.T, rel=1e-12)
         assert f"keypoint {kp}" in specs.describe(st.problem, st.hypotheses[k], st.problem_index())
 
@@ -987,7 +989,7 @@ def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
             # the loop's observations: q = 1, ∇0 = MDB (F80 eq. 13 = M84's minimal detectable bias)
             h = hypotheses.test(adj, selection(adj.n, [0]))
             assert h.q == 1
-            assert abs(h.lower_bound([1.0])[0]) == pytest.approx(adj.mdb[0], rel=1e-9)
+            assert abs(h.lower_bound([1.0])[0]) == pytest.approx(reliability_of(adj).mdb[0], rel=1e-9)
             # the dangling observation (r = 0): W is round-off (of either sign), q = 0
             h = hypotheses.test(adj, selection(adj.n, [adj.n - 1]))
             seen_negative |= float(h.W[0, 0]) < 0
@@ -999,8 +1001,8 @@ def test_lower_bound_of_an_untestable_q1_hypothesis_has_no_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         k = st.add_hypothesis({"kind": "observation", "index": st.problem.n - 1})
-        assert st.hyp_results[k].q == 0
-        assert not measures.hypothesis_field(st.results, st.hyp_results[k], len(st.problem.points.ids)).any()
+        assert st.outcomes[k].test.q == 0
+        assert not measures.hypothesis_field(st.results, st.outcomes[k], len(st.problem.points.ids)).any()
 
 
 def test_cancelled_snooping_stops_within_its_step(monkeypatch):
@@ -1158,12 +1160,12 @@ def test_policy_change_rebuilds_only_the_reliability_over_the_same_result(monkey
     assert st.results is adj and st.solution == sol
     assert st.reliability is not rel and st.reliability.result is adj
     assert st.reliability.policy == TestPolicy(0.02, 0.9, True, sigma0_mode)
-    ref = adjust(replace(adj.problem), Options(alpha0=0.02, beta0=0.9, b_method=True))
+    ref = reliability_of(adjust(replace(adj.problem), Options(alpha0=0.02, beta0=0.9, b_method=True)))
     np.testing.assert_allclose(st.reliability.mdb, ref.mdb, rtol=1e-12)
     np.testing.assert_allclose(st.reliability.external, ref.external, rtol=1e-12)
     assert st.reliability.delta0 == ref.delta0 == distributions.delta0(0.02, 0.9, 1)
-    stat, crit = (ref.tau, distributions.critical_tau(0.02, ref.dof)) if sigma0_mode == "aposteriori" \
-        else (ref.w, distributions.critical_normal(0.02))
+    stat, crit = (ref.result.tau, distributions.critical_tau(0.02, ref.result.dof)) if sigma0_mode == "aposteriori" \
+        else (ref.result.w, distributions.critical_normal(0.02))
     np.testing.assert_array_equal(st.reliability.rejected, np.nan_to_num(np.abs(stat)) > crit)
     obs, _ = st.frames()
     np.testing.assert_array_equal(obs["rejected"].to_numpy(), st.expand(st.reliability.rejected, fill=False))

@@ -26,6 +26,7 @@ from baarda.dashboard.state import State  # noqa: E402
 from baarda.dashboard.suspects import suspects, transfer_candidates  # noqa: E402
 from baarda.dashboard.views.suspects import SuspectsView  # noqa: E402
 from baarda.stats.hypotheses import h_point_transfer  # noqa: E402
+from baarda.stats.reliability import reliability_of
 from tests.oracle import dense  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "data"
@@ -66,7 +67,7 @@ def test_every_planted_error_is_a_suspect(demo):
     # the transfer error itself (point P04004 in images 203, 204, 205) is one of the scanned rows
     tr = df[(df["what"] == "transfer") & (df["hypothesis"] == "P04004 in images 203, 204, 205")]
     assert len(tr) == 1 and tr["decision"].iat[0] == "rejected"
-    h = st.results.test(h_point_transfer(st.results.problem, "P04004", ["203", "204", "205"]))
+    h = reliability_of(st.results).test(h_point_transfer(st.results.problem, "P04004", ["203", "204", "205"]))
     assert tr["T"].iat[0] == pytest.approx(h.T, rel=1e-9)
 
 

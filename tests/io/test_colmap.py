@@ -20,6 +20,7 @@ from baarda.cli import main
 from baarda.errors import InputError
 from baarda.io.colmap import read_colmap
 from baarda.model.sfm import initial_cost
+from baarda.stats.reliability import reliability_of
 
 from tests.extdata import EXTDATA, require_extdata
 
@@ -126,7 +127,7 @@ def test_duplicate_keypoints_tested_on_their_own_and_counted_in_the_summary(tmp_
     groups = {int(p.info.group[i]) for i in rows}
     assert len(groups) == 2                               # one 2-D test per image point
     assert np.isfinite(adj.r[rows]).all() and (adj.r[rows] > 0).all() and np.isfinite(adj.w[rows]).all()
-    assert np.isfinite(adj.mdb[rows]).all()
+    assert np.isfinite(reliability_of(adj).mdb[rows]).all()
     # the shifted keypoint (0.75, −0.5 px off) pulls its partner: both residuals differ
     assert not np.allclose(adj.v[rows[:2]], adj.v[rows[2:]])
     out = tmp_path / "r.json"

@@ -29,6 +29,7 @@ from baarda.model.bundle import build_block_problem
 from baarda.model.sfm import CAMERA_MODELS, SfmBlock, build_sfm_problem, initial_cost, to_block
 from baarda.observations.projection import ProjectionSet
 from baarda.observations.rotation import R_from_rodrigues
+from baarda.stats.reliability import reliability_of
 
 from tests.extdata import EXTDATA, require_extdata
 
@@ -147,7 +148,7 @@ def test_ladybug_adjusts():
     r, w = adj.r, adj.w
     assert abs(r.sum() - adj.dof) < 1e-6
     assert r.min() >= 0.0 and r.max() <= 1.0 and np.isfinite(w).all()
-    assert np.isfinite(adj.mdb).all() and np.isfinite(adj.external).all()
+    assert np.isfinite(reliability_of(adj).mdb).all() and np.isfinite(reliability_of(adj).external).all()
 
 
 # --------------------------------------------------------------------------------------------

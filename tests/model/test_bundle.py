@@ -18,6 +18,7 @@ from baarda.simulate import simulate_block
 from baarda.stats.ap_tests import ap_test
 from baarda.stats.hypotheses import (h_ap_group, h_control_point, h_exchanged, h_image_coordinate, h_image_point,
                                      h_point_transfer)
+from baarda.stats.reliability import reliability_of
 
 from tests.oracle import reduced_design
 
@@ -117,13 +118,13 @@ def test_single_hypotheses_agree_with_data_snooping(block_adj):
     k = int(np.flatnonzero(track[block.obs.point] >= 4)[0])    # both coordinates controlled
     im, pt = block.images[block.obs.image[k]].id, block.points[block.obs.point[k]].id
     rows = image_rows(pr, im, pt)
-    h = adj.test(h_image_coordinate(pr, im, pt, "y"))
+    h = reliability_of(adj).test(h_image_coordinate(pr, im, pt, "y"))
     assert np.isclose(h.T, adj.w[rows[1]] ** 2)
-    h2 = adj.test(h_image_point(pr, im, pt))
-    g = next(g for g in adj.groups if g["group"] == k)
+    h2 = reliability_of(adj).test(h_image_point(pr, im, pt))
+    g = next(g for g in reliability_of(adj).groups if g["group"] == k)
     assert h2.q == 2 and np.isclose(h2.T, g["T"])
     ctrl = next(p.id for p in block.points if p.status == "control")
-    hc = adj.test(h_control_point(pr, ctrl))
+    hc = reliability_of(adj).test(h_control_point(pr, ctrl))
     assert hc.q == 3 and hc.H.shape == (pr.n, 3)
 
 
@@ -132,8 +133,8 @@ def test_point_transfer_error_is_found_by_its_own_hypothesis():
     adj = adjust(build_block_problem(block))
     e = truth["errors"][0]
     assert len(e["ids"]["images"]) == 3 and e["class"] == "small"
-    h = adj.test(h_point_transfer(adj.problem, e["ids"]["point"], e["ids"]["images"]))
-    single = [g["T"] for g in adj.groups if g["dimension"] == 2]
+    h = reliability_of(adj).test(h_point_transfer(adj.problem, e["ids"]["point"], e["ids"]["images"]))
+    single = [g["T"] for g in reliability_of(adj).groups if g["dimension"] == 2]
     assert h.rejected_T
     assert h.T > max(single)
     assert np.all(np.abs(h.nabla - e["vector"]) < h.nabla_sigma)
@@ -149,7 +150,7 @@ def test_exchange_hypothesis_column(block_adj):
     H = h_exchanged(adj, im, a, b).toarray().ravel()
     ra, rb = image_rows(adj.problem, im, a), image_rows(adj.problem, im, b)
     assert np.allclose(H[ra], adj.f[rb] - adj.f[ra]) and np.allclose(H[rb], -H[ra])
-    h = adj.test(sp.csc_matrix(H[:, None]))
+    h = reliability_of(adj).test(sp.csc_matrix(H[:, None]))
     assert h.q == 1 and abs(h.nabla[0]) < 0.05          # no exchange planted
 
 
@@ -175,7 +176,7 @@ def test_ap_reliability_matches_dense_oracle():
     t = ap_test(adj, "RC30", "ebner")
     adj0 = adjust(build_block_problem(blk.replace(cameras=(Camera(**{**blk.cameras[0].__dict__, "ap": ()}),))))
     H = h_ap_group(adj0, "RC30", "ebner")
-    h = adj0.test(H)
+    h = reliability_of(adj0).test(H)
     assert np.allclose(np.linalg.inv(h.W), t.cov, rtol=1e-6, atol=1e-12)
     kind = adj0.problem.params.kind[adj0.problem.params.free]
     k, tt = kind == "k", kind == "t"

@@ -11,6 +11,7 @@ from baarda.io.native import read_native, write_native
 from baarda.model.imodel import build_imodel_problem
 from baarda.simulate import simulate_imodel
 from baarda.stats.hypotheses import h_model_point
+from baarda.stats.reliability import reliability_of
 
 
 def test_jacobian_matches_finite_differences():
@@ -58,9 +59,9 @@ def test_model_point_error_is_found():
     blk, truth = simulate_imodel(seed=3, errors=[{"kind": "model-point", "size": 25}])
     adj = adjust(build_imodel_problem(blk))
     e = truth["errors"][0]
-    worst = max(adj.groups, key=lambda g: g["T"])
+    worst = max(reliability_of(adj).groups, key=lambda g: g["T"])
     assert sorted(worst["members"].tolist()) == e["rows"]
-    h = adj.test(h_model_point(adj.problem, e["ids"]["model"], e["ids"]["point"]))
+    h = reliability_of(adj).test(h_model_point(adj.problem, e["ids"]["model"], e["ids"]["point"]))
     assert h.rejected_T and np.isclose(h.T, worst["T"])
     assert np.all(np.abs(h.nabla - e["vector"]) < 3 * h.nabla_sigma)
 

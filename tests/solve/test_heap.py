@@ -17,8 +17,10 @@ from baarda.datum import normal_diagonal
 from baarda.io.bal import read_bal
 from baarda.model.problem import Categorical, Covariance, JoinedLabels, RecordIds, subset
 from baarda.model.sfm import CAMERA_MODELS, ControlPoint, SfmBlock, SfmCamera, SfmImage, build_sfm_problem
+from baarda.stats.groups import group_statistics
 from baarda.stats.hypotheses import selection
 from baarda.stats.hypotheses import test as general_test
+from baarda.stats.reliability import reliability_of
 
 BENCH = Path(__file__).resolve().parents[2] / "bench"
 
@@ -108,7 +110,7 @@ def test_stacked_covariance_equals_the_cluster_list(block):
 
 def test_group_tests_as_arrays_equal_the_general_test(block):
     adj = adjust(build_sfm_problem(block), Options())
-    groups = adj.groups
+    groups = reliability_of(adj).groups
     assert len(groups) == block.obs_image.size
     sub = groups[5:40:7]
     for k, g in zip(range(5, 40, 7), sub):
@@ -199,7 +201,7 @@ def test_adjust_memory_per_image_point(block):
         adj = adjust(p, Options())
         current, peak = tracemalloc.get_traced_memory()
         tracemalloc.reset_peak()
-        adj.r, adj.w, adj.mdb, adj.external, adj.groups
+        adj.r, adj.w, reliability_of(adj).mdb, reliability_of(adj).external, reliability_of(adj).groups
         peak_rel = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
@@ -246,9 +248,9 @@ def test_cluster_group_tests_in_chunks_equal_one_chunk(block, monkeypatch):
     from baarda import result
 
     p = build_sfm_problem(block)
-    whole = adjust(p, Options()).group_statistics
+    whole = group_statistics(adjust(p, Options()))
     monkeypatch.setattr(result, "GROUP_CHUNK", 700)
-    parts = adjust(p, Options()).group_statistics
+    parts = group_statistics(adjust(p, Options()))
     assert len(whole) == len(parts) == 10
     for a, b in zip(whole, parts):
         np.testing.assert_array_equal(a, b)

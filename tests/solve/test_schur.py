@@ -17,6 +17,7 @@ from baarda.solve import schur
 from baarda.solve.compiled import NUMBA
 from baarda.solve.linalg import LowRankUpdate
 from baarda.stats.hypotheses import h_point_transfer
+from baarda.stats.reliability import reliability_of
 
 from tests.oracle import nuisance_share, redundancy
 
@@ -202,7 +203,7 @@ def test_hypothesis_test_uses_the_schur_factor():
     p = int(np.flatnonzero(pts >= 3)[0])
     images = [block.images[i].id for i in block.obs.image[block.obs.point == p][:3]]
     H = h_point_transfer(pr, block.points[p].id, images)
-    hs, hg = s.test(H), g.test(H)
+    hs, hg = reliability_of(s).test(H), reliability_of(g).test(H)
     assert hs.T == pytest.approx(hg.T, rel=1e-9, abs=1e-12)
     assert np.allclose(hs.W, hg.W, rtol=1e-9, atol=1e-12 * np.abs(hg.W).max())
 

@@ -26,7 +26,7 @@ from baarda.dashboard.views import Controls
 from baarda.dashboard.views.summary import summary_html
 from baarda.io.results import summary
 from baarda.stats import distributions
-from baarda.stats.reliability import Reliability
+from baarda.stats.reliability import Reliability, policy_of, reliability_of
 
 from tests.extdata import GAMA, require_extdata
 
@@ -77,14 +77,14 @@ def test_wolf_free_network_passes_one_sided_and_fails_two_sided_low(tmp_path, ca
     adj = adjust(read_problem(WOLF))
     assert adj.dof == 14 and adj.vPv == pytest.approx(2.33, abs=0.005)
     a14 = alpha_r(0.001, 0.80, 14)
-    g = adj.global_test
+    g = reliability_of(adj).global_test
     assert (g["test"], g["passed"], g["side"]) == ("one-sided", True, "low")
     assert g["alpha"] == pytest.approx(0.025, rel=1e-12)
     assert g["upper"] == pytest.approx(sps.chi2.isf(0.025, 14), rel=1e-12)
-    b = Reliability(adj, replace(adj.policy, global_test="b-method")).global_test
+    b = Reliability(adj, replace(policy_of(adj), global_test="b-method")).global_test
     assert (b["passed"], b["side"]) == (True, "low") and b["alpha"] == pytest.approx(a14, rel=1e-8)
     assert b["upper"] == pytest.approx(sps.chi2.isf(a14, 14), rel=1e-8)
-    two = Reliability(adj, replace(adj.policy, global_test="two-sided")).global_test
+    two = Reliability(adj, replace(policy_of(adj), global_test="two-sided")).global_test
     assert two["lower"] == pytest.approx(sps.chi2.ppf(0.025, 14), rel=1e-12)
     assert round(two["lower"], 2) == 5.63
     assert (two["passed"], two["side"]) == (False, "low")
@@ -113,15 +113,15 @@ def test_demo_levelling_verdict(tmp_path):
     r, T = adj.dof, adj.vPv
     a5 = alpha_r(0.001, 0.80, r)
     assert r == 5
-    g = adj.global_test
+    g = reliability_of(adj).global_test
     assert g["alpha"] == pytest.approx(0.025, rel=1e-12) and g["upper"] == pytest.approx(sps.chi2.isf(0.025, r), rel=1e-12)
     assert T > sps.chi2.isf(0.025, r)
     assert (g["passed"], g["side"]) == (False, "high") and "too large" in g["verdict"]
-    b = Reliability(adj, replace(adj.policy, global_test="b-method")).global_test
+    b = Reliability(adj, replace(policy_of(adj), global_test="b-method")).global_test
     assert b["alpha"] == pytest.approx(a5, rel=1e-8)
     assert b["upper"] == pytest.approx(sps.chi2.isf(a5, r), rel=1e-8) and T > b["upper"]
     assert (b["passed"], b["side"]) == (False, "high") and "too large" in b["verdict"]
-    two = Reliability(adj, replace(adj.policy, global_test="two-sided")).global_test
+    two = Reliability(adj, replace(policy_of(adj), global_test="two-sided")).global_test
     assert two["upper"] == pytest.approx(sps.chi2.isf(0.025, r), rel=1e-12)
     assert (two["passed"], two["side"]) == (T <= sps.chi2.isf(0.025, r), "high")
 
@@ -129,7 +129,7 @@ def test_demo_levelling_verdict(tmp_path):
 def test_global_test_option_reaches_the_policy():
     o = Options(global_test="two-sided")
     adj = adjust(read_problem(DATA / "demo-levelling.gkf"), o)
-    assert adj.global_test["test"] == "two-sided" and adj.global_test["alpha"] == pytest.approx(0.05)
+    assert reliability_of(adj).global_test["test"] == "two-sided" and reliability_of(adj).global_test["alpha"] == pytest.approx(0.05)
 
 
 def test_dashboard_summary_says_which_test(tmp_path):
@@ -138,8 +138,8 @@ def test_dashboard_summary_says_which_test(tmp_path):
     adj = adjust(read_problem(DATA / "demo-levelling.gkf"))
     s = {**summary(adj), "n_uncontrolled": 0, "n_weak": 0, "n_excluded": 0, "n_points": 8}
     html = summary_html(s)
-    assert adj.global_test["statistic"] > adj.global_test["upper"]       # 14.98 > 12.83: failed
-    assert "one-sided, α = 2.5 %" in html and f"> {adj.global_test['upper']:.4g}" in html
+    assert reliability_of(adj).global_test["statistic"] > reliability_of(adj).global_test["upper"]       # 14.98 > 12.83: failed
+    assert "one-sided, α = 2.5 %" in html and f"> {reliability_of(adj).global_test['upper']:.4g}" in html
     iv = summary(adj)["global_test"]["sigma0_interval"]
     assert f"95 % interval [{iv['lower']:.4g}, {iv['upper']:.4g}]" in html
     low = {**s, "global_test": distributions.global_test(0.5, 5, 0.95)}
@@ -152,7 +152,7 @@ def test_dashboard_summary_shows_a_failed_test_beyond_its_bound():
     """A failed one-sided test reads "vᵀPv = T > bound" (it read "383 ≤ 125.9" on the demo
     block); a passed one "≤"; a two-sided pass "∈"."""
     adj = adjust(read_problem(DATA / "demo-block.json"))
-    g = adj.global_test
+    g = reliability_of(adj).global_test
     assert g["passed"] is False and g["statistic"] > g["upper"]
     s = {**summary(adj), "n_uncontrolled": 0, "n_weak": 0, "n_excluded": 0, "n_points": 60}
     html = summary_html(s)

@@ -15,7 +15,8 @@ from baarda.build import build
 from baarda.io.gnss import GnssOptions
 from baarda.model.gnss import GnssSpec
 from baarda.simulate import simulate_block, simulate_to_files
-from baarda.stats import hypotheses
+from baarda.model.bundle import gnss_rows
+from baarda.stats import gnss
 from baarda.stats.ap_tests import ap_test
 from tests import oracle
 
@@ -84,12 +85,12 @@ def test_planted_centre_error_is_the_largest_gnss_w_and_rejected_with_its_3d_tes
     worst = g[np.argmax(np.abs(adj.w[g]))]
     assert adj.problem.info.ids[worst] == {"image": "205", "strip": "2", "component": "x"}
     assert rel.rejected[worst]
-    t = rel.test(hypotheses.h_gnss_centre(adj.problem, "205"), label="GNSS 205")
+    t = rel.test(gnss.h_gnss_centre(adj.problem, "205"), label="GNSS 205")
     assert t.q == 3 and t.rejected_T
     assert abs(t.nabla[0] - 1.0) < 3 * t.nabla_sigma[0]      # ∇ŝ estimates the planted +1 m in x
     # its group test in the document: the 3-D test of the centre
     groups = a.to_dict()["groups"]
-    grp = [gr for gr in groups if set(gr["members"]) == set(hypotheses.gnss_rows(adj.problem, "205").tolist())]
+    grp = [gr for gr in groups if set(gr["members"]) == set(gnss_rows(adj.problem, "205").tolist())]
     assert len(grp) == 1 and grp[0]["dimension"] == 3 and grp[0]["rejected"]
     found = {f["kind"]: f for f in a.planted(planted / "b.truth.json")}
     assert found["gnss"]["found"] and found["gnss-strip"]["found"]
@@ -98,10 +99,10 @@ def test_planted_centre_error_is_the_largest_gnss_w_and_rejected_with_its_3d_tes
 def test_strip_shift_is_found_by_the_strip_test(planted):
     a = baarda.analyze(planted / "b.json", gnss=planted / "b.gnss.csv")
     images = [im.id for im in a.problem.notes.local_model.images if im.strip == "3"]
-    t = a.reliability.test(hypotheses.h_gnss_strip(a.adjustment.problem, images), label="strip 3")
+    t = a.reliability.test(gnss.h_gnss_strip(a.adjustment.problem, images), label="strip 3")
     assert t.q == 3 and t.rejected_T
     assert abs(t.nabla[0] - 0.5) < 3 * t.nabla_sigma[0]
-    others = [a.reliability.test(hypotheses.h_gnss_strip(a.adjustment.problem, [im.id for im in
+    others = [a.reliability.test(gnss.h_gnss_strip(a.adjustment.problem, [im.id for im in
                                  a.problem.notes.local_model.images if im.strip == s])) for s in ("1", "2")]
     assert all(o.T < t.T for o in others)
     # reported: the strip tests in the text and the document, and baarda test's gnss-strip:STRIP

@@ -10,7 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from baarda.stats.groups import group_statistics
 from baarda.stats.hypotheses import counted_directions
+from baarda.stats.reliability import reliability_of
 
 from tests.extdata import EXTDATA, require_extdata
 
@@ -59,10 +61,10 @@ def test_ladybug_groups_stay_within_vpv_and_the_keypoint_pair_is_one_dimensional
     from baarda.stats import hypotheses
 
     adj = ladybug
-    g = adj.group_statistics
+    g = group_statistics(adj)
     keys, ptr, members, T, q = g.keys, g.ptr, g.members, g.T, g.q
     assert np.nanmax(T) <= adj.vPv
-    groups = adj.groups
+    groups = reliability_of(adj).groups
     assert np.nanmax(groups.T) < 1e4
     ids = adj.problem.info.ids
     k = next(k for k in range(keys.size)

@@ -12,6 +12,7 @@ from baarda.adjust import Options, adjust
 from baarda.errors import HypothesisError
 from baarda.stats import distributions
 from baarda.stats.hypotheses import common_error, deformation, external_reliability, selection
+from baarda.stats.reliability import reliability_of
 
 from tests.networks import grid_network, problem, vector_network
 from tests.oracle import dense, reduced_design
@@ -37,7 +38,7 @@ def test_statistics_equal_the_dense_formulas(adj, name):
     g = Hd.T @ P @ v
     T = g @ np.linalg.solve(W, g)                                 # F80 eq. 12
     q, r, vPv = Hd.shape[1], adj.dof, v @ P @ v
-    h = adj.test(H)
+    h = reliability_of(adj).test(H)
     assert h.q == q
     np.testing.assert_allclose(h.W, W, rtol=1e-8, atol=1e-10 * np.abs(W).max())
     np.testing.assert_allclose(h.nabla, -np.linalg.solve(W, g), rtol=1e-7, atol=1e-12)
@@ -49,14 +50,14 @@ def test_statistics_equal_the_dense_formulas(adj, name):
 def test_one_observation_gives_w_squared(adj):
     """For H = e_i the test is the w-test: T = w_i² (F80 §4)."""
     for i in (0, 7, 15):
-        assert adj.test(selection(adj.n, [i])).T == pytest.approx(adj.w[i] ** 2, rel=1e-9)
+        assert reliability_of(adj).test(selection(adj.n, [i])).T == pytest.approx(adj.w[i] ** 2, rel=1e-9)
 
 
 def test_lower_bound_lies_on_the_ellipse_and_the_weakest_direction_is_the_pencils(adj):
     """∇0sᵀ W ∇0s = δ0² in every direction (F80 eq. 13); δ0'(s) = δ0 √(sᵀHᵀPHs / sᵀWs) is at most
     δ0 √λmax of the pencil (HᵀPH, W) and reaches it in ``weakest`` (F80 eq. 14, §7.3)."""
     H = _hypotheses(adj.n)["common"]
-    h = adj.test(H)
+    h = reliability_of(adj).test(H)
     Hd, P = H.toarray(), dense(adj).P
     HPH = Hd.T @ P @ Hd
     for s in np.random.default_rng(0).normal(size=(5, 2)):
@@ -71,7 +72,7 @@ def test_lower_bound_lies_on_the_ellipse_and_the_weakest_direction_is_the_pencil
 
 def test_b_method_sets_the_size_of_the_q_dimensional_test():
     a = adjust(problem(grid_network(3, 3, noise_seed=5)), Options(b_method=True))
-    h = a.test(selection(a.n, [2, 9]))
+    h = reliability_of(a).test(selection(a.n, [2, 9]))
     assert h.alpha == pytest.approx(distributions.alpha_b_method(a.options.alpha0, a.options.beta0, 2))
     assert h.delta0 == pytest.approx(distributions.delta0(a.options.alpha0, a.options.beta0, 1))
 
@@ -79,7 +80,7 @@ def test_b_method_sets_the_size_of_the_q_dimensional_test():
 def test_deformation_is_the_dense_normal_solution():
     """∇0x = N⁻¹ AᵀP H ∇0s (F80 §6) for a fixed-datum network (N regular)."""
     adj = adjust(problem(vector_network(2)))
-    h = adj.test(selection(adj.n, [3, 4, 5]))
+    h = reliability_of(adj).test(selection(adj.n, [3, 4, 5]))
     d = deformation(adj, h)
     ref = dense(adj)
     nabla0 = h.lower_bound(h.ellipse_dirs[:, np.flatnonzero(np.isfinite(h.ellipse_axes))[0]])
@@ -90,7 +91,7 @@ def test_deformation_is_the_dense_normal_solution():
 
 def test_wrong_number_of_rows_is_a_hypothesis_error(adj):
     with pytest.raises(HypothesisError):
-        adj.test(selection(adj.n + 2, [0]))
+        reliability_of(adj).test(selection(adj.n + 2, [0]))
 
 
 def _dense_eq17(adj, H):
@@ -114,7 +115,7 @@ def test_external_reliability_of_any_hypothesis_equals_the_dense_eq17(datum, nam
     free (the form is datum invariant)."""
     adj = adjust(problem(grid_network(3, 3, noise_seed=5, datum=datum)))
     H = _hypotheses(adj.n)[name]
-    h = adj.test(H)
+    h = reliability_of(adj).test(H)
     ext = external_reliability(adj, h)
     M, W, _, _ = _dense_eq17(adj, H)
     np.testing.assert_allclose(ext.M, M, rtol=1e-7, atol=1e-9 * np.abs(M).max())
@@ -131,9 +132,9 @@ def test_external_reliability_of_one_observation_is_eq18s():
     """For H = e_i, δ̄0 is the per-observation external reliability δ0 √((PH_kP)_ii/(PC_vvP)_ii)."""
     adj = adjust(problem(grid_network(3, 3, noise_seed=5)))
     for i in (0, 7, 15):
-        ext = external_reliability(adj, adj.test(selection(adj.n, [i])))
-        assert ext.max == pytest.approx(adj.external[i], rel=1e-8)
-        assert ext.lambda_bar_max == pytest.approx(adj.external[i] ** 2, rel=1e-8)
+        ext = external_reliability(adj, reliability_of(adj).test(selection(adj.n, [i])))
+        assert ext.max == pytest.approx(reliability_of(adj).external[i], rel=1e-8)
+        assert ext.lambda_bar_max == pytest.approx(reliability_of(adj).external[i] ** 2, rel=1e-8)
 
 
 def test_eq18_is_reached_with_equality_in_the_maximising_direction():
@@ -141,7 +142,7 @@ def test_eq18_is_reached_with_equality_in_the_maximising_direction():
     g = (C̄ᵀPC̄) ∇0k when ∇0s lies in the maximising direction; random g stay below."""
     adj = adjust(problem(grid_network(3, 3, noise_seed=5, datum="free")))
     H = _hypotheses(adj.n)["common"]
-    h = adj.test(H)
+    h = reliability_of(adj).test(H)
     ext = external_reliability(adj, h)
     _, _, Cbar, Qkk = _dense_eq17(adj, H)
     nabla0 = h.lower_bound(ext.direction)                       # on the ellipse, F80 eq. 13

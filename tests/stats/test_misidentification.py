@@ -172,22 +172,26 @@ def test_planted_exchange_is_found_with_s_hat_one(seed):
     assert t.omega1 < 3 * adj.dof                   # the refit is the clean block: Ω1 ~ χ²(r)
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-def test_planted_exchange_block_is_analysed_robustly(tmp_path, seed, capsys):
+@pytest.mark.parametrize("seed, robust", [(1, True), (2, True), (1, False), (2, False), (4, False)])
+def test_planted_exchange_block_is_analysed_robustly(tmp_path, seed, robust, capsys):
     """Issue 27 item 4: ``baarda simulate x.json --strips 3 --images 6 --seed N --error exchange:1``
     (R84 "medium", 0.9 base lengths) ended in "NOT converged … singular … no JSON/CSV written" with
-    and without ``--robust r84`` (seed 1: 200 iterations; seed 2: converged with the exchanged point
-    held at infinity, singular). With ``--robust r84`` the least squares without its suspects
-    converges and its results are written (exit 0), the suspects left out named in the JSON, the
-    exchanged image point among them; without --robust the one-line message and exit 4 stay."""
+    and without ``--robust r84`` (seeds 1 and 4: 200 iterations; seed 2: converged with the exchanged
+    point held at infinity, singular). The robust estimation (R84 §6-8; with ``--robust r84``, or
+    run because least squares gave no result) finds the exchanged image point, the least squares
+    without its suspects converges and its results are written (JSON and CSV, exit 0), the
+    suspects left out named in the JSON and the stderr line saying what was done."""
     path = tmp_path / "x.json"
     assert main(["simulate", str(path), "--strips", "3", "--images", "6", "--seed", str(seed),
                  "--error", "exchange:1"]) == 0
     ids = json.loads(path.with_suffix(".truth.json").read_text())["errors"][0]["ids"]
     out = tmp_path / "x.out.json"
-    assert main(["analyze", str(path), "--robust", "r84", "--json", str(out), "--top", "1"]) == 0
+    argv = ["analyze", str(path), "--json", str(out), "--csv", str(tmp_path / "csv"), "--top", "1"]
+    assert main(argv + (["--robust", "r84"] if robust else [])) == 0
     err = capsys.readouterr().err
-    assert "its results are written" in err
+    assert err.count("\n") == 1 and "its results are written" in err
+    assert ("so the robust estimation (r84, R84 §6-8) was run" in err) is not robust
+    assert (tmp_path / "csv" / "observations.csv").exists()
     doc = json.loads(out.read_text())
     assert doc["summary"]["converged"] and doc["robust"]["cleaned"]["complete"]
     left = doc["summary"]["robust_left_out"]

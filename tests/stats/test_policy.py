@@ -11,7 +11,7 @@ from baarda.adjust import Options, adjust
 from baarda.errors import OptionError
 from baarda.model.bundle import build_block_problem
 from baarda.stats.policy import TestPolicy
-from baarda.stats.reliability import Reliability
+from baarda.stats.reliability import Reliability, policy_of, reliability_of
 from baarda.simulate import simulate_block
 
 
@@ -75,7 +75,7 @@ def test_reliability_under_another_policy_equals_a_fresh_adjustment():
     factor = adj.factor
     policy = TestPolicy(alpha0=0.05, beta0=0.9, b_method=True)
     rel = Reliability(adj, policy)
-    ref = adjust(problem, Options(alpha0=0.05, beta0=0.9, b_method=True))
+    ref = reliability_of(adjust(problem, Options(alpha0=0.05, beta0=0.9, b_method=True)))
     assert rel.result is adj and adj.factor is factor
     np.testing.assert_allclose(rel.mdb, ref.mdb, rtol=1e-9)
     np.testing.assert_allclose(rel.external, ref.external, rtol=1e-9)
@@ -92,6 +92,10 @@ def test_reliability_under_another_policy_equals_a_fresh_adjustment():
     h, hr = rel.test(H), ref.test(H)
     assert h.alpha == hr.alpha and h.critical_T == hr.critical_T and h.delta0 == hr.delta0
     assert h.T == pytest.approx(hr.T, rel=1e-9)
-    # the adjustment's own reliability is its options' policy (σ0 a priori)
-    assert adj.reliability.policy == TestPolicy.from_options(Options())
-    assert adj.mdb is adj.reliability.mdb
+    # the adjustment knows no policy: reliability_of gives its options' policy (σ0 a priori), one
+    # Reliability per result and policy, kept with the result
+    assert not hasattr(adj, "reliability") and not hasattr(adj, "mdb")
+    assert reliability_of(adj).policy == policy_of(adj) == TestPolicy.from_options(Options())
+    assert reliability_of(adj) is reliability_of(adj, policy_of(adj))
+    other = reliability_of(adj, rel.policy)
+    assert other is not reliability_of(adj) and np.array_equal(other.mdb, rel.mdb, equal_nan=True)

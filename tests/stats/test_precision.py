@@ -7,6 +7,7 @@ import pytest
 
 from baarda.adjust import adjust
 from baarda.stats import precision, risk
+from baarda.stats.reliability import reliability_of
 
 from tests.networks import grid_network, problem
 from tests.oracle import reduced_design
@@ -50,12 +51,12 @@ def test_s_base_changes_ellipses_but_not_tests(pair):
     np.testing.assert_allclose(fixed.r, free.r, atol=1e-9)
     for i in (0, 7):
         err = np.zeros(fixed.n)
-        err[i] = fixed.mdb[i]
+        err[i] = reliability_of(fixed).mdb[i]
         lf = precision.lambda_bar(fixed, err)
         lr = precision.lambda_bar(free, err)
         assert abs(lf - lr) < 1e-6 * lf
         # λ̄ = δ̄0² for a single observation (M84 §3.2), counting all coordinates
-        assert abs(lf - fixed.external[i] ** 2) < 1e-6 * lf
+        assert abs(lf - reliability_of(fixed).external[i] ** 2) < 1e-6 * lf
 
 
 def test_generalised_eigenvalues_hand_checkable(pair):

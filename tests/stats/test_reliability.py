@@ -10,7 +10,9 @@ from hypothesis import given, settings, strategies as st
 
 from baarda.adjust import Options, adjust
 from baarda.stats import distributions
+from baarda.stats.groups import cluster_group_tests
 from baarda.stats.hypotheses import selection
+from baarda.stats.reliability import reliability_of
 
 from tests.networks import grid_network, levelling_loop, problem, vector_network, with_values
 from tests.oracle import dense, reduced_design
@@ -64,7 +66,7 @@ def test_correlated_clusters_against_dense_formulas():
     # the 3D group test of every vector: T = (Pv)_gᵀ (P C_vv P)_gg⁻¹ (Pv)_g
     P, Cvv = ref.P, ref.Cvv
     Pv = P @ adj.v
-    for g in adj.groups:
+    for g in reliability_of(adj).groups:
         m = g["members"]
         W = (P @ Cvv @ P)[np.ix_(m, m)]
         assert abs(g["T"] - Pv[m] @ np.linalg.solve(W, Pv[m])) < 1e-8 * max(1, g["T"])
@@ -107,8 +109,8 @@ def test_group_tests_from_cluster_blocks_equal_the_general_test(b_method):
 
     block, _ = simulate_block(strips=3, images_per_strip=6, seed=4)
     adj = adjust(build_block_problem(block), Options(b_method=b_method))
-    groups = adj.groups
-    fast = adj.cluster_group_tests()
+    groups = reliability_of(adj).groups
+    fast = cluster_group_tests(adj)
     sizes = np.array([m.size for m in adj.problem.cov.members])
     one_cluster = [g for g in groups
                    if sizes[adj.problem.cov.cluster[g["members"][0]]] == g["members"].size
@@ -136,15 +138,15 @@ def test_error_of_mdb_size_gives_w_equal_delta0():
     assert np.abs(base.w).max() < 1e-6
     for i in (0, 5, 11):
         vals = [o.value for o in net.observations]
-        vals[i] += base.mdb[i]
+        vals[i] += reliability_of(base).mdb[i]
         adj = adjust(problem(with_values(net, vals)))
-        assert abs(abs(adj.w[i]) - base.delta0) < 1e-4 * base.delta0
+        assert abs(abs(adj.w[i]) - reliability_of(base).delta0) < 1e-4 * reliability_of(base).delta0
 
 
 def test_T_of_one_observation_is_w_squared_and_nabla_is_the_error():
     adj = adjust(problem(grid_network(3, 3, noise_seed=11)))
     for i in (1, 7, 20):
-        h = adj.test(selection(adj.n, [i]))
+        h = reliability_of(adj).test(selection(adj.n, [i]))
         assert abs(h.T - adj.w[i] ** 2) < 1e-8 * max(1, h.T)
         # ∇ŝ = −v_i / r_i for an uncorrelated observation (Gama's err-obs up to sign)
         assert abs(h.nabla[0] + adj.v[i] / adj.r[i]) < 1e-8 * abs(adj.v[i] / adj.r[i]) + 1e-15
@@ -156,10 +158,10 @@ def test_external_reliability_equals_deformation_quadratic_form():
     A, P = adj.A, adj.P
     for i in (0, 9, 17):
         err = np.zeros(adj.n)
-        err[i] = adj.mdb[i]
+        err[i] = reliability_of(adj).mdb[i]
         dx = adj.deformation(err)
         lam = dx @ (A.T @ (P @ (A @ dx)))
-        assert abs(np.sqrt(lam) - adj.external_all[i]) < 1e-6 * adj.external_all[i]
+        assert abs(np.sqrt(lam) - reliability_of(adj).external_all[i]) < 1e-6 * reliability_of(adj).external_all[i]
 
 
 def test_u_t_and_u_k_split_the_leverage():
@@ -168,7 +170,7 @@ def test_u_t_and_u_k_split_the_leverage():
     # directions feed the orientation unknowns, distances do not
     kinds = np.array(adj.problem.info.kind)
     assert (adj.u_t[kinds == "distance"] < 1e-9).all() and (adj.u_t[kinds == "direction"] > 1e-3).all()
-    assert (adj.external <= adj.external_all + 1e-9).all()
+    assert (reliability_of(adj).external <= reliability_of(adj).external_all + 1e-9).all()
 
 
 @settings(max_examples=25, deadline=None)
@@ -181,7 +183,7 @@ def test_redundancy_invariants_and_datum_invariance(nx, ny, seed):
     assert (fixed.r >= 0).all() and (fixed.r <= 1).all()
     np.testing.assert_allclose(fixed.r, free.r, atol=1e-9)
     np.testing.assert_allclose(fixed.w, free.w, atol=1e-6)
-    np.testing.assert_allclose(fixed.external, free.external, rtol=1e-6)
+    np.testing.assert_allclose(reliability_of(fixed).external, reliability_of(free).external, rtol=1e-6)
 
 
 def test_free_network_covariance_is_the_s_transformed_one():
@@ -216,13 +218,13 @@ def test_monte_carlo_size_and_power_of_w_and_2d_tests():
     n_sim = 100_000
     E = L @ rng.normal(size=(adj.n, n_sim))
     W = -(R @ E) / sd[:, None]
-    crit = adj.critical_w
+    crit = reliability_of(adj).critical_w
     i = 4
     size = np.mean(np.abs(W[i]) > crit)
     se = np.sqrt(0.001 * 0.999 / n_sim)
     assert abs(size - 0.001) < 3 * se
     # an error of exactly MDB size on observation i: rejected at rate β0
-    Wb = W[i] - (R[i, i] * adj.mdb[i]) / sd[i]
+    Wb = W[i] - (R[i, i] * reliability_of(adj).mdb[i]) / sd[i]
     power = np.mean(np.abs(Wb) > crit)
     assert abs(power - 0.80) < 3 * np.sqrt(0.8 * 0.2 / n_sim)
     # a 2D test (two observations together) with δ0 from the non-central χ²

@@ -20,6 +20,7 @@ from baarda.adjust import adjust
 from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
 from baarda.stats import robust
+from baarda.stats.reliability import reliability_of
 
 SEED = 4
 BLOCK = {"strips": 3, "images_per_strip": 8}
@@ -94,7 +95,7 @@ def test_small_errors_found_with_their_class(places):
     flagged = {j for s in res.suspects for j in s["members"]}
     assert set(truth["errors"][1]["rows"]) <= flagged and set(truth["errors"][2]["rows"]) <= flagged
     # the final least squares without the suspects passes data snooping (M84 §3.2)
-    assert int(res.final.rejected.sum()) == 0
+    assert int(reliability_of(res.final).rejected.sum()) == 0
 
 
 def test_medium_errors_where_least_squares_fails(places):
@@ -104,7 +105,7 @@ def test_medium_errors_where_least_squares_fails(places):
     p, truth = _block([{**places["image-point"], "size": 80}, {**places["control"], "size_base": 1.0}])
     assert [e["class"] for e in truth["errors"]] == ["medium", "medium"]
     ls = adjust(p)
-    assert not ls.converged or ls.rejected.sum() > p.n / 4
+    assert not ls.converged or reliability_of(ls).rejected.sum() > p.n / 4
     res = robust.estimate(p, "r84")
     found, false = _judge(p, truth, res)
     assert found == [["medium"], ["medium"]] and len(false) <= 1, (found, false)
@@ -114,7 +115,7 @@ def test_medium_errors_where_least_squares_fails(places):
     # the estimated sizes against the planted ones (noise: a few σ)
     assert abs(img["size_sigma"] - 80.0) < 5.0
     assert abs(ctl["size_base"] - 1.0) < 0.01      # B from the images' positions
-    assert int(res.final.rejected.sum()) == 0
+    assert int(reliability_of(res.final).rejected.sum()) == 0
 
 
 def test_large_error_found_and_classed_large(places):
@@ -126,7 +127,7 @@ def test_large_error_found_and_classed_large(places):
     found, false = _judge(p, truth, res)
     assert found == [["large"]] and len(false) <= 1, (found, false)
     assert abs(res.suspects[0]["size_base"] - 3.0) < 0.03 and truth["errors"][0]["rows"][0] in res.suspects[0]["members"]
-    assert int(res.final.rejected.sum()) == 0
+    assert int(reliability_of(res.final).rejected.sum()) == 0
 
 
 @pytest.mark.parametrize("method", ["huber", "danish"])

@@ -19,6 +19,7 @@ from baarda.errors import OptionError
 from baarda.stats import separability
 from baarda.stats.hypotheses import h_point_transfer, selection
 from baarda.stats.snooping import iterate
+from baarda.stats.reliability import reliability_of
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 
@@ -103,7 +104,7 @@ def test_transfer_hypotheses_in_the_two_strips_are_inseparable(demo):
     assert ref("203-205", "303-305").min() > 0.999 and ref("203-205", "204-205").min() < 0.5
     groups = separability.inseparable_pairs(adj, list(H.items()))
     assert [g.members for g in groups] == [("203-205", "303-305")]
-    tests = [adj.test(h, label=k) for k, h in H.items()]
+    tests = [reliability_of(adj).test(h, label=k) for k, h in H.items()]
     assert [g.members for g in separability.inseparable_pairs(adj, tests)] == [("203-205", "303-305")]
 
 
@@ -197,3 +198,27 @@ def test_partly_inseparable_image_points_of_a_three_ray_point(tmp_path, capsys):
     assert "partly inseparable" in capsys.readouterr().out
     (pp,) = json.loads(out.read_text())["partly_inseparable"]
     assert pp["largest"] > 0.99 > pp["smallest"]
+
+
+def test_shared_part_against_dense(demo):
+    """separability.shared_part: the canonical correlations of two image points' tests at a 3-ray
+    point and the part of the first test's statistic T1 = g1ᵀ W11⁻¹ g1 along the first canonical
+    direction (F80 §7.4, M84 §3.3), against a dense computation: W_jk = H_jᵀ (P C_vv P) H_k from the
+    oracle's P C_vv P (F80 eq. 8), g = Hᵀ P v, whitening by the symmetric inverse square root."""
+    p, adj, S = demo
+    rays: dict = {}
+    for i, d in enumerate(p.info.ids):
+        if "image" in d:
+            rays.setdefault(d["point"], {}).setdefault(d["image"], []).append(i)
+    pt = next(k for k, v in rays.items() if len(v) == 3)
+    (a, ra), (b, rb), _ = sorted(rays[pt].items())
+    H1, H2 = selection(p.n, ra), selection(p.n, rb)
+    cc, part = separability.shared_part(adj, H1, H2)
+    h1, h2 = H1.toarray(), H2.toarray()
+    W11, W12, W22 = h1.T @ S @ h1, h1.T @ S @ h2, h2.T @ S @ h2
+    X1, X2 = la.inv(la.sqrtm(W11)).real, la.inv(la.sqrtm(W22)).real
+    U, c, _ = np.linalg.svd(X1 @ W12 @ X2)
+    z = X1 @ (h1.T @ np.asarray(adj.Pv))
+    assert cc == pytest.approx(c, abs=1e-6)
+    assert part == pytest.approx((U[:, 0] @ z) ** 2 / (z @ z), abs=1e-6)
+    assert 0.0 <= part <= 1.0

@@ -14,6 +14,7 @@ from baarda.io import read_truth
 from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
 from baarda.stats.snooping import iterate, leave_one_out
+from baarda.stats.reliability import reliability_of
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 
@@ -58,11 +59,11 @@ def test_snooping_detection_rate_and_false_alarms():
         e = _noise(p, rng)
         # clean block: false alarms of the single-pass w-test per observation
         clean = adjust(dataclasses.replace(p, l=p.l + e), x0=base.x)
-        false += int(clean.rejected.sum())
+        false += int(reliability_of(clean).rejected.sum())
         tests += clean.n
         # one error of 1.2 × MDB on a random controllable observation
         i = int(rng.choice(candidates))
-        e[i] += 1.2 * base.mdb[i] * rng.choice([-1, 1])
+        e[i] += 1.2 * reliability_of(base).mdb[i] * rng.choice([-1, 1])
         res = iterate(dataclasses.replace(p, l=p.l + e), max_steps=3)
         found += int(bool(res.removed) and res.removed[0] == i)
     rate = found / n_sim
