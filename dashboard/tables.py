@@ -22,6 +22,7 @@ from __future__ import annotations
 import io
 
 import pandas as pd
+from openpyxl import Workbook
 
 import numpy as np
 
@@ -112,8 +113,6 @@ def _cell(x):
 def xlsx_bytes(frames: dict[str, pd.DataFrame]) -> bytes:
     """An .xlsx workbook with one sheet per frame (named by its key): a header row, then the rows;
     numbers as numbers, text as text (never a formula), the header frozen."""
-    from openpyxl import Workbook
-
     wb = Workbook()
     wb.remove(wb.active)
     for name, df in frames.items():

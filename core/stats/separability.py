@@ -135,10 +135,30 @@ def canonical_correlations(adj, H1, H2) -> np.ndarray:
 
 
 def shared_part(adj, H1, H2, g1=None) -> tuple[np.ndarray, float]:
-    """(the canonical correlations of H1's and H2's tests, descending; the part of H1's statistic
-    T1 = g1ᵀ W11⁻¹ g1 that lies along the first canonical direction, (u1ᵀ W11^(−½) g1)² / T1 ∈ [0, 1],
-    g1 = H1ᵀ P v of ``adj``, or the given ``g1``: W11 ∇ is the signature of an error ∇, F80 eq. 10). Where the largest canonical correlation is 1, H2's test sees that
-    direction alike (F80 §7.4): the larger the part, the less the data tell H1 from H2 (0 when T1 = 0)."""
+    """How much of one hypothesis' statistic lies along the direction it shares with another (F80 §7.4).
+
+    The canonical correlations of H1's and H2's tests, and the part of H1's statistic
+    T1 = g1ᵀ W11⁻¹ g1 along the first canonical direction, (u1ᵀ W11^(−½) g1)² / T1 ∈ [0, 1]
+    (F80 eq. 10: W11 ∇ is the signature of an error ∇). Where the largest canonical correlation
+    is 1, H2's test sees that direction alike: the larger the part, the less the data tell H1
+    from H2.
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        The adjustment.
+    H1, H2 : scipy.sparse matrix
+        n × q1 and n × q2 hypothesis matrices, dimensionless.
+    g1 : numpy.ndarray, optional
+        The misclosure of H1's test (q1,), default H1ᵀ P v of ``adj``; P v in units⁻¹ of the observations.
+
+    Returns
+    -------
+    numpy.ndarray
+        The canonical correlations, descending, in [0, 1].
+    float
+        The part of T1 along the first canonical direction, in [0, 1] (0 when T1 = 0).
+    """
     a, b = _Reduced(adj, H1), _Reduced(adj, H2)
     W11, W12, W22 = a.w_with(a), a.w_with(b), b.w_with(b)
     X1, X2 = _inverse_sqrt(W11), _inverse_sqrt(W22)
