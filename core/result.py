@@ -108,8 +108,9 @@ class Adjustment:
     trace: tuple = ()
     far_held: int = 0
     #: what other layers derive from this result and keep with it (the reliability under a policy,
-    #: the group statistics: :func:`baarda.stats.reliability.reliability_of`), keyed by them
-    memo: dict = field(default_factory=dict, repr=False, compare=False)
+    #: the group statistics: :func:`baarda.stats.reliability.reliability_of`), keyed by them; never
+    #: passed on by ``dataclasses.replace`` (a replaced result starts with an empty memo)
+    memo: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if isinstance(self.__dict__.get("A"), HeldColumns):

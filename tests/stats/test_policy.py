@@ -3,6 +3,8 @@ over a result and a policy (baarda.stats.reliability) against a fresh adjustment
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import stats as sps
@@ -99,3 +101,6 @@ def test_reliability_under_another_policy_equals_a_fresh_adjustment():
     assert reliability_of(adj) is reliability_of(adj, policy_of(adj))
     other = reliability_of(adj, rel.policy)
     assert other is not reliability_of(adj) and np.array_equal(other.mdb, rel.mdb, equal_nan=True)
+    # a result made from this one by dataclasses.replace keeps none of its reliabilities
+    copy = dataclasses.replace(adj, timings={})
+    assert copy.memo == {} and reliability_of(copy).result is copy
