@@ -42,7 +42,6 @@ tiers and names them (issue 15, item 2; issue 31, item 1).
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pandas as pd
@@ -74,9 +73,12 @@ MAX_CAUSES = 15
 #: controlled point — loses its rejection to any small correlation; smear from a large error loses
 #: most of its T).
 KEPT = 0.5
-#: Seconds the tiering may take (the list is computed once per result and policy, off the event
-#: loop when served); the rows after it are ranked by their own p-value.
-TIME_BUDGET = 20.0
+#: The tiering's budget, in rejected rows examined × observations of the block (each row costs a
+#: few tests, each a solve with the block's factor: ~1 s at 10⁵ observations): at most
+#: max(:data:`MIN_TIERED`, TIER_BUDGET // n) rows are tiered, the rest ranked by their own p-value.
+#: A count, not seconds: the list must not depend on how busy the machine is.
+TIER_BUDGET = 2_000_000
+MIN_TIERED = 10
 #: Causes tried one by one to name the one that explains a row (else "the suspects above").
 NAME_TRIES = 3
 
@@ -303,20 +305,22 @@ def _explain(state, rows: list[dict]) -> None:
     eq. 12 in the model extended by C), still rejects; else (``_tier`` 1) ``explained by`` names
     the suspect above that explains it alone (of the first :data:`NAME_TRIES` sharing its point or
     image, then the strongest), or "the suspects above". Rows are visited by p-value; past
-    :data:`MAX_CAUSES` suspects, or :data:`TIME_BUDGET` seconds (a block of 10⁵ observations
-    solves for a second per test), the rejected rows stay in the first tier untested."""
+    :data:`MAX_CAUSES` suspects, or past the rows :data:`TIER_BUDGET` allows (a block of 10⁵
+    observations solves for a second per test), the rejected rows stay in the first tier untested."""
     rel = state.reliability
     policy = rel.policy
     causes: list[dict] = []
     HC, TC, qC = None, 0.0, 0
-    end = time.monotonic() + TIME_BUDGET
+    budget = max(MIN_TIERED, TIER_BUDGET // max(int(state.results.n), 1))
+    seen = 0
     for r in sorted(rows, key=_order):
         r["_tier"], r["explained by"], r["_alt"] = 1, "", None
         if not r["rejected"]:
             continue
-        if len(causes) >= MAX_CAUSES or time.monotonic() > end:
+        if len(causes) >= MAX_CAUSES or seen >= budget:
             r["_tier"] = 0
             continue
+        seen += 1
         own = HC is None
         if not own:
             try:

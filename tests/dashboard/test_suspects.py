@@ -242,13 +242,15 @@ def test_tests_table_decisions_in_words_and_abs_w_sorted(demo):
     st.include(301)
 
 
-def test_tiering_stops_at_its_time_budget(demo, monkeypatch):
-    """Past the time budget the rejected rows are ranked by their own p-value, untested (a large
-    block must not wait minutes for its list)."""
+def test_tiering_stops_at_its_budget(demo, monkeypatch):
+    """Past the tiering's budget (rows × observations, not seconds: the list does not depend on the
+    machine's load) the rejected rows are ranked by their own p-value, untested (a large block
+    must not wait minutes for its list)."""
     from baarda.dashboard import suspects as module
 
     st, _, _ = demo
-    monkeypatch.setattr(module, "TIME_BUDGET", -1.0)
+    monkeypatch.setattr(module, "TIER_BUDGET", 0)
+    monkeypatch.setattr(module, "MIN_TIERED", 0)
     df = module._ranked(st)
     assert (df["explained by"] == "").all()
     rej = df[df["decision"] == "rejected"]
