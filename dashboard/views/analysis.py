@@ -36,7 +36,13 @@ class _Slot:
         self.panel = pn.Column(sizing_mode="stretch_width", margin=0)
 
     def show(self, frame: pd.DataFrame, visible: bool) -> None:
+        """Show ``frame`` in a new table, or nothing; an unchanged content changes nothing in the
+        page (no re-render of the column while the page is built)."""
+        same = (self.value.equals(frame) and list(self.value.columns) == list(frame.columns)
+                and bool(self.panel.objects) == visible)
         self.value = frame
+        if same:
+            return
         self.panel.objects = ([pn.widgets.Tabulator(frame, height=self.height, css_classes=[self.css], **TABLE)]
                               if visible else [])
 
