@@ -63,31 +63,45 @@ def csv_rows(path, text: str) -> list[tuple[int, list[str]]]:
     return rows
 
 
-def read_control(path) -> list[ControlPoint]:
-    """The control points of a CSV file (module docstring); InputError on any bad row."""
+def csv_table(path, required, optional=(), shown: str | None = None):
+    """A CSV table whose first row names its columns (any order, any case): blank and ``#`` lines
+    skipped; InputError naming the file and line for an empty file, a missing, unknown or repeated
+    column, and (as the rows are read) a row with another number of fields than the header.
+    ``shown``: the required columns as the message writes them (default as given). Returns
+    (column → index, the header's line, an iterator of (line, fields) over the data rows)."""
+    shown = shown or ",".join(required)
     text = read_text(path)
     rows = [(ln, r) for ln, r in csv_rows(path, text)
             if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
     if not rows:
-        raise InputError(path, 1, "empty file: expected the header 'id,X,Y,Z,sx,sy,sz'")
+        raise InputError(path, 1, f"empty file: expected the header '{shown}'")
     hline, header = rows[0]
     names = [h.strip().lower() for h in header]
-    missing = [c for c in COLUMNS if c not in names]
+    missing = [c for c in required if c not in names]
     if missing:
-        raise InputError(path, hline, f"the header must name the columns id,X,Y,Z,sx,sy,sz "
-                         f"(missing: {', '.join(missing)})")
-    unknown = [h.strip() for h in header if h.strip().lower() not in COLUMNS + OPTIONAL]
+        raise InputError(path, hline, f"the header must name the columns {shown} (missing: {', '.join(missing)})")
+    unknown = [h.strip() for h in header if h.strip().lower() not in (*required, *optional)]
     if unknown:
-        raise InputError(path, hline, f"unknown column(s) {', '.join(repr(u[:40]) for u in unknown)} "
-                         f"(known: id,X,Y,Z,sx,sy,sz and the optional role)")
+        known = shown + (f" and the optional {','.join(optional)}" if optional else "")
+        raise InputError(path, hline, f"unknown column(s) {', '.join(repr(u[:40]) for u in unknown)} (known: {known})")
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise InputError(path, hline, f"column(s) {', '.join(dup)} named twice")
-    col = {c: names.index(c) for c in COLUMNS + OPTIONAL if c in names}
+
+    def data():
+        for ln, r in rows[1:]:
+            if len(r) != len(names):
+                raise InputError(path, ln, f"{len(r)} fields, the header has {len(names)}")
+            yield ln, r
+
+    return {c: names.index(c) for c in (*required, *optional) if c in names}, hline, data()
+
+
+def read_control(path) -> list[ControlPoint]:
+    """The control points of a CSV file (module docstring); InputError on any bad row."""
+    col, hline, rows = csv_table(path, COLUMNS, OPTIONAL, shown="id,X,Y,Z,sx,sy,sz")
     out, seen = [], {}
-    for ln, r in rows[1:]:
-        if len(r) != len(names):
-            raise InputError(path, ln, f"{len(r)} fields, the header has {len(names)}")
+    for ln, r in rows:
         pid = r[col["id"]].strip()
         if not pid:
             raise InputError(path, ln, "empty id")

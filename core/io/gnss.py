@@ -31,8 +31,7 @@ from ..model.bundle import Block
 from ..model.gnss import GnssCentre, GnssSpec, ImuAttitude, ImuSpec
 from ..model.sfm import SfmBlock, to_block
 from ..validate import SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
-from .bal import read_text
-from .control import csv_rows
+from .control import csv_table
 
 COLUMNS = ("image", "x", "y", "z", "sx", "sy", "sz")
 OPTIONAL = ("strip", "time", "rxy", "rxz", "ryz")
@@ -137,30 +136,10 @@ def read_gnss(path) -> list[GnssCentre]:
             if fh.read(16) == SQLITE_MAGIC:
                 return read_pose_priors(path)
     except OSError:
-        pass                                    # read_text below says what is wrong
-    text = read_text(path)
-    rows = [(ln, r) for ln, r in csv_rows(path, text)
-            if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
-    if not rows:
-        raise InputError(path, 1, "empty file: expected the header 'image,x,y,z,sx,sy,sz'")
-    hline, header = rows[0]
-    names = [h.strip().lower() for h in header]
-    missing = [c for c in COLUMNS if c not in names]
-    if missing:
-        raise InputError(path, hline, f"the header must name the columns image,x,y,z,sx,sy,sz "
-                         f"(missing: {', '.join(missing)})")
-    unknown = [h.strip() for h in header if h.strip().lower() not in COLUMNS + OPTIONAL]
-    if unknown:
-        raise InputError(path, hline, f"unknown column(s) {', '.join(repr(u[:40]) for u in unknown)} (known: "
-                         f"image,x,y,z,sx,sy,sz and the optional {','.join(OPTIONAL)})")
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise InputError(path, hline, f"column(s) {', '.join(dup)} named twice")
-    col = {c: names.index(c) for c in COLUMNS + OPTIONAL if c in names}
+        pass                                    # csv_table below says what is wrong
+    col, hline, rows = csv_table(path, COLUMNS, OPTIONAL)
     out, seen = [], {}
-    for ln, r in rows[1:]:
-        if len(r) != len(names):
-            raise InputError(path, ln, f"{len(r)} fields, the header has {len(names)}")
+    for ln, r in rows:
         image = r[col["image"]].strip()
         if not image:
             raise InputError(path, ln, "empty image")
@@ -280,29 +259,9 @@ class ImuOptions:
 
 def read_imu(path) -> list[ImuAttitude]:
     """The IMU attitudes of a CSV file (:class:`ImuOptions`); InputError naming file, line and field."""
-    text = read_text(path)
-    rows = [(ln, r) for ln, r in csv_rows(path, text)
-            if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
-    if not rows:
-        raise InputError(path, 1, f"empty file: expected the header '{','.join(IMU_COLUMNS)}'")
-    hline, header = rows[0]
-    names = [h.strip().lower() for h in header]
-    missing = [c for c in IMU_COLUMNS if c not in names]
-    if missing:
-        raise InputError(path, hline, f"the header must name the columns {','.join(IMU_COLUMNS)} "
-                         f"(missing: {', '.join(missing)})")
-    unknown = [h.strip() for h in header if h.strip().lower() not in IMU_COLUMNS]
-    if unknown:
-        raise InputError(path, hline, f"unknown column(s) {', '.join(repr(u[:40]) for u in unknown)} "
-                         f"(known: {','.join(IMU_COLUMNS)})")
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise InputError(path, hline, f"column(s) {', '.join(dup)} named twice")
-    col = {c: names.index(c) for c in IMU_COLUMNS}
+    col, hline, rows = csv_table(path, IMU_COLUMNS)
     out, seen = [], {}
-    for ln, r in rows[1:]:
-        if len(r) != len(names):
-            raise InputError(path, ln, f"{len(r)} fields, the header has {len(names)}")
+    for ln, r in rows:
         image = r[col["image"]].strip()
         if not image:
             raise InputError(path, ln, "empty image")
