@@ -8,7 +8,7 @@ files, repeated to N) analysed
 - by warm workers: a cluster already running whose workers have analysed one block each
   (imports and numba kernels loaded), through ``baarda batch --scheduler``;
 
-with the start-up share of the serial runs (N × the time of ``python -c "import baarda.cli"``
+with the start-up share of the serial runs (N × the time of ``python -c "import baarda.commands"``, what a command loads
 over the serial time); then a design study of the demo recipe (data/demo-study.json,
 ≥ 200 replicates, 2 analyses each) on the warm workers, with its wall time.
 
@@ -60,7 +60,7 @@ def main() -> None:
         d.mkdir(parents=True)
         os.symlink(f, d / Path(f).name)
         inputs.append(str(d / Path(f).name))
-    imports = min(timed(lambda: subprocess.run([sys.executable, "-c", "import baarda.cli"], check=True))
+    imports = min(timed(lambda: subprocess.run([sys.executable, "-c", "import baarda.commands"], check=True))
                   for _ in range(3))
 
     def serial():

@@ -75,15 +75,48 @@ C90      Clinger, W. D. (1990). How to read floating point numbers accurately. P
          ACM SIGPLAN Conference on Programming Language Design and Implementation (PLDI), 92–101.
 """
 
-from .adjust import Options, adjust
-from .analysis import Analysis, Extras, SolverOptions, analyze
-from .build import read_problem
-from .datum import Datum
-from .errors import BaardaError, DatumDefectError, InputError, SingularError
-from .stats.hypotheses import HypothesisTest, common_error, selection
-from .stats.policy import TestPolicy
+from __future__ import annotations
 
-__all__ = ["analyze", "Analysis", "Extras", "SolverOptions", "TestPolicy", "read_problem", "Options", "adjust",
-           "Datum", "BaardaError", "DatumDefectError", "InputError", "SingularError", "HypothesisTest",
-           "common_error", "selection"]
+import importlib
+import sys
+import types
+
+#: where each public name lives; imported on first use (PEP 562), so ``import baarda`` and the
+#: command line's parser load no numpy (issue 30, item 5; issue 25: Ctrl-C during start-up)
+_EXPORTS = {
+    "analyze": "analysis", "Analysis": "analysis", "Extras": "analysis", "SolverOptions": "analysis",
+    "TestPolicy": "stats.policy", "read_problem": "build", "Options": "adjust", "adjust": "adjust",
+    "Datum": "datum", "BaardaError": "errors", "DatumDefectError": "errors", "InputError": "errors",
+    "SingularError": "errors", "HypothesisTest": "stats.hypotheses", "common_error": "stats.hypotheses",
+    "selection": "stats.hypotheses",
+}
+
+__all__ = list(_EXPORTS)
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'baarda' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value            # the next access is a plain lookup
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))
+
+
+class _Package(types.ModuleType):
+    """``baarda``: its name ``adjust`` stays the function :func:`baarda.adjust.adjust` (as
+    ``from baarda import adjust`` always gave) when the import system binds the submodule of the
+    same name to the package on its first import."""
+
+    def __setattr__(self, name, value):
+        if name in _EXPORTS and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

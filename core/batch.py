@@ -465,38 +465,6 @@ def options_of(args) -> dict:
             "strict": bool(args.strict), "solver": {"max_iter": args.max_iter}, "policy": policy, "extras": extras}
 
 
-def add_parser(sub, common, number) -> None:
-    """The ``batch`` subcommand of the CLI's ``sub``; ``common``: the CLI's functions adding the
-    input, test and iteration options of ``baarda analyze``; ``number``: its range type."""
-    bt = sub.add_parser("batch", help="analyse many blocks in parallel on Dask (one machine or a cluster)",
-                        description="Analyse every block of FILES/GLOBS/DIRS once, in parallel on Dask distributed, "
-                                    "as `baarda analyze --json` does: each block's JSON, summary.csv (and "
-                                    "summary.parquet with pyarrow) and index.html under --out. A file that fails "
-                                    "is a row with its error; a rerun with the same --out skips the blocks done.",
-                        epilog="Exit status: 0 every file worked (read, adjusted, converged), 1 some did not "
-                               "(the summary's error column says why), 2 usage, 130 interrupted (what is done "
-                               "is kept).")
-    bt.add_argument("inputs", nargs="+", metavar="FILE", help="files, glob patterns ('blocks/*.gkf') or folders")
-    bt.add_argument("--out", "-o", default="batch-out", metavar="DIR", help="the results folder (default batch-out)")
-    bt.add_argument("--scheduler", metavar="ADDRESS",
-                    help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (`dask scheduler`, and `dask worker "
-                         "ADDRESS` per node); default: a local cluster on 127.0.0.1")
-    bt.add_argument("--workers", type=number(1, 4096, integer=True), default=None, metavar="N",
-                    help="local cluster: N single-threaded worker processes (default: one per core)")
-    bt.add_argument("--memory-limit", default="auto", metavar="BYTES",
-                    help="local cluster: memory limit per worker, e.g. 2GB (default: the machine's memory shared out)")
-    for add in common:
-        add(bt)
-    bt.add_argument("--strict", action="store_true", help="local defects are an error (see analyze)")
-    bt.add_argument("--snoop", action="store_true", help="iterative data snooping, in each block's JSON")
-    bt.add_argument("--robust", choices=["huber", "danish", "r84"], help="robust estimation, in each block's JSON")
-    bt.add_argument("--variance-components", nargs="?", const="families",
-                    choices=["families", "radial", "radial-isotropic"], help="variance components (see analyze)")
-    bt.add_argument("--merge-groups", default=None, metavar="A+B[,C+D]", help="see analyze")
-    bt.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
-    bt.add_argument("--debug", action="store_true")
-
-
 def command(args) -> int:
     """``baarda batch`` (:func:`run_batch`)."""
     code, _ = run_batch(args.inputs, args.out, options_of(args), scheduler=args.scheduler, workers=args.workers,

@@ -6,9 +6,16 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import TYPE_CHECKING
 
 from .errors import BaardaError, UsageError
-from .io.gnss import GnssOptions, ImuOptions
+from .lazy import lazy
+
+if TYPE_CHECKING:
+    from .io.gnss import GnssOptions, ImuOptions
+
+#: the GNSS reader's options, loaded when a command makes them (``baarda --help`` loads no numpy)
+gnss_io = lazy("baarda.io.gnss")
 
 
 def lever_arm(text: str) -> tuple[float, float, float]:
@@ -42,7 +49,7 @@ def imu_options(args) -> ImuOptions | None:
         if getattr(args, "fix_boresight", False) or tuple(getattr(args, "boresight", (0.0,) * 3)) != (0.0,) * 3:
             raise UsageError("--boresight / --fix-boresight need --imu CSV")
         return None
-    return ImuOptions(args.imu, tuple(args.boresight), bool(args.fix_boresight))
+    return gnss_io.ImuOptions(args.imu, tuple(args.boresight), bool(args.fix_boresight))
 
 
 def add_gnss_arguments(p) -> None:
@@ -101,7 +108,7 @@ def gnss_options(args) -> GnssOptions | None:
         if used:
             raise UsageError(f"{', '.join(used)} need(s) --gnss CSV")
         return None
-    return GnssOptions(path, tuple(args.lever_arm), bool(args.estimate_lever_arm), bool(args.gnss_shift),
+    return gnss_io.GnssOptions(path, tuple(args.lever_arm), bool(args.estimate_lever_arm), bool(args.gnss_shift),
                        bool(args.gnss_drift), bool(args.georeference))
 
 

@@ -41,18 +41,13 @@ from pathlib import Path
 import numpy as np
 
 from . import simulate_gnss
+from .catalog import CAMERAS, RANGES
 from .errors import OptionError
 from .io.native import write_native
 from .io.output import write_text
 from .model.bundle import Block, Camera, Image, ImageObservations, ObjectPoint
 from .observations.collinearity import project
 from .model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
-
-CAMERAS = {
-    "aerial": {"id": "RC30", "c": 153.0, "width": 230.0, "height": 230.0, "unit": "mm"},
-    "drone": {"id": "drone", "c": 3650.0, "width": 5472.0, "height": 3648.0, "unit": "px",
-              "pixel_size": 0.0024},
-}
 
 DEFAULTS = {
     "strips": 3, "images_per_strip": 8, "camera": "aerial", "flying_height": 1500.0,
@@ -66,17 +61,6 @@ DEFAULTS = {
 }
 
 
-#: the range of each numeric recipe key: (low, high, integer); a recipe outside them is refused
-#: before anything is simulated (a block of 10⁹ strips, an overlap of 1, a height of 10²⁰ m)
-RANGES = {
-    "strips": (1, 100, True), "images_per_strip": (1, 100, True), "flying_height": (1.0, 1e5, False),
-    "forward_overlap": (0.0, 0.95, False), "side_overlap": (0.0, 0.95, False), "relief": (0.0, 1.0, False),
-    "attitude_sigma": (0.0, 1.0, False), "position_sigma": (0.0, 1e3, False), "control_spacing": (1, 1000, True),
-    "check": (0, 10_000, True), "sigma_image": (1e-9, 1e3, False), "rho": (-0.99, 0.99, False),
-    "sigma_control_h": (1e-9, 1e3, False), "sigma_control_v": (1e-9, 1e3, False), "radial": (-1e3, 1e3, False),
-    "approx_sigma": (0.0, 1e3, False), "seed": (0, 2**63 - 1, True), "gnss_sigma": (1e-6, 1e3, False),
-    "imu_sigma": (1e-9, 10.0, False),
-}
 #: the ranges of the numbers of a planted error (``errors[k]``)
 ERROR_RANGES = {"size": (0.0, 1e6, False), "size_base": (0.0, 1e3, False), "images": (1, 100, True),
                 "direction": (-1e4, 1e4, False), "sign": (-1.0, 1.0, False)}

@@ -280,26 +280,6 @@ def table_text(table: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def add_parser(sub, common, number) -> None:
-    """The ``study`` subcommand of the CLI's ``sub`` (``number``: its range type; ``common``, the
-    analysis options of ``batch``, are not used: a study fixes its own)."""
-    st = sub.add_parser("study", help="design study: simulated designs × Monte Carlo replicates with planted errors",
-                        description="Simulate every design of RECIPE's grid REPLICATES times, without and with a "
-                                    "planted error, analyse each (w-test) and score it: empirical size and power "
-                                    "against α0 and the expected power, MDB and δ̄0 statistics. Writes study.csv, "
-                                    "replicates.csv (each replicate's seed) and designs.json under --out.")
-    st.add_argument("recipe", help="the study recipe (JSON; README, 'Design studies')")
-    st.add_argument("--out", "-o", default="study-out", metavar="DIR", help="the results folder (default study-out)")
-    st.add_argument("--replicates", type=number(1, 1_000_000, integer=True), default=None, metavar="N",
-                    help="replicates per design (default: the recipe's)")
-    st.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (see batch)")
-    st.add_argument("--workers", type=number(1, 4096, integer=True), default=None, metavar="N",
-                    help="local cluster: N worker processes (default: one per core)")
-    st.add_argument("--serial", action="store_true", help="run the replicates in this process, without Dask")
-    st.add_argument("--quiet", "-q", action="store_true")
-    st.add_argument("--debug", action="store_true")
-
-
 def command(args) -> int:
     """``baarda study`` (:func:`run_study`)."""
     recipe = read_recipe(args.recipe)

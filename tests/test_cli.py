@@ -181,13 +181,13 @@ def test_a_diverged_adjustment_is_a_status_not_a_crash(tmp_path, capsys, monkeyp
     line saying no reliability could be computed and that the robust estimation (R84's, run
     without --robust too) did not mend it; no JSON written. With --robust the robust estimation
     names the error. (The singular systems are forced here; the real case follows.)"""
-    from baarda import cli
+    from baarda import cli, commands
     from baarda.errors import SingularError
 
     def singular(*_):
         raise SingularError("normal matrix is singular: P00006.x is not determined by the observations")
 
-    monkeypatch.setattr(cli.results, "to_dict", singular)
+    monkeypatch.setattr(commands.results, "to_dict", singular)
     path = _demo_with_gross_control_error(tmp_path)
     out = tmp_path / "out.json"
     assert main(["analyze", str(path), "--max-iter", "3", "--json", str(out)]) == cli.NOT_CONVERGED

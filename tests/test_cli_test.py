@@ -18,7 +18,8 @@ from scipy import stats as sps
 
 from baarda.adjust import adjust
 from baarda.build import read_problem
-from baarda.cli import main, parse_hypothesis
+from baarda.cli import main
+from baarda.io.hypothesis import parse_hypothesis
 from baarda.errors import BaardaError
 from baarda.stats.hypotheses import hypothesis_matrix
 from baarda.stats.reliability import reliability_of

@@ -35,7 +35,9 @@ def module_name(path: Path) -> str:
 
 MODULES = {module_name(p): p for p in [*sorted(CORE.rglob("*.py")), *sorted(DASHBOARD.rglob("*.py"))]}
 #: the function-level imports allowed: (importing module, imported module's prefix)
-LAZY_ALLOWED = {("baarda.solve.compiled", "numba"), ("baarda.cli", "baarda.dashboard"),
+LAZY_ALLOWED = {("baarda.solve.compiled", "numba"), ("baarda.commands", "baarda.dashboard"),
+                # the command line parses first, then loads the computation (issue 30 item 5, issue 25)
+                ("baarda.cli", "baarda.commands"), ("baarda.cli", "baarda.threads"),
                 # the batch extra (Dask, pyarrow), imported by the commands that use it (issue 30)
                 ("baarda.batch", "dask"), ("baarda.batch", "distributed"), ("baarda.batch", "pyarrow"),
                 ("baarda.analysis", "baarda.dashboard.notebook")}

@@ -214,12 +214,12 @@ def test_degenerate_geometry_signs():
 
 
 def test_diverged_message_names_the_geometry(tmp_path, capsys):
-    """The other not-converged message (singular at the last iterate, cli._diverged) names the
+    """The other not-converged message (singular at the last iterate, commands._diverged) names the
     geometry and runs no robust estimation; on a sound block R84's robust estimation is tried (here it
     ends singular too) and the line says so."""
     from types import SimpleNamespace
 
-    from baarda import cli
+    from baarda import commands
 
     adj = SimpleNamespace(termination="not converged: the maximum number of iterations was reached", iterations=200,
                           converged=False)
@@ -233,7 +233,7 @@ def test_diverged_message_names_the_geometry(tmp_path, capsys):
             raise SingularError("normal matrix is singular")
 
         analysis = SimpleNamespace(problem=read_problem(model_dir), adjustment=adj, robust=robust)
-        assert cli._diverged(args, analysis, "singular") == 4
+        assert commands._diverged(args, analysis, "singular") == 4
         err = capsys.readouterr().err
         assert err.count("\n") == 1
         assert ("the block's geometry is degenerate" in err) is degenerate

@@ -23,6 +23,7 @@ import scipy.sparse as sp
 
 from ..errors import InputError, UsageError
 from .source import read_text
+from ..catalog import HYPOTHESIS_SPECS
 
 FIELDS = ("observation", "column", "value")
 
@@ -80,9 +81,6 @@ def _integer(path, lineno: int, field: str, text: str) -> int:
 
 
 #: The --hypothesis specifications of ``baarda test`` (fields separated by ':').
-HYPOTHESIS_SPECS = ("observation:INDEX", "group:G", "image-point:IMAGE:POINT[:KEYPOINT]", "control:POINT",
-                    "transfer:POINT:IMAGE,IMAGE,...", "ap-group:CAMERA:brown|ebner", "exchanged:IMAGE:A:B",
-                    "model-point:MODEL:POINT", "gnss:IMAGE", "gnss-strip:STRIP", "file:PATH")
 
 
 def parse_hypothesis(text: str) -> dict:
