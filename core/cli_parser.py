@@ -333,7 +333,8 @@ def _add_study(sub, common, number) -> None:
                         description="Simulate every design of RECIPE's grid REPLICATES times, without and with a "
                                     "planted error, analyse each (w-test) and score it: empirical size and power "
                                     "against α0 and the expected power, MDB and δ̄0 statistics. Writes study.csv, "
-                                    "replicates.csv (each replicate's seed) and designs.json under --out.")
+                                    "replicates.csv (each replicate's seed), designs.json, study.svg (the plot) and "
+                                    "index.html under --out.")
     st.add_argument("recipe", help="the study recipe (JSON; README, 'Design studies')")
     st.add_argument("--out", "-o", default="study-out", metavar="DIR", help="the results folder (default study-out)")
     st.add_argument("--replicates", type=number(1, 1_000_000, integer=True), default=None, metavar="N",

@@ -47,6 +47,7 @@ from .batch import dask_client, local_cluster
 from .build import build
 from .errors import BaardaError, InputError
 from .io.output import csv_cell, write_text
+from .io.study_plot import study_html, study_svg
 from .lazy import lazy
 from .simulate import check_recipe, simulate_block
 from .stats.policy import TestPolicy
@@ -224,8 +225,9 @@ def _csv(rows: list[dict]) -> str:
 def run_study(study: dict, out=None, *, scheduler: str | None = None, workers: int | None = None,
               serial: bool = False, stream=None) -> list[dict]:
     """Run every replicate of every design; the table (one dict per design). With ``out``:
-    ``study.csv`` (the table), ``replicates.csv`` (every replicate with its seed) and
-    ``designs.json`` (each design's simulate recipe) written there."""
+    ``study.csv`` (the table), ``replicates.csv`` (every replicate with its seed),
+    ``designs.json`` (each design's simulate recipe), ``study.svg`` (power, size and MDB per design,
+    :mod:`baarda.io.study_plot`) and ``index.html`` (the plot and the table) written there."""
     grid = designs(study)
     sizes = [planted_error(d, study) for d in grid]
     jobs = [(i, k, replicate_seed(study["seed"], i, k)) for i in range(len(grid)) for k in range(study["replicates"])]
@@ -263,6 +265,9 @@ def run_study(study: dict, out=None, *, scheduler: str | None = None, workers: i
                                                  for i, k, _ in jobs]))
         write_text(out / "designs.json", json.dumps({"study": study, "designs": grid, "planted": sizes},
                                                     indent=1))
+        title = str(study.get("title") or "")
+        write_text(out / "study.svg", study_svg(table, title))
+        write_text(out / "index.html", study_html(table, table_text(table), title))
     return table
 
 
@@ -292,5 +297,5 @@ def command(args) -> int:
         if stream is not None and stream.isatty():
             print(file=stream)
         print(table_text(table))
-        print(printable(f"wrote {Path(args.out) / 'study.csv'}, replicates.csv, designs.json"))
+        print(printable(f"wrote {Path(args.out) / 'study.csv'}, replicates.csv, designs.json, study.svg, index.html"))
     return 0

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+from xml.etree import ElementTree
 import math
 from pathlib import Path
 
@@ -45,6 +46,12 @@ def test_study_command_line_serial(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "design 0 (control=perimeter)" in out and "design 1 (control=corners)" in out
     assert len(list(csv.DictReader((tmp_path / "o" / "study.csv").open()))) == 2
+    svg = ElementTree.parse(tmp_path / "o" / "study.svg").getroot()       # well-formed, one point per design
+    tips = [c.find("{http://www.w3.org/2000/svg}title").text for c in svg.iter("{http://www.w3.org/2000/svg}circle")
+            if c.find("{http://www.w3.org/2000/svg}title") is not None]
+    assert sum(t.startswith("empirical power") for t in tips) == 2
+    page = (tmp_path / "o" / "index.html").read_text(encoding="utf-8")
+    assert "<svg" in page and "control=corners" in page
 
 
 def test_a_bad_study_recipe_is_one_line(tmp_path, capsys):
