@@ -171,3 +171,18 @@ def pose_sigma(cov: np.ndarray) -> np.ndarray:
     """Standard deviations of the pose components (n × 6: m, m, m, rad, rad, rad) of
     :func:`pose_covariance`'s n × 6 × 6 covariances."""
     return np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
+
+
+def pose_values(adj, images=None) -> np.ndarray:
+    """The adjusted poses (X0, Y0, Z0, ω, φ, κ), n × 6 (object units, radians); an SfM block's
+    from ρ, t (module docstring)."""
+    problem = adj.problem
+    _, index, sfm = pose_parameters(problem, images)
+    x = adj.x[index]
+    if not sfm:
+        return x
+    D = np.diag([1.0, -1.0, -1.0]) if problem.geometry.convention == "colmap" else np.eye(3)
+    R = R_from_rodrigues(x[:, :3])
+    Rt = np.swapaxes(R, -1, -2)
+    X0 = -np.einsum("nij,nj->ni", Rt, x[:, 3:])
+    return np.column_stack([X0, *opk_from_R(Rt @ D)])
