@@ -19,10 +19,10 @@ from ..datum import far_points
 from ..model.bundle import check_points, has_check_points
 from ..stats.ap_tests import ap_tests
 from ..stats.gnss import strip_tests
-from ..stats.pose import POSE_NAMES, pose_covariance, pose_values
+from ..stats.pose import POSE_NAMES, pose_covariance, pose_sigma, pose_values
 from ..stats.reliability import reliability_of
 from ..text import number, printable
-from . import columns as columns_
+from . import columns as columns_, csv_rows
 from .output import OutputError, atomic_write, csv_cell
 
 SCHEMA_VERSION = "1.0"
@@ -328,8 +328,7 @@ def images(adj) -> Records:
     def arrays():
         if not held:
             cov = pose_covariance(adj)
-            held.update(x=pose_values(adj), cov=cov,
-                        sd=np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)))
+            held.update(x=pose_values(adj), cov=cov, sd=pose_sigma(cov))
         return held
 
     def make(i):
@@ -347,30 +346,6 @@ def images(adj) -> Records:
         d["centre_cov"] = [[_num(v) for v in row] for row in a["cov"][i, :3, :3].tolist()]
         return d
     return Records(len(geo.images), make)
-
-
-#: the centre covariance's entries as CSV columns (``images.csv``)
-CENTRE_COV_COLUMNS = (("cov_XX", 0, 0), ("cov_XY", 0, 1), ("cov_XZ", 0, 2), ("cov_YY", 1, 1), ("cov_YZ", 1, 2),
-                      ("cov_ZZ", 2, 2))
-
-
-def _image_csv_row(row: dict) -> dict:
-    """An image record with its ``centre_cov`` as the six columns of :data:`CENTRE_COV_COLUMNS`."""
-    out = {k: v for k, v in row.items() if k != "centre_cov"}
-    C = row.get("centre_cov")
-    if C is not None:
-        out.update({name: C[a][b] for name, a, b in CENTRE_COV_COLUMNS})
-    return out
-
-
-def _check_point_csv_row(row: dict) -> dict:
-    """A check point of ``check_points.points`` as one CSV row: ``id``, known ``x_ref`` …,
-    adjusted ``x`` …, residual ``dx`` … (adjusted − known) and ``sx`` …, per axis; ``line``."""
-    out = {"id": row["id"]}
-    for key, fmt in (("ref", "{}_ref"), ("adjusted", "{}"), ("diff", "d{}"), ("sigma", "s{}")):
-        out.update({fmt.format(a): v for a, v in zip("xyz", row[key])})
-    out["line"] = row.get("line", "")
-    return out
 
 
 def groups(adj, reliability=None) -> Records:
@@ -544,7 +519,7 @@ def json_chunks(doc: dict):
 
 def write_csv(adj, directory, doc=None) -> list[Path]:
     """observations.csv, points.csv, groups.csv (images.csv for a bundle block, check_points.csv
-    for one with check points: :func:`_check_point_csv_row`) in ``directory`` (created if needed), each
+    for one with check points: :mod:`baarda.io.csv_rows`) in ``directory`` (created if needed), each
     written atomically; text cells are made safe for spreadsheets (:func:`csv_cell`: no formula,
     no raw control, bidi or zero-width character), as the dashboard's CSVs."""
     doc = doc if doc is not None else to_dict(adj)
@@ -561,9 +536,9 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
             continue
         rows = doc[name]                   # (records made twice, streamed: not held)
         if name == "images":
-            rows = [_image_csv_row(r) for r in rows]
+            rows = [csv_rows.image_row(r) for r in rows]
         elif name == "check_points":
-            rows = [_check_point_csv_row(r) for r in rows["points"]]
+            rows = [csv_rows.check_point_row(r) for r in rows["points"]]
         path = d / f"{name}.csv"
         fields = rows.fields() if isinstance(rows, Records) else None
         if fields is not None:

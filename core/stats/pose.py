@@ -168,14 +168,36 @@ def pose_covariance(adj, images=None) -> np.ndarray:
 
 
 def pose_sigma(cov: np.ndarray) -> np.ndarray:
-    """Standard deviations of the pose components (n × 6: m, m, m, rad, rad, rad) of
-    :func:`pose_covariance`'s n × 6 × 6 covariances."""
+    """Standard deviations of the pose components.
+
+    Parameters
+    ----------
+    cov : numpy.ndarray
+        n × 6 × 6 covariances of :func:`pose_covariance` (m², m·rad, rad²).
+
+    Returns
+    -------
+    numpy.ndarray
+        n × 6: σ of X0, Y0, Z0 (m) and ω, φ, κ (rad).
+    """
     return np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
 
 
 def pose_values(adj, images=None) -> np.ndarray:
-    """The adjusted poses (X0, Y0, Z0, ω, φ, κ), n × 6 (object units, radians); an SfM block's
-    from ρ, t (module docstring)."""
+    """The adjusted poses (X0, Y0, Z0, ω, φ, κ); an SfM block's from ρ, t (module docstring).
+
+    Parameters
+    ----------
+    adj : baarda.result.Adjustment
+        A bundle block's adjustment.
+    images : iterable of str, optional
+        Image ids (default: every image, in the block's order).
+
+    Returns
+    -------
+    numpy.ndarray
+        n × 6: X0, Y0, Z0 (object units, m) and ω, φ, κ (radians).
+    """
     problem = adj.problem
     _, index, sfm = pose_parameters(problem, images)
     x = adj.x[index]
