@@ -19,9 +19,13 @@ def image_row(row: dict) -> dict:
 
 def check_point_row(row: dict) -> dict:
     """A check point of ``check_points.points`` as one CSV row: ``id``, known ``x_ref`` …,
-    adjusted ``x`` …, residual ``dx`` … (adjusted − known) and ``sx`` …, per axis; ``line``."""
+    adjusted ``x`` …, residual ``dx`` … (adjusted − known), ``sx`` … and the known ones' ``sx_ref`` …,
+    per axis; the test ``T`` and ``rejected`` (:mod:`baarda.stats.check_points`); ``line``."""
     out = {"id": row["id"]}
-    for key, fmt in (("ref", "{}_ref"), ("adjusted", "{}"), ("diff", "d{}"), ("sigma", "s{}")):
-        out.update({fmt.format(a): v for a, v in zip("xyz", row[key])})
-    out["line"] = row.get("line", "")
+    for key, fmt in (("ref", "{}_ref"), ("adjusted", "{}"), ("diff", "d{}"), ("sigma", "s{}"),
+                     ("ref_sigma", "s{}_ref")):
+        if key in row:
+            out.update({fmt.format(a): v for a, v in zip("xyz", row[key])})
+    for key in ("T", "rejected", "line"):
+        out[key] = row.get(key, "")
     return out

@@ -18,6 +18,7 @@ import numpy as np
 from ..datum import far_points
 from ..model.bundle import check_points, has_check_points
 from ..stats.ap_tests import ap_tests
+from ..stats.check_points import check_point_tests
 from ..stats.gnss import strip_tests
 from ..stats.pose import POSE_NAMES, pose_covariance, pose_sigma, pose_values
 from ..stats.reliability import reliability_of
@@ -432,7 +433,7 @@ def to_dict(adj, reliability=None) -> dict:
         doc["ap_tests"] = finite(ap_tests(adj, rel.policy))
     model = adj.problem.notes.local_model
     if has_check_points(model):
-        doc["check_points"] = finite(check_points(adj, model))
+        doc["check_points"] = finite(check_point_tests(adj, check_points(adj, model), rel.policy))
     if getattr(model, "gnss", None) is not None and model.gnss.centres:
         strips = strip_tests(adj, rel)
         if strips:
