@@ -16,11 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from ..datum import far_points
+from ..errors import BaardaError
 from ..model.bundle import check_points, has_check_points
 from ..stats.ap_tests import ap_tests
 from ..stats.check_points import check_point_tests
 from ..stats.gnss import strip_tests
-from ..stats.pose import POSE_NAMES, pose_covariance, pose_sigma, pose_values
+from ..stats.pose import POSE_NAMES, pose_covariance, pose_parameters, pose_sigma, pose_values
 from ..stats.reliability import reliability_of
 from ..text import number, printable
 from . import columns as columns_, csv_rows
@@ -314,8 +315,11 @@ def has_images(adj) -> bool:
     geo = adj.problem.geometry
     if geo is None or not geo.images or adj.problem.notes.imodel is not None:
         return False
-    first = geo.images[0].id
-    return adj.problem.params.labels[0] in (f"{first}.X0", f"image {first}.rho1")
+    try:
+        pose_parameters(adj.problem)         # every image's pose where the block's layout puts it
+    except BaardaError:
+        return False
+    return True
 
 
 def images(adj) -> Records:
