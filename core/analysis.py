@@ -363,12 +363,14 @@ class Analysis:
         return doc
 
     def records(self, table: str = "observations", frame: bool = False):
-        """One table of the result — ``"observations"``, ``"points"`` or ``"groups"`` — with the
-        JSON document's keys as columns: a dict of numpy arrays (``None`` in JSON is NaN here),
-        or with ``frame=True`` a pandas DataFrame (pandas needed)."""
+        """One table of the result — ``"observations"``, ``"points"``, ``"groups"`` or (bundle
+        blocks) ``"images"`` — with the JSON document's keys as columns: a dict of numpy arrays
+        (``None`` in JSON is NaN here), or with ``frame=True`` a pandas DataFrame (pandas needed)."""
         makers = {"observations": lambda: results.observations(self.adjustment, self.reliability),
                   "points": lambda: results.points(self.adjustment),
                   "groups": lambda: results.groups(self.adjustment, self.reliability)}
+        if results.has_images(self.adjustment):
+            makers["images"] = lambda: results.images(self.adjustment)
         if table not in makers:
             raise OptionError("table", table, tuple(makers))
         cols = self._cached(("records", table), lambda: results.columns(makers[table]()))

@@ -10,6 +10,7 @@ import jsonschema
 import numpy as np
 import pytest
 
+import baarda
 from baarda.cli import main
 from baarda.stats.pose import POSE_NAMES, pose_covariance, pose_values
 
@@ -39,6 +40,13 @@ def test_json_images_carry_the_pose_covariance(written, demo_adjustment):
         assert [d["s" + n] for n in POSE_NAMES] == pytest.approx(np.sqrt(np.diag(cov[k])), rel=1e-12)
         assert [d[n] for n in POSE_NAMES] == pytest.approx(x[k], rel=1e-12, abs=1e-12)
         assert np.allclose(d["centre_cov"], cov[k, :3, :3], rtol=1e-12, atol=0)
+
+
+def test_analysis_records_of_the_images(demo_path, demo_adjustment):
+    cols = baarda.analyze(demo_path).records("images")
+    cov = pose_covariance(demo_adjustment)
+    np.testing.assert_allclose(cols["sphi"], np.sqrt(cov[:, 4, 4]), rtol=1e-12)
+    assert list(cols["id"]) == [im.id for im in demo_adjustment.problem.geometry.images]
 
 
 def test_csv_images_and_check_points(written):
