@@ -44,6 +44,7 @@ from .network_defects import adjust_network
 from .sfm_defects import adjust_block
 from .stats import analyses, gnss, hypotheses, misidentification, precision, risk, robust, snooping, variance
 from .stats.ap_tests import ap_test
+from .stats.check_points import check_point_tests
 from .stats.policy import TestPolicy
 from .stats.reliability import Reliability
 from .text import printable
@@ -362,12 +363,14 @@ class Analysis:
         return doc
 
     def records(self, table: str = "observations", frame: bool = False):
-        """One table of the result — ``"observations"``, ``"points"`` or ``"groups"`` — with the
-        JSON document's keys as columns: a dict of numpy arrays (``None`` in JSON is NaN here),
-        or with ``frame=True`` a pandas DataFrame (pandas needed)."""
+        """One table of the result — ``"observations"``, ``"points"``, ``"groups"`` or (bundle
+        blocks) ``"images"`` — with the JSON document's keys as columns: a dict of numpy arrays
+        (``None`` in JSON is NaN here), or with ``frame=True`` a pandas DataFrame (pandas needed)."""
         makers = {"observations": lambda: results.observations(self.adjustment, self.reliability),
                   "points": lambda: results.points(self.adjustment),
                   "groups": lambda: results.groups(self.adjustment, self.reliability)}
+        if results.has_images(self.adjustment):
+            makers["images"] = lambda: results.images(self.adjustment)
         if table not in makers:
             raise OptionError("table", table, tuple(makers))
         cols = self._cached(("records", table), lambda: results.columns(makers[table]()))
@@ -400,11 +403,13 @@ class Analysis:
 
     def check_points(self) -> dict:
         """The check points (native ``status: check``, or ``role`` check in a control CSV): adjusted
-        minus known coordinates and the RMSE per axis (:func:`baarda.model.bundle.check_points`);
-        they never enter the adjustment. Empty (``n`` 0) for a model without them."""
+        minus known coordinates and the RMSE per axis (:func:`baarda.model.bundle.check_points`),
+        the RMSE the precision predicts and each point's test under the analysis' policy
+        (:func:`baarda.stats.check_points.check_point_tests`); they never enter the adjustment.
+        Empty (``n`` 0) for a model without them."""
         model = self.problem.notes.local_model
-        return self._cached("check_points", lambda: _check_points(self.adjustment, model if model is not None
-                                                                  else _NoModel()))
+        return self._cached("check_points", lambda: check_point_tests(
+            self.adjustment, _check_points(self.adjustment, model if model is not None else _NoModel()), self.policy))
 
     # -- computed on demand --------------------------------------------------------------------------
     def test(self, spec, label: str | None = None) -> dict:

@@ -56,7 +56,8 @@ def add_gnss_arguments(p) -> None:
     """The GNSS options of a subcommand that reads a block."""
     p.add_argument("--gnss", metavar="CSV",
                    help="GNSS projection centres image,x,y,z,sx,sy,sz[,strip,time,rxy,rxz,ryz] observed "
-                        "(bundle blocks, SfM models converted; metres, the block's frame)")
+                        "(bundle blocks, SfM models converted; metres, the block's frame); also a Metashape or "
+                        "Pix4D camera-position export with accuracies, or a COLMAP database.db")
     p.add_argument("--lever-arm", type=lever_arm, default=(0.0, 0.0, 0.0), metavar="DX,DY,DZ",
                    help="lever arm from the projection centre to the antenna, camera frame, metres (default 0,0,0)")
     p.add_argument("--estimate-lever-arm", action="store_true",

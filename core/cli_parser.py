@@ -269,6 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     cv.add_argument("input", help="the network or block to read")
     cv.add_argument("out", help="the native JSON file to write")
     _add_input_options(cv)
+    cli_options.add_gnss_arguments(cv)
     cv.add_argument("--quiet", "-q", action="store_true")
     cv.add_argument("--debug", action="store_true")
 

@@ -23,6 +23,7 @@ from .io.analysis_text import robust_lines
 from .io.control import add_control
 from .io.gama import UndefinedPointsWarning
 from .io.geojson import write_geojson
+from .io.gnss import add_gnss, add_imu
 from .io.hypothesis import parse_hypothesis
 from .io.native import write_native
 from .io.output import OutputError, check_outputs, write_text
@@ -271,6 +272,11 @@ def cmd_convert(args) -> int:
     _warn_dropped(args.input, model, args.quiet)
     if args.control:
         model = add_control(model, args.control)
+    gnss, imu = cli_options.gnss_options(args), cli_options.imu_options(args)
+    if gnss is not None:
+        model = add_gnss(model, gnss)
+    if imu is not None:
+        model = add_imu(model, imu)
     note = ""
     if isinstance(model, SfmBlock):
         try:
@@ -377,7 +383,7 @@ def _io_paths(args) -> tuple[list, list, list]:
                                gnss_path(out) if args.gnss_sigma is not None else None,
                                gnss_path(out, ".imu.csv") if args.imu_sigma is not None else None], []
     if command == "convert":
-        return [args.input, args.control], [args.out], []
+        return [args.input, args.control, args.gnss, args.imu], [args.out], []
     if command == "report":
         return [args.input], [_report_path(args)], []
     if command == "test":
@@ -386,7 +392,8 @@ def _io_paths(args) -> tuple[list, list, list]:
     if command == "analyze":
         guess = _truth_beside(args.input)
         truth_file = args.truth or (guess if guess is not None and guess.exists() else None)
-        csv = [Path(args.csv) / f"{name}.csv" for name in ("observations", "points", "groups")] if args.csv else []
+        csv = [Path(args.csv) / f"{name}.csv" for name in ("observations", "points", "groups", "images", "check_points")
+               ] if args.csv else []
         return [args.input, args.control, args.gnss, args.imu, truth_file], [args.json, args.geojson, *csv], \
             [args.csv] * bool(args.csv)
     return [], [], []

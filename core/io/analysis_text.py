@@ -146,12 +146,21 @@ def check_point_lines(rep: dict, top: int = 20) -> list[str]:
     out = [f"  check points (not in the adjustment): {rep['n']}; RMSE X {number(rms[0], '.4g')}, Y "
            f"{number(rms[1], '.4g')}, Z {number(rms[2], '.4g')}; mean X {number(mean[0], '+.3g')}, Y "
            f"{number(mean[1], '+.3g')}, Z {number(mean[2], '+.3g')}"]
+    exp = rep.get("expected_rms")
+    if exp is not None and np.isfinite(np.asarray(exp, dtype=float)).all():
+        out.append(f"    RMSE the precision predicts X {number(exp[0], '.4g')}, Y {number(exp[1], '.4g')}, Z "
+                   f"{number(exp[2], '.4g')}; {rep['n_rejected']} of {rep['n']} rejected by T = dᵀ(Σx̂ + Σref)⁻¹d > "
+                   f"{number(rep['critical'], '.2f')} (χ²(3), α = {number(rep['alpha'], '.3g')})")
+    elif rep.get("note"):
+        out.append(f"    {rep['note']}")
     worst = sorted(rep["points"], key=lambda p: -float(np.linalg.norm(p["diff"])))[:top]
     for p in worst:
         d, sd = p["diff"], p["sigma"]
+        T = p.get("T")
+        test = "" if T is None or not np.isfinite(T) else f"  T {number(T, '.3g')}{'  REJECTED' if p['rejected'] else ''}"
         out.append(printable(f"    {str(p['id']):<16s} dX {number(d[0], '+9.4f')}  dY {number(d[1], '+9.4f')}  "
                              f"dZ {number(d[2], '+9.4f')}   (σ {number(sd[0], '.3g')}, {number(sd[1], '.3g')}, "
-                             f"{number(sd[2], '.3g')})"))
+                             f"{number(sd[2], '.3g')}){test}"))
     if rep["n"] > top:
         out.append(f"    ... {rep['n'] - top} more in the JSON document (check_points)")
     return out

@@ -31,6 +31,7 @@ from ..model.bundle import Block
 from ..model.gnss import GnssCentre, GnssSpec, ImuAttitude, ImuSpec
 from ..model.sfm import SfmBlock, to_block
 from ..validate import SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
+from .camera_positions import read_metashape, read_pix4d, sniff
 from .control import csv_table
 
 COLUMNS = ("image", "x", "y", "z", "sx", "sy", "sz")
@@ -129,14 +130,20 @@ def read_pose_priors(path) -> list[GnssCentre]:
 
 
 def read_gnss(path) -> list[GnssCentre]:
-    """The GNSS centres of a CSV file (module docstring), or the pose priors of a COLMAP
-    ``database.db`` (:func:`read_pose_priors`); InputError naming file, line and field."""
+    """The GNSS centres of a CSV file (module docstring), of a Metashape or Pix4D camera-position
+    export (:mod:`baarda.io.camera_positions`, recognised by its first lines), or the pose priors
+    of a COLMAP ``database.db`` (:func:`read_pose_priors`); InputError naming file, line and field."""
     try:
         with open(path, "rb") as fh:
             if fh.read(16) == SQLITE_MAGIC:
                 return read_pose_priors(path)
     except OSError:
         pass                                    # csv_table below says what is wrong
+    layout, records = sniff(path)
+    if layout == "metashape":
+        return read_metashape(path, records)
+    if layout == "pix4d":
+        return read_pix4d(path, records)
     col, hline, rows = csv_table(path, COLUMNS, OPTIONAL)
     out, seen = [], {}
     for ln, r in rows:
@@ -189,25 +196,43 @@ def native_block(model, path, what: str):
 
 
 def image_matcher(block: Block):
-    """A function file name → image id of ``block``: the image's id, else its file name (an SfM
-    model's, ``extra["image_names"]``), else that name without its extension — the last two only
-    where they name one image; None for no image."""
+    """A function label → image id of ``block``. The label, then the label without its extension,
+    is looked up as the image's id, its file name (an SfM model's, ``extra["image_names"]``) and
+    that name without its extension; then the same ignoring case. A file name or a case-folded
+    match counts only where it names one image; None for no image."""
     ids = {im.id for im in block.images}
     names = dict(block.extra.get("image_names", {}) or {})
-    by_name, by_stem = {}, {}
+    tables = [{}, {}, {}, {}]                 # name, stem; then both case-folded
+    for iid in ids:
+        tables[2].setdefault(iid.casefold(), set()).add(iid)
+        tables[3].setdefault(_stem(iid).casefold(), set()).add(iid)
     for iid, name in names.items():
-        by_name.setdefault(str(name), []).append(iid)
-        by_stem.setdefault(str(name).rsplit(".", 1)[0], []).append(iid)
+        name = str(name)
+        tables[0].setdefault(name, set()).add(iid)
+        tables[1].setdefault(_stem(name), set()).add(iid)
+        tables[2].setdefault(name.casefold(), set()).add(iid)
+        tables[3].setdefault(_stem(name).casefold(), set()).add(iid)
 
     def match(text: str):
-        if text in ids:
-            return text
-        for table in (by_name, by_stem):
-            hit = table.get(text, [])
-            if len(hit) == 1:
-                return hit[0]
+        keys = (text, _stem(text))
+        for key in keys:
+            if key in ids:
+                return key
+        for k, table in enumerate(tables):
+            for key in keys:
+                hit = table.get(key.casefold() if k >= 2 else key, ())
+                if len(hit) == 1:
+                    return next(iter(hit))
         return None
     return match
+
+
+def _stem(name: str) -> str:
+    """A file name without its extension (``IMG_01.JPG`` → ``IMG_01``); a name without one — or
+    whose last dot is followed by anything but 1-5 letters and digits with a letter (``1.5``) — as it is."""
+    head, dot, ext = name.rpartition(".")
+    is_ext = 1 <= len(ext) <= 5 and ext.isalnum() and not ext.isdigit()
+    return head if dot and head and is_ext else name
 
 
 def add_gnss(model, options: GnssOptions):

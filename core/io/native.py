@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import BaardaError, InputError
 from ..model.bundle import AP_GROUPS, Block, Camera, Image, ImageObservations, ObjectPoint
+from ..model.gnss import GnssCentre, GnssSpec, ImuAttitude, ImuSpec
 from ..model.imodel import IModelBlock, Model, ModelObservations, PlanPoint
 from ..model.network import Cluster, NetObservation, NetPoint, Network
 from ..validate import SIGMA0_MAX, SIGMA0_MIN, SIGMA_MAX, SIGMA_MIN, VALUE_LIMIT
@@ -350,10 +351,92 @@ def _read_bundle(rd, sigma0):
     # a point on fewer than two rays is a local defect (baarda.sfm_defects names it and leaves it
     # out, --strict refuses it), not bad input; a weighted control point on one ray is determined
     datum, sbase = _datum(rd, pt_ids)
+    gnss, imu = _read_gnss(rd, img_ids), _read_imu(rd, img_ids)
+    if gnss is not None or imu is not None:
+        datum = "control"                  # GNSS centres (and control points) define it, as --gnss does
     extra = rd.doc.get("extra", {})
     return Block(cameras=tuple(cameras), images=tuple(images), points=tuple(points),
                  obs=ImageObservations(oi, op, xy, cov, line), datum=datum, sbase=sbase, sigma0=sigma0,
-                 title=str(rd.doc.get("title", "")), source=rd.path, extra=extra if isinstance(extra, dict) else {})
+                 title=str(rd.doc.get("title", "")), source=rd.path, extra=extra if isinstance(extra, dict) else {},
+                 gnss=gnss, imu=imu)
+
+
+def _options(rd, key: str, allowed: dict) -> dict:
+    """The optional object ``key`` of booleans and 3-vectors (``allowed``: name → default)."""
+    d = rd.doc.get(key, {})
+    if not isinstance(d, dict):
+        rd.fail(key, None, f"'{key}' must be an object", field=key)
+    unknown = sorted(set(d) - set(allowed))
+    if unknown:
+        rd.fail(key, None, f"{key}: unknown field(s) {', '.join(map(repr, unknown))} (known: {', '.join(allowed)})",
+                field=unknown[0])
+    out = {}
+    for name, default in allowed.items():
+        v = d.get(name, default)
+        if isinstance(default, bool):
+            if not isinstance(v, bool):
+                rd.fail(key, None, f"{key}.{name} must be true or false", field=name)
+            out[name] = v
+        elif name in d:
+            ok = (isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                              and math.isfinite(x) and abs(x) <= VALUE_LIMIT for x in v))
+            if not ok:
+                rd.fail(key, None, f"{key}.{name} must be a list of 3 finite numbers", field=name)
+            out[name] = tuple(float(x) for x in v)
+        else:
+            out[name] = default
+    return out
+
+
+def _attached(rd, key, i, e, img_ids, seen) -> str:
+    image = rd.ident(e, "image", key, i)
+    if image not in img_ids:
+        rd.fail(key, i, f"{key}[{i}]: unknown image '{image}'", field="image")
+    if image in seen:
+        rd.fail(key, i, f"{key}[{i}]: image '{image}' twice (first at entry {seen[image]})", field="image")
+    seen[image] = i
+    return image
+
+
+def _read_gnss(rd, img_ids) -> GnssSpec | None:
+    """``gnss_centres`` and the ``gnss`` options (docs/native-format.md), or None without centres."""
+    items = rd.entries("gnss_centres", required=False)
+    opts = _options(rd, "gnss", {"lever_arm": (0.0, 0.0, 0.0), "estimate_lever_arm": False, "shift": False,
+                                 "drift": False})
+    if not items:
+        return None
+    centres, seen = [], {}
+    for i, e in enumerate(items):
+        image = _attached(rd, "gnss_centres", i, e, img_ids, seen)
+        xyz = rd.vector(e, "xyz", "gnss_centres", i, 3)
+        C = rd.covariance(e, "gnss_centres", i, size=3)
+        t = rd.number(e, "time", "gnss_centres", i) if "time" in e else float("nan")
+        if opts["drift"] and not math.isfinite(t):
+            rd.fail("gnss_centres", i, f"gnss_centres[{i}]: a drift needs a 'time' in every centre", field="time")
+        centres.append(GnssCentre(image, tuple(xyz), tuple(map(tuple, C.tolist())), str(e.get("strip", "")), t,
+                                  rd.loc.of("gnss_centres", i)))
+    return GnssSpec(tuple(centres), opts["lever_arm"], opts["estimate_lever_arm"], opts["shift"], opts["drift"],
+                    source=rd.path)
+
+
+def _read_imu(rd, img_ids) -> ImuSpec | None:
+    """``imu_attitudes`` and the ``imu`` options (docs/native-format.md), or None without attitudes."""
+    items = rd.entries("imu_attitudes", required=False)
+    opts = _options(rd, "imu", {"boresight": (0.0, 0.0, 0.0), "boresight_fixed": False})
+    if not items:
+        return None
+    out, seen = [], {}
+    for i, e in enumerate(items):
+        image = _attached(rd, "imu_attitudes", i, e, img_ids, seen)
+        ang = rd.vector(e, "angles", "imu_attitudes", i, 3)
+        if abs(ang[1]) >= np.radians(89.999):
+            rd.fail("imu_attitudes", i, f"imu_attitudes[{i}]: φ = {ang[1]:g} rad: ω, φ, κ are singular at |φ| = 90°",
+                    field="angles")
+        C = rd.covariance(e, "imu_attitudes", i, size=3)
+        out.append(ImuAttitude(image, tuple(ang), tuple(map(tuple, C.tolist())),
+                               tuple(float(v) for v in np.degrees(ang)),
+                               tuple(float(v) for v in np.degrees(np.sqrt(np.diag(C)))), rd.loc.of("imu_attitudes", i)))
+    return ImuSpec(tuple(out), opts["boresight"], opts["boresight_fixed"], source=rd.path)
 
 
 def _read_imodel(rd, sigma0):
@@ -432,6 +515,14 @@ def _cov_entry(C) -> dict:
     return {"cov": C.tolist()}
 
 
+def _cov3_entry(C) -> dict:
+    """``sigma`` [σx, σy, σz] of a diagonal 3 × 3 covariance, else ``cov``."""
+    C = np.asarray(C, dtype=float)
+    if not (C - np.diag(np.diag(C))).any():
+        return {"sigma": [float(v) for v in np.sqrt(np.diag(C))]}
+    return {"cov": C.tolist()}
+
+
 def _f(v) -> float:
     return float(v)
 
@@ -440,7 +531,7 @@ def write_native(block, path) -> None:
     """Write a Block, IModelBlock or levelling Network in the native format (version 1)."""
     if isinstance(block, Block):
         doc = _bundle_doc(block)
-        lists = ("cameras", "images", "points", "observations")
+        lists = ("cameras", "images", "points", "observations", "gnss_centres", "imu_attitudes")
     elif isinstance(block, IModelBlock):
         doc = _imodel_doc(block)
         lists = ("models", "points", "observations")
@@ -500,6 +591,17 @@ def _bundle_doc(b) -> dict:
     doc = {"format": FORMAT, "version": 1, "kind": "bundle", "title": b.title, "sigma0": b.sigma0,
            "units": {"object": "m", "angles": "rad", "image": "camera unit"}, "datum": datum,
            "cameras": cams, "images": imgs, "points": pts, "observations": obs}
+    if b.gnss is not None and b.gnss.centres:
+        g = b.gnss
+        doc["gnss"] = {"lever_arm": [_f(v) for v in g.lever_arm], "estimate_lever_arm": bool(g.estimate_lever_arm),
+                       "shift": bool(g.shift), "drift": bool(g.drift)}
+        doc["gnss_centres"] = [{"image": c.image, "xyz": [_f(v) for v in c.xyz], **_cov3_entry(c.cov),
+                                **({"strip": c.strip} if c.strip else {}),
+                                **({"time": _f(c.time)} if math.isfinite(c.time) else {})} for c in g.centres]
+    if b.imu is not None and b.imu.attitudes:
+        doc["imu"] = {"boresight": [_f(v) for v in b.imu.boresight], "boresight_fixed": bool(b.imu.boresight_fixed)}
+        doc["imu_attitudes"] = [{"image": a.image, "angles": [_f(v) for v in a.angles], **_cov3_entry(a.cov)}
+                                for a in b.imu.attitudes]
     if b.extra:
         doc["extra"] = json.loads(json.dumps(b.extra, default=float))
     return doc

@@ -387,23 +387,25 @@ def check_points(adj, block) -> dict:
     block (its ``check`` points, read from a control CSV's ``role`` column). Check points take
     part only through their image measurements (module docstring): their adjusted coordinates
     are intersected by the block like any tie point and compared with the known ones afterwards.
-    Returns ``{"points": [{id, ref, adjusted, diff, sigma, line}], "n", "rms", "mean", "max_abs"}``
+    Returns ``{"points": [{id, ref, adjusted, diff, sigma, ref_sigma, line}], "n", "rms", "mean", "max_abs"}``
+    (``ref_sigma``: the known coordinates' σ as the file gives them, 0 where it gives none)
     (lengths in the block's object units; the statistics NaN per axis without check points).
     """
     coords, sig = adj.coordinates, adj.point_sigma
     where = {str(pid): i for i, pid in enumerate(adj.problem.points.ids)}
     if hasattr(block, "check"):                 # an SfM block
-        refs = [(cp.id, cp.xyz, cp.line) for cp in block.check]
+        refs = [(cp.id, cp.xyz, cp.sigma, cp.line) for cp in block.check]
     else:
-        refs = [(p.id, p.ref, p.line) for p in block.points if p.status == "check" and p.ref is not None]
+        refs = [(p.id, p.ref, (p.sigma_h, p.sigma_h, p.sigma_v), p.line) for p in block.points
+                if p.status == "check" and p.ref is not None]
     rows = []
-    for pid, ref, line in refs:
+    for pid, ref, ref_sigma, line in refs:
         i = where.get(str(pid))
         if i is None:
             continue
         d = coords[i] - np.asarray(ref, dtype=float)
         rows.append({"id": pid, "ref": [float(v) for v in ref], "adjusted": coords[i].tolist(), "diff": d.tolist(),
-                     "sigma": sig[i].tolist(), "line": int(line)})
+                     "sigma": sig[i].tolist(), "ref_sigma": [float(v) if np.isfinite(v) else 0.0 for v in ref_sigma], "line": int(line)})
     diffs = np.array([r["diff"] for r in rows], dtype=float).reshape(-1, 3)
     nan3 = [float("nan")] * 3
     return {"points": rows, "n": len(rows),
