@@ -130,9 +130,13 @@ def _add_input_options(p):
     p.add_argument("--refine-intrinsics", action=argparse.BooleanOptionalAction, default=None,
                    help="estimate the cameras' focal lengths and distortion (default: yes for BAL and "
                         "Bundler, as they define; no for COLMAP)")
+    _add_control_option(p)
+    _add_drop_option(p)
+
+
+def _add_control_option(p):
     p.add_argument("--control", metavar="CSV",
                    help="control points id,X,Y,Z,sx,sy,sz to add as weighted observations (bundle blocks)")
-    _add_drop_option(p)
 
 
 def _add_drop_option(p):
@@ -314,6 +318,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "--force is given)")
     rp.add_argument("--force", action="store_true", help="replace an existing INPUT.html (the default --out)")
     rp.add_argument("--format", default="auto", help="input format (see analyze)")
+    _add_control_option(rp)
+    cli_options.add_gnss_arguments(rp)
     _add_drop_option(rp)
     _add_test_options(rp)
     _add_iteration_option(rp)
@@ -346,6 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
     sv = sub.add_parser("serve", help="serve the dashboard in the browser",
                         description="Serve the Panel dashboard for FILE (default: the demo block).")
     sv.add_argument("input", nargs="?", help="the network or block file (default: data/demo-block.json)")
+    _add_control_option(sv)
+    cli_options.add_gnss_arguments(sv)
     sv.add_argument("--port", type=int, default=5006, help="port (default 5006)")
     sv.add_argument("--address", default="127.0.0.1",
                     help="address to listen on (default 127.0.0.1; another address, such as 0.0.0.0, serves the "
@@ -676,7 +684,9 @@ def _io_paths(args) -> tuple[list, list, list]:
     if command == "convert":
         return [args.input, args.control], [args.out], []
     if command == "report":
-        return [args.input], [_report_path(args)], []
+        return [args.input, args.control, args.gnss, args.imu], [_report_path(args)], []
+    if command == "serve":
+        return [args.input, args.control, args.gnss, args.imu], [], []
     if command == "test":
         files = [t.partition(":")[2] for t in args.hypothesis if t.startswith("file:")]
         return [args.input, args.control, args.gnss, args.imu, *files], [args.json], []
@@ -698,10 +708,18 @@ def _terminate(signum, frame):
 
 
 def cmd_serve(args) -> int:
+    from .build import read_problem
     from .dashboard.app import serve
 
+    inputs = {"control": args.control, "gnss": cli_options.gnss_options(args), "imu": cli_options.imu_options(args)}
+    inputs = {k: v for k, v in inputs.items() if v is not None}
+    if inputs:
+        if args.input is None:
+            raise UsageError("--control, --gnss and --imu name the companion files of FILE: give FILE")
+        # a bad companion file: one line naming file, line and field, before the server starts
+        _read_quietly(read_problem, args.input, control=args.control, gnss=inputs.get("gnss"), imu=inputs.get("imu"))
     serve(args.input, port=args.port, address=args.address, show=args.show, webgl=args.webgl,
-          allow_hosts=args.allow_host, token=args.token, allow_remote=args.allow_remote)
+          allow_hosts=args.allow_host, token=args.token, allow_remote=args.allow_remote, inputs=inputs)
     return 0
 
 

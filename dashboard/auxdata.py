@@ -157,28 +157,3 @@ def strip_rows(state) -> list[dict]:
     :meth:`baarda.analysis.Analysis.gnss_strip_tests`); [] without GNSS."""
     a = state.analysis
     return a.gnss_strip_tests() if a is not None and has_gnss(state.problem) else []
-
-
-def verdict_lines(state) -> list[str]:
-    """Sentences of the report's verdict on the GNSS centres, the strips and the check points
-    (plain text): how many centres' 3-D tests and strip tests reject, the check points' RMSE."""
-    said = []
-    g = gnss_centres(state)
-    if len(g):
-        rej = g[g["rejected"].astype(bool)]
-        names = ", ".join(rej["image"].astype(str).tolist()[:6]) + (" …" if len(rej) > 6 else "")
-        said.append(f"GNSS projection centres: {len(g)}; the 3-D test of "
-                    + (f"{len(rej)} centre{'s' if len(rej) != 1 else ''} rejects (image{'s' if len(rej) != 1 else ''} "
-                       f"{names})." if len(rej) else "every centre accepts them (F80 eq. 10-12)."))
-        strips = strip_rows(state)
-        if strips:
-            bad = [s["strip"] for s in strips if s["rejected"]]
-            said.append(f"The test of a shift common to a strip's centres (a cycle slip) rejects in "
-                        f"{len(bad)} of {len(strips)} strips" + (f" (strip {', '.join(map(str, bad))})." if bad else "."))
-    cp = check_points(state)
-    if cp["n"]:
-        unit = object_unit(state.problem) or "(model units)"
-        rms = ", ".join(f"{a} {float(x):.3g}" for a, x in zip("XYZ", cp["rms"]))
-        said.append(f"{cp['n']} check point{'s' if cp['n'] != 1 else ''}, not used in the adjustment: "
-                    f"RMSE of adjusted − known {rms} {unit}.")
-    return said

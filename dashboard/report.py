@@ -32,7 +32,7 @@ from baarda.io.output import write_text
 from baarda.stats.distributions import STRICT
 from baarda.stats.reliability import policy_of
 
-from . import geometry, render
+from . import auxdata, geometry, render
 from .frames import R_UNCONTROLLED
 from .state import State
 from .suspects import suspects
@@ -148,15 +148,44 @@ def verdict(s: dict, obs) -> tuple[str, str, list[str]]:
     if s["n_excluded"]:
         said.append(f"{s['n_excluded']} observation{'s were' if s['n_excluded'] != 1 else ' was'} excluded "
                     "from the adjustment by the reviewer.")
+    said += aux_sentences(s)
+    gnss = s.get("gnss") or {}
+    aux_rejected = int(gnss.get("rejected", 0)) + int(gnss.get("strips_rejected", 0))
     if rejected:
         return "bad", f"Not acceptable as it stands: {rejected} rejected observation{'s' if rejected != 1 else ''}.", said
     if high:
         return ("warn", f"Less precise than stated: σ̂0 = {_fmt(s['sigma0_aposteriori'], '.3g')} against σ0 = "
                         f"{s['sigma0_apriori']:.3g}; no single observation is rejected.", said)
+    if aux_rejected:
+        return ("warn", f"GNSS: {aux_rejected} rejected test{'s' if aux_rejected != 1 else ''} of projection "
+                        "centres or strips; no single observation is rejected.", said)
     if low or weak:
         return ("warn", "Consistent, with reservations: " + ("σ0 a priori too pessimistic" if low else
                                                             f"{weak} weakly controlled observations") + ".", said)
     return "ok", "Consistent: no test rejects the observations.", said
+
+
+def aux_sentences(s: dict) -> list[str]:
+    """The verdict's sentences on the GNSS projection centres (their 3-D tests, F80 eq. 10-12, and
+    the strips' shift tests, F80 §2.2) and on the check points (RMSE of adjusted − known per axis),
+    from the summary ``s`` (:meth:`State.summary`'s ``gnss`` and ``check_points``); plain text."""
+    said = []
+    g = s.get("gnss")
+    if g:
+        n, bad = int(g["centres"]), int(g["rejected"])
+        said.append(f"GNSS projection centres: {n}; the 3-D test of each centre (q = 3) rejects "
+                    + (f"{bad} of them (page 3 names them)." if bad else "none of them."))
+        if g.get("strips"):
+            sb = int(g["strips_rejected"])
+            said.append(f"The test of a shift common to the centres of one strip (a cycle slip) rejects "
+                        f"{sb} of {g['strips']} strips" + (" (page 3)." if sb else "."))
+    cp = s.get("check_points")
+    if cp:
+        unit = f" {cp['unit']}" if cp.get("unit") else " (model units)"
+        rms = ", ".join(f"{a} {_fmt(x)}" for a, x in zip("XYZ", cp["rms"]))
+        said.append(f"{cp['n']} check point{'s' if cp['n'] != 1 else ''}, not used in the adjustment: RMSE of "
+                    f"adjusted − known coordinates {rms}{unit}.")
+    return said
 
 
 def _suspects_html(state: State) -> str:
@@ -198,6 +227,19 @@ def _groups_html(state: State) -> str:
     more = f" (the 10 largest of {len(groups)})" if len(groups) > 10 else ""
     return (f"<h3>Rejected group tests{more}</h3><table class='t'><tr><th>observations of</th><th>q</th>"
             f"<th>T</th><th>critical</th></tr>{''.join(rows)}</table>")
+
+
+def _checks_html(state: State) -> str:
+    """The check points: adjusted − known per axis and the RMSE row (:func:`auxdata.check_table`)."""
+    df = auxdata.check_table(state)
+    if df.empty:
+        return ""
+    unit = geometry.object_unit(state.problem)
+    rows = "".join(f"<tr><td>{html_text(r.id)}</td><td class='n'>{_fmt(r.dX, '.4f')}</td><td class='n'>"
+                   f"{_fmt(r.dY, '.4f')}</td><td class='n'>{_fmt(r.dZ, '.4f')}</td></tr>"
+                   for r in df.itertuples(index=False))
+    return (f"<h3>Check points (not in the adjustment): adjusted − known{f' [{html_text(unit)}]' if unit else ''}</h3>"
+            f"<table class='t'><tr><th>point</th><th>dX</th><th>dY</th><th>dZ</th></tr>{rows}</table>")
 
 
 def _hypotheses_html(session: State | None) -> str:
@@ -309,10 +351,11 @@ standard deviations; the largest over the points is the δ̄0 of page 1) and the
 </section>
 <section class="page last">
 <h2>Suspects</h2>
-<p>The largest tests of single observations, of image points, control points and point transfers
-(|w| largest first); tests the data cannot tell apart name each other.</p>
+<p>The largest tests of single observations, of image points, control points, GNSS centres and strips,
+and point transfers (smallest p-value first); tests the data cannot tell apart name each other.</p>
 {_suspects_html(clean)}
 {_groups_html(clean)}
+{_checks_html(clean)}
 {_hypotheses_html(session)}
 <p class="foot">Tests at α0 = {100 * s['alpha0']:.3g} %, β0 = {100 * s['beta0']:.3g} %, δ0 = {s['delta0']:.3f}
 {'(B-method)' if s['b_method'] else ''}. Full tables: the dashboard's CSV downloads or
