@@ -459,7 +459,7 @@ class ResidualMap(MapView):
     def _rejected(self):
         seg = self._segments()
         rej = seg[seg["rejected"].astype(bool)] if len(seg) else seg
-        return hv.Segments(rej, ["x0", "y0", "x1", "y1"], HOVER_OBS, label="rejected").opts(
+        return hv.Segments(rej, ["x0", "y0", "x1", "y1"], HOVER_OBS, label="rejected" if len(rej) else "").opts(
             hover_tooltips=tips(HOVER_OBS),
             color="#b2182b", line_width=7, alpha=0.8, nonselection_alpha=0.8)
 

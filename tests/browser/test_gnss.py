@@ -82,6 +82,7 @@ def test_gnss_block_served(page, gnss_app, screenshots):
     assert cells.nth(3).inner_text() == "RMSE"
     for width in (1280, 1920):
         page.set_viewport_size({"width": width, "height": 1000})
+        table.scroll_into_view_if_needed()
         page.screenshot(path=str(screenshots / f"gnss-checks-{width}.png"))
     assert state.summary()["gnss"]["centres"] == 18
     assert real_errors(errors) == []
