@@ -19,9 +19,10 @@ from ..datum import far_points
 from ..model.bundle import check_points, has_check_points
 from ..stats.ap_tests import ap_tests
 from ..stats.gnss import strip_tests
+from ..stats.pose import POSE_NAMES, pose_covariance, pose_sigma, pose_values
 from ..stats.reliability import reliability_of
 from ..text import number, printable
-from . import columns as columns_
+from . import columns as columns_, csv_rows
 from .output import OutputError, atomic_write, csv_cell
 
 SCHEMA_VERSION = "1.0"
@@ -307,6 +308,46 @@ def points(adj) -> Records:
     return Records(len(pts.ids), make, fields)
 
 
+def has_images(adj) -> bool:
+    """Whether the adjustment is a bundle block's (it has images with poses)."""
+    geo = adj.problem.geometry
+    if geo is None or not geo.images or adj.problem.notes.imodel is not None:
+        return False
+    first = geo.images[0].id
+    return adj.problem.params.labels[0] in (f"{first}.X0", f"image {first}.rho1")
+
+
+def images(adj) -> Records:
+    """The images' adjusted poses and their precision (:mod:`baarda.stats.pose`): per image
+    ``id``, ``camera``, X0, Y0, Z0 (object units), omega, phi, kappa (radians), their standard
+    deviations ``sX0`` … ``skappa`` and ``centre_cov``, the 3 × 3 covariance of the projection
+    centre, in the adjustment's datum, σ0 as the problem uses it. Computed when first read."""
+    geo = adj.problem.geometry
+    held: dict = {}
+
+    def arrays():
+        if not held:
+            cov = pose_covariance(adj)
+            held.update(x=pose_values(adj), cov=cov, sd=pose_sigma(cov))
+        return held
+
+    def make(i):
+        a = arrays()
+        im = geo.images[i]
+        d = {"id": im.id, "camera": im.camera}
+        for k, name in enumerate(POSE_NAMES):
+            val = _num(a["x"][i, k])
+            if val is not None:
+                d[name] = val
+        for k, name in enumerate(POSE_NAMES):
+            val = _num(a["sd"][i, k])
+            if val is not None:
+                d["s" + name] = val
+        d["centre_cov"] = [[_num(v) for v in row] for row in a["cov"][i, :3, :3].tolist()]
+        return d
+    return Records(len(geo.images), make)
+
+
 def groups(adj, reliability=None) -> Records:
     rel = reliability_of(adj) if reliability is None else reliability
     gs = rel.groups
@@ -385,6 +426,8 @@ def to_dict(adj, reliability=None) -> dict:
     rel = reliability_of(adj) if reliability is None else reliability
     doc = {"schema": f"baarda-analysis/{SCHEMA_VERSION}", "summary": summary(adj, rel),
            "observations": observations(adj, rel), "points": points(adj), "groups": groups(adj, rel)}
+    if has_images(adj):
+        doc["images"] = images(adj)
     if adj.problem.notes.ap_groups:
         doc["ap_tests"] = finite(ap_tests(adj, rel.policy))
     model = adj.problem.notes.local_model
@@ -475,7 +518,8 @@ def json_chunks(doc: dict):
 
 
 def write_csv(adj, directory, doc=None) -> list[Path]:
-    """observations.csv, points.csv and groups.csv in ``directory`` (created if needed), each
+    """observations.csv, points.csv, groups.csv (images.csv for a bundle block, check_points.csv
+    for one with check points: :mod:`baarda.io.csv_rows`) in ``directory`` (created if needed), each
     written atomically; text cells are made safe for spreadsheets (:func:`csv_cell`: no formula,
     no raw control, bidi or zero-width character), as the dashboard's CSVs."""
     doc = doc if doc is not None else to_dict(adj)
@@ -487,8 +531,14 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
     # an adjustment that did not converge marks every row (a column, so the files stay CSV)
     mark = {} if doc["summary"]["converged"] else {"adjustment": "NOT converged"}
     written = []
-    for name in ("observations", "points", "groups"):
+    for name in ("observations", "points", "groups", "images", "check_points"):
+        if name not in doc:
+            continue
         rows = doc[name]                   # (records made twice, streamed: not held)
+        if name == "images":
+            rows = [csv_rows.image_row(r) for r in rows]
+        elif name == "check_points":
+            rows = [csv_rows.check_point_row(r) for r in rows["points"]]
         path = d / f"{name}.csv"
         fields = rows.fields() if isinstance(rows, Records) else None
         if fields is not None:
