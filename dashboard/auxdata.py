@@ -5,7 +5,8 @@ auxiliary data, made from the core's results (nothing is computed here that the 
 give): per GNSS centre its residuals v and w per axis and the 3-D test of the centre (the test
 group of its three observations, F80 eq. 10-12, :attr:`baarda.stats.reliability.Reliability.groups`);
 per check point its difference adjusted − known (:meth:`baarda.analysis.Analysis.check_points`)
-with the RMSE per axis. The residual vectors on the maps are exaggerated by a round factor so
+with the RMSE per axis; per image the precision of its projection centre
+(:func:`baarda.stats.pose.pose_covariance`). The residual vectors on the maps are exaggerated by a round factor so
 that the largest is a few per cent of the map (:func:`vectors`).
 """
 
@@ -13,6 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+
+from baarda.errors import BaardaError
+from baarda.stats import pose
 
 from .geometry import display_matrix, object_unit
 from .jobs import shared
@@ -157,3 +161,29 @@ def strip_rows(state) -> list[dict]:
     :meth:`baarda.analysis.Analysis.gnss_strip_tests`); [] without GNSS."""
     a = state.analysis
     return a.gnss_strip_tests() if a is not None and has_gnss(state.problem) else []
+
+
+def centre_precision(state) -> pd.DataFrame:
+    """The images' projection centres and their precision (the core's
+    :func:`baarda.stats.pose.pose_covariance`, 6 × 6 per image in the adjustment's datum, σ0 in
+    use): per image its id, the adjusted X0, Y0 on the map (x, y), the 2 × 2 covariance of X0, Y0
+    (``cov``, m², map axes as the block's) and σ of X0, Y0, Z0 in mm. Empty for a network, or where
+    the core cannot give it (no images)."""
+    cols = ["image", "x", "y", "sX0_mm", "sY0_mm", "sZ0_mm", "cov"]
+    if state.results is None or state.problem is None or state.problem.geometry is None:
+        return pd.DataFrame(columns=cols)
+    return shared(state.results, ("centre-precision",), lambda: _centre_precision(state, cols))
+
+
+def _centre_precision(state, cols) -> pd.DataFrame:
+    adj = state.results
+    try:
+        ids, _, _ = pose.pose_parameters(adj.problem)
+        cov = pose.pose_covariance(adj, ids)
+        val = pose.pose_values(adj, ids)
+    except BaardaError:
+        return pd.DataFrame(columns=cols)
+    sig = 1000.0 * pose.pose_sigma(cov)[:, :3]
+    e, n = display_matrix(state.problem) @ val[:, :2].T
+    return pd.DataFrame({"image": [plain(i) for i in ids], "x": e, "y": n, "sX0_mm": sig[:, 0], "sY0_mm": sig[:, 1],
+                         "sZ0_mm": sig[:, 2], "cov": list(cov[:, :2, :2])}, columns=cols)

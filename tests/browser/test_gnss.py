@@ -2,7 +2,7 @@
 (issue 28, item 6): served as ``baarda serve FILE --gnss CSV --imu CSV`` serves it
 (``create_app(path, inputs=...)``), the page shows the GNSS and check-point summary cards, the
 maps carry the GNSS residual vectors at the 18 centres (legend entry, image and residuals in the
-plot data), the suspects list names the planted 1 m centre error in its first ten rows, and the
+plot data) and the precision map the centres' standard ellipses, the suspects list names the planted 1 m centre error in its first ten rows, and the
 "Find errors" tab shows the check-point table with its RMSE row. Screenshots at 1280 and 1920
 pixels wide go to ``screenshots/``.
 """
@@ -72,6 +72,14 @@ def test_gnss_block_served(page, gnss_app, screenshots):
     for width in (1280, 1920):
         page.set_viewport_size({"width": width, "height": 1000})
         page.screenshot(path=str(screenshots / f"gnss-residuals-{width}.png"))
+    # the precision map: the projection centres' ellipses (pose covariance) with their legend entry
+    click_tab(page, "Precision")
+    wait_for_title(page, "Standard ellipses", timeout=LOAD_TIMEOUT)
+    wait_for_column(page, "sX0_mm", "(cols) => cols.some(c => c.length === 18)")
+    assert "projection centres, σ X0, Y0 (own datum)" in page.evaluate(JS_LEGEND)
+    for width in (1280, 1920):
+        page.set_viewport_size({"width": width, "height": 1000})
+        page.screenshot(path=str(screenshots / f"gnss-precision-{width}.png"))
     # the check points' table: three rows and the RMSE row
     click_tab(page, "Find errors")
     table = page.locator(".check-table").first

@@ -243,3 +243,40 @@ def test_serve_refuses_a_bad_companion_file_in_one_line(block, tmp_path, capsys)
     assert block.read_bytes() == before
     assert main(["serve", "--gnss-shift"]) == 2
     assert "--gnss-shift need(s) --gnss CSV" in capsys.readouterr().err
+
+
+def test_precision_map_draws_the_centres_ellipses_from_the_pose_covariance(state, data_dir):
+    import holoviews as hv
+
+    from baarda.dashboard.views.precision import PrecisionMap
+    from baarda.stats.pose import pose_covariance, pose_values
+
+    hv.extension("bokeh", logo=False)
+    m = PrecisionMap(state=state)
+    paths, c = m.centre_ellipses()
+    ids = [im.id for im in state.results.problem.geometry.images]
+    np.testing.assert_allclose(c[["x", "y"]].to_numpy(dtype=float), pose_values(state.results, ids)[:, :2])
+    cov = pose_covariance(state.results, ids)
+    np.testing.assert_allclose(c["sX0_mm"], 1000 * np.sqrt(cov[:, 0, 0]))
+    # each closed path (NaN-separated) reaches scale·√λmax of its 2 × 2 covariance from its centre
+    scale = m._ellipses()[1]
+    xy = np.asarray(paths[0], dtype=float)
+    parts = np.split(xy, np.flatnonzero(np.isnan(xy[:, 0])))
+    parts = [p[~np.isnan(p[:, 0])] for p in parts if np.isfinite(p).any()]
+    assert len(parts) == len(c)
+    for part, (_, r) in zip(parts, c.iterrows()):
+        k = ids.index(r["image"])
+        top = np.sqrt(np.linalg.eigvalsh(cov[k, :2, :2]).max())
+        reach = np.hypot(part[:, 0] - r["x"], part[:, 1] - r["y"]).max()
+        assert reach == pytest.approx(scale * top, rel=1e-3)
+    assert m.aux_legend()
+    # in a chosen S-base they are not drawn (the pose covariance is the own datum's)
+    state.sbase = [str(i) for i in state.problem.points.ids[:2]]
+    try:
+        assert m.centre_ellipses()[0] == []
+    finally:
+        state.sbase = []
+    # a block without GNSS or IMU: no centre ellipses (they would cover the map at the points' scale)
+    demo = State()
+    assert demo.load(data_dir / "demo-block.json")
+    assert PrecisionMap(state=demo).centre_ellipses()[0] == [] and not PrecisionMap(state=demo).aux_legend()
