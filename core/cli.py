@@ -708,7 +708,6 @@ def _terminate(signum, frame):
 
 
 def cmd_serve(args) -> int:
-    from .build import read_problem
     from .dashboard.app import serve
 
     inputs = {"control": args.control, "gnss": cli_options.gnss_options(args), "imu": cli_options.imu_options(args)}
@@ -716,8 +715,6 @@ def cmd_serve(args) -> int:
     if inputs:
         if args.input is None:
             raise UsageError("--control, --gnss and --imu name the companion files of FILE: give FILE")
-        # a bad companion file: one line naming file, line and field, before the server starts
-        _read_quietly(read_problem, args.input, control=args.control, gnss=inputs.get("gnss"), imu=inputs.get("imu"))
     serve(args.input, port=args.port, address=args.address, show=args.show, webgl=args.webgl,
           allow_hosts=args.allow_host, token=args.token, allow_remote=args.allow_remote, inputs=inputs)
     return 0

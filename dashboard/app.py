@@ -27,6 +27,7 @@ from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 from tornado.ioloop import IOLoop
 
+from baarda.build import read_problem
 from baarda.errors import BaardaError
 from baarda.threads import limit_native_threads, limit_worker_threads
 
@@ -647,6 +648,9 @@ def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = 
     limit_native_threads()               # BLAS: the whole process; numba: this (the event loop's) thread
     limit_worker_threads()
     remote = not is_loopback(address)
+    if inputs:
+        # a bad companion file: the reader's one line (file, line, field) before the server starts
+        read_problem(path, **inputs)
     if token is not None and not token.strip():
         raise BaardaError("--token must not be empty")
     if remote and token is None and not allow_remote:
