@@ -280,3 +280,18 @@ def test_precision_map_draws_the_centres_ellipses_from_the_pose_covariance(state
     demo = State()
     assert demo.load(data_dir / "demo-block.json")
     assert PrecisionMap(state=demo).centre_ellipses()[0] == [] and not PrecisionMap(state=demo).aux_legend()
+
+
+def test_strip_names_from_the_file_are_text(block, tmp_path):
+    g = pd.read_csv(gnss_path(block), dtype=str)
+    g["strip"] = g["strip"].replace({"2": "<b>2</b>"})
+    path = tmp_path / "g.csv"
+    g.to_csv(path, index=False)
+    st = State()
+    assert st.load(block, inputs={"gnss": str(path)}), st.error
+    df = suspects(st)
+    assert "shift of strip <b>2</b> (6 centres)" in set(df["hypothesis"])
+    assert "image 203 (strip <b>2</b>)" in set(df["hypothesis"])
+    assert set(auxdata.gnss_centres(st)["strip"]) == {"1", "<b>2</b>", "3"}
+    html = report_html(st.results, state=st)
+    assert "<b>2</b>" not in html and "strip &lt;b&gt;2&lt;/b&gt;" in html
