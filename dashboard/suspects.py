@@ -10,7 +10,7 @@ Every row is a hypothesis the core has tested on the current adjustment (:class:
   the :data:`TOP_GROUPS` largest T / k;
 - **GNSS centre**, **IMU attitude**: the 3-D test of one projection centre's GNSS position or
   of one image's IMU attitude (its observation group, F80 eq. 10-12), every one of them (up to
-  :data:`TOP_AUX` of each, by p-value) besides the largest groups;
+  :data:`TOP_AUX` of each by p-value, fewer on a large block) besides the largest groups;
 - **GNSS strip**: the test of a shift common to one strip's GNSS centres (a cycle slip, F80
   §2.2; :meth:`baarda.analysis.Analysis.gnss_strip_tests`), and where the model estimates a
   strip's shift or drift the test of those additional parameters (F80 §7.2,
@@ -69,7 +69,9 @@ from .text import plain
 TOP_1D = 40
 #: Groups listed: the largest T / k (the rejected ones first).
 TOP_GROUPS = 30
-#: GNSS centres (and IMU attitudes) listed at most besides the largest groups (smallest p first).
+#: GNSS centres (and IMU attitudes) listed at most besides the largest groups (smallest p first):
+#: TOP_AUX, fewer on a large block — each row is compared with the others for twins (a solve with
+#: the block's factor) — at most max(:data:`MIN_TIERED`, :data:`TIER_BUDGET` // n) of each.
 TOP_AUX = 100
 #: Points whose point-transfer hypotheses are scanned (those of the largest suspects).
 TRANSFER_POINTS = 8
@@ -202,9 +204,10 @@ def _groups(state) -> list[dict]:
     kind = s.problem.info.kind
     first = np.asarray(s.kept)[np.asarray(g.members)[np.asarray(g.ptr)[:-1]]] if len(g) else np.zeros(0, dtype=np.int64)
     taken = set(chosen)
+    top_aux = min(TOP_AUX, max(MIN_TIERED, TIER_BUDGET // max(int(adj.n), 1)))
     for prefix in ("gnss-", "imu-"):
         aux = [int(k) for k in order if str(kind[int(first[k])]).startswith(prefix) and np.isfinite(logp[k])]
-        for k in aux[:TOP_AUX]:
+        for k in aux[:top_aux]:
             if k not in taken:
                 chosen.append(k)
                 taken.add(k)
