@@ -32,7 +32,7 @@ from baarda.io.output import write_text
 from baarda.stats.distributions import STRICT
 from baarda.stats.reliability import policy_of
 
-from . import auxdata, geometry, render
+from . import geometry, render
 from .frames import R_UNCONTROLLED
 from .state import State
 from .suspects import suspects
@@ -173,18 +173,15 @@ def aux_sentences(s: dict) -> list[str]:
     g = s.get("gnss")
     if g:
         n, bad = int(g["centres"]), int(g["rejected"])
-        said.append(f"GNSS projection centres: {n}; the 3-D test of each centre (q = 3) rejects "
-                    + (f"{bad} of them (page 3 names them)." if bad else "none of them."))
+        text = f"GNSS: the 3-D test of {bad} of {n} projection centres rejects (q = 3)"
         if g.get("strips"):
-            sb = int(g["strips_rejected"])
-            said.append(f"The test of a shift common to the centres of one strip (a cycle slip) rejects "
-                        f"{sb} of {g['strips']} strips" + (" (page 3)." if sb else "."))
+            text += f"; a shift common to a strip's centres (cycle slip) is rejected in {g['strips_rejected']} of {g['strips']} strips"
+        said.append(text + (" (page 3 names them)." if bad or g.get("strips_rejected") else "."))
     cp = s.get("check_points")
     if cp:
         unit = f" {cp['unit']}" if cp.get("unit") else " (model units)"
         rms = ", ".join(f"{a} {_fmt(x)}" for a, x in zip("XYZ", cp["rms"]))
-        said.append(f"{cp['n']} check point{'s' if cp['n'] != 1 else ''}, not used in the adjustment: RMSE of "
-                    f"adjusted − known coordinates {rms}{unit}.")
+        said.append(f"Check points ({cp['n']}, not in the adjustment): RMSE of adjusted − known {rms}{unit}.")
     return said
 
 
@@ -227,19 +224,6 @@ def _groups_html(state: State) -> str:
     more = f" (the 10 largest of {len(groups)})" if len(groups) > 10 else ""
     return (f"<h3>Rejected group tests{more}</h3><table class='t'><tr><th>observations of</th><th>q</th>"
             f"<th>T</th><th>critical</th></tr>{''.join(rows)}</table>")
-
-
-def _checks_html(state: State) -> str:
-    """The check points: adjusted − known per axis and the RMSE row (:func:`auxdata.check_table`)."""
-    df = auxdata.check_table(state)
-    if df.empty:
-        return ""
-    unit = geometry.object_unit(state.problem)
-    rows = "".join(f"<tr><td>{html_text(r.id)}</td><td class='n'>{_fmt(r.dX, '.4f')}</td><td class='n'>"
-                   f"{_fmt(r.dY, '.4f')}</td><td class='n'>{_fmt(r.dZ, '.4f')}</td></tr>"
-                   for r in df.itertuples(index=False))
-    return (f"<h3>Check points (not in the adjustment): adjusted − known{f' [{html_text(unit)}]' if unit else ''}</h3>"
-            f"<table class='t'><tr><th>point</th><th>dX</th><th>dY</th><th>dZ</th></tr>{rows}</table>")
 
 
 def _hypotheses_html(session: State | None) -> str:
@@ -355,7 +339,6 @@ standard deviations; the largest over the points is the δ̄0 of page 1) and the
 and point transfers (smallest p-value first); tests the data cannot tell apart name each other.</p>
 {_suspects_html(clean)}
 {_groups_html(clean)}
-{_checks_html(clean)}
 {_hypotheses_html(session)}
 <p class="foot">Tests at α0 = {100 * s['alpha0']:.3g} %, β0 = {100 * s['beta0']:.3g} %, δ0 = {s['delta0']:.3f}
 {'(B-method)' if s['b_method'] else ''}. Full tables: the dashboard's CSV downloads or

@@ -94,3 +94,25 @@ def test_gnss_block_served(page, gnss_app, screenshots):
         page.screenshot(path=str(screenshots / f"gnss-checks-{width}.png"))
     assert state.summary()["gnss"]["centres"] == 18
     assert real_errors(errors) == []
+
+
+def test_gnss_report_prints_on_three_a4_pages(page, tmp_path, screenshots, capsys):
+    """``baarda report FILE --gnss CSV --imu CSV``: the verdict's GNSS and check-point sentences
+    and cards keep the report on three A4 pages (as tests/browser/test_report.py asks of data/)."""
+    from baarda.cli import main
+    from baarda.simulate import gnss_path, simulate_to_files
+    from tests.browser.test_report import _pdf_pages
+    from tests.dashboard.test_auxdata import RECIPE
+
+    path = tmp_path / "b.json"
+    simulate_to_files(RECIPE, path, tmp_path / "b.truth.json")
+    out = tmp_path / "report.html"
+    assert main(["report", str(path), "--gnss", str(gnss_path(path)), "--imu", str(gnss_path(path, ".imu.csv")),
+                 "-o", str(out), "--quiet"]) == 0
+    page.goto(out.as_uri())
+    expect(page.locator(".verdict").get_by_text("GNSS: the 3-D test of 1 of 18 projection centres")).to_be_visible()
+    expect(page.locator(".verdict").get_by_text("Check points (3, not in the adjustment)")).to_be_visible()
+    page.emulate_media(media="print")
+    pdf = page.pdf(format="A4", print_background=True)
+    assert 1 <= _pdf_pages(pdf) <= 3, _pdf_pages(pdf)
+    page.screenshot(path=str(screenshots / "gnss-report.png"), full_page=True)
