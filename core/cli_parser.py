@@ -85,9 +85,13 @@ def _add_input_options(p):
     p.add_argument("--refine-intrinsics", action=argparse.BooleanOptionalAction, default=None,
                    help="estimate the cameras' focal lengths and distortion (default: yes for BAL and "
                         "Bundler, as they define; no for COLMAP)")
+    _add_control_option(p)
+    _add_drop_option(p)
+
+
+def _add_control_option(p):
     p.add_argument("--control", metavar="CSV",
                    help="control points id,X,Y,Z,sx,sy,sz to add as weighted observations (bundle blocks)")
-    _add_drop_option(p)
 
 
 def _add_drop_option(p):
@@ -243,6 +247,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "--force is given)")
     rp.add_argument("--force", action="store_true", help="replace an existing INPUT.html (the default --out)")
     rp.add_argument("--format", default="auto", help="input format (see analyze)")
+    _add_control_option(rp)
+    cli_options.add_gnss_arguments(rp)
     _add_drop_option(rp)
     _add_test_options(rp)
     _add_iteration_option(rp)
@@ -276,6 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     sv = sub.add_parser("serve", help="serve the dashboard in the browser",
                         description="Serve the Panel dashboard for FILE (default: the demo block).")
     sv.add_argument("input", nargs="?", help="the network or block file (default: data/demo-block.json)")
+    _add_control_option(sv)
+    cli_options.add_gnss_arguments(sv)
     sv.add_argument("--port", type=int, default=5006, help="port (default 5006)")
     sv.add_argument("--address", default="127.0.0.1",
                     help="address to listen on (default 127.0.0.1; another address, such as 0.0.0.0, serves the "

@@ -385,7 +385,9 @@ def _io_paths(args) -> tuple[list, list, list]:
     if command == "convert":
         return [args.input, args.control, args.gnss, args.imu], [args.out], []
     if command == "report":
-        return [args.input], [_report_path(args)], []
+        return [args.input, args.control, args.gnss, args.imu], [_report_path(args)], []
+    if command == "serve":
+        return [args.input, args.control, args.gnss, args.imu], [], []
     if command == "test":
         files = [t.partition(":")[2] for t in args.hypothesis if t.startswith("file:")]
         return [args.input, args.control, args.gnss, args.imu, *files], [args.json], []
@@ -402,8 +404,13 @@ def _io_paths(args) -> tuple[list, list, list]:
 def cmd_serve(args) -> int:
     from .dashboard.app import serve
 
+    inputs = {"control": args.control, "gnss": cli_options.gnss_options(args), "imu": cli_options.imu_options(args)}
+    inputs = {k: v for k, v in inputs.items() if v is not None}
+    if inputs:
+        if args.input is None:
+            raise UsageError("--control, --gnss and --imu name the companion files of FILE: give FILE")
     serve(args.input, port=args.port, address=args.address, show=args.show, webgl=args.webgl,
-          allow_hosts=args.allow_host, token=args.token, allow_remote=args.allow_remote)
+          allow_hosts=args.allow_host, token=args.token, allow_remote=args.allow_remote, inputs=inputs)
     return 0
 
 

@@ -27,6 +27,7 @@ from panel.io.resources import parse_template
 from panel.io.state import set_curdoc
 from tornado.ioloop import IOLoop
 
+from baarda.build import read_problem
 from baarda.errors import BaardaError
 from baarda.threads import limit_native_threads, limit_worker_threads
 
@@ -352,8 +353,11 @@ def _served() -> bool:
     return doc is not None and doc.session_context is not None
 
 
-def create_app(path=None, problem=None, background: bool | None = None):
+def create_app(path=None, problem=None, background: bool | None = None, inputs: dict | None = None):
     """The dashboard for ``path`` (or an already read ``problem``) as a Panel template.
+
+    inputs: the companion files of ``path`` (control with roles, GNSS centres, IMU attitudes;
+    :meth:`baarda.dashboard.state.State.load`), never applied to an uploaded file.
 
     Served (``background`` defaults to True in a server session), the page comes up at once
     with the sidebar and the summary area; the file is read and adjusted on a worker thread
@@ -376,11 +380,11 @@ def create_app(path=None, problem=None, background: bool | None = None):
             state.error = ("No file given and no demo file under data/ (demo-block.json or a .gkf); "
                            "upload a file.")
         elif not background:
-            state.load(path)
+            state.load(path, inputs=inputs)
         else:
             # a file the server has analysed (at its start, or for another session): its
             # summary is in the page as it is sent; only the maps come after
-            state.load_cached(path)
+            state.load_cached(path, inputs=inputs)
     state.background = background
     first = SummaryHeader.html(state) if background and state.results is not None else ""
     template = FastListTemplate(first_summary=first, title="baarda", accent="#1f4e9c", header_background="#1f4e9c",
@@ -494,7 +498,7 @@ def create_app(path=None, problem=None, background: bool | None = None):
             state.param.watch(summary_shown, ["results", "error"])
             def onload():
                 _timing(sid, "onload")
-                state.submit(f"reading {shown}", state.load, path)
+                state.submit(f"reading {shown}", lambda: state.load(path, inputs=inputs))
             pn.state.onload(onload)
 
         if doc is not None:
@@ -608,7 +612,7 @@ def _connected(doc) -> bool:
     return False
 
 
-def warm(path):
+def warm(path, inputs: dict | None = None):
     """Read and adjust the served file once at start, on a task thread, into the server's cache
     (:func:`baarda.dashboard.state.State.load`): the sessions that open the page take it from
     there instead of waiting for the first one to adjust it. Prints ``baarda dashboard: FILE
@@ -617,7 +621,7 @@ def warm(path):
     def run():
         t0 = time.perf_counter()
         st = State()
-        ok = st.load(path)
+        ok = st.load(path, inputs=inputs)
         name = Path(str(path)).name
         print(f"baarda dashboard: {name} read and adjusted in {time.perf_counter() - t0:.1f} s" if ok
               else f"baarda dashboard: {st.error}", flush=True)
@@ -626,7 +630,8 @@ def warm(path):
 
 
 def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = False, webgl: bool = False,
-          allow_hosts=(), token: str | None = None, allow_remote: bool = False, **kwargs):
+          allow_hosts=(), token: str | None = None, allow_remote: bool = False, inputs: dict | None = None,
+          **kwargs):
     """Serve the dashboard on ``address:port`` (loopback by default) and print its URL.
 
     show: open a browser (only if asked; there may be no display). webgl: draw the maps with
@@ -634,13 +639,18 @@ def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = 
     serve is refused (:mod:`baarda.dashboard.guard`; ``allow_hosts``: more names to serve).
     A non-loopback ``address`` serves the network: it needs ``token`` (a password to sign in
     with, any user name) or ``allow_remote`` (no authentication, said in a printed line);
-    otherwise BaardaError. Blocks until stopped.
+    otherwise BaardaError. inputs: the companion files of ``path`` (``baarda serve FILE
+    --control CSV --gnss CSV --imu CSV``; :meth:`baarda.dashboard.state.State.load`). Blocks
+    until stopped.
     """
     global WEBGL
     WEBGL = bool(webgl)
     limit_native_threads()               # BLAS: the whole process; numba: this (the event loop's) thread
     limit_worker_threads()
     remote = not is_loopback(address)
+    if inputs:
+        # a bad companion file: the reader's one line (file, line, field) before the server starts
+        read_problem(path, **inputs)
     if token is not None and not token.strip():
         raise BaardaError("--token must not be empty")
     if remote and token is None and not allow_remote:
@@ -655,13 +665,13 @@ def serve(path=None, port: int = 5006, address: str = "127.0.0.1", show: bool = 
     elif token is not None:
         print("baarda dashboard: sign in with any user name and the token as password", flush=True)
     if (path or default_path()) is not None:
-        warm(path or default_path())
+        warm(path or default_path(), inputs)
     kwargs.setdefault("websocket_max_message_size", WEBSOCKET_MAX_MB * 1024 * 1024)
     if token is not None:
         kwargs.setdefault("basic_auth", token)
         kwargs.setdefault("cookie_secret", secrets.token_hex(32))
     origins = [f"{host}:{port}", f"localhost:{port}", f"127.0.0.1:{port}"] + [f"{n}:{port}" for n in allow_hosts]
-    server = pn.serve({"/": lambda: create_app(path)}, port=port, address=address, show=show,
+    server = pn.serve({"/": lambda: create_app(path, inputs=inputs)}, port=port, address=address, show=show,
                       websocket_origin=list(dict.fromkeys(origins)), title="baarda", start=False, **kwargs)
     guard_hosts(server, HostCheck(allow_hosts, remote=remote))
     bound_messages(MESSAGE_MAX_MB * 1024 * 1024)

@@ -159,14 +159,17 @@ def display_factor(problem) -> tuple[np.ndarray, tuple[str, ...]]:
 
 
 def observation_label(problem, i: int) -> str:
-    """A short readable name of observation i: ``12 direction A→B``, ``40 image-x 101:P7``."""
+    """A short readable name of observation i: ``12 direction A→B``, ``40 image-x 101:P7``,
+    ``316 gnss-x image 101``."""
     kind = problem.info.kind[i]
     ids = problem.info.ids[i]
     if "from" in ids:
         rest = [str(v) for k, v in ids.items() if k != "from"]
         name = f"{ids['from']}→{','.join(rest)}"
-    elif "image" in ids:
-        name = f"{ids['image']}:{ids.get('point', '?')}"
+    elif "image" in ids and "point" in ids:
+        name = f"{ids['image']}:{ids['point']}"
+    elif "image" in ids:                 # a GNSS centre or IMU attitude of the image
+        name = f"image {ids['image']}"
     else:
         name = " ".join(str(v) for v in ids.values())
     return f"{i} {kind} {name}"

@@ -148,12 +148,22 @@ _LOADED_GUARD = threading.Lock()
 LOADED_MAX = 8
 
 
-def file_key(path, options) -> tuple | None:
-    """The cache key of a file read with the core's ``options`` (None if it cannot be stat'ed)."""
+def file_key(path, options, inputs=None) -> tuple | None:
+    """The cache key of a file read with the core's ``options`` and the reader's companion
+    files ``inputs`` (``{"control"|"gnss"|"imu": a path or the reader's options}``, each
+    named by its options and its file's path, modification time and size); None if a file
+    cannot be stat'ed."""
     try:
         st = os.stat(path)
+        extra = []
+        for name, value in sorted((inputs or {}).items()):
+            if value is None:
+                continue
+            where = getattr(value, "path", value)
+            sc = os.stat(where)
+            extra.append((name, repr(value), str(Path(where).resolve()), sc.st_mtime_ns, sc.st_size))
         return (str(Path(path).resolve()), st.st_mtime_ns, st.st_size,
-                options.alpha0, options.beta0, options.b_method)
+                options.alpha0, options.beta0, options.b_method, *extra)
     except OSError:
         return None
 

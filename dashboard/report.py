@@ -148,15 +148,41 @@ def verdict(s: dict, obs) -> tuple[str, str, list[str]]:
     if s["n_excluded"]:
         said.append(f"{s['n_excluded']} observation{'s were' if s['n_excluded'] != 1 else ' was'} excluded "
                     "from the adjustment by the reviewer.")
+    said += aux_sentences(s)
+    gnss = s.get("gnss") or {}
+    aux_rejected = int(gnss.get("rejected", 0)) + int(gnss.get("strips_rejected", 0))
     if rejected:
         return "bad", f"Not acceptable as it stands: {rejected} rejected observation{'s' if rejected != 1 else ''}.", said
     if high:
         return ("warn", f"Less precise than stated: σ̂0 = {_fmt(s['sigma0_aposteriori'], '.3g')} against σ0 = "
                         f"{s['sigma0_apriori']:.3g}; no single observation is rejected.", said)
+    if aux_rejected:
+        return ("warn", f"GNSS: {aux_rejected} rejected test{'s' if aux_rejected != 1 else ''} of projection "
+                        "centres or strips; no single observation is rejected.", said)
     if low or weak:
         return ("warn", "Consistent, with reservations: " + ("σ0 a priori too pessimistic" if low else
                                                             f"{weak} weakly controlled observations") + ".", said)
     return "ok", "Consistent: no test rejects the observations.", said
+
+
+def aux_sentences(s: dict) -> list[str]:
+    """The verdict's sentences on the GNSS projection centres (their 3-D tests, F80 eq. 10-12, and
+    the strips' shift tests, F80 §2.2) and on the check points (RMSE of adjusted − known per axis),
+    from the summary ``s`` (:meth:`State.summary`'s ``gnss`` and ``check_points``); plain text."""
+    said = []
+    g = s.get("gnss")
+    if g:
+        n, bad = int(g["centres"]), int(g["rejected"])
+        text = f"GNSS: the 3-D test of {bad} of {n} projection centres rejects (q = 3)"
+        if g.get("strips"):
+            text += f"; a shift common to a strip's centres (cycle slip) is rejected in {g['strips_rejected']} of {g['strips']} strips"
+        said.append(text + (" (page 3 names them)." if bad or g.get("strips_rejected") else "."))
+    cp = s.get("check_points")
+    if cp:
+        unit = f" {cp['unit']}" if cp.get("unit") else " (model units)"
+        rms = ", ".join(f"{a} {_fmt(x)}" for a, x in zip("XYZ", cp["rms"]))
+        said.append(f"Check points ({cp['n']}, not in the adjustment): RMSE of adjusted − known {rms}{unit}.")
+    return said
 
 
 def _suspects_html(state: State) -> str:
@@ -309,8 +335,8 @@ standard deviations; the largest over the points is the δ̄0 of page 1) and the
 </section>
 <section class="page last">
 <h2>Suspects</h2>
-<p>The largest tests of single observations, of image points, control points and point transfers
-(|w| largest first); tests the data cannot tell apart name each other.</p>
+<p>The largest tests of single observations, of image points, control points, GNSS centres and strips,
+and point transfers (smallest p-value first); tests the data cannot tell apart name each other.</p>
 {_suspects_html(clean)}
 {_groups_html(clean)}
 {_hypotheses_html(session)}

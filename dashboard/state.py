@@ -41,7 +41,7 @@ from baarda.io.source import checking
 from baarda.stats import robust
 from baarda.stats.policy import TestPolicy
 
-from . import geometry, measures, specs
+from . import auxdata, geometry, measures, specs
 from . import sbase as sbase_lesson
 from .outcomes import Outcome
 from .snapshot import Snapshot
@@ -50,6 +50,8 @@ from .text import plain
 
 #: Robust methods of the controls ("none": plain least squares).
 ROBUST_METHODS = ("none", *robust.METHODS)
+#: The reader's companion files :meth:`State.load` takes (options of :func:`baarda.analysis.analyze`).
+INPUTS = ("control", "gnss", "imu")
 #: variance models: per family, the radial model of F80 §2.1, its isotropic variant
 VARIANCE_MODELS = ("families", "radial", "radial-isotropic")
 
@@ -235,13 +237,22 @@ class State(param.Parameterized):
         self.jobs.check()
 
     # -- loading --------------------------------------------------------------------------------
-    def load(self, path, name: str | None = None) -> bool:
+    def load(self, path, name: str | None = None, inputs: dict | None = None) -> bool:
         """Read and adjust a file; on failure keep the current problem and set ``error``.
 
         name: the file's name to show (an upload's own name); messages never show ``path``
-        when a name is given. A file read before by this server (same path, modification time,
-        size and test options) is taken from the cache without reading or adjusting it again.
+        when a name is given. inputs: the reader's companion files of ``path``, the options
+        ``control``, ``gnss`` and ``imu`` of :func:`baarda.analysis.analyze` (a control CSV with
+        roles, GNSS projection centres and IMU attitudes as a path or
+        :class:`baarda.io.gnss.GnssOptions` / :class:`~baarda.io.gnss.ImuOptions`; ``baarda
+        serve FILE --gnss CSV ...``), read as ``analyze`` reads them. A file read before by this
+        server (same path, modification time, size, companion files and test options) is taken
+        from the cache without reading or adjusting it again.
         """
+        inputs = {k: v for k, v in (inputs or {}).items() if v is not None}
+        unknown = set(inputs) - set(INPUTS)
+        if unknown:
+            raise ValueError(f"State.load: unknown inputs {sorted(unknown)} (known: {', '.join(INPUTS)})")
         shown = plain(name if name is not None else Path(str(path)).name)
 
         def message(err) -> str:
@@ -251,7 +262,7 @@ class State(param.Parameterized):
                     text = text.replace(p, shown)
             return plain(text)
 
-        key = file_key(path, self.options()) if name is None else None
+        key = file_key(path, self.options(), inputs) if name is None else None
         lock = file_lock(key) if key is not None else None
         # the lock is held while the file is read and adjusted (other sessions opening the same
         # file wait for it), not while this session shows it
@@ -261,7 +272,7 @@ class State(param.Parameterized):
                 try:
                     with self._busy():
                         self.progress = f"reading {shown}"
-                        problem = read_problem(path)
+                        problem = read_problem(path, **inputs)
                 except BaardaError as err:
                     self.error = f"Cannot read {shown}: {message(err)}"
                     return False
@@ -288,10 +299,12 @@ class State(param.Parameterized):
             self.file_name = shown
         return ok
 
-    def load_cached(self, path) -> bool:
-        """Make ``path`` current if the server's cache holds it already (read and adjusted by
-        another session or at the server's start), at once and without waiting; else False."""
-        hit = cached(file_key(path, self.options()))
+    def load_cached(self, path, inputs: dict | None = None) -> bool:
+        """Make ``path`` (with its companion files ``inputs``, :meth:`load`) current if the
+        server's cache holds it already (read and adjusted by another session or at the
+        server's start), at once and without waiting; else False."""
+        inputs = {k: v for k, v in (inputs or {}).items() if v is not None}
+        hit = cached(file_key(path, self.options(), inputs))
         if hit is None:
             return False
         self._set_loaded(hit, source=str(path))
@@ -840,5 +853,17 @@ class State(param.Parameterized):
 
     # -- summary --------------------------------------------------------------------------------
     def summary(self) -> dict:
-        """The numbers of the summary header, taken from the core's results."""
-        return dict(self.snapshot.summary)
+        """The numbers of the summary header, taken from the core's results; with GNSS centres
+        ``gnss`` (centres, rejected 3-D tests, strips tested and rejected) and with check points
+        ``check_points`` (n, RMSE per axis, the object unit; :mod:`baarda.dashboard.auxdata`)."""
+        s = dict(self.snapshot.summary)
+        g = auxdata.gnss_centres(self)
+        if len(g):
+            strips = auxdata.strip_rows(self)
+            s["gnss"] = {"centres": len(g), "rejected": int(g["rejected"].astype(bool).sum()),
+                         "strips": len(strips), "strips_rejected": sum(bool(t["rejected"]) for t in strips)}
+        cp = auxdata.check_points(self)
+        if cp["n"]:
+            s["check_points"] = {"n": int(cp["n"]), "rms": [float(x) for x in cp["rms"]],
+                                 "unit": geometry.object_unit(self.problem)}
+        return s

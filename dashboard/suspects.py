@@ -8,6 +8,14 @@ Every row is a hypothesis the core has tested on the current adjustment (:class:
 - **group**: the multi-dimensional test of an observation group of the problem — an image point
   (x, y), a GNSS vector, a control point (F80 eq. 12; the core's ``Reliability.groups``), for
   the :data:`TOP_GROUPS` largest T / k;
+- **GNSS centre**, **IMU attitude**: the 3-D test of one projection centre's GNSS position or
+  of one image's IMU attitude (its observation group, F80 eq. 10-12), every one of them (up to
+  :data:`TOP_AUX` of each by p-value, fewer on a large block) besides the largest groups;
+- **GNSS strip**: the test of a shift common to one strip's GNSS centres (a cycle slip, F80
+  §2.2; :meth:`baarda.analysis.Analysis.gnss_strip_tests`), and where the model estimates a
+  strip's shift or drift the test of those additional parameters (F80 §7.2,
+  :func:`baarda.stats.ap_tests.ap_test`: T ~ χ²(q), on the same scale; no H in the
+  observations, so it is ranked by its p-value alone, neither tiered nor compared for twins);
 - **transfer**: the point-transfer hypothesis H = (0 … I₂ … I₂ … 0)ᵀ (F80 §2.2) of a suspect
   point over consecutive images of one strip (a scan over the runs of at least two of its images
   in each strip; :data:`TRANSFER_POINTS` points at most), each tested by ``Reliability.test``.
@@ -49,10 +57,11 @@ import scipy.sparse as sp
 from scipy import stats
 
 from baarda.errors import BaardaError
-from baarda.stats import separability
+from baarda.stats import gnss, separability
+from baarda.stats.ap_tests import ap_test
 from baarda.stats.hypotheses import common_error, selection
 
-from . import geometry
+from . import auxdata, geometry
 from .jobs import shared
 from .text import plain
 
@@ -60,6 +69,10 @@ from .text import plain
 TOP_1D = 40
 #: Groups listed: the largest T / k (the rejected ones first).
 TOP_GROUPS = 30
+#: GNSS centres (and IMU attitudes) listed at most besides the largest groups (smallest p first):
+#: TOP_AUX, fewer on a large block — each row is compared with the others for twins (a solve with
+#: the block's factor) — at most max(:data:`MIN_TIERED`, :data:`TIER_BUDGET` // n) of each.
+TOP_AUX = 100
 #: Points whose point-transfer hypotheses are scanned (those of the largest suspects).
 TRANSFER_POINTS = 8
 #: Transfer hypotheses kept per point (the largest T / k first).
@@ -130,6 +143,11 @@ def group_name(state, rows) -> tuple[str, str]:
     info = state.problem.info
     ids = info.ids[int(rows[0])]
     kinds = {str(info.kind[int(i)]) for i in rows}
+    if kinds and all(k.startswith("gnss-") for k in kinds) and "image" in ids:
+        strip = f" (strip {ids['strip']})" if ids.get("strip") not in (None, "") else ""
+        return "GNSS centre", f"image {ids['image']}{strip}"
+    if kinds and all(k.startswith("imu-") for k in kinds) and "image" in ids:
+        return "IMU attitude", f"image {ids['image']}"
     if "image" in ids and "point" in ids:
         kp = f" (keypoint {ids['keypoint']})" if ids.get("keypoint") is not None else ""
         return "image point", f"{ids['point']} in image {ids['image']}{kp}"
@@ -182,6 +200,17 @@ def _groups(state) -> list[dict]:
                                             np.maximum(q, 1)), np.inf)
     order = np.argsort(logp, kind="stable")
     chosen = [int(k) for k in order[:TOP_GROUPS] if np.isfinite(logp[k])]
+    # every GNSS centre and IMU attitude (up to TOP_AUX of each) besides the largest groups
+    kind = s.problem.info.kind
+    first = np.asarray(s.kept)[np.asarray(g.members)[np.asarray(g.ptr)[:-1]]] if len(g) else np.zeros(0, dtype=np.int64)
+    taken = set(chosen)
+    top_aux = min(TOP_AUX, max(MIN_TIERED, TIER_BUDGET // max(int(adj.n), 1)))
+    for prefix in ("gnss-", "imu-"):
+        aux = [int(k) for k in order if str(kind[int(first[k])]).startswith(prefix) and np.isfinite(logp[k])]
+        for k in aux[:top_aux]:
+            if k not in taken:
+                chosen.append(k)
+                taken.add(k)
     out = []
     for k in chosen:
         d = g[k]
@@ -201,6 +230,54 @@ def _groups(state) -> list[dict]:
                     "obs": i0, "point": _point_of(s, rows),
                     "image": str(ids["image"]) if "image" in ids else None,
                     "_H": selection(adj.n, members), "_key": ("group", int(d["group"]))})
+    return out
+
+
+def _strips(state) -> list[dict]:
+    """Rows of the GNSS strip tests: a shift the model does not estimate (H = (0 … I₃ … I₃ … 0)ᵀ,
+    F80 §2.2; the core's :meth:`baarda.analysis.Analysis.gnss_strip_tests`), and the AP-group
+    test (F80 §7.2) of each strip's estimated shift and drift (no ``_H``: not tiered)."""
+    s = state
+    adj, rel = s.results, s.reliability
+    problem = adj.problem
+    if not any(str(k).startswith("gnss-") for k in problem.info.kind):
+        return []
+    out = []
+    for t in auxdata.strip_rows(s):
+        try:
+            H = gnss.h_gnss_strip(problem, t["images"])
+        except (BaardaError, ValueError):
+            continue                       # a centre partly excluded: the core tested the others
+        rows = np.unique(H.indices)
+        i0 = int(s.kept[rows[0]])
+        q = int(t["q"])
+        out.append({"what": "GNSS strip", "hypothesis": plain(f"shift of strip {t['strip']} ({len(t['images'])} centres)"),
+                    "|w|": _max_abs(adj.w, rows), "|τ|": _max_abs(adj.tau, rows),
+                    "T": float(t["T"]), "k": float(t["critical"]), "rejected": bool(t["rejected"]),
+                    "q": q, "_logp": log_p(float(t["T"]), q),
+                    "∇ŝ": _estimate_text(t["nabla"], 1.0, "m"), "_nabla": _values(t["nabla"], 1.0), "_unit": "m",
+                    "MDB ratio": float(np.sqrt(max(t["T"], 0.0)) / rel.policy.delta0(q)) if q else float("nan"),
+                    "obs": i0, "point": None, "image": None, "_H": H, "_key": ("strip", str(t["strip"]))})
+    for key in problem.notes.ap_groups:
+        strip, _, group = key.rpartition(":")
+        if group not in ("gnss-shift", "gnss-drift"):
+            continue
+        try:
+            t = ap_test(adj, strip, group, policy=rel.policy)
+        except (BaardaError, np.linalg.LinAlgError, ValueError):
+            continue
+        q = int(t.q)
+        unit = "m" if group == "gnss-shift" else "m per time unit"
+        rows = [k for k, ids in enumerate(problem.info.ids)
+                if str(problem.info.kind[k]).startswith("gnss-") and str(ids.get("strip", "")) == strip]
+        out.append({"what": "GNSS strip", "hypothesis": plain(f"{group[5:]} of strip {strip} (estimated)"),
+                    "|w|": float("nan"), "|τ|": float("nan"),
+                    "T": float(t.T), "k": float(t.critical), "rejected": bool(t.T > t.critical),
+                    "q": q, "_logp": log_p(float(t.T), q),
+                    "∇ŝ": _estimate_text(t.estimate, 1.0, unit), "_nabla": _values(t.estimate, 1.0), "_unit": unit,
+                    "MDB ratio": float(np.sqrt(max(t.T, 0.0)) / rel.policy.delta0(q)) if q else float("nan"),
+                    "obs": int(s.kept[rows[0]]) if rows else -1, "point": None, "image": None,
+                    "_H": None, "_key": ("ap", key)})
     return out
 
 
@@ -283,8 +360,8 @@ def _order(row: dict) -> tuple:
     dimension, then its observations: an image point before its coordinates), then the first
     observation in the file (twins have one p-value)."""
     lp = row["_logp"]
-    return (round(lp, 6) if np.isfinite(lp) else np.inf, -int(row.get("q") or 0), -int(row["_H"].shape[1]),
-            int(row["obs"]))
+    cols = row["_H"].shape[1] if row.get("_H") is not None else 0
+    return (round(lp, 6) if np.isfinite(lp) else np.inf, -int(row.get("q") or 0), -int(cols), int(row["obs"]))
 
 
 def _rank_key(row: dict) -> tuple:
@@ -452,8 +529,15 @@ def _ranked(state) -> pd.DataFrame:
     rows += _groups(s)
     seeds = sorted(rows, key=_order)
     rows += _transfers(s, [r for r in seeds if r["image"] is not None])
+    strips = _strips(s)
+    rows += [r for r in strips if r["_H"] is not None]
     _mark_twins(s, rows)
     _explain(s, rows)
+    for r in strips:                       # AP-group tests: by their own p-value (module docstring)
+        if r["_H"] is None:
+            r.update(_twins=[], _alt=None, _tier=0 if r["rejected"] else 1)
+            r["explained by"] = ""
+            rows.append(r)
     rows.sort(key=_rank_key)
     df = pd.DataFrame([{**{c: r.get(c) for c in COLUMNS if c in r},
                         "p": float(np.exp(r["_logp"])),

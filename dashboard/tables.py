@@ -1,5 +1,6 @@
 """The full tables of the app as CSV downloads (issue 15, item 5) and as one Excel workbook with a
-sheet per table (issue 31, item 9): observations, points, suspects.
+sheet per table (issue 31, item 9): observations, points, suspects, and the check points where a
+block has them (issue 28: id, adjusted − known per axis, σ, the RMSE row; :mod:`baarda.dashboard.auxdata`).
 
 Typed columns: numbers as numbers (∇ŝ of a suspect one column per component, ``∇ŝ 1``, ``∇ŝ 2``,
 …, in the file's unit of its observations), no unnamed index column, units in a column name only
@@ -29,6 +30,7 @@ import numpy as np
 from baarda.io.output import csv_cell
 from baarda.text import printable
 
+from . import auxdata
 from .state import State
 from .suspects import COLUMNS, suspects
 
@@ -50,7 +52,10 @@ TABLES = {
     "observations": lambda st: core_table(st, "observations"),
     "points": lambda st: core_table(st, "points"),
     "suspects": lambda st: suspects_table(st),
+    "check-points": lambda st: auxdata.check_download(st),
 }
+#: tables left out of the workbook (and their download hidden) when they have no rows
+OPTIONAL = ("check-points",)
 
 
 def suspects_table(state: State) -> pd.DataFrame:
@@ -135,4 +140,5 @@ def tables_xlsx(state: State) -> io.BytesIO:
     file object (empty when there is no result)."""
     if state.results is None:
         return io.BytesIO(b"")
-    return io.BytesIO(xlsx_bytes({name: make(state) for name, make in TABLES.items()}))
+    frames = {name: make(state) for name, make in TABLES.items()}
+    return io.BytesIO(xlsx_bytes({k: v for k, v in frames.items() if not (k in OPTIONAL and v.empty)}))

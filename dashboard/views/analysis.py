@@ -14,8 +14,8 @@ import param
 
 from baarda.stats.variance import groups_by_kind
 
-from .. import frames
-from ..geometry import observation_label
+from .. import auxdata, frames
+from ..geometry import object_unit, observation_label
 from ..state import VARIANCE_MODELS, State
 from ..text import md_text, plain
 from baarda.stats.reliability import reliability_of
@@ -88,6 +88,11 @@ class AnalysisPanel(pn.viewable.Viewer):
         s.param.watch(self._families, ["problem"])
         self._families()
         self.variance_table = _table("variance-table", 110)
+        # check points (issue 28): adjusted − known and the RMSE row
+        self.check_info = pn.pane.Markdown("", sizing_mode="stretch_width", css_classes=["check-info"])
+        self.check_table = _table("check-table", 160)
+        s.param.watch(self._checks, ["results"])
+        self._checks()
         self.snoop_button.on_click(lambda e: s.submit("iterative data snooping", s.run_snooping))
         self.accept.on_click(lambda e: s.accept_snooping())
         self.variance_button.on_click(lambda e: s.submit("variance components", s.run_variance))
@@ -98,6 +103,16 @@ class AnalysisPanel(pn.viewable.Viewer):
         self._robust()
         self._snoop()
         self._variance()
+
+    def _checks(self, *_):
+        s = self.state
+        df = auxdata.check_table(s) if s.results is not None else pd.DataFrame(columns=auxdata.CHECK_COLUMNS)
+        n = max(len(df) - 1, 0)
+        self.check_table.show(df, n > 0)
+        unit = object_unit(s.problem) if s.problem is not None else ""
+        self.check_info.object = (f"#### Check points ({n}, not in the adjustment)\nAdjusted − known "
+                                  f"coordinates{f' [{unit}]' if unit else ''} and σ of the adjusted ones; "
+                                  "last row the RMSE per axis." if n else "")
 
     def _message(self, *_):
         self.message.object = md_text(self.state.analysis_error)
@@ -156,7 +171,7 @@ class AnalysisPanel(pn.viewable.Viewer):
 
     def __panel__(self):
         return pn.Column(
-            self.message,
+            self.message, self.check_info, self.check_table.panel,
             "#### Robust reweighting and data snooping (M84 §3.2)", self.robust_info, self.robust_table.panel,
             "#### Iterative data snooping", pn.Row(self.snoop_button, self.accept), self.snoop_info,
             self.snoop_table.panel, self.loo_table.panel,

@@ -12,7 +12,8 @@ import param
 from .. import geometry
 from ..geometry import observation_label
 from ..state import ROBUST_METHODS, State
-from ..tables import TABLES, table_csv
+from .. import auxdata
+from ..tables import OPTIONAL, TABLES, table_csv
 from ..text import html_text, md_text, plain
 from ..uploads import MAX_UPLOAD_MB, UPLOAD_CHUNK, UPLOAD_MAX_CONTENT, BoundedDropper, Uploads, upload_name
 
@@ -200,6 +201,14 @@ class FilePanel(pn.viewable.Viewer):
         #: the checks, temporary copies and reading of uploads (baarda.dashboard.uploads)
         self.uploads = Uploads(s)
         self._show_error()
+        s.param.watch(self._optional_tables, ["results"])
+        self._optional_tables()
+
+    def _optional_tables(self, *_) -> None:
+        """The check points' download only where the block has check points."""
+        for name in OPTIONAL:
+            has = self.state.results is not None and auxdata.check_points(self.state)["n"] > 0
+            self.tables[name].visible = has
 
     def _refused(self, name) -> None:
         self.uploads.refused(name)

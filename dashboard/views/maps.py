@@ -29,7 +29,7 @@ from bokeh.events import Tap
 from bokeh.models import ColumnDataSource, FixedTicker
 
 
-from .. import frames, geometry, specs
+from .. import auxdata, frames, geometry, specs
 from ..geometry import display_matrix, object_unit
 from ..jobs import next_tick
 from ..mapgeometry import (W_COLORS, clamped_segments, deformation_field, extent, far_note,
@@ -41,6 +41,15 @@ from .common import (MAP_OPTS, formatters, frame_size, R_COLORS, R_LEVELS, STATU
                      selection_data, selection_layer, suspects_layer)
 
 HOVER_OBS = ["obs", "kind", "ids"]
+#: The GNSS centres' colour (teal: not one of the |w| scale's, the statuses' or the selection's).
+GNSS_COLOR = "#00838f"
+#: The check points' residual colour (a darker green than the "check" status of the points).
+CHECK_COLOR = "#1b5e20"
+HOVER_GNSS = [("image", "@{image}"), ("strip", "@{strip}"),
+              ("v x, y, z [m]", "@{vx}{0.0000}, @{vy}{0.0000}, @{vz}{0.0000}"),
+              ("w x, y, z", "@{wx}{0.00}, @{wy}{0.00}, @{wz}{0.00}"),
+              ("3-D test T", "@{T}{0.00} (critical @{critical}{0.00})")]
+HOVER_CHECK = [("check point", "@{id}"), ("adjusted − known X, Y, Z", "@{dX}{0.0000}, @{dY}{0.0000}, @{dZ}{0.0000}")]
 
 
 
@@ -147,7 +156,8 @@ class MapView(pn.viewable.Viewer):
         xl, yl = geometry.display_xy(self.state.problem, self.state.results.coordinates)[2:]
         size = frame_size(self.points(), geometry.images(self.state.problem))
         return hv.opts.Overlay(title=self.title_text(size["frame_width"]), xlabel=xl, ylabel=yl, legend_position="bottom",
-                               legend_cols=4, show_legend=self.key == "layout", hooks=[self._hook],
+                               legend_cols=4, show_legend=self.key == "layout" or self.aux_legend(),
+                               hooks=[self._hook],
                                **size, **formatters(), **MAP_OPTS)
 
     def title_text(self, width: float) -> str:
@@ -252,6 +262,57 @@ class MapView(pn.viewable.Viewer):
     def layers(self) -> list:
         raise NotImplementedError
 
+    # GNSS centres and check points (issue 28; baarda.dashboard.auxdata) -------------------------
+    def aux_legend(self) -> bool:
+        """Whether the map shows a legend for its GNSS or check-point layers (the residual map)."""
+        s = self.state
+        return self.key == "residuals" and (auxdata.has_gnss(s.problem) or auxdata.check_points(s)["n"] > 0)
+
+    def aux_layers(self) -> list:
+        """The GNSS residual vectors at the projection centres and the check points' residual
+        vectors (adjusted − known), each with its legend entry (its exaggeration); none where the
+        block has neither."""
+        s = self.state
+        out = []
+        if auxdata.has_gnss(s.problem):
+            out.append(self.layer(self._gnss, "results"))
+        if auxdata.check_points(s)["n"]:
+            out.append(self.layer(self._checks, "solution"))
+        return out
+
+    def _gnss_data(self):
+        g = auxdata.gnss_centres(self.state)
+        scale = auxdata.vector_scale(np.hypot(g["vx"].to_numpy(dtype=float), g["vy"].to_numpy(dtype=float)),
+                                     self.points())
+        seg = auxdata.vectors(g, "vx", "vy", scale)
+        return seg.assign(edge=np.where(seg["rejected"].astype(bool), "#b2182b", "white")), scale
+
+    def _gnss(self):
+        seg, scale = self._gnss_data()
+        vd = ["image", "strip", "vx", "vy", "vz", "wx", "wy", "wz", "T", "critical"]
+        label = f"GNSS residuals ×{scale:g}"
+        lines = hv.Segments(seg, ["x0", "y0", "x1", "y1"], vd, label=label).opts(
+            color=GNSS_COLOR, line_width=3, hover_tooltips=HOVER_GNSS, tools=["hover"], nonselection_alpha=1,
+            show_legend=True)
+        marks = hv.Points(seg, ["x", "y"], [*vd, "edge"], label=label).opts(
+            marker="diamond", size=12, color=GNSS_COLOR, line_color="edge", line_width=2,
+            hover_tooltips=HOVER_GNSS, tools=["hover"], nonselection_alpha=1, show_legend=True)
+        return lines * marks
+
+    def _checks(self):
+        cp = auxdata.check_vectors(self.state, self.points())
+        scale = auxdata.vector_scale(np.hypot(cp["de"].to_numpy(dtype=float), cp["dn"].to_numpy(dtype=float)),
+                                     self.points())
+        seg = auxdata.vectors(cp, "de", "dn", scale)
+        label = f"check points, adjusted − known ×{scale:g}"
+        lines = hv.Segments(seg, ["x0", "y0", "x1", "y1"], ["id", "dX", "dY", "dZ"], label=label).opts(
+            color=CHECK_COLOR, line_width=3, hover_tooltips=HOVER_CHECK, tools=["hover"], nonselection_alpha=1,
+            show_legend=True)
+        marks = hv.Points(seg, ["x", "y"], ["id", "dX", "dY", "dZ"], label=label).opts(
+            marker="square", size=16, fill_alpha=0, line_color=CHECK_COLOR, line_width=2.5,
+            hover_tooltips=HOVER_CHECK, tools=["hover"], nonselection_alpha=1, show_legend=True)
+        return lines * marks
+
     # helpers ----------------------------------------------------------------------------------
     def segments(self, columns=()) -> pd.DataFrame:
         """The observation lines joined with the given columns of the observation table."""
@@ -317,7 +378,7 @@ class LayoutMap(MapView):
         return [self.layer(self._lines, "solution"), self.layer(self._points, "solution"),
                 self.layer(self._ellipse, "solution", "hypothesis", opts=[hv.opts.Path(
                     color="#e6007e", line_dash="dashed", line_width=2, nonselection_alpha=1)]),
-                self.layer(self.labels, "solution")]
+                *self.aux_layers(), self.layer(self.labels, "solution")]
 
     def _lines(self):
         return hv.Segments(self.segments(), ["x0", "y0", "x1", "y1"], HOVER_OBS, label="observations").opts(
@@ -372,7 +433,7 @@ class ResidualMap(MapView):
 
     def layers(self):
         return [self.layer(self._rejected, "results"), self.layer(self._lines, "results"),
-                self.layer(self._points, "results"), self.layer(self.labels, "solution")]
+                self.layer(self._points, "results"), *self.aux_layers(), self.layer(self.labels, "solution")]
 
     def _segments(self):
         return self.cached("segments", (self.state.reliability,), lambda: self._segments_now())
@@ -398,7 +459,7 @@ class ResidualMap(MapView):
     def _rejected(self):
         seg = self._segments()
         rej = seg[seg["rejected"].astype(bool)] if len(seg) else seg
-        return hv.Segments(rej, ["x0", "y0", "x1", "y1"], HOVER_OBS, label="rejected").opts(
+        return hv.Segments(rej, ["x0", "y0", "x1", "y1"], HOVER_OBS, label="rejected" if len(rej) else "").opts(
             hover_tooltips=tips(HOVER_OBS),
             color="#b2182b", line_width=7, alpha=0.8, nonselection_alpha=0.8)
 

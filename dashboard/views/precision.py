@@ -1,17 +1,23 @@
 """The precision map: standard ellipses of the points in an S-base the user chooses (M84 §2),
 beside the same scale in the problem's own datum, and the S-base lesson of a controlled block
-seen as a free one (:mod:`baarda.dashboard.sbase`).
+seen as a free one (:mod:`baarda.dashboard.sbase`). The projection centres of a block with
+GNSS centres or IMU attitudes get their standard ellipses of X0, Y0 too, at the points' scale
+(the core's pose covariance, :func:`baarda.stats.pose.pose_covariance`, issue 28), in the
+problem's own datum only: they are not drawn in a chosen S-base or the free-block view. (Without
+auxiliary data the centres are far less precise than the points: at the points' scale their
+ellipses would cover the map.)
 """
 
 from __future__ import annotations
 
 import holoviews as hv
 import numpy as np
+import pandas as pd
 import panel as pn
 
 from baarda.errors import BaardaError
 
-from .. import geometry
+from .. import auxdata, geometry
 from .. import sbase as sbase_lesson
 from ..geometry import display_matrix, object_unit
 from ..mapgeometry import ellipse_paths, length_text
@@ -157,8 +163,38 @@ class PrecisionMap(MapView):
         return f"{text} ({sig}, {base})"
 
     def layers(self):
+        # the centres above the points (the points of a regular pattern lie under the centres)
         return [self.layer(self._ellipse_layer, "solution", "sbase", "free"), self.layer(self._points, "solution"),
-                self.layer(self.labels, "solution")]
+                self.layer(self._centre_layer, "solution", "sbase", "free"), self.layer(self.labels, "solution")]
+
+    def aux_legend(self) -> bool:
+        """The precision map of a block with GNSS or IMU has a legend (the projection centres' ellipses)."""
+        p = self.state.problem
+        return bool(geometry.images(p)) and (auxdata.has_gnss(p) or auxdata.has_imu(p))
+
+    def _centres_shown(self) -> bool:
+        s = self.state
+        return self.aux_legend() and s.problem.points.dim > 1 and not s.sbase and not self.free_view()
+
+    def centre_ellipses(self):
+        """The projection centres' standard ellipses at the points' scale: (paths, centres table)."""
+        s = self.state
+        c = auxdata.centre_precision(s) if self._centres_shown() else None
+        if c is None or not len(c):
+            return [], pd.DataFrame(columns=["image", "x", "y", "sX0_mm", "sY0_mm", "sZ0_mm"])
+        scale = self._ellipses()[1]
+        paths, _, _, _ = ellipse_paths(np.stack(c["cov"].to_list()), display_matrix(s.problem), c.assign(far=False),
+                                       scale)
+        return paths, c.drop(columns="cov")
+
+    def _centre_layer(self):
+        paths, c = self.centre_ellipses()
+        label = "projection centres, σ X0, Y0 (own datum)" if len(c) else ""
+        return (hv.Path(paths, label=label).opts(color="#00838f", line_width=2, line_dash="dashed",
+                                                 nonselection_alpha=1, show_legend=True)
+                * hv.Points(c, ["x", "y"], ["image", "sX0_mm", "sY0_mm", "sZ0_mm"], label=label).opts(
+                    marker="triangle", size=8, color="#00838f", tools=["hover"], nonselection_alpha=1,
+                    show_legend=True))
 
     def _ellipse_layer(self):
         paths = self._ellipses()[0] if self.state.problem.points.dim > 1 else []

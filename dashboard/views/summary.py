@@ -50,6 +50,18 @@ def summary_html(s: dict) -> str:
         cards.append(("Block", f"{s['n_images']} images in {s['n_strips']} strips<br>{s['n_points']} points"))
     else:
         cards.append(("Network", f"{s['n_points']} points"))
+    gnss = s.get("gnss")
+    if gnss:                 # GNSS projection centres (issue 28): the 3-D tests and strip tests
+        bad = gnss["rejected"] or gnss["strips_rejected"]
+        strips = (f"<br>strip tests: {gnss['strips_rejected']} of {gnss['strips']} rejected"
+                  if gnss["strips"] else "")
+        cards.append(("GNSS centres", f"{gnss['centres']} centres<br><b class='{'bad' if bad else 'ok'}'>"
+                                      f"{gnss['rejected']} rejected</b> (3-D test){strips}"))
+    cp = s.get("check_points")
+    if cp:
+        unit = f" {html_text(cp['unit'])}" if cp.get("unit") else ""
+        rms = ", ".join(f"{a} {x:.3g}" for a, x in zip("XYZ", cp["rms"]))
+        cards.append(("Check points", f"{cp['n']} (not adjusted)<br>RMSE {rms}{unit}"))
     defects = s.get("local_defects") or []
     if defects:              # set aside by the core's analysis (baarda.analysis), named as the CLI names them
         shown = "<br>".join(html_text(f"{d['entity']} {d['id']} ({', '.join(d['components'])}): {d['action']}")

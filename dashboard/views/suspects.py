@@ -95,7 +95,7 @@ class SuspectsView(pn.viewable.Viewer):
         own = int(((df["explained by"] == "") & (df["decision"] == "rejected")).sum())
         text = (f"<b>{len(df)} suspects</b> ranked by the p-value of their test under the policy "
                 f"(|{rel.policy.statistic_name}| for one observation, T ~ χ²(q) for a group, a point transfer, "
-                "a control point)"
+                "a control point, a GNSS centre or strip)"
                 + (f", the {own} rejected that the stronger ones above do not explain first (tested given "
                    "them; \"or …\": an alternative the data hardly tell apart from it)" if own else "")
                 + "; click a column header to sort by it. "

@@ -101,4 +101,5 @@ def test_tests_table_view_offers_the_workbook(st):
     view = TestsTable(state=st)
     assert view.xlsx.filename == "baarda-tables.xlsx"
     wb = openpyxl.load_workbook(view.xlsx.callback())
-    assert wb.sheetnames == ["observations", "points", "suspects"]
+    # the demo block has check points (issue 28): their sheet too
+    assert wb.sheetnames == ["observations", "points", "suspects", "check-points"]
