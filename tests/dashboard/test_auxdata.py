@@ -69,8 +69,13 @@ def test_state_reads_the_companion_files_as_analyze_does(state, block, inputs):
     assert {"gnss-x", "gnss-y", "gnss-z", "imu-omega", "imu-phi", "imu-kappa"} <= kinds
     # the cache key names the companion files: the same block without them is another entry
     assert file_key(block, state.options(), inputs) != file_key(block, state.options())
+    doc = json.loads(block.read_text(encoding="utf-8"))        # simulate writes the centres into the block too
+    for key in ("gnss", "gnss_centres", "imu", "imu_attitudes"):
+        doc.pop(key, None)
+    bare = block.with_name("bare.json")
+    bare.write_text(json.dumps(doc), encoding="utf-8")
     plain = State()
-    assert plain.load(block) and not auxdata.has_gnss(plain.problem)
+    assert plain.load(bare) and not auxdata.has_gnss(plain.problem)
 
 
 def test_unknown_input_is_refused(block):
@@ -83,9 +88,10 @@ def test_bad_companion_file_is_a_message_and_nothing_changes(state, block, tmp_p
     bad.write_text("image,x,y,z,sx,sy,sz\n999,0,0,0,1,1,1\n")
     st = State()
     assert st.load(block)
+    before, results = st.problem, st.results
     assert not st.load(block, inputs={"gnss": str(bad)})
     assert "image 999 is not an image of the block" in st.error and "\n" not in st.error
-    assert st.results is not None and not auxdata.has_gnss(st.problem)     # the block loaded before stays
+    assert st.problem is before and st.results is results                  # the block loaded before stays
 
 
 def test_gnss_centres_are_the_cores_residuals_and_3d_tests(state):
