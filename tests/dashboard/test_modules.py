@@ -262,3 +262,23 @@ def test_sessions_on_one_cached_file_share_its_suspects_per_test_policy(tmp_path
     finally:
         jobs.clear_cache()
 
+
+
+def test_a_block_without_strips_says_nothing_of_strips():
+    """SfM blocks (Bundler, BAL, COLMAP) have no strips: the summary says "5 images", never
+    "in 1 strips" (issue 31, item 10); a block with strips counts them in the right number."""
+    from tests.extdata import EXTDATA, require_extdata
+
+    from baarda.dashboard.state import State
+    from baarda.dashboard.views.summary import block_text, summary_html
+
+    st = State()
+    assert st.load(require_extdata(EXTDATA / "bal" / "Balbianello.out")), st.error
+    counts = frames.summary_counts(*st.frames(), st.excluded, geometry.images(st.problem))
+    assert counts["n_images"] == 5 and counts["n_strips"] == 0
+    html = summary_html(st.summary())
+    assert "5 images<br>" in html and "strip" not in html
+    assert block_text(6, 1) == "6 images in 1 strip" and block_text(24, 3) == "24 images in 3 strips"
+    assert block_text(1, 0) == "1 image"
+    images = [{"strip": "A"}, {"strip": "A"}, {"strip": "B"}, {"strip": ""}]
+    assert frames.summary_counts(*st.frames(), st.excluded, images)["n_strips"] == 2
