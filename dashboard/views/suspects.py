@@ -23,14 +23,22 @@ from ..state import State
 from ..suspects import COLUMNS, suspects
 from ..text import html_text
 
-#: The decision in words and colours people read correctly: rejected red, accepted green.
+#: The decision in words and colours people read correctly: rejected red, accepted green (dark
+#: enough for 4.5 : 1 on a selected row, issue 31, item 10).
 DECISION = HTMLTemplateFormatter(template=(
-    '<span style="font-weight:600;color:<%= value == "rejected" ? "#b2182b" : "#1a7f37" %>">'
+    '<span style="font-weight:600;color:<%= value == "rejected" ? "#b2182b" : "#116329" %>">'
     '<%= value == "rejected" ? "✗ rejected" : "✓ accepted" %></span>'))
 #: Twins: the "cannot be told apart" note in the warning colour.
 TWINS = HTMLTemplateFormatter(template='<span style="color:#a15c00"><%- value %></span>')
 SHOWN = [c for c in COLUMNS if c not in ("obs", "point", "image")]
-TABLE_CSS = ".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; }"
+#: Cells and headers wrap their text instead of cutting it (issue 31, item 6); a selected row is
+#: light blue with a dark edge, so that the red and green decisions stay readable on it.
+TABLE_CSS = (".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; white-space: normal !important; }"
+             " .tabulator-row .tabulator-cell { white-space: normal !important; overflow-wrap: anywhere; text-overflow: clip !important; }"
+             " .tabulator-row.tabulator-selected, .tabulator-row.tabulator-selected:hover"
+             " { background-color: #dbe7f8 !important; box-shadow: inset 4px 0 0 #1f4e9c; }"
+             " .tabulator-row.tabulator-selected .tabulator-cell { color: #111111; }"
+             " .tabulator-row:focus-visible { outline: 2px solid #0b5cad; outline-offset: -2px; }")
 
 
 class SuspectsView(pn.viewable.Viewer):
@@ -58,7 +66,8 @@ class SuspectsView(pn.viewable.Viewer):
                         "p": ScientificFormatter(precision=2, power_limit_low=-2)},
             titles={"rank": "#", "k": "critical k", "∇ŝ": "∇ŝ (estimate)", "MDB ratio": "∇ŝ / ∇0s", "p": "p-value"},
             text_align={c: "right" for c in ("|w|", "|τ|", "T", "k", "q", "MDB ratio", "p")},
-            widths={"rank": 54, "what": 88, "hypothesis": 170, "decision": 92}, frozen_columns=["rank"])
+            widths={"rank": 54, "what": 88, "hypothesis": 170, "decision": 92, "explained by": 180,
+                    "∇ŝ": 130, "cannot be told apart from": 200}, frozen_columns=["rank"])
         self.table.param.watch(self._clicked, "selection")
         self.state.param.watch(self._refresh, ["results", "reliability"])
         self._refresh()
