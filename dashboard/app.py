@@ -127,7 +127,7 @@ border:2px solid #0b5cad;border-radius:4px;font-weight:600}.baarda-skip:focus{to
 #: A table's rows (suspects, tests table) are rows of which one is in the Tab order: Enter or Space
 #: selects the focused row as a click does, the arrow keys, Home and End move between rows (issue
 #: 31, item 8). The page's first link skips to the map tabs; a toolbar's focused button has a
-#: 2-px ring (Bokeh draws a faint dotted one).
+#: 2-px ring (Bokeh draws a faint dotted one). The maps' frames grow to the width of their tabs.
 KEYBOARD_JS = """
 (function () {
   if (window.baardaKeyboard) return;
@@ -209,6 +209,33 @@ KEYBOARD_JS = """
   //: the focus ring of a toolbar's buttons (Bokeh's is a 1-px dotted line)
   const TOOLBAR_FOCUS = ':host > :not(.bk-divider):focus-visible { outline: 2px solid #0b5cad !important; ' +
                         'outline-offset: -2px !important; }';
+  // the maps use the width they have (issue 31, item 6): a map's frame, drawn for 420 px by the
+  // server, is scaled (width and height by one factor, so the scales stay equal and the ranges
+  // as they are) to fill its tabs, at most 2.2 times and no taller than the window leaves room for
+  function fitMaps() {
+    if (!window.Bokeh) return;
+    let tabs = null;
+    for (const root of roots(document, [])) { tabs = root.querySelector('.map-tabs') || tabs; if (tabs) break; }
+    const W = tabs ? tabs.getBoundingClientRect().width : 0;
+    if (!(W > 0)) return;
+    for (const doc of Bokeh.documents) for (const m of doc.all_models) {
+      if (m.constructor.__name__ !== 'Figure' || !m.tags || !m.tags.includes('baarda-map')) continue;
+      if (!m.frame_width || !m.frame_height) continue;
+      if (m.baardaSet !== m.frame_width) m.baardaBase = [m.frame_width, m.frame_height];
+      const v = Bokeh.index.find_one(m);
+      if (!v || !v.el || !v.el.isConnected) continue;
+      const r = v.el.getBoundingClientRect();
+      if (!(r.width > 0)) continue;
+      const [fw, fh] = m.baardaBase, deco = r.width - m.frame_width;
+      const k = Math.max(1, Math.min(2.2, (W - deco - 24) / fw, Math.max(fh, window.innerHeight - 260) / fh));
+      const w = Math.round(fw * k), h = Math.round(fh * k);
+      if (Math.abs(w - m.frame_width) > 4) {
+        m.baardaSet = w;
+        m.frame_height = h;
+        m.frame_width = w;
+      }
+    }
+  }
   function onLabel(e) {
     const box = e.currentTarget.previousElementSibling;
     if (box && !box.disabled) box.click();
@@ -273,6 +300,8 @@ KEYBOARD_JS = """
   document.addEventListener('click', function () { setTimeout(enhance, 0); }, true);
   document.addEventListener('keyup', function () { setTimeout(enhance, 0); }, true);
   setInterval(enhance, 1000);
+  setInterval(fitMaps, 500);
+  window.addEventListener('resize', fitMaps);
   enhance();
 })();
 """

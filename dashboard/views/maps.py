@@ -215,6 +215,8 @@ class MapView(pn.viewable.Viewer):
         if fig.id in self._hooked:
             return
         self._hooked.add(fig.id)
+        # the page's script scales the frame to the map tabs' width (app.KEYBOARD_JS, fitMaps)
+        fig.tags = [*fig.tags, "baarda-map"]
         fig.on_event(Tap, lambda event: self.tap.event(x=event.x, y=event.y))
         rings, lines = selection_data(self.state)
         rings, lines = ColumnDataSource(rings), ColumnDataSource(lines)

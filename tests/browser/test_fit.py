@@ -117,3 +117,111 @@ def test_tables_fit_and_selected_rows_are_readable(page, block_app, screenshots)
         no_cut(page, "tests-table", f"tests table at {width}")
         page.screenshot(path=str(screenshots / f"fit-tests-{width}.png"))
     assert real_errors(errors) == []
+
+
+JS_MAP_WIDTH = """() => {   // [figure width, map tabs width] of the shown Layout map
+  const all = (root, sel, out = []) => {
+    if (root.shadowRoot) all(root.shadowRoot, sel, out);
+    root.querySelectorAll(sel).forEach(e => out.push(e));
+    for (const el of root.querySelectorAll('*')) if (el.shadowRoot) all(el.shadowRoot, sel, out);
+    return out; };
+  const tabs = all(document, '.map-tabs')[0];
+  for (const d of Bokeh.documents) for (const m of d.all_models) {
+    if (m.constructor.__name__ !== 'Figure' || !m.title || !String(m.title.text).startsWith('Layout')) continue;
+    const v = Bokeh.index.find_one(m);
+    if (!v || !v.el || !v.el.isConnected) continue;
+    const r = v.el.getBoundingClientRect();
+    if (r.width > 0) return [r.width, tabs.getBoundingClientRect().width, m.frame_width, m.frame_height];
+  }
+  return null;
+}"""
+
+
+def test_maps_use_the_width(page, block_app, screenshots):
+    """At 1920 the maps were 420 px wide beside 900 px of room: the map fills its tabs (at least
+    85 % of their width, 40 % of the window), and its frame keeps its aspect (equal scales)."""
+    state, errors = open_app(page, block_app)
+    click_tab(page, "Layout")
+    for width, height in SIZES:
+        page.set_viewport_size({"width": width, "height": height})
+        assert wait_until(lambda: (lambda r: r is not None and r[0] >= 0.85 * r[1] and r[0] >= 0.4 * width)(
+            page.evaluate(JS_MAP_WIDTH)), 30), (width, page.evaluate(JS_MAP_WIDTH))
+        fig, tabs, fw, fh = page.evaluate(JS_MAP_WIDTH)
+        assert fig <= tabs + 1
+        page.screenshot(path=str(screenshots / f"fit-map-{width}.png"))
+    assert real_errors(errors) == []
+
+
+JS_FOCUSED = """() => {
+  let a = document.activeElement;
+  while (a && a.shadowRoot && a.shadowRoot.activeElement) a = a.shadowRoot.activeElement;
+  if (!a) return null;
+  const s = getComputedStyle(a);
+  return {cls: String(a.className), role: a.getAttribute('role'), text: (a.innerText || '').trim().slice(0, 80),
+          outline: [s.outlineStyle, s.outlineWidth], id: a.id};
+}"""
+
+JS_FOCUS_ROW = """(n) => {   // focus the n-th rendered row of the suspects table; its hypothesis
+  const all = (root, sel, out = []) => {
+    if (root.shadowRoot) all(root.shadowRoot, sel, out);
+    root.querySelectorAll(sel).forEach(e => out.push(e));
+    for (const el of root.querySelectorAll('*')) if (el.shadowRoot) all(el.shadowRoot, sel, out);
+    return out; };
+  const host = all(document, '.suspects-table')[0];
+  const row = all(host, '.tabulator-row')[n];
+  row.focus();
+  return row.querySelector(".tabulator-cell[tabulator-field='hypothesis']").innerText;
+}"""
+
+JS_FOCUS_TOOL = """() => {   // focus the first toolbar button of the shown Layout map
+  const all = (root, sel, out = []) => {
+    if (root.shadowRoot) all(root.shadowRoot, sel, out);
+    root.querySelectorAll(sel).forEach(e => out.push(e));
+    for (const el of root.querySelectorAll('*')) if (el.shadowRoot) all(el.shadowRoot, sel, out);
+    return out; };
+  for (const bar of all(document, '.bk-Toolbar')) {
+    if (!(bar.getBoundingClientRect().width > 0)) continue;
+    const button = Array.from(bar.shadowRoot.children).find(e => e.tabIndex >= 0 && !e.classList.contains('bk-divider')
+                                                               && e.tagName !== 'STYLE' && e.tagName !== 'LINK');
+    if (button) { button.focus(); return true; }
+  }
+  return false;
+}"""
+
+
+def test_keyboard_skip_link_rows_and_toolbar_ring(page, block_app, screenshots):
+    state, errors = open_app(page, block_app)
+    page.locator(".suspects-table .tabulator-row").first.wait_for(timeout=LOAD_TIMEOUT)
+    # the first Tab stop skips to the map tabs
+    page.evaluate("() => { document.activeElement && document.activeElement.blur(); window.scrollTo(0, 0); }")
+    page.keyboard.press("Tab")
+    assert page.evaluate(JS_FOCUSED)["id"] == "baarda-skip"
+    page.keyboard.press("Enter")
+    assert wait_until(lambda: (page.evaluate(JS_FOCUSED) or {}).get("role") == "tab")
+    assert page.evaluate(JS_FOCUSED)["text"] == "Layout"
+    # a suspect row: focused, Enter selects it as a click does; ArrowDown and Space the next
+    page.wait_for_function(f"() => {{ try {{ return ({JS_FOCUS_ROW})(0) !== ''; }} catch (e) {{ return false; }} }}")
+    first = page.evaluate(JS_FOCUS_ROW, 0)
+    assert "tabulator-row" in page.evaluate(JS_FOCUSED)["cls"]
+    page.keyboard.press("Enter")
+    from baarda.dashboard.suspects import suspects
+
+    frame = suspects(state)                           # (the list the view shows, computed again)
+    row = frame[frame["hypothesis"] == first].iloc[0]
+    assert wait_until(lambda: state.selected_obs == int(row["obs"]) or state.selected_point == row["point"], 20), \
+        (first, state.selected_obs, state.selected_point)
+    page.keyboard.press("ArrowDown")
+    second = frame["hypothesis"].iloc[1]
+    assert page.evaluate(JS_FOCUSED)["text"].find(second) >= 0
+    page.keyboard.press(" ")
+    row2 = frame.iloc[1]
+    assert wait_until(lambda: state.selected_obs == int(row2["obs"]) if row2["what"] not in ("control point", "transfer")
+                      else state.selected_point == int(row2["point"]), 20), (second, state.selected_obs)
+    page.screenshot(path=str(screenshots / "fit-keyboard-row.png"))
+    # a focused toolbar button has a 2-px solid ring
+    page.keyboard.press("Tab")                        # (keyboard modality: :focus-visible applies)
+    assert wait_until(lambda: page.evaluate(JS_FOCUS_TOOL))
+    assert wait_until(lambda: page.evaluate(JS_FOCUSED)["outline"] == ["solid", "2px"]), page.evaluate(JS_FOCUSED)
+    page.screenshot(path=str(screenshots / "fit-keyboard-toolbar.png"))
+    assert real_errors(errors) == []
+
