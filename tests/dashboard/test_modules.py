@@ -282,3 +282,20 @@ def test_a_block_without_strips_says_nothing_of_strips():
     assert block_text(1, 0) == "1 image"
     images = [{"strip": "A"}, {"strip": "A"}, {"strip": "B"}, {"strip": ""}]
     assert frames.summary_counts(*st.frames(), st.excluded, images)["n_strips"] == 2
+
+
+def test_ellipses_of_a_dense_block_at_half_the_point_spacing():
+    """Thousands of points (Ladybug: 7,776): the 90th-percentile ellipse is half the mean point
+    spacing, not 5 % of the frame (a solid mass of overlapping ellipses), issue 31, item 10."""
+    rng = np.random.default_rng(4)
+    n = 4000
+    pts = mapgeometry.framed(pd.DataFrame({"id": [f"p{i}" for i in range(n)], "x": rng.uniform(0, 100, n),
+                                           "y": rng.uniform(0, 100, n), "status": "adjusted"}))
+    cov2 = (0.01 ** 2) * np.eye(2)[None].repeat(n, axis=0)
+    paths, scale, big, off = mapgeometry.ellipse_paths(cov2, np.eye(2), pts)
+    spacing = mapgeometry.mean_spacing(pts)
+    assert spacing == pytest.approx(100 / np.sqrt(n), rel=0.02)
+    assert 0.01 * scale <= 0.5 * spacing < 0.01 * scale * 2.5      # the round factor just below
+    assert 0.01 * scale < 0.05 * 100 / 5
+    # few points keep the 5 %-of-the-frame rule
+    assert mapgeometry.mean_spacing(pts.iloc[:1]) == np.inf
