@@ -122,8 +122,9 @@ class PrecisionMap(MapView):
         size = frame_size(pts, geometry.images(s.problem), size=260)
         return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
                 * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=3)).opts(
-            title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"], 12), xlabel="", ylabel="",
-            toolbar=None, fontsize={"title": "9pt"},
+            # no axes (the map's beside it has them): a 260-px frame's tick labels overlapped
+            title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"] - 20, 12), xlabel="", ylabel="",
+            toolbar=None, fontsize={"title": "9pt"}, xaxis=None, yaxis=None,
             **size, **formatters())
 
     def __panel__(self):
