@@ -119,7 +119,7 @@ class ImageResidualView(pn.viewable.Viewer):
             hover_tooltips=tips(["point", "vx", "vy", "abs_w"]),
             color="abs_w", cmap=W_COLORS, color_levels=levels, clim=(0, levels[-1]), line_width=2,
             colorbar=True, colorbar_opts={"ticker": FixedTicker(ticks=levels), "title_standoff": 8},
-            clabel=f"|w| (critical {crit:.2f}: rejected above)", tools=["hover"], nonselection_alpha=1)
+            clabel=f"|w| (critical {crit:.2f})", tools=["hover"], nonselection_alpha=1)
         # hollow points under the vectors, sized from the vectors as drawn
         pts = hv.Points(df, ["x", "y"], ["point", "vx", "vy", "abs_w"]).opts(
             color="#333333", fill_alpha=0, line_alpha=0.7, line_width=1, size=self.marker_size(df), tools=["hover"],
