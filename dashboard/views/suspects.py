@@ -125,14 +125,23 @@ class SuspectsView(pn.viewable.Viewer):
         if s.results is None:
             return
         if not s.background or self._current():
-            self._show(self.frame())
+            self._show(self.frame(), self._for)
             return
         self.note.object = "<i>Testing the suspects…</i>"
         key = (s.results, s.reliability)
 
+        def first(df):
+            # a slow list is shown ranked by p-value while its tiering runs
+            if s.results is key[0] and s.reliability is key[1] and not s.jobs.closed:
+                def apply():
+                    self._show(df, key)
+                    self.note.object = ("<i>Ranked by p-value; testing which of them the stronger ones "
+                                        "explain…</i> " + self._note(df))
+                s.on_loop(apply)
+
         def compute():
             try:
-                df = suspects(s)
+                df = suspects(s, early=first)
             except (BaardaError, np.linalg.LinAlgError, ValueError) as err:
                 message = f"<b>The suspects could not be tested:</b> {html_text(err)}"
                 s.on_loop(lambda: setattr(self.note, "object", message))
@@ -140,11 +149,13 @@ class SuspectsView(pn.viewable.Viewer):
             if s.results is key[0] and s.reliability is key[1] and not s.jobs.closed:
                 def apply():
                     self._frame, self._for = df, key
-                    self._show(df)
+                    self._show(df, key)
                 s.on_loop(apply)
         TASKS.submit(compute)
 
-    def _show(self, df: pd.DataFrame) -> None:
+    def _show(self, df: pd.DataFrame, key) -> None:
+        """Show ``df``, the suspects of ``key`` = (results, reliability)."""
+        self._shown = (df, key)
         self.table.value = df[SHOWN]
         self.table.selection = []
         self.note.object = self._note(df)
@@ -152,9 +163,10 @@ class SuspectsView(pn.viewable.Viewer):
     def _clicked(self, event):
         if not event.new:
             return
-        if not self._current():
+        df, key = getattr(self, "_shown", (None, None))
+        s = self.state
+        if df is None or key is None or key[0] is not s.results or key[1] is not s.reliability:
             return
-        df = self._frame
         row = df.iloc[int(self.table.value.index[event.new[0]])]
         self.select(row)
 
