@@ -299,3 +299,17 @@ def test_ellipses_of_a_dense_block_at_half_the_point_spacing():
     assert 0.01 * scale < 0.05 * 100 / 5
     # few points keep the 5 %-of-the-frame rule
     assert mapgeometry.mean_spacing(pts.iloc[:1]) == np.inf
+
+
+def test_only_the_largest_ellipses_drawn_when_asked():
+    pts = mapgeometry.framed(grid_points())
+    sigma = np.linspace(0.001, 0.002, 100)
+    cov2 = sigma[:, None, None] ** 2 * np.eye(2)
+    full = mapgeometry.ellipse_paths(cov2, np.eye(2), pts)
+    paths, scale, big, off = mapgeometry.ellipse_paths(cov2, np.eye(2), pts, most=10)
+    assert scale == full[1] and big == full[2] and off == full[3] == 0
+    assert np.isnan(paths[0][:, 0]).sum() == 9                     # ten ellipses, one glyph
+    xy = paths[0][np.isfinite(paths[0][:, 0])]
+    centres = pts[["x", "y"]].to_numpy()
+    nearest = np.argmin(np.hypot(xy[:, None, 0] - centres[None, :, 0], xy[:, None, 1] - centres[None, :, 1]), axis=1)
+    assert set(nearest.tolist()) == set(range(90, 100))             # the ten largest σ
