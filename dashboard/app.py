@@ -88,6 +88,9 @@ class Fast(pn.theme.fast.Fast):
 FIRST_PAGE = """{% extends "fast/list/fast_list_template.html" %}
 {% block js_resources %}{% if not first_summary %}{{ super() }}{% endif %}{% endblock %}
 {% block inner_body %}
+<a id="baarda-skip" class="baarda-skip" href="#main">Skip to the maps and suspects</a>
+<style>.baarda-skip{position:absolute;left:8px;top:-60px;z-index:1000;padding:8px 12px;background:#fff;color:#1f4e9c;
+border:2px solid #0b5cad;border-radius:4px;font-weight:600}.baarda-skip:focus{top:8px}</style>
 {% if first_summary %}
 <style id="baarda-hold">body{visibility:hidden;animation:baarda-show 0s 5s forwards}
 @keyframes baarda-show{to{visibility:visible}}</style>
@@ -122,6 +125,10 @@ FIRST_PAGE = """{% extends "fast/list/fast_list_template.html" %}
 #: roving tabindex), so the Tab key goes from one bar to the next, the right panel's included. A
 #: checkbox's label toggles it and is its accessible name. Bokeh redraws a bar's headers when its
 #: tabs change: the page is looked at again after every click and key, and once a second.
+#: A table's rows (suspects, tests table) are rows of which one is in the Tab order: Enter or Space
+#: selects the focused row as a click does, the arrow keys, Home and End move between rows (issue
+#: 31, item 8). The page's first link skips to the map tabs; a toolbar's focused button has a
+#: 2-px ring (Bokeh draws a faint dotted one). The maps' frames grow to the width of their tabs.
 KEYBOARD_JS = """
 (function () {
   if (window.baardaKeyboard) return;
@@ -166,6 +173,70 @@ KEYBOARD_JS = """
       if (++tries < 200) setTimeout(refocus, 50);
     })();
   }
+  // a table row (the suspects, the tests table) is selected by Enter or Space as by a click;
+  // the arrow keys move between rows, Home and End to the first and last (only one row of a
+  // table is in the Tab order: the selected one, else the first)
+  function onRow(e) {
+    const row = e.currentTarget;
+    if (e.target !== row) return;
+    const rows = Array.from(row.parentNode.querySelectorAll(':scope > .tabulator-row'));
+    const i = rows.indexOf(row);
+    let j = null;
+    if (e.key === 'Enter' || e.key === ' ') {
+      e.preventDefault();
+      const cell = row.querySelector('.tabulator-cell');
+      (cell || row).click();
+      return;
+    }
+    if (e.key === 'ArrowDown') j = Math.min(i + 1, rows.length - 1);
+    else if (e.key === 'ArrowUp') j = Math.max(i - 1, 0);
+    else if (e.key === 'Home') j = 0;
+    else if (e.key === 'End') j = rows.length - 1;
+    if (j === null) return;
+    e.preventDefault();
+    for (const r of rows) r.tabIndex = -1;
+    rows[j].tabIndex = 0;
+    rows[j].focus();
+    rows[j].scrollIntoView({block: 'nearest'});
+  }
+  // the skip link: to the open tab of the map tabs (the first bar of the main area)
+  function skip(e) {
+    e.preventDefault();
+    for (const root of roots(document, [])) {
+      const tab = root.querySelector('.bk-tab.bk-active');
+      if (tab) { tab.tabIndex = 0; tab.focus(); return; }
+    }
+  }
+  //: the focus ring of a toolbar's buttons (Bokeh's is a 1-px dotted line)
+  const TOOLBAR_FOCUS = ':host > :not(.bk-divider):focus-visible { outline: 2px solid #0b5cad !important; ' +
+                        'outline-offset: -2px !important; }';
+  // the maps use the width they have (issue 31, item 6): a map's frame, drawn for 420 px by the
+  // server, is scaled (width and height by one factor, so the scales stay equal and the ranges
+  // as they are) to fill its tabs, at most 2.2 times and no taller than the window leaves room for
+  function fitMaps() {
+    if (!window.Bokeh) return;
+    let tabs = null;
+    for (const root of roots(document, [])) { tabs = root.querySelector('.map-tabs') || tabs; if (tabs) break; }
+    const W = tabs ? tabs.getBoundingClientRect().width : 0;
+    if (!(W > 0)) return;
+    for (const doc of Bokeh.documents) for (const m of doc.all_models) {
+      if (m.constructor.__name__ !== 'Figure' || !m.tags || !m.tags.includes('baarda-map')) continue;
+      if (!m.frame_width || !m.frame_height) continue;
+      if (m.baardaSet !== m.frame_width) m.baardaBase = [m.frame_width, m.frame_height];
+      const v = Bokeh.index.find_one(m);
+      if (!v || !v.el || !v.el.isConnected) continue;
+      const r = v.el.getBoundingClientRect();
+      if (!(r.width > 0)) continue;
+      const [fw, fh] = m.baardaBase, deco = r.width - m.frame_width;
+      const k = Math.max(1, Math.min(2.2, (W - deco - 24) / fw, Math.max(fh, window.innerHeight - 260) / fh));
+      const w = Math.round(fw * k), h = Math.round(fh * k);
+      if (Math.abs(w - m.frame_width) > 4) {
+        m.baardaSet = w;
+        m.frame_height = h;
+        m.frame_width = w;
+      }
+    }
+  }
   function onLabel(e) {
     const box = e.currentTarget.previousElementSibling;
     if (box && !box.disabled) box.click();
@@ -192,6 +263,28 @@ KEYBOARD_JS = """
           if (!tab.baardaKeys) { tab.baardaKeys = true; tab.addEventListener('keydown', onKey); }
         }
       }
+      if (root.host && root.host.classList.contains('bk-Toolbar') && !root.baardaFocus) {
+        root.baardaFocus = true;
+        const style = document.createElement('style');
+        style.textContent = TOOLBAR_FOCUS;
+        root.appendChild(style);
+      }
+      for (const body of root.querySelectorAll('.tabulator-tableholder .tabulator-table')) {
+        const rows = Array.from(body.querySelectorAll(':scope > .tabulator-row'));
+        if (!rows.length) continue;
+        const current = rows.find(r => r.tabIndex === 0 && r.baardaRow) ||
+                        rows.find(r => r.classList.contains('tabulator-selected')) || rows[0];
+        for (const r of rows) {
+          if (!r.baardaRow) {
+            r.baardaRow = true;
+            r.setAttribute('role', 'row');
+            r.addEventListener('keydown', onRow);
+          }
+          r.setAttribute('aria-selected', r.classList.contains('tabulator-selected') ? 'true' : 'false');
+          const focused = root.activeElement === r;
+          r.tabIndex = (r === current || focused) ? 0 : -1;
+        }
+      }
       // a checkbox's label (Bokeh draws it as a div beside the box) toggles it and names it
       for (const box of root.querySelectorAll('input[type=checkbox]')) {
         const label = box.nextElementSibling;
@@ -203,9 +296,13 @@ KEYBOARD_JS = """
       }
     }
   }
+  const link = document.getElementById('baarda-skip');
+  if (link) link.addEventListener('click', skip);
   document.addEventListener('click', function () { setTimeout(enhance, 0); }, true);
   document.addEventListener('keyup', function () { setTimeout(enhance, 0); }, true);
   setInterval(enhance, 1000);
+  setInterval(fitMaps, 500);
+  window.addEventListener('resize', fitMaps);
   enhance();
 })();
 """

@@ -198,5 +198,6 @@ def summary_counts(obs: pd.DataFrame, pts: pd.DataFrame, excluded, images: list)
         "n_weak": int(((obs["r"] >= R_UNCONTROLLED) & (obs["r"] < R_WEAK) & live).sum()),
         "n_points": len(pts),
         "n_images": len(images),
-        "n_strips": len({im.get("strip") for im in images}) if images else 0,
+        # images without a strip (SfM, BAL, COLMAP) are in none
+        "n_strips": len({str(im.get("strip")) for im in images if im.get("strip") not in (None, "")}),
     }

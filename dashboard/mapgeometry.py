@@ -39,6 +39,16 @@ def extent(pts: pd.DataFrame) -> float:
     return span if span > 0 else 1.0
 
 
+def mean_spacing(pts: pd.DataFrame) -> float:
+    """The points' mean spacing: √(area / n) of their bounding box (its larger side squared
+    where they lie on a line), ∞ for fewer than two points."""
+    if len(pts) < 2:
+        return math.inf
+    w, h = float(np.ptp(pts["x"])), float(np.ptp(pts["y"]))
+    area = w * h if min(w, h) > 0.05 * max(w, h) else max(w, h) ** 2
+    return math.sqrt(area / len(pts)) if area > 0 else math.inf
+
+
 def joined(paths: np.ndarray) -> list[np.ndarray]:
     """m paths (m × n × 2) as one path broken by NaN rows: Bokeh draws one glyph instead of m."""
     if len(paths) == 0:
@@ -186,12 +196,14 @@ def field_vectors(pts: pd.DataFrame, d: np.ndarray, size: np.ndarray, scale: flo
                          "id": pts["id"][keep], "shift_mm": 1000 * size[keep]})
 
 
-def ellipse_paths(cov2: np.ndarray, M: np.ndarray, pts: pd.DataFrame, scale: float | None = None):
+def ellipse_paths(cov2: np.ndarray, M: np.ndarray, pts: pd.DataFrame, scale: float | None = None,
+                  most: int | None = None):
     """Ellipse paths of point covariances (m × 2 × 2, in map axes by M), exaggerated so that the
-    90th percentile of the semi-major axes of the points inside the frame is 5 % of the frame
-    (or by ``scale``); ellipses over :data:`OFF_SCALE` times that percentile, and those of far
+    90th percentile of the semi-major axes of the points inside the frame is 5 % of the frame or
+    half the points' mean spacing (:func:`mean_spacing`), whichever is less — a block of
+    thousands of points (Ladybug) was a solid mass of ellipses at 5 % (or by ``scale``); ellipses over :data:`OFF_SCALE` times that percentile, and those of far
     points (column ``far`` of ``pts``), are not drawn. Returns (paths, scale, largest drawn axis,
-    off-scale count)."""
+    off-scale count). ``most``: only the ``most`` largest of them are drawn (the scale is the same)."""
     C = np.einsum("ij,mjk,lk->mil", M, cov2, M)
     ell = precision.standard_ellipses(0.5 * (C + np.swapaxes(C, 1, 2)))     # the core's (a, b, bearing)
     axis = ell[:, 0]
@@ -200,11 +212,15 @@ def ellipse_paths(cov2: np.ndarray, M: np.ndarray, pts: pd.DataFrame, scale: flo
     ref = float(np.percentile(inside, 90)) if inside.size else 0.0
     drawn = (axis > 0) & np.isfinite(axis) & ~far & (axis <= OFF_SCALE * ref)
     if scale is None:
-        scale = round_scale(0.05 * extent(pts) / ref) if ref > 0 else 1.0
+        scale = round_scale(min(0.05 * extent(pts), 0.5 * mean_spacing(pts[~far])) / ref) if ref > 0 else 1.0
+    off = int(((axis > 0) & ~drawn).sum())
+    if most is not None and drawn.sum() > most:
+        keep = np.flatnonzero(drawn)
+        drawn = np.zeros_like(drawn)
+        drawn[keep[np.argsort(-axis[keep], kind="stable")[:most]]] = True
     centre = pts[["x", "y"]].to_numpy(dtype=float)[:, None, :]
     paths = (precision.ellipse_points(ell[drawn]) * scale + centre[drawn])
     big = float(axis[drawn].max(initial=0.0))
-    off = int(((axis > 0) & ~drawn).sum())
     return joined(paths), scale, big, off
 
 

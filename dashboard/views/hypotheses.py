@@ -34,7 +34,7 @@ def text_options(values) -> dict:
 #: Decisions in words: rejected red, accepted green, not testable grey.
 DECISION = HTMLTemplateFormatter(template=(
     '<span style="color:<%= value.startsWith("rejected") ? "#b2182b" : (value.startsWith("accepted") '
-    '? "#1a7f37" : "#555555") %>"><%- value %></span>'))
+    '? "#116329" : "#555555") %>"><%- value %></span>'))
 
 
 def with_selection(widget, options) -> None:

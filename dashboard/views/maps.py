@@ -87,6 +87,22 @@ class Changed(hv.streams.Stream):
     n = param.Integer(default=0)
 
 
+#: The shortest colour bar of a map (px): the least frame height (``common.frame_size``) less
+#: its ends. A colour bar's title runs along the bar and is cut where it is longer (issue 31,
+#: item 10: the w map's was).
+COLORBAR_PX = 250
+
+
+def colorbar_title(text: str, char_px: float = 6.3) -> str:
+    """``text`` as a colour bar's title: its words up to the last that fits :data:`COLORBAR_PX`
+    (``char_px``: the mean width of a character of Bokeh's colour bar title, measured in
+    Chromium), then "…"."""
+    most = int(COLORBAR_PX / char_px)
+    if len(text) <= most:
+        return text
+    return text[:most - 1].rsplit(" ", 1)[0] + "…"
+
+
 def tips(columns) -> list:
     """Hover tooltips showing only the given columns (not the segment end coordinates)."""
     return [(c, f"@{{{c}}}") for c in columns]
@@ -225,6 +241,8 @@ class MapView(pn.viewable.Viewer):
         if fig.id in self._hooked:
             return
         self._hooked.add(fig.id)
+        # the page's script scales the frame to the map tabs' width (app.KEYBOARD_JS, fitMaps)
+        fig.tags = [*fig.tags, "baarda-map"]
         fig.on_event(Tap, lambda event: self.tap.event(x=event.x, y=event.y))
         rings, lines = selection_data(self.state)
         rings, lines = ColumnDataSource(rings), ColumnDataSource(lines)
@@ -418,7 +436,7 @@ class RedundancyMap(MapView):
         return hv.Points(self.points(), ["x", "y"], ["id", "status", "min_r", "n_obs"]).opts(
             color="min_r", cmap=R_COLORS, color_levels=R_LEVELS, clim=(0, 1), colorbar=True,
             size=point_size(self.points()), line_color="#333333", tools=["hover", "tap"], nonselection_alpha=1,
-            clipping_colors={"NaN": "#cccccc"}, clabel="r (red < 0.1, orange < 0.3)")
+            clipping_colors={"NaN": "#cccccc"}, clabel=colorbar_title("r (red < 0.1, orange < 0.3)"))
 
 
 class ResidualMap(MapView):
@@ -471,7 +489,7 @@ class ResidualMap(MapView):
         return hv.Points(pts, ["x", "y"], ["id", "status", "max_w"]).opts(
             color="max_w", colorbar=True, size=point_size(pts),
             line_color="#333333" if len(pts) <= 500 else None, tools=["hover", "tap"], nonselection_alpha=1,
-            clipping_colors={"NaN": "#cccccc"}, clabel=f"largest |w| per point (critical {crit:.2f}: rejected above)",
+            clipping_colors={"NaN": "#cccccc"}, clabel=colorbar_title(f"largest |w| per point (critical {crit:.2f})"),
             **self._scale_opts())
 
 
@@ -514,7 +532,7 @@ class ExternalMap(MapView):
         return hv.Points(pts, ["x", "y"], ["id", "status", "max_ext"]).opts(
             color="max_ext", cmap="viridis", logz=True, clim=log_clim(pts["max_ext"]), colorbar=True,
             size=point_size(pts), line_color="#333333", tools=["hover", "tap"], nonselection_alpha=1,
-            clipping_colors={"NaN": "#cccccc"}, clabel="δ̄0, largest per point (log scale)")
+            clipping_colors={"NaN": "#cccccc"}, clabel=colorbar_title("δ̄0, largest per point (log scale)"))
 
     def _context(self):
         return hv.Segments(self.segments(), ["x0", "y0", "x1", "y1"], HOVER_OBS).opts(
@@ -552,7 +570,7 @@ class MDBMap(MapView):
         return hv.Points(pts, ["x", "y"], ["id", "status", "max_mdb_sigma"]).opts(
             color="max_mdb_sigma", cmap="plasma", logz=True, clim=self._clim(), colorbar=True,
             size=point_size(pts), line_color="#333333", tools=["hover", "tap"], nonselection_alpha=1,
-            clipping_colors={"NaN": "#cccccc"}, clabel="MDB / σ, largest per point (log scale)")
+            clipping_colors={"NaN": "#cccccc"}, clabel=colorbar_title("MDB / σ, largest per point (log scale)"))
 
     def _clim(self):
         """From δ0 (r = 1) to the largest MDB / σ: a log scale does not saturate on the

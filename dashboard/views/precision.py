@@ -33,6 +33,11 @@ INLINE_DROPDOWN = (".choices__list--dropdown, .choices__list[aria-expanded] "
                    ".choices__list--dropdown .choices__list { max-height: 170px; }")
 
 
+#: The most ellipses a precision map draws (the largest): thousands (Ladybug's 7,776) overlap
+#: into a solid mass at any scale that shows them (issue 31, item 10).
+MOST_ELLIPSES = 400
+
+
 class PrecisionMap(MapView):
     """Standard error ellipses from the core's point covariances (σ0 as chosen), exaggerated."""
 
@@ -128,8 +133,9 @@ class PrecisionMap(MapView):
         size = frame_size(pts, geometry.images(s.problem), size=260)
         return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
                 * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=3)).opts(
-            title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"], 12), xlabel="", ylabel="",
-            toolbar=None, fontsize={"title": "9pt"},
+            # no axes (the map's beside it has them): a 260-px frame's tick labels overlapped
+            title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"] - 20, 12), xlabel="", ylabel="",
+            toolbar=None, fontsize={"title": "9pt"}, xaxis=None, yaxis=None,
             **size, **formatters())
 
     def __panel__(self):
@@ -141,8 +147,9 @@ class PrecisionMap(MapView):
         return self.cached("ellipses", (s.solution, s.sbase, self.free_view()), self._ellipses_now)
 
     def _ellipse_paths(self, cov2: np.ndarray, scale: float | None = None):
-        """The standard ellipses of ``cov2`` on this map (:func:`~baarda.dashboard.mapgeometry.ellipse_paths`)."""
-        return ellipse_paths(cov2, display_matrix(self.state.problem), self.points(), scale)
+        """The standard ellipses of ``cov2`` on this map (:func:`~baarda.dashboard.mapgeometry.ellipse_paths`),
+        the :data:`MOST_ELLIPSES` largest."""
+        return ellipse_paths(cov2, display_matrix(self.state.problem), self.points(), scale, most=MOST_ELLIPSES)
 
     def _ellipses_now(self):
         return self._ellipse_paths(self.point_cov2())
@@ -158,6 +165,8 @@ class PrecisionMap(MapView):
         if self.free_view():
             base = "free block, " + (f"S-base {plain(', '.join(s.sbase))}" if s.sbase else "all points")
         text = f"Standard ellipses ×{scale:g}, largest drawn {length_text(big, unit)}"
+        if len(self.points()) - off > MOST_ELLIPSES:
+            text += f"; the {MOST_ELLIPSES} largest of {len(self.points()):,}"
         if off:
             text += f"; {off} off-scale, not drawn"
         return f"{text} ({sig}, {base})"

@@ -47,7 +47,7 @@ def summary_html(s: dict) -> str:
          f"{s['n_excluded']} excluded"),
     ]
     if s.get("n_images"):
-        cards.append(("Block", f"{s['n_images']} images in {s['n_strips']} strips<br>{s['n_points']} points"))
+        cards.append(("Block", f"{block_text(s['n_images'], s['n_strips'])}<br>{s['n_points']} points"))
     else:
         cards.append(("Network", f"{s['n_points']} points"))
     gnss = s.get("gnss")
@@ -73,6 +73,15 @@ def summary_html(s: dict) -> str:
              "padding:6px 10px;min-width:150px;font-size:13px;background:#fafafa}.card .h{font-size:11px;"
              "color:#666;text-transform:uppercase}.ok{color:#1a7f37}.bad{color:#c62828}.na{color:#888}</style>")
     return style + f"<div class='cards'>{body}</div>"
+
+
+def block_text(n_images: int, n_strips: int) -> str:
+    """"24 images in 3 strips", "6 images in 1 strip", "23 images" (a block without strips:
+    SfM, BAL and COLMAP images belong to none)."""
+    images = f"{n_images} image{'' if n_images == 1 else 's'}"
+    if not n_strips:
+        return images
+    return f"{images} in {n_strips} strip{'' if n_strips == 1 else 's'}"
 
 
 class SummaryHeader(pn.viewable.Viewer):

@@ -23,14 +23,22 @@ from ..state import State
 from ..suspects import COLUMNS, suspects
 from ..text import html_text
 
-#: The decision in words and colours people read correctly: rejected red, accepted green.
+#: The decision in words and colours people read correctly: rejected red, accepted green (dark
+#: enough for 4.5 : 1 on a selected row, issue 31, item 10).
 DECISION = HTMLTemplateFormatter(template=(
-    '<span style="font-weight:600;color:<%= value == "rejected" ? "#b2182b" : "#1a7f37" %>">'
+    '<span style="font-weight:600;color:<%= value == "rejected" ? "#b2182b" : "#116329" %>">'
     '<%= value == "rejected" ? "✗ rejected" : "✓ accepted" %></span>'))
 #: Twins: the "cannot be told apart" note in the warning colour.
 TWINS = HTMLTemplateFormatter(template='<span style="color:#a15c00"><%- value %></span>')
 SHOWN = [c for c in COLUMNS if c not in ("obs", "point", "image")]
-TABLE_CSS = ".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; }"
+#: Cells and headers wrap their text instead of cutting it (issue 31, item 6); a selected row is
+#: light blue with a dark edge, so that the red and green decisions stay readable on it.
+TABLE_CSS = (".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; white-space: normal !important; }"
+             " .tabulator-row .tabulator-cell { white-space: normal !important; overflow-wrap: anywhere; text-overflow: clip !important; }"
+             " .tabulator-row.tabulator-selected, .tabulator-row.tabulator-selected:hover"
+             " { background-color: #dbe7f8 !important; box-shadow: inset 4px 0 0 #1f4e9c; }"
+             " .tabulator-row.tabulator-selected .tabulator-cell { color: #111111; }"
+             " .tabulator-row:focus-visible { outline: 2px solid #0b5cad; outline-offset: -2px; }")
 
 
 class SuspectsView(pn.viewable.Viewer):
@@ -58,7 +66,8 @@ class SuspectsView(pn.viewable.Viewer):
                         "p": ScientificFormatter(precision=2, power_limit_low=-2)},
             titles={"rank": "#", "k": "critical k", "∇ŝ": "∇ŝ (estimate)", "MDB ratio": "∇ŝ / ∇0s", "p": "p-value"},
             text_align={c: "right" for c in ("|w|", "|τ|", "T", "k", "q", "MDB ratio", "p")},
-            widths={"rank": 54, "what": 88, "hypothesis": 170, "decision": 92}, frozen_columns=["rank"])
+            widths={"rank": 54, "what": 88, "hypothesis": 170, "decision": 92, "explained by": 180,
+                    "∇ŝ": 130, "cannot be told apart from": 200}, frozen_columns=["rank"])
         self.table.param.watch(self._clicked, "selection")
         self.state.param.watch(self._refresh, ["results", "reliability"])
         self._refresh()
@@ -116,14 +125,23 @@ class SuspectsView(pn.viewable.Viewer):
         if s.results is None:
             return
         if not s.background or self._current():
-            self._show(self.frame())
+            self._show(self.frame(), self._for)
             return
         self.note.object = "<i>Testing the suspects…</i>"
         key = (s.results, s.reliability)
 
+        def first(df):
+            # a slow list is shown ranked by p-value while its tiering runs
+            if s.results is key[0] and s.reliability is key[1] and not s.jobs.closed:
+                def apply():
+                    self._show(df, key)
+                    self.note.object = ("<i>Ranked by p-value; testing which of them the stronger ones "
+                                        "explain…</i> " + self._note(df))
+                s.on_loop(apply)
+
         def compute():
             try:
-                df = suspects(s)
+                df = suspects(s, early=first)
             except (BaardaError, np.linalg.LinAlgError, ValueError) as err:
                 message = f"<b>The suspects could not be tested:</b> {html_text(err)}"
                 s.on_loop(lambda: setattr(self.note, "object", message))
@@ -131,11 +149,13 @@ class SuspectsView(pn.viewable.Viewer):
             if s.results is key[0] and s.reliability is key[1] and not s.jobs.closed:
                 def apply():
                     self._frame, self._for = df, key
-                    self._show(df)
+                    self._show(df, key)
                 s.on_loop(apply)
         TASKS.submit(compute)
 
-    def _show(self, df: pd.DataFrame) -> None:
+    def _show(self, df: pd.DataFrame, key) -> None:
+        """Show ``df``, the suspects of ``key`` = (results, reliability)."""
+        self._shown = (df, key)
         self.table.value = df[SHOWN]
         self.table.selection = []
         self.note.object = self._note(df)
@@ -143,9 +163,10 @@ class SuspectsView(pn.viewable.Viewer):
     def _clicked(self, event):
         if not event.new:
             return
-        if not self._current():
+        df, key = getattr(self, "_shown", (None, None))
+        s = self.state
+        if df is None or key is None or key[0] is not s.results or key[1] is not s.reliability:
             return
-        df = self._frame
         row = df.iloc[int(self.table.value.index[event.new[0]])]
         self.select(row)
 

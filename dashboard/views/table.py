@@ -17,16 +17,16 @@ import param
 from .. import geometry
 from ..state import State
 from ..tables import tables_xlsx
+from .suspects import TABLE_CSS
 
 COLUMNS = {"kind": "kind [unit]", "ids": "ids", "v": "v", "w": "w", "abs_w": "|w|", "tau": "τ", "abs_tau": "|τ|",
            "decision": "decision", "r": "r", "mdb": "MDB", "ext": "δ̄0", "excluded": "excluded",
            "robust_w": "robust weight"}
-WIDTHS = {"index": 48, "kind": 105, "ids": 112, "decision": 84, "excluded": 70}
+WIDTHS = {"index": 48, "kind": 105, "ids": 112, "decision": 84, "excluded": 88}
 #: The decision in words: rejected red, accepted green (the colours people read correctly).
 DECISION = HTMLTemplateFormatter(template=(
     '<span style="font-weight:600;color:<%= value == "rejected" ? "#b2182b" : '
-    '(value == "accepted" ? "#1a7f37" : "#777777") %>"><%- value %></span>'))
-TABLE_CSS = ".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; }"
+    '(value == "accepted" ? "#116329" : "#777777") %>"><%- value %></span>'))
 
 
 class TestsTable(pn.viewable.Viewer):
@@ -60,7 +60,7 @@ class TestsTable(pn.viewable.Viewer):
                         "tau": NumberFormatter(format="0.000"), "r": NumberFormatter(format="0.000"),
                         "mdb": NumberFormatter(format="0.[000]"), "ext": NumberFormatter(format="0.00"),
                         "robust_w": NumberFormatter(format="0.000", nan_format="")},
-            titles=COLUMNS, css_classes=["tests-table"], stylesheets=[TABLE_CSS], widths=WIDTHS,
+            titles={"index": "#", **COLUMNS}, css_classes=["tests-table"], stylesheets=[TABLE_CSS], widths=WIDTHS,
             text_align={"v": "right", "w": "right", "tau": "right", "r": "right", "mdb": "right", "ext": "right",
                         "robust_w": "right", "abs_w": "right", "abs_tau": "right"},
             sorters=[{"field": "abs_w", "dir": "desc"}])

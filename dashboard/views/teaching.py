@@ -21,6 +21,10 @@ from ..state import State
 from ..text import fit_title
 from .common import NARROW_TITLE
 
+#: The tail plot's title width: its log axis's labels (1e-10 at q = 6) take some 60 px more of
+#: the narrowest panel than the power plot's (the title was cut at q = 6, issue 31, item 3).
+TAIL_TITLE = NARROW_TITLE - 70
+
 
 # Every element of the q-dependent plots normalised per frame: the axes follow q (HoloViews
 #: keeps a DynamicMap's first ranges otherwise: the plots stayed on the q = 1 axes, issue 31).
@@ -136,7 +140,7 @@ class TeachingView(pn.viewable.Viewer):
                 * hv.Curve((x, f0), kd, vd).opts(color="#1f4e9c", line_width=2)
                 * hv.Curve((x, fa), kd, vd).opts(color="#e6007e", line_width=2)
                 ).opts(hv.opts.Overlay(
-                    title=fit_title(f"Right of k = {k:.2f} on a log scale: the size α (area under H0)", NARROW_TITLE, 13.6),
+                    title=fit_title(f"Right of k = {k:.2f} on a log scale: the size α (area under H0)", TAIL_TITLE, 13.6),
                     xlabel="T", ylabel="density (log)", logy=True, xlim=fr["xlim"], ylim=fr["ylim"],
                     responsive=True, height=200, legend_position="top_right", fontscale=0.85, framewise=True),
                     *framewise())

@@ -20,6 +20,25 @@ JS_SCROLL = """() => { let best = [window.scrollY];
   return best; }"""
 
 
+#: Lines of drawn plot titles that run beyond their canvas (measured with the title's font).
+JS_TITLES_CUT = """() => {
+  const out = [], ctx = document.createElement('canvas').getContext('2d');
+  for (const doc of Bokeh.documents) for (const m of doc.all_models) {
+    const t = m.title;
+    if (!t || typeof t !== 'object' || !('text_font_size' in t) || !t.text) continue;
+    const tv = Bokeh.index.find_one(t);
+    if (!tv || !tv.layout || !tv.parent || !tv.parent.el || !tv.parent.el.isConnected) continue;
+    const r = tv.parent.el.getBoundingClientRect();
+    if (!(r.width > 0 && r.height > 0)) continue;
+    ctx.font = `${t.text_font_style} ${t.text_font_size} ${t.text_font}`;
+    for (const line of String(t.text).split('\\n')) {
+      const end = tv.layout.bbox.left + t.offset + ctx.measureText(line).width;
+      if (end > r.width + 1) out.push(`${line} (ends at ${Math.round(end)} of ${Math.round(r.width)} px)`);
+    }
+  }
+  return out; }"""
+
+
 def test_q_slider_moves_the_axes_not_the_page(page, block_app, screenshots):
     state, errors = open_app(page, block_app)
     click_tab(page, "Teaching")
@@ -41,4 +60,9 @@ def test_q_slider_moves_the_axes_not_the_page(page, block_app, screenshots):
         assert x0 <= max(q - 2, 0) < k < x1 and y0 == 0 and mode < y1 < 1.5 * mode, (q, x0, x1, y1)
         assert page.evaluate(JS_SCROLL) == before, "the page moved when q changed"
     page.screenshot(path=str(screenshots / "teaching-q6.png"))
+    # at q = 6 the tail plot's log axis is widest: no title cut, at the narrowest right panel too
+    for width, height in ((1920, 1080), (1280, 800)):
+        page.set_viewport_size({"width": width, "height": height})
+        assert wait_until(lambda: page.evaluate(JS_TITLES_CUT) == [], 20), (width, page.evaluate(JS_TITLES_CUT))
+        page.screenshot(path=str(screenshots / f"teaching-q6-{width}.png"))
     assert real_errors(errors) == []

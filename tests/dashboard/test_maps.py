@@ -163,3 +163,25 @@ def test_sbase_label_names_a_large_datum_briefly(ladybug):
     assert f"all {n:,} points" in label and len(label) < 80
     if DEMO.exists():                                   # a controlled block: its control
         assert "its fixed / weighted points" in PrecisionMap(state=State(DEMO)).sbase.label
+
+
+def test_colour_bar_titles_fit_the_shortest_bar(demo_path):
+    """A colour bar's title runs along the bar and was cut where longer (the w map's "largest |w|
+    per point (critical 3.29: rejected above)", issue 31, item 10): every map's title fits the
+    shortest bar, measured at the mean character width of Bokeh's colour bar title."""
+    import holoviews as hv
+    from bokeh.models import ColorBar
+
+    from baarda.dashboard.state import State
+    from baarda.dashboard.views.maps import COLORBAR_PX, MDBMap, ExternalMap, RedundancyMap, ResidualMap, colorbar_title
+
+    assert colorbar_title("x " * 100).endswith("…") and len(colorbar_title("x " * 100)) * 6.3 <= COLORBAR_PX
+    st = State()
+    assert st.load(demo_path), st.error
+    for V in (RedundancyMap, ResidualMap, ExternalMap, MDBMap):
+        fig = hv.render(V(state=st).static(), backend="bokeh")
+        titles = [r.title for r in fig.right + fig.left if isinstance(r, ColorBar)]
+        assert titles, V
+        for t in titles:
+            assert "…" not in t and len(t) * 6.3 <= COLORBAR_PX, (V.__name__, t)
+        assert min(fig.frame_height, fig.frame_width) >= 260 > COLORBAR_PX

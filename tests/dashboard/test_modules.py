@@ -262,3 +262,54 @@ def test_sessions_on_one_cached_file_share_its_suspects_per_test_policy(tmp_path
     finally:
         jobs.clear_cache()
 
+
+
+def test_a_block_without_strips_says_nothing_of_strips():
+    """SfM blocks (Bundler, BAL, COLMAP) have no strips: the summary says "5 images", never
+    "in 1 strips" (issue 31, item 10); a block with strips counts them in the right number."""
+    from tests.extdata import EXTDATA, require_extdata
+
+    from baarda.dashboard.state import State
+    from baarda.dashboard.views.summary import block_text, summary_html
+
+    st = State()
+    assert st.load(require_extdata(EXTDATA / "bal" / "Balbianello.out")), st.error
+    counts = frames.summary_counts(*st.frames(), st.excluded, geometry.images(st.problem))
+    assert counts["n_images"] == 5 and counts["n_strips"] == 0
+    html = summary_html(st.summary())
+    assert "5 images<br>" in html and "strip" not in html
+    assert block_text(6, 1) == "6 images in 1 strip" and block_text(24, 3) == "24 images in 3 strips"
+    assert block_text(1, 0) == "1 image"
+    images = [{"strip": "A"}, {"strip": "A"}, {"strip": "B"}, {"strip": ""}]
+    assert frames.summary_counts(*st.frames(), st.excluded, images)["n_strips"] == 2
+
+
+def test_ellipses_of_a_dense_block_at_half_the_point_spacing():
+    """Thousands of points (Ladybug: 7,776): the 90th-percentile ellipse is half the mean point
+    spacing, not 5 % of the frame (a solid mass of overlapping ellipses), issue 31, item 10."""
+    rng = np.random.default_rng(4)
+    n = 4000
+    pts = mapgeometry.framed(pd.DataFrame({"id": [f"p{i}" for i in range(n)], "x": rng.uniform(0, 100, n),
+                                           "y": rng.uniform(0, 100, n), "status": "adjusted"}))
+    cov2 = (0.01 ** 2) * np.eye(2)[None].repeat(n, axis=0)
+    paths, scale, big, off = mapgeometry.ellipse_paths(cov2, np.eye(2), pts)
+    spacing = mapgeometry.mean_spacing(pts)
+    assert spacing == pytest.approx(100 / np.sqrt(n), rel=0.02)
+    assert 0.01 * scale <= 0.5 * spacing < 0.01 * scale * 2.5      # the round factor just below
+    assert 0.01 * scale < 0.05 * 100 / 5
+    # few points keep the 5 %-of-the-frame rule
+    assert mapgeometry.mean_spacing(pts.iloc[:1]) == np.inf
+
+
+def test_only_the_largest_ellipses_drawn_when_asked():
+    pts = mapgeometry.framed(grid_points())
+    sigma = np.linspace(0.001, 0.002, 100)
+    cov2 = sigma[:, None, None] ** 2 * np.eye(2)
+    full = mapgeometry.ellipse_paths(cov2, np.eye(2), pts)
+    paths, scale, big, off = mapgeometry.ellipse_paths(cov2, np.eye(2), pts, most=10)
+    assert scale == full[1] and big == full[2] and off == full[3] == 0
+    assert np.isnan(paths[0][:, 0]).sum() == 9                     # ten ellipses, one glyph
+    xy = paths[0][np.isfinite(paths[0][:, 0])]
+    centres = pts[["x", "y"]].to_numpy()
+    nearest = np.argmin(np.hypot(xy[:, None, 0] - centres[None, :, 0], xy[:, None, 1] - centres[None, :, 1]), axis=1)
+    assert set(nearest.tolist()) == set(range(90, 100))             # the ten largest σ

@@ -257,3 +257,28 @@ def test_tiering_stops_at_its_budget(demo, monkeypatch):
     assert list(rej["rank"]) == list(range(1, len(rej) + 1))
     lp = np.log(rej["p"].to_numpy(dtype=float) + 1e-300)
     assert np.all(np.diff(lp) >= -1e-6)
+
+
+def test_slow_list_shown_untiered_first(demo, monkeypatch):
+    """A list that takes long before its tiering (a real COLMAP block: 10 s, the tiering 14 s
+    more) is given to ``early`` ranked by p-value alone — the same rows, rejected first, nothing
+    "explained by" — and then tiered (issue 31, item 10)."""
+    from baarda.dashboard import suspects as S
+
+    st, cached, _ = demo
+    seen = []
+    monkeypatch.setattr(S, "EARLY_AFTER", 0.0)
+    final = S._ranked(st, early=seen.append)
+    (first,) = seen
+    assert sorted(first["hypothesis"]) == sorted(final["hypothesis"])
+    assert (first["explained by"] == "").all() and (final["explained by"] != "").any()
+    rejected = (first["decision"] == "rejected").to_numpy()
+    assert rejected[:rejected.sum()].all()                               # rejected first
+    for part in (first[rejected], first[~rejected]):
+        p = part["p"].to_numpy()                                        # each by p-value (twins: equal
+        assert (p[1:] >= p[:-1] * (1 - 1e-6)).all()                      # up to round-off)
+    assert first["rank"].tolist() == list(range(1, len(first) + 1))
+    pd.testing.assert_frame_equal(final, cached)
+    monkeypatch.setattr(S, "EARLY_AFTER", 1e9)                          # a fast list: no early call
+    S._ranked(st, early=seen.append)
+    assert len(seen) == 1
