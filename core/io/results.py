@@ -167,9 +167,10 @@ class Records(Sequence):
                 out.append(f)
         return out
 
-    def json_lines(self, fields, sl: slice) -> list[str]:
-        """The compact JSON text of records ``sl`` (:func:`baarda.io.columns.row_texts`)."""
-        return columns_.row_texts(fields, sl, sl.stop - sl.start)
+    def json_lines(self, fields, sl: slice) -> str:
+        """The compact JSON text of records ``sl``, one per line, joined by ``",\\n  "``
+        (:func:`baarda.io.columns.rows_text`)."""
+        return columns_.rows_text(fields, sl, sl.stop - sl.start)
 
 
 def observations(adj, reliability=None) -> Records:
@@ -341,14 +342,7 @@ def groups(adj, reliability=None) -> Records:
                 return [vals[a - a0:b - a0] for a, b in zip(p[sl].tolist(), p[1:][sl].tolist())]
 
             def text(sl):
-                a0, b0 = int(p[sl.start]), int(p[sl.stop])
-                t = columns_.num_texts(flat[a0:b0]) if real else list(map(str, flat[a0:b0].tolist()))
-                size = np.diff(p[sl.start:sl.stop + 1])
-                if size.size and (size == size[0]).all():      # lists of one length (q = 2 of image points)
-                    k = int(size[0])
-                    return list(map(("[" + ", ".join(["%s"] * k) + "]").__mod__, zip(*(t[j::k] for j in range(k))))) \
-                        if k else ["[]"] * size.size
-                return ["[" + ", ".join(t[a - a0:b - a0]) + "]" for a, b in zip(p[sl].tolist(), p[1:][sl].tolist())]
+                return columns_.ragged_texts(flat, p[sl.start:sl.stop + 1], real)
             return F(key, "obj", values, text=text)
         f = [F("group", "int", np.asarray(gs.group, dtype=np.int64)), listed("members")]
         for key in ("T", "dimension", "redundancy", "critical", "alpha", "rejected", "R", "critical_R",
@@ -462,7 +456,7 @@ def json_chunks(doc: dict):
         if fields is not None:           # a chunk of records at a time, from their columns
             yield "["
             for sl in columns_.chunks(len(val)):
-                yield ("," if sl.start else "") + "\n  " + ",\n  ".join(val.json_lines(fields, sl))
+                yield ("," if sl.start else "") + "\n  " + val.json_lines(fields, sl)
             yield "\n ]"
         elif isinstance(val, Records) or (isinstance(val, list) and val and all(isinstance(v, dict) for v in val)):
             yield "["
