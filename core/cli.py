@@ -198,6 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_iteration_option(an)
     an.add_argument("--json", metavar="OUT", help="write the full results as JSON (docs/json-schema.md)")
     an.add_argument("--csv", metavar="DIR", help="write observations.csv, points.csv, groups.csv into DIR")
+    an.add_argument("--parquet", metavar="DIR",
+                    help="write the same tables as observations.parquet, points.parquet, groups.parquet into DIR "
+                         "(typed columns for pandas, Polars, GIS; needs pyarrow, the batch extra)")
     an.add_argument("--geojson", metavar="OUT", help="write the points with r_min, MDB, δ̄0 as GeoJSON (for GIS)")
     an.add_argument("--truth", metavar="FILE",
                     help="truth file of a simulated block: report which planted errors the tests find "
@@ -453,6 +456,8 @@ def _analyze(args) -> int:
         results.write_json(adj, args.json, doc)
     if args.csv:
         results.write_csv(adj, args.csv, doc)
+    if args.parquet:
+        results.write_parquet(adj, args.parquet, doc)
     if args.geojson:
         write_geojson(adj, args.geojson)
     if not args.quiet:
@@ -500,6 +505,8 @@ def _diverged(args, analysis, err) -> int:
         results.write_json(final, args.json, doc)
     if args.csv:
         results.write_csv(final, args.csv, doc)
+    if args.parquet:
+        results.write_parquet(final, args.parquet, doc)
     if args.geojson:
         write_geojson(final, args.geojson)
     if not args.quiet:
@@ -689,9 +696,11 @@ def _io_paths(args) -> tuple[list, list, list]:
     if command == "analyze":
         guess = _truth_beside(args.input)
         truth_file = args.truth or (guess if guess is not None and guess.exists() else None)
-        csv = [Path(args.csv) / f"{name}.csv" for name in ("observations", "points", "groups")] if args.csv else []
-        return [args.input, args.control, args.gnss, args.imu, truth_file], [args.json, args.geojson, *csv], \
-            [args.csv] * bool(args.csv)
+        tables = ("observations", "points", "groups")
+        csv = [Path(args.csv) / f"{name}.csv" for name in tables] if args.csv else []
+        parquet = [Path(args.parquet) / f"{name}.parquet" for name in tables] if args.parquet else []
+        return [args.input, args.control, args.gnss, args.imu, truth_file], [args.json, args.geojson, *csv, *parquet], \
+            [d for d in (args.csv, args.parquet) if d]
     return [], [], []
 
 
@@ -762,6 +771,9 @@ def _run(args) -> int:
     if getattr(args, "beta", None) is not None and not args.beta > args.alpha:
         raise BaardaError(f"{args.command}: --beta ({args.beta:g}) must be larger than --alpha ({args.alpha:g}): "
                           f"the power of a test exceeds its size")
+    if getattr(args, "parquet", None) and not results.can_write_parquet():
+        raise BaardaError(f"{args.command}: --parquet needs pyarrow, which is not installed "
+                          f"(pip install 'baarda[batch]')")
     inputs, outputs, folders = _io_paths(args)
     check_outputs(inputs, outputs, folders)
     commands = {"analyze": cmd_analyze, "simulate": cmd_simulate, "test": cmd_test, "convert": cmd_convert, "serve": cmd_serve,

@@ -27,6 +27,9 @@ from ..lazy import installed, lazy
 
 #: orjson where installed (the numbers' texts, :func:`num_texts`), else None (``float.__repr__``)
 orjson = lazy("orjson") if installed("orjson") else None
+#: pyarrow where installed (the ``batch`` extra; :func:`arrow_array`), else None
+pa = lazy("pyarrow") if installed("pyarrow") else None
+pq = lazy("pyarrow.parquet") if pa is not None else None
 
 #: numbers whose texts orjson must write as ``repr`` does before it is used (a version that
 #: writes ``1e16`` for ``1e+16`` or drops ``-0.0``'s sign is not)
@@ -309,3 +312,44 @@ def field_column(f: Field, n: int):
         return np.asarray(f.values, dtype=bool).copy()
     return column(f.python(slice(0, n)))
 
+
+def arrow_array(f: Field, n: int):
+    """Field ``f`` over ``n`` rows as a typed Arrow array, null where the key is absent: numbers
+    float64 (null where the JSON has null), integers int64, booleans bool, strings string
+    (dictionary-coded where they are categories), anything else as Arrow types its values (lists
+    of numbers), or as its JSON text where they have no one type."""
+    k, v = f.kind, f.values
+    absent = None if f.present is None else ~np.asarray(f.present, dtype=bool)
+    if k == "num":
+        a = np.ascontiguousarray(v, dtype=float)
+        missing = ~np.isfinite(a) if absent is None else ~np.isfinite(a) | absent
+        return pa.array(a, mask=missing if missing.any() else None)
+    if k in ("int", "bool"):
+        return pa.array(np.ascontiguousarray(v, dtype=np.int64 if k == "int" else bool), mask=absent)
+    if k == "str" and getattr(v, "categories", None) is not None and not isinstance(v, np.ndarray):
+        codes = np.asarray(v.codes)
+        missing = codes < 0 if absent is None else (codes < 0) | absent
+        return pa.DictionaryArray.from_arrays(pa.array(np.maximum(codes, 0).astype(np.int32), mask=missing),
+                                              pa.array(list(v.categories), type=pa.string()))
+    vals = f.python(slice(0, n))
+    if k == "str":
+        return pa.array(vals, type=pa.string())
+    return _arrow_values(vals)
+
+
+def _arrow_values(vals: list):
+    """Python values as Arrow infers their type; where they have none, their JSON texts."""
+    try:
+        return pa.array(vals)
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        return pa.array([None if x is None else _ENCODE(x) for x in vals], type=pa.string())
+
+
+def arrow_column(a: np.ndarray):
+    """A column of :func:`column` (NaN where null or absent) as a typed Arrow array."""
+    if a.dtype == float:
+        missing = np.isnan(a)
+        return pa.array(a, mask=missing if missing.any() else None)
+    if a.dtype in (np.int64, bool):
+        return pa.array(a)
+    return _arrow_values(a.tolist())

@@ -505,6 +505,49 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
     return written
 
 
+def can_write_parquet() -> bool:
+    """Whether pyarrow is installed (:func:`write_parquet`)."""
+    return columns_.pa is not None
+
+
+def write_parquet(adj, directory, doc=None) -> list[Path]:
+    """observations.parquet, points.parquet and groups.parquet in ``directory`` (created if
+    needed): the columns of :func:`write_csv`, typed (:func:`baarda.io.columns.arrow_array`:
+    numbers float64 and int64, null where the JSON has null or a record lacks the key, booleans,
+    strings, lists of numbers), each file written atomically, the summary as JSON in the schema's
+    metadata (``baarda``). Needs pyarrow (the ``batch`` extra): :class:`OutputError` without it."""
+    if not can_write_parquet():
+        raise OutputError(directory, "cannot write Parquet: pyarrow is not installed (pip install 'baarda[batch]')")
+    doc = doc if doc is not None else to_dict(adj)
+    d = Path(directory)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(directory, f"cannot create the folder: {err.strerror or err}") from None
+    mark = {} if doc["summary"]["converged"] else {"adjustment": "NOT converged"}
+    meta = {"baarda": json.dumps(doc["summary"], allow_nan=False)}
+    written = []
+    for name in ("observations", "points", "groups"):
+        rows, pa = doc[name], columns_.pa
+        fields = rows.fields() if isinstance(rows, Records) else None
+        if fields is not None:
+            n = len(rows)
+            by_key = {f.key: f for f in fields}
+            cols = {k: columns_.arrow_array(by_key[k], n) for k in columns_.key_order(fields, n)}
+        else:
+            table = columns(rows)
+            n = len(rows)
+            cols = {k: columns_.arrow_column(a) for k, a in table.items()}
+        for k, text in mark.items():
+            cols.setdefault(k, pa.array([text] * n, type=pa.string()))
+        table = pa.table(cols).replace_schema_metadata(meta)
+        path = d / f"{name}.parquet"
+        with atomic_write(path, binary=True) as fh:
+            columns_.pq.write_table(table, fh)
+        written.append(path)
+    return written
+
+
 def _csv_from_fields(fields, n: int, path, mark: dict) -> None:
     """One CSV of :func:`write_csv` from a table's columns, a chunk of rows at a time: the cells
     the per-record path writes (None and absent keys empty, lists joined by ';', text made safe)."""
