@@ -18,9 +18,21 @@ and a point-transfer error, so that iterative snooping runs for some 20 iteratio
 3. cancels the snooping and times until the session says it stopped;
 4. requests the page ``--sessions`` times at once without a browser (the server's share).
 
+``--busy criterion`` (issue 29: the load test) serves data/demo-block.json instead (the
+1,000-image block has too many coordinates for a criterion matrix) and has the busy session fit
+its criterion matrix again and again (its Criterion tab, "Fit C1, C2": the dense covariance in
+the S-base and its eigenvalues, on a task thread of the session) while the other one clicks; ``--blas default`` serves without
+``OPENBLAS_NUM_THREADS`` (OpenBLAS's own thread count; the server's threadpoolctl limit is what
+then keeps one session's linear algebra from starving the others), ``--blas 1`` (the default)
+with it set to 1. Both, for the table of the issue:
+
+    python -m bench.bench_load --sessions 5 --busy criterion --blas 1
+    python -m bench.bench_load --sessions 5 --busy criterion --blas default
+
 Everything is bounded (``--timeout`` seconds in all); the server is stopped at the end.
 
     OPENBLAS_NUM_THREADS=1 python -m bench.bench_load [--sessions 20] [--clicks 5] [--timeout 600]
+                                                      [--busy snooping|criterion] [--blas 1|default]
 """
 
 from __future__ import annotations
@@ -38,6 +50,7 @@ import time
 from pathlib import Path
 
 CHROMIUM = "/usr/bin/chromium"
+DEMO = Path(__file__).resolve().parents[1] / "data" / "demo-block.json"
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
         "--disable-component-update", "--disable-sync", "--no-first-run",
         "--disable-renderer-backgrounding", "--disable-background-timer-throttling"]
@@ -63,8 +76,10 @@ def write_block(folder: Path) -> Path:
     return out
 
 
-def start_server(path: Path, port: int) -> subprocess.Popen:
+def start_server(path: Path, port: int, blas: str = "1") -> subprocess.Popen:
     env = dict(os.environ, DISPLAY="", BROWSER="false", OPENBLAS_NUM_THREADS="1", BAARDA_TIMING="1")
+    if blas == "default":              # OpenBLAS's own thread count (nothing set for the server)
+        env.pop("OPENBLAS_NUM_THREADS")
     log = open(path.with_suffix(".log"), "w")
     proc = subprocess.Popen([sys.executable, "-m", "baarda.cli", "serve", str(path), "--port", str(port),
                              "--address", "127.0.0.1"], stdout=subprocess.PIPE, stderr=log,
@@ -192,10 +207,14 @@ async def run(args) -> int:
     from playwright.async_api import async_playwright
 
     folder = Path(tempfile.mkdtemp(prefix="baarda-bench-load-"))
-    path = write_block(folder)
+    if args.busy == "criterion":       # the largest demo whose criterion applies (not the 1,000-image block)
+        path = folder / DEMO.name
+        path.write_bytes(DEMO.read_bytes())
+    else:
+        path = write_block(folder)
     port = free_port()
     url = f"http://127.0.0.1:{port}/"
-    server = start_server(path, port)
+    server = start_server(path, port, args.blas)
     ms = int(args.timeout * 1000)
     rows, ok = [], True
     try:
@@ -229,14 +248,34 @@ async def run(args) -> int:
             for s in sessions[2:]:
                 await s["page"].close()
 
-            snooper, clicker = sessions[0]["page"], sessions[1]["page"]
-            print("  starting iterative data snooping in one session", file=sys.stderr, flush=True)
-            await snooper.get_by_text("Find errors", exact=True).first.click()
-            await snooper.get_by_role("button", name="Run iterative data snooping").click()
-            task = snooper.locator(".task-panel")
-            await task.get_by_text("iterative data snooping").first.wait_for(timeout=ms)
+            busy, clicker = sessions[0]["page"], sessions[1]["page"]
+            if args.busy == "criterion":
+                print("  fitting the criterion matrix in one session", file=sys.stderr, flush=True)
+                await click_tab(busy, "Criterion")
+                fit_started = time.perf_counter()
+                fit = busy.locator(".criterion-fit button").first
+                await fit.click(timeout=ms)
+                done = busy.get_by_text("Fitted", exact=False).first
+                fits = {"clicks": 1, "stop": False}
+
+                async def keep_fitting():
+                    """The fit again and again while the other session clicks (one fit of a
+                    demo takes under a second with one BLAS thread)."""
+                    while not fits["stop"]:
+                        await asyncio.sleep(0.3)
+                        await fit.click(timeout=ms)
+                        fits["clicks"] += 1
+                fitting = asyncio.ensure_future(keep_fitting())
+                what = "while the other fits the criterion matrix"
+            else:
+                print("  starting iterative data snooping in one session", file=sys.stderr, flush=True)
+                await busy.get_by_text("Find errors", exact=True).first.click()
+                await busy.get_by_role("button", name="Run iterative data snooping").click()
+                task = busy.locator(".task-panel")
+                await task.get_by_text("iterative data snooping").first.wait_for(timeout=ms)
+                what = "while snooping runs"
             times = []
-            print("  snooping runs; the tests table in another session", file=sys.stderr, flush=True)
+            print(f"  clicks in the tests table of another session {what}", file=sys.stderr, flush=True)
             await click_tab(clicker, "Tests table")
             table_rows = clicker.locator(".tests-table .tabulator-row")
             await table_rows.first.wait_for(timeout=ms)
@@ -250,20 +289,31 @@ async def run(args) -> int:
                 await info.get_by_text(f"Observation {i} ").first.wait_for(timeout=ms)
                 times.append(time.perf_counter() - start)
             clicks_to = time.time()
-            running = await task.is_visible()
-            rows.append((f"click in another session while snooping runs (s){'' if running else ' [snooping ended]'}",
+            if args.busy == "criterion":
+                fits["stop"] = True
+                await fitting
+                running = True
+            else:
+                running = await task.is_visible()
+            ended = " [snooping ended]"
+            rows.append((f"click in another session {what} (s){'' if running else ended}",
                          f"{min(times):.2f}", f"{statistics.median(times):.2f}", f"{max(times):.2f}",
                          f"≤ {CLICK_LIMIT:g}"))
             ok &= max(times) <= CLICK_LIMIT and running
-            start = time.perf_counter()
-            if await task.is_visible():
-                try:
-                    await snooper.locator(".task-cancel button").first.click(timeout=10_000)
-                except PlaywrightTimeout:    # the snooping ended meanwhile: its button is gone
-                    pass
-                await task.wait_for(state="hidden", timeout=ms)
-            stop = time.perf_counter() - start
-            rows.append(("snooping cancelled: stopped after (s)", "", f"{stop:.1f}", "", ""))
+            if args.busy == "criterion":
+                await done.wait_for(timeout=ms)
+                rows.append((f"criterion: {fits['clicks']} fits asked for, the first shown; all over after (s)", "",
+                             f"{time.perf_counter() - fit_started:.1f}", "", ""))
+            else:
+                start = time.perf_counter()
+                if await task.is_visible():
+                    try:
+                        await busy.locator(".task-cancel button").first.click(timeout=10_000)
+                    except PlaywrightTimeout:    # the snooping ended meanwhile: its button is gone
+                        pass
+                    await task.wait_for(state="hidden", timeout=ms)
+                stop = time.perf_counter() - start
+                rows.append(("snooping cancelled: stopped after (s)", "", f"{stop:.1f}", "", ""))
             stalls = [d for w, d in stall_times(path.with_suffix(".log")) if clicks_from <= w <= clicks_to]
             rows.append(("  server: event-loop stalls > 0.1 s while clicking (count, longest s)", "",
                          str(len(stalls)), f"{max(stalls, default=0):.2f}", ""))
@@ -285,6 +335,8 @@ async def run(args) -> int:
                 f.unlink()
             folder.rmdir()
     width = max(len(r[0]) for r in rows)
+    print(f"busy session: {args.busy}; server OPENBLAS_NUM_THREADS="
+          f"{'1' if args.blas == '1' else 'unset'}; {args.sessions} sessions")
     print(f"{'':{width}}  {'min':>6} {'median':>6} {'max':>6}  limit")
     for r in rows:
         print(f"{r[0]:{width}}  {r[1]:>6} {r[2]:>6} {r[3]:>6}  {r[4]}")
@@ -298,6 +350,10 @@ def main() -> int:
     ap.add_argument("--clicks", type=int, default=5)
     ap.add_argument("--timeout", type=float, default=600.0, help="bound of the whole run (s)")
     ap.add_argument("--keep", action="store_true", help="keep the block and the server log")
+    ap.add_argument("--busy", choices=["snooping", "criterion"], default="snooping",
+                    help="what one session runs while another clicks (default snooping)")
+    ap.add_argument("--blas", choices=["1", "default"], default="1",
+                    help="OPENBLAS_NUM_THREADS of the server: 1 (default) or not set")
     args = ap.parse_args()
     return asyncio.run(run(args))
 

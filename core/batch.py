@@ -462,7 +462,8 @@ def options_of(args) -> dict:
                            variance_components=args.variance_components, merge_groups=args.merge_groups))
     return {"format": args.format, "control": args.control, "sigma_px": args.sigma_px,
             "refine_intrinsics": args.refine_intrinsics, "drop_undefined": args.drop_undefined,
-            "strict": bool(args.strict), "solver": {"max_iter": args.max_iter}, "policy": policy, "extras": extras}
+            "strict": bool(args.strict), "solver": {"max_iter": args.max_iter, "stop": args.stop},
+            "policy": policy, "extras": extras}
 
 
 def command(args) -> int:

@@ -74,6 +74,11 @@ def _add_iteration_option(p):
     p.add_argument("--max-iter", type=_in_range(1, 100_000, integer=True), default=200, metavar="N",
                    help="at most N iterations of the adjustment (default 200); a run that does not "
                         "converge writes its results marked as such and exits with status 4")
+    p.add_argument("--stop", choices=("optimum", "ceres"), default="optimum",          # baarda.iteration.STOPS
+                   help="the stopping rule of the adjustment: optimum (default), the strict least-squares "
+                        "optimum, where the tests and reliability belong; or ceres, Ceres Solver's at its "
+                        "defaults (the cost within about 1e-6 of the optimum's, in fewer iterations: a faster "
+                        "solve of a large SfM block whose statistics are those of that iterate)")
 
 
 def _add_input_options(p):
@@ -126,6 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_iteration_option(an)
     an.add_argument("--json", metavar="OUT", help="write the full results as JSON (docs/json-schema.md)")
     an.add_argument("--csv", metavar="DIR", help="write observations.csv, points.csv, groups.csv into DIR")
+    an.add_argument("--parquet", metavar="DIR",
+                    help="write the same tables as observations.parquet, points.parquet, groups.parquet into DIR "
+                         "(typed columns for pandas, Polars, GIS; needs pyarrow, the batch extra)")
     an.add_argument("--geojson", metavar="OUT", help="write the points with r_min, MDB, δ̄0 as GeoJSON (for GIS)")
     an.add_argument("--truth", metavar="FILE",
                     help="truth file of a simulated block: report which planted errors the tests find "

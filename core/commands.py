@@ -127,7 +127,8 @@ def _analysis(args, progress=None, strict=None):
                              refine_intrinsics=getattr(args, "refine_intrinsics", None),
                              strict=bool(getattr(args, "strict", False) if strict is None else strict),
                              drop_undefined=args.drop_undefined,
-                             solver=SolverOptions(max_iter=getattr(args, "max_iter", 200)),
+                             solver=SolverOptions(max_iter=getattr(args, "max_iter", 200),
+                                                  stop=getattr(args, "stop", "optimum")),
                              policy=policy, progress=progress)
     _warn_dropped(args.input, analysis.problem, args.quiet)
     return analysis
@@ -151,6 +152,8 @@ def _analyze(args) -> int:
         results.write_json(adj, args.json, doc)
     if args.csv:
         results.write_csv(adj, args.csv, doc)
+    if args.parquet:
+        results.write_parquet(adj, args.parquet, doc)
     if args.geojson:
         write_geojson(adj, args.geojson)
     if not args.quiet:
@@ -198,6 +201,8 @@ def _diverged(args, analysis, err) -> int:
         results.write_json(final, args.json, doc)
     if args.csv:
         results.write_csv(final, args.csv, doc)
+    if args.parquet:
+        results.write_parquet(final, args.parquet, doc)
     if args.geojson:
         write_geojson(final, args.geojson)
     if not args.quiet:
@@ -394,10 +399,11 @@ def _io_paths(args) -> tuple[list, list, list]:
     if command == "analyze":
         guess = _truth_beside(args.input)
         truth_file = args.truth or (guess if guess is not None and guess.exists() else None)
-        csv = [Path(args.csv) / f"{name}.csv" for name in ("observations", "points", "groups", "images", "check_points")
-               ] if args.csv else []
-        return [args.input, args.control, args.gnss, args.imu, truth_file], [args.json, args.geojson, *csv], \
-            [args.csv] * bool(args.csv)
+        tables = ("observations", "points", "groups")
+        csv = [Path(args.csv) / f"{name}.csv" for name in (*tables, "images", "check_points")] if args.csv else []
+        parquet = [Path(args.parquet) / f"{name}.parquet" for name in tables] if args.parquet else []
+        return [args.input, args.control, args.gnss, args.imu, truth_file], [args.json, args.geojson, *csv, *parquet], \
+            [d for d in (args.csv, args.parquet) if d]
     return [], [], []
 
 
@@ -419,6 +425,9 @@ def run(args) -> int:
     if getattr(args, "beta", None) is not None and not args.beta > args.alpha:
         raise BaardaError(f"{args.command}: --beta ({args.beta:g}) must be larger than --alpha ({args.alpha:g}): "
                           f"the power of a test exceeds its size")
+    if getattr(args, "parquet", None) and not results.can_write_parquet():
+        raise BaardaError(f"{args.command}: --parquet needs pyarrow, which is not installed "
+                          f"(pip install 'baarda[batch]')")
     inputs, outputs, folders = _io_paths(args)
     check_outputs(inputs, outputs, folders)
     commands = {"analyze": cmd_analyze, "simulate": cmd_simulate, "test": cmd_test, "convert": cmd_convert, "serve": cmd_serve,

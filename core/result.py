@@ -40,6 +40,9 @@ from .solve.schur import SchurFactor, bmm, schur_structure
 R_EPS = 1e-10
 #: clusters per chunk of the cluster passes (here and :func:`baarda.stats.groups.group_statistics`)
 GROUP_CHUNK = 1 << 17
+#: up to this many observations the cluster statistics are made in one pass (all five arrays at
+#: once; a larger block makes (P H P)_ii and u_k,i in a second pass, when asked for)
+ONE_PASS_N = 1 << 20
 #: points per chunk of :attr:`Adjustment.point_cov`'s entries
 POINT_CHUNK = 1 << 15
 
@@ -317,9 +320,13 @@ class Adjustment:
         """Per observation: (C_vv P)_ii, (P C_vv P)_ii, (P H P)_ii, (P H_k P)_ii, u_k,i (see module
         doc), indexed 0-4. The first, second and fourth are made here; (P H P)_ii and u_k,i, which
         only :attr:`external_all`, :attr:`u_k` and :attr:`u_t` need, when first asked for (the same
-        pass over the clusters: the same numbers; two arrays of n fewer held meanwhile)."""
+        pass over the clusters: the same numbers; two arrays of n fewer held meanwhile) — in this
+        pass up to :data:`ONE_PASS_N` observations (a small block's fixed cost: one pass, not two)."""
         t0 = time.perf_counter()
-        out = self._cluster_pass(("r", "pcp", "phkp"))
+        one = self.n <= ONE_PASS_N and "_cluster_extra" not in self.__dict__
+        out = self._cluster_pass(("r", "pcp", "phkp", "php", "uk") if one else ("r", "pcp", "phkp"))
+        if one:
+            self.__dict__["_cluster_extra"] = (out["php"], out["uk"])
         self.timings.setdefault("reliability", time.perf_counter() - t0)
         return _Stats(self, out["r"], out["pcp"], out["phkp"])
 

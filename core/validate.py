@@ -28,7 +28,7 @@ import numpy as np
 from .errors import InputError
 from .model.bundle import Block
 from .model.network import Network
-from .model.problem import by_size
+from .model.problem import size_groups
 from .model.sfm import SfmBlock
 from .observations.projection import ProjectionSet
 
@@ -89,8 +89,10 @@ def check_numeric_range(problem, path, control=None) -> None:
     # σ of every observation: the diagonal of its covariance block; the block must be PD
     sigma = np.full(n, np.nan)
     not_pd = []                    # first observation of each cluster that is not positive definite
-    for m, clusters, members in by_size(problem.cov):
-        C = np.array([problem.cov.blocks[c] for c in clusters], dtype=float).reshape(clusters.size, m, m)
+    for m, clusters, members, C in size_groups(problem.cov):      # (the stacks, not a block at a time)
+        C = np.asarray(C, dtype=float).reshape(clusters.size, m, m)
+        if C.shape[0] > 1 and C.strides[0] == 0:                   # one matrix broadcast (one σ for all)
+            C = C[:1]
         finite = np.isfinite(C).all(axis=(1, 2))
         with np.errstate(all="ignore"):
             d = np.sqrt(np.clip(np.diagonal(C, axis1=1, axis2=2), 0.0, None))

@@ -11,7 +11,9 @@ from pathlib import Path
 import jsonschema
 import pytest
 
-from baarda.cli import main
+from baarda import batch
+from baarda.cli import build_parser, main
+from baarda.iteration import STOPS
 
 from tests.extdata import GAMA, require_extdata
 
@@ -231,3 +233,31 @@ def test_the_command_line_limits_blas_threads(monkeypatch, capsys):
         assert main(["risk", "--p", "0.1"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "BAARDA_BLAS_THREADS" in err[0]
+
+
+def test_stop_option_reaches_the_solver(tmp_path, capsys):
+    """``--stop ceres`` (issue 29, item 4) stops the demo block's adjustment by Ceres's rule
+    (SolverOptions.stop through baarda.analyze: status 5, in at most the strict optimum's
+    iterations, its w within 1e-3 of the optimum's); ``--stop optimum`` is the default; any
+    other value is a one-line usage error (exit 2) naming baarda.iteration.STOPS."""
+    demo = Path(__file__).resolve().parents[1] / "data" / "demo-block.json"
+    runs = {}
+    for stop in (None, "optimum", "ceres"):
+        out = tmp_path / f"{stop}.json"
+        assert main(["analyze", str(demo), "--json", str(out), "--quiet", *(["--stop", stop] if stop else [])]) == 0
+        runs[stop] = json.loads(out.read_text())
+    default, optimum, ceres = runs[None]["summary"], runs["optimum"]["summary"], runs["ceres"]["summary"]
+    assert "Ceres" in ceres["termination"] and "Ceres" not in optimum["termination"]
+    assert default["termination"] == optimum["termination"] and default["iterations"] == optimum["iterations"]
+    assert ceres["iterations"] <= optimum["iterations"]
+    w = {k: [o["w"] for o in runs[k]["observations"]] for k in ("optimum", "ceres")}
+    assert max(abs(a - b) for a, b in zip(w["optimum"], w["ceres"])) < 1e-3
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        main(["analyze", str(demo), "--stop", "fast"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--stop" in err[0] and "invalid choice" in err[0]
+    assert all(stop in err[0] for stop in STOPS)
+    args = build_parser().parse_args(["batch", str(demo), "--stop", "ceres"])       # batch's workers get it too
+    assert batch.options_of(args)["solver"] == {"max_iter": 200, "stop": "ceres"}

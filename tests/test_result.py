@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from baarda import result
 from baarda.adjust import Options, adjust
 from baarda.exclusion import exclude
 from baarda.model.problem import subset
@@ -177,3 +178,18 @@ def test_json_document_streams_one_record_per_line(tmp_path):
     assert "\u001b" not in text and all(c.isprintable() for s in lines for c in s)
     with pytest.raises(ValueError):
         dump_json({"observations": [{"w": float("nan")}]}, tmp_path / "nan.json")
+
+
+def test_one_cluster_pass_gives_the_two_passes_numbers(demo_problem, monkeypatch):
+    """A small block's cluster statistics in one pass (result.ONE_PASS_N, issue 29: fixed
+    costs) are those of the two passes a large block makes, bit for bit."""
+    one = adjust(demo_problem, Options())
+    keys = ("r", "u_k", "u_t", "php", "php_k", "w")
+    a = {k: np.array(getattr(one, k)) for k in keys}
+    assert "_cluster_extra" in one.__dict__
+    monkeypatch.setattr(result, "ONE_PASS_N", 0)
+    two = adjust(demo_problem, Options())
+    _ = two.r
+    assert "_cluster_extra" not in two.__dict__          # (the second pass not made yet)
+    for k in keys:
+        np.testing.assert_array_equal(np.array(getattr(two, k)), a[k], err_msg=k)

@@ -170,9 +170,10 @@ class Records(Sequence):
                 out.append(f)
         return out
 
-    def json_lines(self, fields, sl: slice) -> list[str]:
-        """The compact JSON text of records ``sl`` (:func:`baarda.io.columns.row_texts`)."""
-        return columns_.row_texts(fields, sl, sl.stop - sl.start)
+    def json_lines(self, fields, sl: slice) -> str:
+        """The compact JSON text of records ``sl``, one per line, joined by ``",\\n  "``
+        (:func:`baarda.io.columns.rows_text`)."""
+        return columns_.rows_text(fields, sl, sl.stop - sl.start)
 
 
 def observations(adj, reliability=None) -> Records:
@@ -387,14 +388,7 @@ def groups(adj, reliability=None) -> Records:
                 return [vals[a - a0:b - a0] for a, b in zip(p[sl].tolist(), p[1:][sl].tolist())]
 
             def text(sl):
-                a0, b0 = int(p[sl.start]), int(p[sl.stop])
-                t = columns_.num_texts(flat[a0:b0]) if real else list(map(str, flat[a0:b0].tolist()))
-                size = np.diff(p[sl.start:sl.stop + 1])
-                if size.size and (size == size[0]).all():      # lists of one length (q = 2 of image points)
-                    k = int(size[0])
-                    return list(map(("[" + ", ".join(["%s"] * k) + "]").__mod__, zip(*(t[j::k] for j in range(k))))) \
-                        if k else ["[]"] * size.size
-                return ["[" + ", ".join(t[a - a0:b - a0]) + "]" for a, b in zip(p[sl].tolist(), p[1:][sl].tolist())]
+                return columns_.ragged_texts(flat, p[sl.start:sl.stop + 1], real)
             return F(key, "obj", values, text=text)
         f = [F("group", "int", np.asarray(gs.group, dtype=np.int64)), listed("members")]
         for key in ("T", "dimension", "redundancy", "critical", "alpha", "rejected", "R", "critical_R",
@@ -510,7 +504,7 @@ def json_chunks(doc: dict):
         if fields is not None:           # a chunk of records at a time, from their columns
             yield "["
             for sl in columns_.chunks(len(val)):
-                yield ("," if sl.start else "") + "\n  " + ",\n  ".join(val.json_lines(fields, sl))
+                yield ("," if sl.start else "") + "\n  " + val.json_lines(fields, sl)
             yield "\n ]"
         elif isinstance(val, Records) or (isinstance(val, list) and val and all(isinstance(v, dict) for v in val)):
             yield "["
@@ -562,6 +556,49 @@ def write_csv(adj, directory, doc=None) -> list[Path]:
                 row = {**row, **mark}
                 wr.writerow([csv_cell(";".join(map(str, v)) if isinstance(v, list) else v)
                              for v in (row.get(k, "") for k in names)])
+        written.append(path)
+    return written
+
+
+def can_write_parquet() -> bool:
+    """Whether pyarrow is installed (:func:`write_parquet`)."""
+    return columns_.pa is not None
+
+
+def write_parquet(adj, directory, doc=None) -> list[Path]:
+    """observations.parquet, points.parquet and groups.parquet in ``directory`` (created if
+    needed): the columns of :func:`write_csv`, typed (:func:`baarda.io.columns.arrow_array`:
+    numbers float64 and int64, null where the JSON has null or a record lacks the key, booleans,
+    strings, lists of numbers), each file written atomically, the summary as JSON in the schema's
+    metadata (``baarda``). Needs pyarrow (the ``batch`` extra): :class:`OutputError` without it."""
+    if not can_write_parquet():
+        raise OutputError(directory, "cannot write Parquet: pyarrow is not installed (pip install 'baarda[batch]')")
+    doc = doc if doc is not None else to_dict(adj)
+    d = Path(directory)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(directory, f"cannot create the folder: {err.strerror or err}") from None
+    mark = {} if doc["summary"]["converged"] else {"adjustment": "NOT converged"}
+    meta = {"baarda": json.dumps(doc["summary"], allow_nan=False)}
+    written = []
+    for name in ("observations", "points", "groups"):
+        rows, pa = doc[name], columns_.pa
+        fields = rows.fields() if isinstance(rows, Records) else None
+        if fields is not None:
+            n = len(rows)
+            by_key = {f.key: f for f in fields}
+            cols = {k: columns_.arrow_array(by_key[k], n) for k in columns_.key_order(fields, n)}
+        else:
+            table = columns(rows)
+            n = len(rows)
+            cols = {k: columns_.arrow_column(a) for k, a in table.items()}
+        for k, text in mark.items():
+            cols.setdefault(k, pa.array([text] * n, type=pa.string()))
+        table = pa.table(cols).replace_schema_metadata(meta)
+        path = d / f"{name}.parquet"
+        with atomic_write(path, binary=True) as fh:
+            columns_.pq.write_table(table, fh)
         written.append(path)
     return written
 
