@@ -82,8 +82,9 @@ def precision_lines(analysis, ex) -> list[str]:
     return out
 
 
-def robust_lines(rob) -> list[str]:
-    """Robust estimation (R84 §6-8) and least squares without its suspects."""
+def robust_lines(rob, planted=None) -> list[str]:
+    """Robust estimation (R84 §6-8) and least squares without its suspects; then ``planted``, the
+    comparison with a truth file (:func:`baarda.truth.compare`), if given."""
     out = [f"  robust estimation ({rob.method}, {rob.iterations} iterations"
            f"{'' if rob.converged else ', NOT converged'}): {len(rob.suspects)} suspect(s) confirmed by "
            f"least squares (R84 §7; {rob.candidates} candidate(s), {len(rob.readmitted)} readmitted)"]
@@ -110,6 +111,8 @@ def robust_lines(rob) -> list[str]:
             out.append(f"    the robust step did NOT clean the block: without its suspects least squares still fails "
                        f"the global test (vᵀPv = {number(g['statistic'])} > {number(g['upper'])}, σ̂0 = "
                        f"{number(rob.final.sigma0_post)}): gross errors remain, or σ0 a priori is too optimistic")
+    if planted is not None:
+        out += printable_lines(truth.text(planted)).split("\n")
     return out
 
 
