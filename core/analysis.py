@@ -583,7 +583,9 @@ class Analysis:
             if ex.criterion:
                 doc["criterion"] = self.criterion(ex.criterion, ex.criterion_c0, ex.sbase)
         if ex.robust:
-            doc["robust"] = self.robust(ex.robust).as_dict()
+            rob = self.robust(ex.robust)
+            doc["robust"] = rob.as_dict()
+            doc["summary"]["robust"] = results.finite(rob.summary())
         if ex.variance_components:
             try:
                 est = self.variance_components(ex.variance_components, ex.merge_groups)

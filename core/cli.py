@@ -495,6 +495,7 @@ def _diverged(args, analysis, err, extras=None) -> int:
                     f"estimation the adjustment converged: its results are written"), file=sys.stderr)
     doc["robust"] = results.finite(rob.as_dict())
     doc["summary"]["robust_left_out"] = left
+    doc["summary"]["robust"] = results.finite(rob.summary())
     planted = None
     if extras is not None and extras.truth is not None:
         planted = analysis.planted(extras.truth, robust=rob, final=final)

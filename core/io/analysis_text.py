@@ -108,9 +108,9 @@ def robust_lines(rob, planted=None) -> list[str]:
                    f"σ̂0 = {number(rob.final.sigma0_post)}")
         if not rob.cleaned["complete"]:
             g = reliability_of(rob.final).global_test
-            out.append(f"    the robust step did NOT clean the block: without its suspects least squares still fails "
-                       f"the global test (vᵀPv = {number(g['statistic'])} > {number(g['upper'])}, σ̂0 = "
-                       f"{number(rob.final.sigma0_post)}): gross errors remain, or σ0 a priori is too optimistic")
+            out.append(printable(f"    the robust step did NOT clean the block: without its suspects least squares still "
+                                 f"fails the global test (vᵀPv = {number(g['statistic'])} > {number(g['upper'])}, "
+                                 f"σ̂0 = {number(rob.final.sigma0_post)}): {rob.cleaned['reason']}"))
     if planted is not None:
         out += printable_lines(truth.text(planted)).split("\n")
     return out

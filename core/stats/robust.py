@@ -106,6 +106,8 @@ ATTRIBUTION_MARGIN = 0.01
 #: an alternative is named inseparable from a suspect where their tests share a direction and at
 #: least this part of the suspect's statistic lies along it (the error is seen there alike)
 SHARED_PART = 0.5
+#: R84 §6: errors up to this many σ are "small", within the tests' linear range
+SMALL_LIMIT = 50.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,13 +129,46 @@ class RobustResult:
     @property
     def cleaned(self) -> dict | None:
         """The least-squares fit without the suspects judged by the global test (F80 §4.1): σ̂0, the
-        test's verdict and ``complete`` — False where that fit still fails high, i.e. the robust step
-        did not take out every gross error (or σ0 a priori is too optimistic). None without it."""
+        test's verdict, ``complete`` — False where that fit still fails high, i.e. the robust step
+        did not take out every gross error (or σ0 a priori is too optimistic) — and ``reason``, why
+        not (None when complete). None without a final fit.
+
+        The reasons, most specific first: a suspect beyond R84 §6's small errors (> 50σ) kept in the
+        adjustment because leaving it out would leave its point undetermined (a ray of a 2-ray
+        point: the error cannot be told from the other ray's, F80 §7.4, and it distorts the fit it
+        stays in); the reweighting not converged; else errors the robust weights and data snooping
+        did not find, or σ0 a priori too optimistic."""
         if self.final is None:
             return None
         g = reliability_of(self.final).global_test
+        complete = not (g["passed"] is False and g["side"] == "high")
+        reason = None
+        if not complete:
+            held = [sp for sp in self.suspects if sp.get("kept_in") and sp["size_sigma"] > SMALL_LIMIT]
+            if held:
+                names = ", ".join(" ".join(f"{a}={b}" for a, b in sp["ids"].items() if a != "component")
+                                  for sp in held)
+                reason = (f"an error beyond the linear range (> {SMALL_LIMIT:.0f}σ, R84 §6) stays in the "
+                          f"adjustment at {names}: leaving it out would leave its point undetermined and "
+                          f"its point's rays cannot be told apart (F80 §7.4); leave the point out or "
+                          f"measure it in more images")
+            elif not self.converged:
+                reason = "the robust reweighting did not converge"
+            else:
+                reason = ("the least squares without the suspects still fails the global test: gross errors "
+                          "remain that neither the robust weights nor data snooping isolate, or σ0 a priori "
+                          "is too optimistic")
         return {"sigma0_aposteriori": float(self.final.sigma0_post), "global_test_passed": g["passed"],
-                "complete": not (g["passed"] is False and g["side"] == "high")}
+                "complete": complete, "reason": reason}
+
+    def summary(self) -> dict:
+        """For the document's ``summary.robust``: the method, how many suspects, ``cleaned`` (the
+        least squares without them passes the global test, or fails it low; None without that fit)
+        and ``reason`` when it does not (:attr:`cleaned`)."""
+        c = self.cleaned
+        return {"method": self.method, "suspects": len(self.suspects),
+                "cleaned": None if c is None else c["complete"],
+                "reason": None if c is None else c["reason"]}
 
     def as_dict(self) -> dict:
         return {"method": self.method, "iterations": self.iterations, "converged": self.converged,
@@ -572,7 +607,7 @@ def _attribute(problem, tested, final, keep, options, point_of):
                         if j != c and np.isin(members[j], keep).all()]
             with_m = keep if kept_in else np.union1d(keep, m)
             C = np.asarray(problem.cov.blocks[c])
-            small = float(entry[1] @ np.linalg.solve(C, entry[1])) <= 50.0 ** 2      # R84 §6: linear range
+            small = float(entry[1] @ np.linalg.solve(C, entry[1])) <= SMALL_LIMIT ** 2      # R84 §6: linear range
             try:
                 if kept_in:
                     fit = final

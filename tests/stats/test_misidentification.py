@@ -196,6 +196,9 @@ def test_planted_exchange_block_is_analysed_robustly(tmp_path, seed, robust, cap
     assert (tmp_path / "csv" / "observations.csv").exists()
     doc = json.loads(out.read_text())
     assert doc["summary"]["converged"] and doc["robust"]["cleaned"]["complete"]
+    assert doc["summary"]["robust"] == {"method": "r84", "suspects": len(doc["robust"]["suspects"]),
+                                        "cleaned": True, "reason": None}
+    jsonschema.validate(doc, json.loads(resources.files("baarda").joinpath("schema/analysis.schema.json").read_text()))
     left = doc["summary"]["robust_left_out"]
     assert any(d.get("image") == ids["image"] and d.get("point") in (ids["point_a"], ids["point_b"]) for d in left)
     # the truth file beside the input (simulate wrote it): the planted exchange compared with the
