@@ -363,7 +363,8 @@ def cluster_tests(adj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         q.append(pos.sum(axis=1))
         first.append(members[:, 0])
         Wd = np.diagonal(W, axis1=1, axis2=2)
-        w2.append(np.where(Wd > tol[:, None], Pv[members] ** 2 / np.maximum(Wd, 1e-300), 0.0).max(axis=1))
+        seen = Wd > tol[:, None]              # (W_s)_ii at round-off: no w (the division would overflow)
+        w2.append(np.divide(Pv[members] ** 2, Wd, out=np.zeros_like(Wd), where=seen).max(axis=1))
     first, T, q, w2 = np.concatenate(first), np.concatenate(T), np.concatenate(q), np.concatenate(w2)
     order = np.argsort(first)
     return first[order], T[order], q[order], w2[order]
@@ -376,15 +377,21 @@ def _test_cluster(problem, members, clean, keep, options):
     adjustment with the cluster's observations set to their computed values f(x̂) (x̂ is then
     its solution: one step, of zero length). Rejected where T exceeds its critical value or a
     member's w = (W_s ∇̂)_i / √(W_s)_ii exceeds the w-test's, as in :func:`snoop_clusters`.
-    Returns (∇̂, T, q, critical T, rejected)."""
+    Returns (∇̂, T, q, critical T, rejected). Where that adjustment's normal matrix is singular at
+    x̂ (a fit distorted by large errors, R84 §6, ending at a degenerate point) the test does not
+    exist: T and the critical value are NaN, q = 0, and the cluster stays out (rejected) — put
+    forward by the robust weights, it cannot be cleared by a test that cannot be made."""
     v = _residuals_at(problem, clean.x)[members]
     nabla = -v
     with_c = np.union1d(keep, members)
     l_at = problem.l.copy()
     l_at[members] = l_at[members] + v
     one_step = dataclasses.replace(options, max_iter=1)
-    adj_c = adjust(subset(dataclasses.replace(problem, l=l_at), with_c), one_step, x0=clean.x)
-    h = hypotheses.test(adj_c, hypotheses.selection(adj_c.n, _rows_in(with_c, members)))
+    try:
+        adj_c = adjust(subset(dataclasses.replace(problem, l=l_at), with_c), one_step, x0=clean.x)
+        h = hypotheses.test(adj_c, hypotheses.selection(adj_c.n, _rows_in(with_c, members)))
+    except (DatumDefectError, SingularError):
+        return nabla, float("nan"), 0, float("nan"), True
     T = float(nabla @ h.W @ nabla)
     Wn = h.W @ nabla
     d = np.diag(h.W)
@@ -401,6 +408,16 @@ def _smallest_critical(adj, q: int) -> float:
 
 def _fit(problem, keep, options, x0):
     return adjust(subset(problem, keep), options, x0=x0)
+
+
+def _fit_regular(problem, keep, options, x0):
+    """:func:`_fit`, its normal matrix factorised at the solution: SingularError where the
+    observations ``keep`` leave part of the model undetermined there (a fit that ends at a
+    singular point — an image left with too few points, a point drifting to infinity — raises
+    here, not later in its tests)."""
+    adj = _fit(problem, keep, options, x0)
+    adj.factor                       # noqa: B018 — the factor the tests use; SingularError if there is none
+    return adj
 
 
 def snoop_clusters(problem, keep, options, x0=None, point_of=None, held=None):
@@ -455,9 +472,9 @@ def snoop_clusters(problem, keep, options, x0=None, point_of=None, held=None):
                 return adj, keep, removed      # the point would be undetermined: stop here
         new_keep = np.setdiff1d(keep, m)
         try:
-            adj = _fit(problem, new_keep, options, adj.x)
+            adj = _fit_regular(problem, new_keep, options, adj.x)
         except (DatumDefectError, SingularError):
-            return adj, keep, removed
+            return adj, keep, removed           # leaving it out would leave the model undetermined
         keep = new_keep
         removed.append(m)
 
@@ -519,7 +536,7 @@ def _confirm(problem, candidates, options, x0):
             try:
                 if keep.size == 0:
                     raise DatumDefectError(0, [], "every observation is a candidate")
-                clean = _fit(problem, keep, options, x0)
+                clean = _fit_regular(problem, keep, options, x0)
                 break
             except (DatumDefectError, SingularError):
                 if not out:
