@@ -534,11 +534,22 @@ class Analysis:
         except BaardaError as err:
             raise UsageError(f"{option} {spec}: {err}") from None
 
-    def planted(self, truth_path) -> list:
+    def planted(self, truth_path, robust=None, final=...) -> list:
         """The planted errors of a ``.truth.json`` (:mod:`baarda.simulate`) and whether the tests
-        found them (:func:`baarda.truth.compare`)."""
-        return self._cached(("planted", str(truth_path)), lambda: truth.compare(self.adjustment, read_truth(truth_path),
-                                                                    reliability=self.reliability))
+        found them (:func:`baarda.truth.compare`). With ``robust`` (a
+        :class:`~baarda.stats.robust.RobustResult` of this analysis, the case where least squares
+        on all observations gave no result): against ``final`` (default the robust result's least
+        squares without its suspects; None: against the suspects alone, R84 §7), an error among
+        the suspects marked ``robust_suspect``."""
+        if robust is None:
+            return self._cached(("planted", str(truth_path)), lambda: truth.compare(
+                self.adjustment, read_truth(truth_path), reliability=self.reliability))
+        final = robust.final if final is ... else final
+        kept = self.problem.notes.kept_rows           # the truth file numbers the file's rows
+        left = [np.asarray(sp["members"], dtype=np.int64) for sp in robust.suspects]
+        if kept is not None:
+            left = [np.asarray(kept)[m] for m in left]
+        return truth.compare(final, read_truth(truth_path), left_out=left)
 
     # -- the document's extras ---------------------------------------------------------------------
     def _add_extras(self, doc: dict, ex: Extras) -> None:
@@ -577,7 +588,9 @@ class Analysis:
             if ex.criterion:
                 doc["criterion"] = self.criterion(ex.criterion, ex.criterion_c0, ex.sbase)
         if ex.robust:
-            doc["robust"] = self.robust(ex.robust).as_dict()
+            rob = self.robust(ex.robust)
+            doc["robust"] = rob.as_dict()
+            doc["summary"]["robust"] = results.finite(rob.summary())
         if ex.variance_components:
             try:
                 est = self.variance_components(ex.variance_components, ex.merge_groups)

@@ -144,7 +144,7 @@ def _analyze(args) -> int:
     try:
         doc = analysis.to_dict()
     except SingularError as err:
-        return _diverged(args, analysis, err)
+        return _diverged(args, analysis, err, extras)
     adj.timings["reliability"] = time.perf_counter() - t1
     analysis._add_extras(doc, extras)
     doc["summary"]["timings"] = {k: round(v, 6) for k, v in adj.timings.items()}
@@ -161,13 +161,16 @@ def _analyze(args) -> int:
     return _convergence_status(args.input, adj)
 
 
-def _diverged(args, analysis, err) -> int:
+def _diverged(args, analysis, err, extras=None) -> int:
     """Normal equations singular at the last iterate (not converged, or converged at a singular
     point): no reliability there. A gross error is the usual cause (R84 §6), found by the robust
     estimation: ``--robust``'s method, else R84's (not for a degenerate geometry). Where least
     squares without its suspects converges, its results are written with them named (``robust``,
     ``summary.robust_left_out``) and one stderr line, exit 0; else one line, exit
-    :data:`NOT_CONVERGED` (a converged adjustment: the singular system's error, exit 2)."""
+    :data:`NOT_CONVERGED` (a converged adjustment: the singular system's error, exit 2). With a
+    truth file (``extras.truth``) the planted errors are compared with what was found as far as
+    there is something to compare: with the least squares without the suspects and the suspects
+    (``planted``, :func:`baarda.truth.compare`), else in the text with the suspects alone."""
     adj = analysis.adjustment
     why = (adj.termination or "not converged").removeprefix("not converged: ")
     head = (f"baarda: {args.input}: {'converged' if adj.converged else 'NOT converged'} after {adj.iterations} "
@@ -189,7 +192,9 @@ def _diverged(args, analysis, err) -> int:
         print(printable(f"{head}: no reliability computed, no JSON/CSV written{tried if method else ''}"
                         f"{f'; {geometry}' if geometry else ''}"), file=sys.stderr)
         if rob is not None and not args.quiet:
-            print("\n".join(robust_lines(rob)))
+            planted = (analysis.planted(extras.truth, robust=rob, final=None)
+                       if extras is not None and extras.truth is not None else None)
+            print("\n".join(robust_lines(rob, planted)))
         return NOT_CONVERGED
     left = [sp["ids"] for sp in rob.suspects]
     asked = f", so the robust estimation ({method}, R84 §6-8) was run (choose its method with --robust)"
@@ -197,6 +202,11 @@ def _diverged(args, analysis, err) -> int:
                     f"estimation the adjustment converged: its results are written"), file=sys.stderr)
     doc["robust"] = results.finite(rob.as_dict())
     doc["summary"]["robust_left_out"] = left
+    doc["summary"]["robust"] = results.finite(rob.summary())
+    planted = None
+    if extras is not None and extras.truth is not None:
+        planted = analysis.planted(extras.truth, robust=rob, final=final)
+        doc["planted"] = results.finite(planted)
     if args.json:
         results.write_json(final, args.json, doc)
     if args.csv:
@@ -207,7 +217,7 @@ def _diverged(args, analysis, err) -> int:
         write_geojson(final, args.geojson)
     if not args.quiet:
         print(results.text_summary(final, top=args.top))
-        print("\n".join(robust_lines(rob)))
+        print("\n".join(robust_lines(rob, planted)))
     return 0
 
 

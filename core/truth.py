@@ -35,15 +35,34 @@ def _hypothesis(adj, e):
     return None, None
 
 
-def compare(adj, truth: dict, reliability=None) -> list[dict]:
+def _rows_of(clusters) -> set:
+    """The observation indices of a list of clusters (arrays of indices)."""
+    return {int(i) for m in (clusters or ()) for i in np.asarray(m).ravel()}
+
+
+def compare(adj, truth: dict, reliability=None, left_out=None) -> list[dict]:
     """One entry per planted error: kind, ids, class, max |w| of its observations, whether data
     snooping rejects one of them, and T/critical/decision of the matching hypothesis, under
-    ``reliability``'s policy (default the adjustment's own)."""
+    ``reliability``'s policy (default the adjustment's own).
+
+    ``left_out`` (the diverged case: ``adj`` is the least squares without the robust suspects,
+    R84 §7): the suspects' clusters (arrays of the block's observation indices). An error any of
+    whose observations is among them gets ``robust_suspect`` true and counts as found; its
+    observations still in ``adj`` are tested there, the rest are not in it. ``adj`` None (that
+    least squares gave no result either): the comparison with the suspects alone."""
+    if adj is None:
+        out_rows = _rows_of(left_out)
+        found = [bool({int(r) for r in e.get("rows", [])} & out_rows) for e in truth.get("errors", [])]
+        return [{"kind": e.get("kind"), "ids": e.get("ids", {}), "class": e.get("class"),
+                 "size_sigma": e.get("size_sigma"), "robust_suspect": f, "found": f}
+                for e, f in zip(truth.get("errors", []), found)]
     rel = reliability_of(adj) if reliability is None else reliability
     kept = adj.problem.notes.kept_rows
+    out_rows = None if left_out is None else _rows_of(left_out)
     out = []
     for k, e in enumerate(truth.get("errors", [])):
         rows = np.asarray(e.get("rows", []), dtype=np.int64)
+        suspect = None if out_rows is None else bool(set(rows.tolist()) & out_rows)
         if kept is None and rows.size and rows.max() >= adj.n:
             raise BaardaError(f"truth file: errors[{k}].rows: {int(rows.max())} is not an observation of this "
                               f"block ({adj.n} observations)")
@@ -66,7 +85,9 @@ def compare(adj, truth: dict, reliability=None) -> list[dict]:
             a = ap_test(adj, key.rpartition(":")[0], "gnss-shift", policy=rel.policy)   # estimated shift, F80 §7.2
             d.update({"hypothesis": "GNSS strip shift (AP group)", "T": a.T, "critical": a.critical,
                       "rejected": a.significant, "nabla": a.estimate.tolist(), "nabla_sigma": a.sigma.tolist()})
-        d["found"] = bool(d.get("snooping_rejects") or d.get("rejected"))
+        if suspect is not None:
+            d["robust_suspect"] = suspect
+        d["found"] = bool(d.get("snooping_rejects") or d.get("rejected") or suspect)
         out.append(d)
     return out
 
@@ -80,6 +101,8 @@ def text(findings: list[dict]) -> str:
             s += f" max|w| = {f['max_w']:6.2f}"
         if "T" in f:
             s += f"  {f['hypothesis']} T = {f['T']:.1f} (crit {f['critical']:.1f})"
+        if f.get("robust_suspect"):
+            s += "  left out as a robust suspect"
         s += "  → FOUND" if f["found"] else "  → not found"
         lines.append(s)
     return "\n".join(lines)

@@ -132,6 +132,9 @@ def test_theory_options_reachable_from_the_cli(tmp_path, capsys):
     doc = json.loads(out.read_text())
     jsonschema.validate(doc, SCHEMA)
     assert {"snooping", "robust", "variance_components", "criterion"} <= set(doc)
+    rs = doc["summary"]["robust"]           # whether the robust step cleaned the block (issue 27 item 10)
+    assert rs["method"] == "danish" and rs["suspects"] == len(doc["robust"]["suspects"])
+    assert rs["cleaned"] is doc["robust"]["cleaned"]["complete"] and (rs["reason"] is None) is rs["cleaned"]
     assert doc["summary"]["sbase"] == ["1", "2", "3"]
     assert "ellipse" in doc["points"][5]
     for needle in ("iterative data snooping", "robust estimation", "variance components", "criterion matrix"):

@@ -141,3 +141,25 @@ def test_cli_error_ids_are_text(tmp_path, capsys):
         line = capsys.readouterr().err.strip()
         assert line.startswith("baarda: error:") and what in line and "\n" not in line
         assert not bad.exists()
+
+
+def test_planted_errors_against_the_fit_without_the_robust_suspects():
+    """The diverged case (issue 27): the document is the least squares without the robust
+    suspects (R84 §7), a subset of the block. A planted error among the suspects is
+    ``robust_suspect`` and found though none of its observations is left to test; one still in
+    the fit is tested there, by the truth file's rows; with no fit, the suspects alone."""
+    from baarda.model.problem import subset
+    from baarda.truth import compare
+    blk, truth = simulate_block(seed=7, errors=[{"kind": "image", "size": 40}, {"kind": "image", "size": 30}])
+    p = build_block_problem(blk)
+    gone, kept = truth["errors"][0]["rows"], truth["errors"][1]["rows"]
+    cluster = p.cov.members[int(p.cov.cluster[gone[0]])]           # the image point (x, y) left out
+    final = adjust(subset(p, np.setdiff1d(np.arange(p.n), cluster)))
+    first, second = compare(final, truth, left_out=[cluster])
+    assert first["robust_suspect"] and first["found"] and "max_w" not in first
+    assert not second["robust_suspect"] and second["found"] and second["snooping_rejects"]
+    assert second["max_w"] == pytest.approx(float(np.abs(final.w[np.searchsorted(final.problem.notes.kept_rows,
+                                                                                   kept)]).max()))
+    assert [(f["robust_suspect"], f["found"]) for f in compare(None, truth, left_out=[cluster])] == \
+        [(True, True), (False, False)]
+    assert "robust_suspect" not in compare(final, truth)[0]          # the converged case: as before

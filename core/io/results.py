@@ -183,6 +183,9 @@ def observations(adj, reliability=None) -> Records:
     info = adj.problem.info
     sig = adj.problem.cov.sigma()
     r, w, tau, mdb, ext = adj.r, adj.w, adj.tau, rel.mdb, rel.external
+    # r_i = (Q_vv P)_ii in [0, 1] (F80 §5, eq. 8: a diagonal element of an idempotent matrix); round-off beyond it
+    # (-2e-14 for an observation left without redundancy) is written as the bound
+    r = np.where((r < 0) & (r > -1e-9), 0.0, np.where((r > 1) & (r < 1 + 1e-9), 1.0, r))
     v, rej, unc = adj.v, rel.rejected, adj.uncontrolled
     rej_w = np.nan_to_num(np.abs(w)) > rel.critical_w
     rej_tau = np.nan_to_num(np.abs(tau)) > rel.critical_tau

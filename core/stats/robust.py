@@ -106,6 +106,8 @@ ATTRIBUTION_MARGIN = 0.01
 #: an alternative is named inseparable from a suspect where their tests share a direction and at
 #: least this part of the suspect's statistic lies along it (the error is seen there alike)
 SHARED_PART = 0.5
+#: R84 §6: errors up to this many σ are "small", within the tests' linear range
+SMALL_LIMIT = 50.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,13 +129,46 @@ class RobustResult:
     @property
     def cleaned(self) -> dict | None:
         """The least-squares fit without the suspects judged by the global test (F80 §4.1): σ̂0, the
-        test's verdict and ``complete`` — False where that fit still fails high, i.e. the robust step
-        did not take out every gross error (or σ0 a priori is too optimistic). None without it."""
+        test's verdict, ``complete`` — False where that fit still fails high, i.e. the robust step
+        did not take out every gross error (or σ0 a priori is too optimistic) — and ``reason``, why
+        not (None when complete). None without a final fit.
+
+        The reasons, most specific first: a suspect beyond R84 §6's small errors (> 50σ) kept in the
+        adjustment because leaving it out would leave its point undetermined (a ray of a 2-ray
+        point: the error cannot be told from the other ray's, F80 §7.4, and it distorts the fit it
+        stays in); the reweighting not converged; else errors the robust weights and data snooping
+        did not find, or σ0 a priori too optimistic."""
         if self.final is None:
             return None
         g = reliability_of(self.final).global_test
+        complete = not (g["passed"] is False and g["side"] == "high")
+        reason = None
+        if not complete:
+            held = [sp for sp in self.suspects if sp.get("kept_in") and sp["size_sigma"] > SMALL_LIMIT]
+            if held:
+                names = ", ".join(" ".join(f"{a}={b}" for a, b in sp["ids"].items() if a != "component")
+                                  for sp in held)
+                reason = (f"an error beyond the linear range (> {SMALL_LIMIT:.0f}σ, R84 §6) stays in the "
+                          f"adjustment at {names}: leaving it out would leave its point undetermined and "
+                          f"its point's rays cannot be told apart (F80 §7.4); leave the point out or "
+                          f"measure it in more images")
+            elif not self.converged:
+                reason = "the robust reweighting did not converge"
+            else:
+                reason = ("the least squares without the suspects still fails the global test: gross errors "
+                          "remain that neither the robust weights nor data snooping isolate, or σ0 a priori "
+                          "is too optimistic")
         return {"sigma0_aposteriori": float(self.final.sigma0_post), "global_test_passed": g["passed"],
-                "complete": not (g["passed"] is False and g["side"] == "high")}
+                "complete": complete, "reason": reason}
+
+    def summary(self) -> dict:
+        """For the document's ``summary.robust``: the method, how many suspects, ``cleaned`` (the
+        least squares without them passes the global test, or fails it low; None without that fit)
+        and ``reason`` when it does not (:attr:`cleaned`)."""
+        c = self.cleaned
+        return {"method": self.method, "suspects": len(self.suspects),
+                "cleaned": None if c is None else c["complete"],
+                "reason": None if c is None else c["reason"]}
 
     def as_dict(self) -> dict:
         return {"method": self.method, "iterations": self.iterations, "converged": self.converged,
@@ -328,7 +363,8 @@ def cluster_tests(adj) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         q.append(pos.sum(axis=1))
         first.append(members[:, 0])
         Wd = np.diagonal(W, axis1=1, axis2=2)
-        w2.append(np.where(Wd > tol[:, None], Pv[members] ** 2 / np.maximum(Wd, 1e-300), 0.0).max(axis=1))
+        seen = Wd > tol[:, None]              # (W_s)_ii at round-off: no w (the division would overflow)
+        w2.append(np.divide(Pv[members] ** 2, Wd, out=np.zeros_like(Wd), where=seen).max(axis=1))
     first, T, q, w2 = np.concatenate(first), np.concatenate(T), np.concatenate(q), np.concatenate(w2)
     order = np.argsort(first)
     return first[order], T[order], q[order], w2[order]
@@ -341,15 +377,21 @@ def _test_cluster(problem, members, clean, keep, options):
     adjustment with the cluster's observations set to their computed values f(x̂) (x̂ is then
     its solution: one step, of zero length). Rejected where T exceeds its critical value or a
     member's w = (W_s ∇̂)_i / √(W_s)_ii exceeds the w-test's, as in :func:`snoop_clusters`.
-    Returns (∇̂, T, q, critical T, rejected)."""
+    Returns (∇̂, T, q, critical T, rejected). Where that adjustment's normal matrix is singular at
+    x̂ (a fit distorted by large errors, R84 §6, ending at a degenerate point) the test does not
+    exist: T and the critical value are NaN, q = 0, and the cluster stays out (rejected) — put
+    forward by the robust weights, it cannot be cleared by a test that cannot be made."""
     v = _residuals_at(problem, clean.x)[members]
     nabla = -v
     with_c = np.union1d(keep, members)
     l_at = problem.l.copy()
     l_at[members] = l_at[members] + v
     one_step = dataclasses.replace(options, max_iter=1)
-    adj_c = adjust(subset(dataclasses.replace(problem, l=l_at), with_c), one_step, x0=clean.x)
-    h = hypotheses.test(adj_c, hypotheses.selection(adj_c.n, _rows_in(with_c, members)))
+    try:
+        adj_c = adjust(subset(dataclasses.replace(problem, l=l_at), with_c), one_step, x0=clean.x)
+        h = hypotheses.test(adj_c, hypotheses.selection(adj_c.n, _rows_in(with_c, members)))
+    except (DatumDefectError, SingularError):
+        return nabla, float("nan"), 0, float("nan"), True
     T = float(nabla @ h.W @ nabla)
     Wn = h.W @ nabla
     d = np.diag(h.W)
@@ -366,6 +408,16 @@ def _smallest_critical(adj, q: int) -> float:
 
 def _fit(problem, keep, options, x0):
     return adjust(subset(problem, keep), options, x0=x0)
+
+
+def _fit_regular(problem, keep, options, x0):
+    """:func:`_fit`, its normal matrix factorised at the solution: SingularError where the
+    observations ``keep`` leave part of the model undetermined there (a fit that ends at a
+    singular point — an image left with too few points, a point drifting to infinity — raises
+    here, not later in its tests)."""
+    adj = _fit(problem, keep, options, x0)
+    adj.factor                       # noqa: B018 — the factor the tests use; SingularError if there is none
+    return adj
 
 
 def snoop_clusters(problem, keep, options, x0=None, point_of=None, held=None):
@@ -420,9 +472,9 @@ def snoop_clusters(problem, keep, options, x0=None, point_of=None, held=None):
                 return adj, keep, removed      # the point would be undetermined: stop here
         new_keep = np.setdiff1d(keep, m)
         try:
-            adj = _fit(problem, new_keep, options, adj.x)
+            adj = _fit_regular(problem, new_keep, options, adj.x)
         except (DatumDefectError, SingularError):
-            return adj, keep, removed
+            return adj, keep, removed           # leaving it out would leave the model undetermined
         keep = new_keep
         removed.append(m)
 
@@ -484,7 +536,7 @@ def _confirm(problem, candidates, options, x0):
             try:
                 if keep.size == 0:
                     raise DatumDefectError(0, [], "every observation is a candidate")
-                clean = _fit(problem, keep, options, x0)
+                clean = _fit_regular(problem, keep, options, x0)
                 break
             except (DatumDefectError, SingularError):
                 if not out:
@@ -572,7 +624,7 @@ def _attribute(problem, tested, final, keep, options, point_of):
                         if j != c and np.isin(members[j], keep).all()]
             with_m = keep if kept_in else np.union1d(keep, m)
             C = np.asarray(problem.cov.blocks[c])
-            small = float(entry[1] @ np.linalg.solve(C, entry[1])) <= 50.0 ** 2      # R84 §6: linear range
+            small = float(entry[1] @ np.linalg.solve(C, entry[1])) <= SMALL_LIMIT ** 2      # R84 §6: linear range
             try:
                 if kept_in:
                     fit = final

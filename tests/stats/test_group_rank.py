@@ -74,3 +74,28 @@ def test_ladybug_groups_stay_within_vpv_and_the_keypoint_pair_is_one_dimensional
     h = hypotheses.test(adj, hypotheses.selection(adj.n, mem))
     assert h.q == 1 and h.T == pytest.approx(T[k], rel=1e-6)
     assert np.abs(h.nabla).max() < 1e3                  # px; it was 9e9
+
+
+def test_ladybug_report_rejected_groups_table_shows_no_1e10(ladybug):
+    """The client report's table of rejected group tests (``baarda report``, page 3) on Ladybug: it
+    showed the keypoint pair first with T = 1.06e10; every T it shows is now within vᵀPv and below
+    1e4, with q its rank (1 or 2)."""
+    import re
+
+    import pandas as pd
+
+    from baarda.dashboard.report import _groups_html
+
+    adj = ladybug
+
+    class Session:                    # what the table reads of the dashboard's State
+        reliability = reliability_of(adj)
+
+        def frames(self):
+            return pd.DataFrame({"ids": [str(d) for d in adj.problem.info.ids]}), None
+
+    html = _groups_html(Session())
+    rows = re.findall(r"<td class='n'>(\d+)</td><td class='n'>([^<]+)</td><td class='n'>([^<]+)</td>", html)
+    assert rows, html[:300]
+    for q, T, crit in rows:
+        assert int(q) in (1, 2) and float(crit) < float(T) < min(1e4, adj.vPv)

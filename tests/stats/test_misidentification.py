@@ -180,7 +180,8 @@ def test_planted_exchange_block_is_analysed_robustly(tmp_path, seed, robust, cap
     point held at infinity, singular). The robust estimation (R84 §6-8; with ``--robust r84``, or
     run because least squares gave no result) finds the exchanged image point, the least squares
     without its suspects converges and its results are written (JSON and CSV, exit 0), the
-    suspects left out named in the JSON and the stderr line saying what was done."""
+    suspects left out named in the JSON and the stderr line saying what was done; the planted
+    exchange of the truth file compared with them (``planted``, as in a converged document)."""
     path = tmp_path / "x.json"
     assert main(["simulate", str(path), "--strips", "3", "--images", "6", "--seed", str(seed),
                  "--error", "exchange:1"]) == 0
@@ -188,11 +189,21 @@ def test_planted_exchange_block_is_analysed_robustly(tmp_path, seed, robust, cap
     out = tmp_path / "x.out.json"
     argv = ["analyze", str(path), "--json", str(out), "--csv", str(tmp_path / "csv"), "--top", "1"]
     assert main(argv + (["--robust", "r84"] if robust else [])) == 0
-    err = capsys.readouterr().err
+    cap = capsys.readouterr()
+    err = cap.err
     assert err.count("\n") == 1 and "its results are written" in err
     assert ("so the robust estimation (r84, R84 §6-8) was run" in err) is not robust
     assert (tmp_path / "csv" / "observations.csv").exists()
     doc = json.loads(out.read_text())
     assert doc["summary"]["converged"] and doc["robust"]["cleaned"]["complete"]
+    assert doc["summary"]["robust"] == {"method": "r84", "suspects": len(doc["robust"]["suspects"]),
+                                        "cleaned": True, "reason": None}
+    jsonschema.validate(doc, json.loads(resources.files("baarda").joinpath("schema/analysis.schema.json").read_text()))
     left = doc["summary"]["robust_left_out"]
     assert any(d.get("image") == ids["image"] and d.get("point") in (ids["point_a"], ids["point_b"]) for d in left)
+    # the truth file beside the input (simulate wrote it): the planted exchange compared with the
+    # suspects left out and the least squares without them, in the JSON and the text
+    [planted] = doc["planted"]
+    assert planted["kind"] == "exchange" and planted["ids"] == ids
+    assert planted["robust_suspect"] and planted["found"]
+    assert "left out as a robust suspect  → FOUND" in cap.out
