@@ -546,7 +546,8 @@ class Analysis:
                 self.adjustment, read_truth(truth_path), reliability=self.reliability))
         final = robust.final if final is ... else final
         kept = self.problem.notes.kept_rows           # the truth file numbers the file's rows
-        left = [np.asarray(sp["members"], dtype=np.int64) for sp in robust.suspects]
+        # a suspect whose point was left out (R84 §7, a 2-ray point) takes all the point's rays with it
+        left = [np.asarray(sp.get("left_out", sp["members"]), dtype=np.int64) for sp in robust.suspects]
         if kept is not None:
             left = [np.asarray(kept)[m] for m in left]
         return truth.compare(final, read_truth(truth_path), left_out=left)

@@ -93,7 +93,7 @@ def robust_lines(rob, planted=None) -> list[str]:
         base = "" if sp["size_base"] is None else f" = {number(sp['size_base'], '.3g')} base lengths"
         out.append(f"    #{sp['index']:<5d} {sp['kind']:<15s} {ids:<40s} error ≈ {number(sp['size_sigma'], '6.1f')}σ"
                    f"{base} ({sp['class']}), T = {number(sp['T'], '.1f')}, robust weight {sp['weight']:.3g}")
-        if sp.get("kept_in"):
+        if sp.get("kept_in") or sp.get("point_left_out"):
             out.append(printable(f"           {sp['note']}"))
         if sp.get("inseparable_from"):
             twins = "; ".join(" ".join(f"{a}={b}" for a, b in alt["ids"].items() if a != "component")

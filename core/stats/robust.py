@@ -55,7 +55,11 @@ The strategy of R84, in three steps:
    left-out clusters the least suspect go back in rather than leave it undetermined. A cluster
    snooping rejects but cannot leave out for that reason (a ray of a 2-ray point) is tested in the
    final fit that includes it (F80 eq. 10-12) and reported as a suspect kept in, inseparable from
-   the point's other ray(s) (it was "readmitted", and an error of 40σ at a 2-ray point missed). The
+   the point's other ray(s) (it was "readmitted", and an error of 40σ at a 2-ray point missed). Where
+   such an error is beyond the linear range (> 50σ, R84 §6) it would distort the fit it stays in
+   (σ̂0 of 8.6-10.8 with a 300σ-1000σ error at a 2-ray point), and it cannot be located between the
+   point's rays: the point itself is left out (R84 §7), all its rays and its coordinates
+   (:func:`_leave_points_out`), the rest adjusted and snooped again, and the suspect says so. The
    suspects are reported with their tests against the final fit.
 
 Separability (M84 §3.3, F80 §7.4): where two hypotheses change the observations alike — the two
@@ -136,7 +140,8 @@ class RobustResult:
         The reasons, most specific first: a suspect beyond R84 §6's small errors (> 50σ) kept in the
         adjustment because leaving it out would leave its point undetermined (a ray of a 2-ray
         point: the error cannot be told from the other ray's, F80 §7.4, and it distorts the fit it
-        stays in); the reweighting not converged; else errors the robust weights and data snooping
+        stays in; normally its point is left out instead, :func:`_leave_points_out`, and this is
+        said only where the fit without the point is singular); the reweighting not converged; else errors the robust weights and data snooping
         did not find, or σ0 a priori too optimistic."""
         if self.final is None:
             return None
@@ -567,18 +572,77 @@ def _confirm(problem, candidates, options, x0):
         if not found and not back:
             break
         x0 = final.x
-    tested = [(m, *_test_cluster(problem, m, final, keep, options)) for m in out]
     # the cluster snooping rejected but could not leave out (its point would be undetermined):
     # tested in the final fit that includes it (F80 eq. 10-12)
+    kept_in = []
     for m in held:
         if not np.isin(m, keep).all():
             continue
         h = hypotheses.test(final, hypotheses.selection(final.n, _rows_in(keep, m)))
         if h.q and h.T > h.critical_T:
-            tested.append((m, np.asarray(h.nabla, dtype=float), float(h.T), h.q, float(h.critical_T), True,
-                           "kept in"))
-    tested, final, keep, alternatives = _attribute(problem, tested, final, keep, options, point_of)
+            kept_in.append((m, np.asarray(h.nabla, dtype=float), float(h.T), h.q, float(h.critical_T), True,
+                            "kept in"))
+    gone, final, keep, problem_f = _leave_points_out(problem, kept_in, final, keep, options, point_of)
+    if gone:
+        # without the points' distortion snooping may find what it hid (M84 §3.1)
+        final, keep, found = snoop_clusters(problem_f, keep, options, final.x, point_of)
+        out = out + found
+        kept_in = [e for e in kept_in if not any(e[0] is g[0][0] for g in gone)]
+    tested = [(m, *_test_cluster(problem_f, m, final, keep, options)) for m in out] + kept_in
+    tested, final, keep, alternatives = _attribute(problem_f, tested, final, keep, options, point_of)
+    for entry, alts in gone:
+        tested.append(entry)
+        alternatives.append(alts)
     return tested, final, readmitted, alternatives
+
+
+def _hold_points(problem, points):
+    """``problem`` with the coordinates of the object points ``points`` (ids) held at their values:
+    a point whose observations are all left out has no unknowns left to determine (its coordinates
+    would make the normal matrix singular), as :mod:`baarda.defects` leaves a local defect out."""
+    params = problem.params
+    pts = set(points)
+    mine = np.array([params.kind[i] == "k" and params.labels[i].rsplit(".", 1)[0] in pts
+                     for i in range(params.size)], dtype=bool)
+    return dataclasses.replace(problem, params=dataclasses.replace(params, fixed=params.fixed | mine))
+
+
+def _leave_points_out(problem, kept_in, final, keep, options, point_of):
+    """R84 §7 at a point that leaving the suspect out would leave undetermined (a 2-ray point: one
+    ray left cannot determine it). A suspect kept in there whose error is beyond the tests' linear
+    range (> :data:`SMALL_LIMIT` σ, R84 §6) distorts the fit it stays in, and cannot be located
+    between the point's rays (their tests coincide, F80 §7.4): the POINT is left out — all its image
+    observations, its coordinates held (no unknowns left to it) — and the rest adjusted again.
+    A point with control is not met here (its control determines it without the suspect ray).
+
+    Returns (gone: [(entry, alternatives)] of the points left out, final, keep, the problem with
+    their coordinates held). Where the fit without a point is singular (the point carried an image
+    or the datum), it stays in (nothing changes)."""
+    gone, pts, rows = [], [], []
+    for entry in kept_in:
+        m, nabla = entry[0], entry[1]
+        c = int(problem.cov.cluster[m[0]])
+        pt = point_of[c]
+        size = float(np.sqrt(max(nabla @ np.linalg.solve(np.asarray(problem.cov.blocks[c]), nabla), 0.0)))
+        if not pt or pt in pts or size <= SMALL_LIMIT:
+            continue
+        mine = [problem.cov.members[j] for j in np.flatnonzero(point_of == pt)]
+        if any(problem.info.kind[mm[0]].startswith(NON_PHOTOGRAMMETRIC) for mm in mine):
+            continue
+        # the other rays, named as inseparable, from the fit that includes them all
+        _, _, _, alts = _attribute(problem, [entry], final, keep, options, point_of)
+        pts.append(pt)
+        rows.append(np.concatenate(mine))
+        gone.append(((m, *entry[1:6], "point out", pt, np.sort(np.concatenate(mine))), alts[0]))
+    if not gone:
+        return [], final, keep, problem
+    held = _hold_points(problem, pts)
+    keep2 = np.setdiff1d(keep, np.concatenate(rows))
+    try:
+        final2 = _fit_regular(held, keep2, options, final.x)
+    except (DatumDefectError, SingularError):
+        return [], final, keep, problem
+    return gone, final2, keep2, held
 
 
 def _ratio(h, adj) -> float:
@@ -728,7 +792,8 @@ def estimate(problem, method: str = "r84", options: Options | None = None, tol: 
     kinds = problem.info.kind
     sigma_c = problem.cov.blocks
     suspects = []
-    for (m, nabla, T, q, crit_T, _, *kept_in), alts in zip(tested, alternatives):
+    for (m, nabla, T, q, crit_T, _, *how), alts in zip(tested, alternatives):
+        kept_in = bool(how) and how[0] == "kept in"
         c = int(problem.cov.cluster[m[0]])
         C = np.asarray(sigma_c[c])
         size = float(np.sqrt(max(nabla @ np.linalg.solve(C, nabla), 0.0)))
@@ -755,6 +820,13 @@ def estimate(problem, method: str = "r84", options: Options | None = None, tol: 
                                     "rejected by its test there (F80 eq. 10-12): ∇̂ is seen only along the "
                                     "directions that test sees, and the error may lie in another ray of the "
                                     "point (inseparable, F80 §7.4)")
+        if how and how[0] == "point out":
+            n_rays = sum(1 for j in how[2] if kinds[int(j)].startswith("image-")) // max(len(m), 1)
+            suspects[-1]["point_left_out"] = str(how[1])
+            suspects[-1]["left_out"] = [int(j) for j in how[2]]
+            suspects[-1]["note"] = (f"point {how[1]} left out ({n_rays} rays: its error cannot be located "
+                                    f"between them, R84 §7); tested in the fit that included it (F80 eq. "
+                                    f"10-12), an error beyond the linear range (R84 §6)")
     suspects.sort(key=lambda d: -d["size_sigma"])
     return RobustResult(method, w_obs, adj, it, converged, suspects, final, history, floored,
                         len(candidates), tuple(tuple(int(j) for j in m) for m in readmitted))
