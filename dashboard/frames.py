@@ -138,10 +138,11 @@ def robust_suspects(rr, kept, obs: pd.DataFrame) -> pd.DataFrame:
 
 
 def suspect_observations(rr, kept) -> list[int]:
-    """Full indices of every observation of the robust suspects (their clusters)."""
+    """Full indices of every observation of the robust suspects (their clusters; all the rays of a
+    point the robust step left out, R84 §7)."""
     if rr is None:
         return []
-    return sorted({int(kept[j]) for d in rr.suspects for j in d["members"]})
+    return sorted({int(kept[j]) for d in rr.suspects for j in d.get("left_out", d["members"])})
 
 
 def snoop_log(snoop, kept, obs: pd.DataFrame, factor, units) -> pd.DataFrame:

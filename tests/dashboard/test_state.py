@@ -644,6 +644,14 @@ def test_ap_group_hypothesis_with_exclusions(block_problem):
     assert st.outcomes[k].test.q == 7 and st.outcomes[k].test.T == pytest.approx(ref.T, rel=1e-4)
 
 
+def test_suspect_observations_take_a_left_out_point_whole():
+    """A suspect whose point the robust step left out (R84 §7, a 2-ray point) marks all the point's
+    observations (``left_out``), another suspect its own cluster; full indices through ``kept``."""
+    from types import SimpleNamespace
+    rr = SimpleNamespace(suspects=[{"members": [2, 3]}, {"members": [6, 7], "left_out": [4, 5, 6, 7]}])
+    assert frames.suspect_observations(rr, np.arange(10) + 100) == [102, 103, 104, 105, 106, 107]
+
+
 def test_robust_selector_runs_core_and_marks_suspects():
     from baarda.stats import robust
     from baarda.dashboard.views import AnalysisPanel, Controls, LayoutMap, TestsTable
