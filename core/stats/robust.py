@@ -59,7 +59,10 @@ The strategy of R84, in three steps:
    such an error is beyond the linear range (> 50σ, R84 §6) it would distort the fit it stays in
    (σ̂0 of 8.6-10.8 with a 300σ-1000σ error at a 2-ray point), and it cannot be located between the
    point's rays: the point itself is left out (R84 §7), all its rays and its coordinates
-   (:func:`_leave_points_out`), the rest adjusted and snooped again, and the suspect says so. The
+   (:func:`_leave_points_out`); the other candidates, judged in the distorted fit, are tested again
+   against the fit without the point (readmitted where they pass), the rest snooped again, the
+   suspect tested again in that fit with the point's rays back in (:func:`_retest`), and it says
+   that its point was left out. The
    suspects are reported with their tests against the final fit.
 
 Separability (M84 §3.3, F80 §7.4): where two hypotheses change the observations alike — the two
@@ -584,16 +587,45 @@ def _confirm(problem, candidates, options, x0):
                             "kept in"))
     gone, final, keep, problem_f = _leave_points_out(problem, kept_in, final, keep, options, point_of)
     if gone:
-        # without the points' distortion snooping may find what it hid (M84 §3.1)
+        # the kept-in error distorted the fit the other candidates were judged in: those whose test
+        # passes against the fit without its point go back in (as the readmission above), and
+        # without the distortion snooping may find what it hid (M84 §3.1)
+        back = [m for m in out if not _test_cluster(problem_f, m, final, keep, options)[4]]
+        if back:
+            keep2 = np.union1d(keep, np.concatenate(back))
+            try:
+                final, keep = _fit_regular(problem_f, keep2, options, final.x), keep2
+                out = [m for m in out if not any(m is b for b in back)]
+                readmitted += back
+            except (DatumDefectError, SingularError):
+                pass
         final, keep, found = snoop_clusters(problem_f, keep, options, final.x, point_of)
         out = out + found
         kept_in = [e for e in kept_in if not any(e[0] is g[0][0] for g in gone)]
+        gone = [(_retest(problem, entry, final, keep, options), alts) for entry, alts in gone]
     tested = [(m, *_test_cluster(problem_f, m, final, keep, options)) for m in out] + kept_in
     tested, final, keep, alternatives = _attribute(problem_f, tested, final, keep, options, point_of)
     for entry, alts in gone:
         tested.append(entry)
         alternatives.append(alts)
     return tested, final, readmitted, alternatives
+
+
+def _retest(problem, entry, final, keep, options):
+    """A left-out point's suspect (``entry`` of :func:`_leave_points_out`) tested again (F80 eq.
+    10-12) in the fit with the point's rays back in, from the fit without it (the rest of the block
+    no longer distorted by the other candidates): ∇̂, T, q and the critical value updated; as it
+    was where that fit is singular."""
+    m, rows = entry[0], entry[8]
+    with_p = np.union1d(keep, rows)
+    try:
+        fit = _fit_regular(problem, with_p, options, final.x)
+        h = hypotheses.test(fit, hypotheses.selection(fit.n, _rows_in(with_p, m)))
+    except (BaardaError, np.linalg.LinAlgError):
+        return entry
+    if not h.q:
+        return entry
+    return (m, np.asarray(h.nabla, dtype=float), float(h.T), h.q, float(h.critical_T), *entry[5:])
 
 
 def _hold_points(problem, points):

@@ -261,7 +261,7 @@ def _two_ray_point(seed):
     return block.points[pi].id, block.images[o.image[np.flatnonzero(o.point == pi)[0]]].id
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("seed", [1, 2, 7])
 @pytest.mark.parametrize("size", [300, 1000])
 def test_medium_error_at_a_two_ray_point_leaves_the_point_out(seed, size):
     """Issue 27 item 6: a medium error (R84 §6: 300σ, 1000σ) in y of one ray of a 2-ray tie point
@@ -271,7 +271,10 @@ def test_medium_error_at_a_two_ray_point_leaves_the_point_out(seed, size):
     the point is left out (R84 §7): one suspect on the point, sized within a few per cent and classed
     medium, naming the point left out and the other ray as inseparable, the planted ray among the two;
     the least squares without the point passes the global test (vᵀPv within its bounds, F80 §4.1);
-    at most one other suspect."""
+    at most one other suspect. Seed 7, 1000σ: the kept-in error had distorted its image, two good
+    image points of it were left out with it and the error sized 574σ; the candidates are judged
+    again against the fit without the point (both readmitted) and the suspect tested again with
+    the point's rays back in that fit (982σ)."""
     pt, im = _two_ray_point(seed)
     block, truth = simulate_block(strips=3, images_per_strip=6, seed=seed, errors=[
         {"kind": "image", "size": size, "point": pt, "image": im, "component": "y"}])
