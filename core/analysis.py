@@ -35,7 +35,7 @@ from .datum import split_normal
 from .errors import BaardaError, DatumDefectError, InputError, OptionError, UsageError
 from . import truth
 from .georeference import text_lines as georeference_lines
-from .io import read_truth, results
+from .io import read_truth, results, summary_text
 from .io.analysis_text import check_point_lines, extras_text, strip_test_lines, summary_html
 from .io.hypothesis import parse_hypothesis, read_hypothesis
 from .model.bundle import check_points as _check_points, has_check_points
@@ -382,7 +382,7 @@ class Analysis:
 
     def text(self, top: int = 8, extras: Extras | None = None) -> str:
         """The text summary ``baarda analyze`` prints, with the lines of ``extras``."""
-        head = results.text_summary(self.adjustment, top=top, reliability=self.reliability)
+        head = summary_text.text_summary(self.adjustment, top=top, reliability=self.reliability)
         if has_check_points(self.problem.notes.local_model):
             head = "\n".join([head, *check_point_lines(self.check_points())])
         if self.gnss_strip_tests():

@@ -18,7 +18,7 @@ from . import batch, cli_options, study
 from .analysis import Extras, SolverOptions, analyze
 from .cli_parser import NOT_CONVERGED
 from .errors import BaardaError, HypothesisError, InputError, NotFoundError, OptionError, SingularError, UsageError
-from .io import read_model, results
+from .io import read_model, results, summary_text
 from .io.analysis_text import robust_lines
 from .io.control import add_control
 from .io.gama import UndefinedPointsWarning
@@ -216,7 +216,7 @@ def _diverged(args, analysis, err, extras=None) -> int:
     if args.geojson:
         write_geojson(final, args.geojson)
     if not args.quiet:
-        print(results.text_summary(final, top=args.top))
+        print(summary_text.text_summary(final, top=args.top))
         print("\n".join(robust_lines(rob, planted)))
     return 0
 
@@ -263,7 +263,7 @@ def cmd_test(args) -> int:
     if args.json:
         write_text(args.json, json.dumps(results.finite(doc), indent=1, allow_nan=False))
     if not args.quiet:
-        print(printable_lines(results.tests_text(adj, rel, tests, top=args.top)))
+        print(printable_lines(summary_text.tests_text(adj, rel, tests, top=args.top)))
         for g in apart:
             print(printable(f"the data cannot tell these hypotheses apart (test statistics correlated, "
                             f"ρ ≥ {g.rho:.4f}; F80 §7.4): {', '.join(g.members)}"))

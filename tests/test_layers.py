@@ -130,7 +130,7 @@ NEVER = [
     (("baarda.io",), ("baarda.solve.schur", "baarda.solve.linalg", "baarda.solve.heap", "baarda.stats",
                       "baarda.adjust"),
      # the result document, its text and its GeoJSON: statistics
-     ("baarda.io.results", "baarda.io.analysis_text", "baarda.io.geojson")),
+     ("baarda.io.results", "baarda.io.summary_text", "baarda.io.analysis_text", "baarda.io.geojson")),
 ]
 
 

@@ -59,6 +59,13 @@ class PlanarSet:
         return t, dx, dy, d2
 
     def evaluate(self, x):
+        """Values and Jacobian at ``x``. Points at one place make a distance or a direction
+        undefined: NaN there, without a warning (the caller names the observation,
+        ``baarda.validate._check_defined``)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return self._values(x)
+
+    def _values(self, x):
         n = self.rows.size
         if self.kind == "distance":
             dx = x[self.ix[:, 1]] - x[self.ix[:, 0]]

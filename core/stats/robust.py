@@ -8,7 +8,7 @@ The strategy of R84, in three steps:
    factors are Huber's function of the misclosures at the approximate values,
    u_i = |l_i − f_i(x0)| / σ_i; and while the geometry settles, the weights follow every single
    Gauss-Newton step (Huber's convex function) instead of converged adjustments, until the
-   weights change by less than ``HUBER_START_TOL`` and the step is below ``START_STEP``
+   weights change by less than ``HUBER_START_TOL`` and the step is below ``START_STEP`` (:mod:`baarda.stats.irls`)
    conditional σ. With ``r84`` moreover, as "medium-sized gross errors and all the more large
    gross errors ... are independent from the a priori weights", the photogrammetric
    observations (image coordinates) start with the weight 1 and the non-photogrammetric ones
@@ -34,7 +34,7 @@ The strategy of R84, in three steps:
      would reject the error's good neighbours with it);
    - ``r84``:     the Danish function with the start weights of step 1.
 
-   A weight factor is floored at :data:`WEIGHT_FLOOR`. Where the down-weighted observations
+   A weight factor is floored at :data:`baarda.stats.irls.WEIGHT_FLOOR`. Where the down-weighted observations
    leave unknowns undetermined (the normal equations singular: all rays and the control of a
    point down-weighted, which is not a datum defect of the block), the floor of those points'
    observations is raised tenfold until the system is regular, and the raise is reported
@@ -89,20 +89,10 @@ from ..errors import BaardaError, DatumDefectError, SingularError
 from ..model.problem import subset
 from . import hypotheses, separability
 from .reliability import policy_of, reliability_of
-from .weights import danish, error_class, global_score, huber, start_factor
+from .irls import NON_PHOTOGRAMMETRIC, irls, per_observation, residuals_at
+from .weights import error_class
 
 METHODS = ("huber", "danish", "r84")
-#: smallest weight factor: keeps a downweighted observation's parameters determined
-WEIGHT_FLOOR = 1e-8
-#: the redescending methods start with Huber's convex function until its weights change less
-#: than this: a redescending function applied to a least-squares fit distorted by a large error
-#: would reject the error's good neighbours with it
-HUBER_START_TOL = 1e-2
-NON_PHOTOGRAMMETRIC = ("control-", "coordinate-")
-#: R84 §8: the start weight of non-photogrammetric observations (photogrammetric ones: 1)
-R84_START_NONPHOTO = 1e-2
-#: the start phase ends once the Gauss-Newton step is below this many conditional σ
-START_STEP = 1.0
 #: how often a step-3 pass (readmission, data snooping) is repeated at most
 MAX_CONFIRM_PASSES = 3
 #: an alternative at the same point replaces a suspect only where its test's ratio to the critical
@@ -202,134 +192,6 @@ def _bases(problem) -> tuple[float | None, float | None]:
     return B * geo.camera.c / geo.flying_height, B
 
 
-def _residuals_at(problem, x) -> np.ndarray:
-    """v = f(x) − l of every observation of ``problem`` at the parameters ``x`` (nonlinear)."""
-    f = np.empty(problem.n)
-    for s in problem.sets:
-        f[s.rows] = s.evaluate(x)[0]
-    return problem.misclosure(f)
-
-
-def _undetermined(err) -> set:
-    """Ids of the points or images whose unknowns a singular system's error names (``P7.x`` →
-    ``P7``, ``308.X0`` → ``308``)."""
-    names = list(getattr(err, "undetermined", []) or [])
-    if getattr(err, "unknown", None) is not None:
-        names.append(str(err.unknown))
-    return {n.rsplit(".", 1)[0] for n in names}
-
-
-def _cluster_entities(problem) -> list[set]:
-    """The ids of the points and images each covariance cluster observes."""
-    out = []
-    for m in problem.cov.members:
-        ids = set()
-        for i in m:
-            d = problem.info.ids[i]
-            for key in ("point", "id", "from", "to", "image"):
-                if key in d:
-                    ids.add(str(d[key]))
-        out.append(ids)
-    return out
-
-
-def _per_observation(values, members, n) -> np.ndarray:
-    """A value per covariance cluster spread to its observations."""
-    out = np.empty(n)
-    for c, m in enumerate(members):
-        out[m] = values[c]
-    return out
-
-
-def _irls(problem, method, options, tol, max_iter, k):
-    """Steps 1-2 (module docstring). Returns (adj, factor per cluster, u per observation,
-    iterations, converged, history, floored)."""
-    cov = problem.cov
-    sigma = cov.sigma()
-    members = cov.members
-    ncl = len(members)
-    kinds = problem.info.kind
-    nonphoto = np.array([kinds[m[0]].startswith(NON_PHOTOGRAMMETRIC) for m in members])
-    start = np.where(nonphoto, R84_START_NONPHOTO, 1.0) if method == "r84" else np.ones(ncl)
-    s = start.copy()
-    # large errors are found before the adjustment (R84 §6: they break the geometry of the first
-    # step): the start factors follow Huber's function of the misclosures at the approximations
-    v0 = _residuals_at(problem, problem.params.x0)
-    u0 = np.abs(v0) * np.sqrt(_per_observation(s, members, problem.n)) / sigma
-    f = huber(np.array([u0[m].max() for m in members]), 2.0)
-    floor = np.full(ncl, WEIGHT_FLOOR)
-    c_fun = k or (2.0 if method == "huber" else 3.0)
-    entities = None
-    floored = []
-    x0, adj, u_obs = None, None, None
-    converged = False
-    history = []
-    # R84 §6, §8: while large errors may act, the weights follow every Gauss-Newton step (the
-    # adjustment is "stopped before reaching the point of convergence"), with Huber's convex
-    # function; then reweighting after converged adjustments with the method's function
-    phase = "start"
-    g = 0.0
-    one_step = dataclasses.replace(options, max_iter=1)
-    it = 0
-    tries = 0
-    restarted = False
-    while it < max_iter:
-        total = np.maximum(s * f, floor)
-        p = dataclasses.replace(problem, cov=cov.scaled(1.0 / total))
-        try:
-            adj = adjust(p, one_step if phase == "start" else options, x0=x0)
-        except (DatumDefectError, SingularError) as err:
-            if adj is None or tries >= 20:
-                raise
-            tries += 1
-            if x0 is not None and not restarted:
-                # singular after a long step from a distorted fit: again from the approximations
-                x0, restarted = None, True
-                continue
-            # the down-weighted observations leave some points or images undetermined: raise the
-            # floor of their observations (of all down-weighted ones if the error names none)
-            entities = entities or _cluster_entities(problem)
-            bad = _undetermined(err)
-            hit = np.array([bool(e & bad) for e in entities])
-            if not hit.any():
-                hit[:] = True
-            low = hit & (s * f < 10 * floor)
-            if not low.any():
-                raise
-            floor[low] = np.minimum(1.0, floor[low] * 10.0)
-            floored.append({"unknowns": sorted(bad), "floor": float(floor[low].max()), "iteration": it + 1})
-            continue
-        it += 1
-        restarted = False
-        x0 = adj.x
-        r = np.maximum(adj.r, 0.1)
-        u_obs = np.abs(adj.v) * np.sqrt(_per_observation(s, members, problem.n)) / (sigma * np.sqrt(r))
-        u = np.array([u_obs[m].max() for m in members])
-        if phase == "start":
-            new_f = huber(u, c_fun if method == "huber" else 2.0)
-        elif method == "huber":
-            new_f = huber(u, c_fun)
-        else:
-            new_f = danish(u, c_fun)
-        new_s = s
-        if method == "r84":
-            # the start weights only ever tend towards the a priori weights (g never decreases)
-            g = max(g, float(danish(global_score(adj.vPv, adj.dof), c_fun)))
-            new_s = start_factor(start, g)
-        change = float(np.abs(new_s * new_f - s * f).max())
-        history.append(change)
-        f, s = new_f, new_s
-        if phase == "start":
-            step = adj.history[-1] if adj.history else 0.0
-            if change < HUBER_START_TOL and step < START_STEP:
-                phase = "reweight"        # the geometry has settled: on with converged fits
-            continue
-        if change < tol:
-            converged = True
-            break
-    return adj, np.maximum(s * f, floor), u_obs, it, converged, tuple(history), tuple(floored)
-
-
 def _rows_in(keep: np.ndarray, rows) -> np.ndarray:
     """Positions of the original observations ``rows`` in the subset ``keep`` (sorted)."""
     return np.searchsorted(keep, np.asarray(rows))
@@ -389,7 +251,7 @@ def _test_cluster(problem, members, clean, keep, options):
     x̂ (a fit distorted by large errors, R84 §6, ending at a degenerate point) the test does not
     exist: T and the critical value are NaN, q = 0, and the cluster stays out (rejected) — put
     forward by the robust weights, it cannot be cleared by a test that cannot be made."""
-    v = _residuals_at(problem, clean.x)[members]
+    v = residuals_at(problem, clean.x)[members]
     nabla = -v
     with_c = np.union1d(keep, members)
     l_at = problem.l.copy()
@@ -554,7 +416,7 @@ def _confirm(problem, candidates, options, x0):
                 readmitted.append(out.pop())
                 keep = np.union1d(keep, readmitted[-1])
         x0 = clean.x
-        v_all = _residuals_at(problem, clean.x)
+        v_all = residuals_at(problem, clean.x)
         kept_out, back = [], []
         for m in out:
             # T ≤ ∇̂ᵀ C_c⁻¹ ∇̂ (W_s ≤ C_c⁻¹): a candidate whose bound is below every critical
@@ -812,9 +674,9 @@ def estimate(problem, method: str = "r84", options: Options | None = None, tol: 
     if method not in METHODS:
         raise BaardaError(f"unknown robust method '{method}' (known: {', '.join(METHODS)})")
     options = options or Options()
-    adj, f, u_obs, it, converged, history, floored = _irls(problem, method, options, tol, max_iter, k)
+    adj, f, u_obs, it, converged, history, floored = irls(problem, method, options, tol, max_iter, k)
     members = problem.cov.members
-    w_obs = _per_observation(f, members, problem.n)
+    w_obs = per_observation(f, members, problem.n)
     crit = reliability_of(adj).critical_w
     cand = [(float(u_obs[m].max()), c) for c, m in enumerate(members) if u_obs[m].max() > crit]
     cand.sort(reverse=True)

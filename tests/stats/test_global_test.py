@@ -189,7 +189,7 @@ def test_dashboard_control_switches_the_global_test():
 def test_cli_line_shows_the_statistics_relation_to_its_bounds():
     """The CLI's global-test line says "T > bound" for a failed one-sided test and "not in" for
     a value outside the two-sided interval (it said "≤" and "in" whatever the value was)."""
-    from baarda.io.results import global_test_text
+    from baarda.io.summary_text import global_test_text
     s = {"sigma0_apriori": 1.0, "sigma0_aposteriori": 2.0}
     high = distributions.global_test(40.0, 10, test="one-sided", alpha=0.01)
     assert high["passed"] is False and f"40 > {high['upper']:.4g}" in global_test_text(high, s)

@@ -10,7 +10,7 @@ import pytest
 from baarda.adjust import adjust
 from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
-from baarda.stats import robust, snooping
+from baarda.stats import robust, snooping, weights
 from baarda.stats.reliability import reliability_of
 
 
@@ -112,8 +112,8 @@ def test_classification_thresholds():
 
 def test_weight_functions():
     u = np.array([0.0, 1.0, 3.0, 6.0, 30.0])
-    np.testing.assert_allclose(robust.huber(u, 2.0), [1, 1, 2 / 3, 1 / 3, 2 / 30])
-    d = robust.danish(u, 3.0)
+    np.testing.assert_allclose(weights.huber(u, 2.0), [1, 1, 2 / 3, 1 / 3, 2 / 30])
+    d = weights.danish(u, 3.0)
     assert (d[:3] == 1).all() and d[3] == pytest.approx(np.exp(-3)) and d[4] < 1e-40
 
 

@@ -19,7 +19,7 @@ import pytest
 from baarda.adjust import adjust
 from baarda.model.bundle import build_block_problem
 from baarda.simulate import simulate_block
-from baarda.stats import robust
+from baarda.stats import irls, robust, weights
 from baarda.stats.reliability import reliability_of
 
 SEED = 4
@@ -143,15 +143,15 @@ def test_huber_and_danish_return_a_result_on_a_large_error(places, method):
 def test_start_weights_tend_to_the_a_priori_weights():
     """R84 §8: s = s_start^(1 − g) — the start weight at g = 0 (gross errors acting), the a
     priori weight at g = 1; g from the Danish function of the global test's normal score."""
-    start = np.array([1.0, robust.R84_START_NONPHOTO])
-    np.testing.assert_allclose(robust.start_factor(start, 0.0), start)
-    np.testing.assert_allclose(robust.start_factor(start, 1.0), [1.0, 1.0])
-    mid = robust.start_factor(start, 0.5)
+    start = np.array([1.0, irls.R84_START_NONPHOTO])
+    np.testing.assert_allclose(weights.start_factor(start, 0.0), start)
+    np.testing.assert_allclose(weights.start_factor(start, 1.0), [1.0, 1.0])
+    mid = weights.start_factor(start, 0.5)
     assert mid[0] == 1.0 and start[1] < mid[1] < 1.0
     r = 200
-    assert robust.global_score(r, r) == 0.0
-    assert robust.global_score(r + 3 * np.sqrt(2 * r), r) == pytest.approx(3.0)
-    assert robust.danish(robust.global_score(r + 3 * np.sqrt(2 * r), r)) == 1.0
+    assert weights.global_score(r, r) == 0.0
+    assert weights.global_score(r + 3 * np.sqrt(2 * r), r) == pytest.approx(3.0)
+    assert weights.danish(weights.global_score(r + 3 * np.sqrt(2 * r), r)) == 1.0
 
 
 def test_classes_of_r84_section_6():
@@ -174,14 +174,14 @@ def test_a_weight_that_would_leave_unknowns_undetermined_is_floored_and_reported
     p, truth = _block([{**places["control"], "size_base": 3.0}])
     pt = places["control"]["point"]
     mine = [c for c, m in enumerate(p.cov.members) if p.info.ids[m[0]].get("id") == pt]
-    real = robust.adjust
+    real = irls.adjust                     # the reweighting's adjustments (steps 1-2)
 
     def refusing(problem, options=None, x0=None, **kw):
         if problem.n == p.n and any(problem.cov.blocks[c][0, 0] > 1e6 * p.cov.blocks[c][0, 0] for c in mine):
             raise DatumDefectError(3, [f"{pt}.x", f"{pt}.y", f"{pt}.z"])
         return real(problem, options, x0=x0, **kw)
 
-    monkeypatch.setattr(robust, "adjust", refusing)
+    monkeypatch.setattr(irls, "adjust", refusing)
     res = robust.estimate(p, "r84")
     assert res.floored and all(fl["unknowns"] == [pt] for fl in res.floored)
     assert res.floored[-1]["floor"] == pytest.approx(1e-6)
