@@ -38,6 +38,7 @@ INLINE_DROPDOWN = (".choices__list--dropdown, .choices__list[aria-expanded] "
 MOST_ELLIPSES = 400
 
 
+
 class PrecisionMap(MapView):
     """Standard error ellipses from the core's point covariances (σ0 as chosen), exaggerated."""
 
@@ -126,9 +127,9 @@ class PrecisionMap(MapView):
         pts = self.points()
         _, scale, _, _ = self._ellipses()
         if self.free_view():
-            cov, name = sbase_lesson.free_point_cov2(s, []), "free block, all points (inner constraints)"
+            cov, name = sbase_lesson.free_point_cov2(s, []), "free block, all points"
         else:
-            cov, name = s.results.point_cov[:, :2, :2], "the problem's own datum"
+            cov, name = s.results.point_cov[:, :2, :2], "own datum"
         paths, _, _, _ = self._ellipse_paths(cov, scale)
         size = frame_size(pts, geometry.images(s.problem), size=260)
         return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
@@ -139,7 +140,9 @@ class PrecisionMap(MapView):
             **size, **formatters())
 
     def __panel__(self):
-        return pn.Column(self.sbase, self.free, self.note, self._pane, self.far_note, self.compare,
+        # the comparison in a row of its own: a plot in the column beside the map had its frame
+        # aligned with the map's (85 px in, past its 280-px pane: the plot and its title cut)
+        return pn.Column(self.sbase, self.free, self.note, self._pane, self.far_note, pn.Row(self.compare),
                          sizing_mode="stretch_width")
 
     def _ellipses(self):
