@@ -23,7 +23,7 @@ from ..geometry import display_matrix, object_unit
 from ..mapgeometry import ellipse_paths, length_text
 from ..text import fit_title, html_text, id_list, labels, plain
 from .common import STATUS_COLORS, formatters, frame_size
-from .maps import MapView
+from .maps import MapView, point_size
 
 #: The S-base list opens in the page flow (pushing the map down) instead of over the map.
 INLINE_DROPDOWN = (".choices__list--dropdown, .choices__list[aria-expanded] "
@@ -133,7 +133,7 @@ class PrecisionMap(MapView):
         paths, _, _, _ = self._ellipse_paths(cov, scale)
         size = frame_size(pts, geometry.images(s.problem), size=260)
         return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
-                * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=3)).opts(
+                * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=point_size(pts, (3, 3, 1)))).opts(
             # no axes (the map's beside it has them): a 260-px frame's tick labels overlapped
             title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"] - 20, 12), xlabel="", ylabel="",
             toolbar=None, fontsize={"title": "9pt"}, xaxis=None, yaxis=None,
@@ -217,5 +217,5 @@ class PrecisionMap(MapView):
         pts = self.points()
         return hv.Points(pts, ["x", "y"], ["id", "status", "sx_mm", "sy_mm", "sz_mm"]).opts(
             color="sz_mm" if level else "status", cmap="viridis" if level else STATUS_COLORS,
-            colorbar=level, clabel="σ height [mm]", size=9 if len(pts) <= 500 else 4, tools=["hover", "tap"],
+            colorbar=level, clabel="σ height [mm]", size=point_size(pts, (9, 4, 2)), tools=["hover", "tap"],
             nonselection_alpha=1, show_legend=False)
