@@ -330,3 +330,20 @@ def test_planted_colmap_errors_on_the_first_screen_with_their_field():
     # the 2-ray point's image point names its twin in the other image
     twin = df[(df["what"] == "image point") & (df["hypothesis"] == f"{two} in image {ids[two_rows[0]]['image']}")]
     assert len(twin) == 1 and f"image point {two} in image" in twin["cannot be told apart from"].iat[0]
+
+
+def test_test_numbers_behind_more_columns(demo):
+    """Issue 31, item 6: by default the table shows the suspect, its p-value, the decision, what
+    explains it and its twins (it fits its panel at 1600-1920 px); the "more columns" box shows
+    the test's numbers, in the table's data all along."""
+    from baarda.dashboard.views.suspects import MORE, SHOWN
+
+    st, _, _ = demo
+    view = SuspectsView(state=st)
+    assert set(MORE) <= set(view.table.value.columns) and set(view.table.hidden_columns) == set(MORE)
+    shown = [c for c in SHOWN if c not in MORE]
+    assert shown == ["rank", "what", "hypothesis", "p", "decision", "explained by", "cannot be told apart from"]
+    view.more.value = True
+    assert view.table.hidden_columns == []
+    view.more.value = False
+    assert set(view.table.hidden_columns) == set(MORE)
