@@ -113,9 +113,16 @@ def _same(a, b) -> bool:
     return a is b or (isinstance(a, (int, float, str)) and type(a) is type(b) and a == b)
 
 
-def point_size(pts: pd.DataFrame) -> int:
-    """Marker size of the data points: smaller on large blocks, so that they do not merge."""
-    return 12 if len(pts) <= 500 else 6
+#: Above this many points a map's markers are dots (Ladybug's 7,776 points at 4-6 px were one
+#: solid mass on the precision map).
+DENSE_POINTS = 3_000
+
+
+def point_size(pts: pd.DataFrame, sizes: tuple = (12, 6, 2)) -> float:
+    """Marker size of the data points: smaller on large blocks, so that they do not merge —
+    ``sizes`` for at most 500 points, at most :data:`DENSE_POINTS`, and more."""
+    n = len(pts)
+    return sizes[0] if n <= 500 else sizes[1] if n <= DENSE_POINTS else sizes[2]
 
 
 class MapView(pn.viewable.Viewer):
@@ -406,7 +413,7 @@ class LayoutMap(MapView):
 
     def _points(self):
         return hv.Points(self.points(), ["x", "y"], ["id", "status", "n_obs"]).opts(
-            color="status", cmap=STATUS_COLORS, size=10 if len(self.points()) <= 500 else 5,
+            color="status", cmap=STATUS_COLORS, size=point_size(self.points(), (10, 5, 2)),
             tools=["hover", "tap"], line_color="white", nonselection_alpha=1, show_legend=True)
 
     def _ellipse(self):

@@ -23,7 +23,7 @@ from ..geometry import display_matrix, object_unit
 from ..mapgeometry import ellipse_paths, length_text
 from ..text import fit_title, html_text, id_list, labels, plain
 from .common import STATUS_COLORS, formatters, frame_size
-from .maps import MapView
+from .maps import MapView, point_size
 
 #: The S-base list opens in the page flow (pushing the map down) instead of over the map.
 INLINE_DROPDOWN = (".choices__list--dropdown, .choices__list[aria-expanded] "
@@ -36,6 +36,7 @@ INLINE_DROPDOWN = (".choices__list--dropdown, .choices__list[aria-expanded] "
 #: The most ellipses a precision map draws (the largest): thousands (Ladybug's 7,776) overlap
 #: into a solid mass at any scale that shows them (issue 31, item 10).
 MOST_ELLIPSES = 400
+
 
 
 class PrecisionMap(MapView):
@@ -126,20 +127,22 @@ class PrecisionMap(MapView):
         pts = self.points()
         _, scale, _, _ = self._ellipses()
         if self.free_view():
-            cov, name = sbase_lesson.free_point_cov2(s, []), "free block, all points (inner constraints)"
+            cov, name = sbase_lesson.free_point_cov2(s, []), "free block, all points"
         else:
-            cov, name = s.results.point_cov[:, :2, :2], "the problem's own datum"
+            cov, name = s.results.point_cov[:, :2, :2], "own datum"
         paths, _, _, _ = self._ellipse_paths(cov, scale)
         size = frame_size(pts, geometry.images(s.problem), size=260)
         return (hv.Path(paths).opts(color="#7f7f7f", line_width=2)
-                * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=3)).opts(
+                * hv.Points(pts, ["x", "y"], ["id"]).opts(color="#333333", size=point_size(pts, (3, 3, 1)))).opts(
             # no axes (the map's beside it has them): a 260-px frame's tick labels overlapped
             title=fit_title(f"Same scale ×{scale:g}: {name}", size["frame_width"] - 20, 12), xlabel="", ylabel="",
             toolbar=None, fontsize={"title": "9pt"}, xaxis=None, yaxis=None,
             **size, **formatters())
 
     def __panel__(self):
-        return pn.Column(self.sbase, self.free, self.note, self._pane, self.far_note, self.compare,
+        # the comparison in a row of its own: a plot in the column beside the map had its frame
+        # aligned with the map's (85 px in, past its 280-px pane: the plot and its title cut)
+        return pn.Column(self.sbase, self.free, self.note, self._pane, self.far_note, pn.Row(self.compare),
                          sizing_mode="stretch_width")
 
     def _ellipses(self):
@@ -214,5 +217,5 @@ class PrecisionMap(MapView):
         pts = self.points()
         return hv.Points(pts, ["x", "y"], ["id", "status", "sx_mm", "sy_mm", "sz_mm"]).opts(
             color="sz_mm" if level else "status", cmap="viridis" if level else STATUS_COLORS,
-            colorbar=level, clabel="σ height [mm]", size=9 if len(pts) <= 500 else 4, tools=["hover", "tap"],
+            colorbar=level, clabel="σ height [mm]", size=point_size(pts, (9, 4, 2)), tools=["hover", "tap"],
             nonselection_alpha=1, show_legend=False)

@@ -30,7 +30,13 @@ DECISION = HTMLTemplateFormatter(template=(
     '<%= value == "rejected" ? "✗ rejected" : "✓ accepted" %></span>'))
 #: Twins: the "cannot be told apart" note in the warning colour.
 TWINS = HTMLTemplateFormatter(template='<span style="color:#a15c00"><%- value %></span>')
-SHOWN = [c for c in COLUMNS if c not in ("obs", "point", "image")]
+SHOWN = [c for c in COLUMNS if c not in ("obs", "point", "image", "cannot be told apart from")]
+SHOWN.insert(SHOWN.index("explained by") + 1, "cannot be told apart from")
+#: The test's numbers, shown by the "more columns" box: by default the table holds what a
+#: reviewer reads first — the suspect, its p-value, the decision, what explains it and its twins —
+#: and fits its panel at 1600-1920 px (the columns after "decision" needed sideways scrolling,
+#: issue 31, item 6).
+MORE = ["|w|", "|τ|", "T", "k", "q", "MDB ratio", "∇ŝ"]
 #: Cells and headers wrap their text instead of cutting it (issue 31, item 6); a selected row is
 #: light blue with a dark edge, so that the red and green decisions stay readable on it.
 TABLE_CSS = (".tabulator { font-size: 12px; } .tabulator-col-title { font-size: 12px; white-space: normal !important; }"
@@ -66,8 +72,11 @@ class SuspectsView(pn.viewable.Viewer):
                         "p": ScientificFormatter(precision=2, power_limit_low=-2)},
             titles={"rank": "#", "k": "critical k", "∇ŝ": "∇ŝ (estimate)", "MDB ratio": "∇ŝ / ∇0s", "p": "p-value"},
             text_align={c: "right" for c in ("|w|", "|τ|", "T", "k", "q", "MDB ratio", "p")},
-            widths={"rank": 54, "what": 88, "hypothesis": 170, "decision": 92, "explained by": 180,
-                    "∇ŝ": 130, "cannot be told apart from": 200}, frozen_columns=["rank"])
+            widths={"rank": 44, "what": 84, "hypothesis": 150, "p": 76, "decision": 90, "explained by": 130,
+                    "∇ŝ": 130, "cannot be told apart from": 160}, frozen_columns=["rank"], hidden_columns=MORE)
+        self.more = pn.widgets.Checkbox(label="more columns (|w|, |τ|, T, critical k, q, ∇ŝ / ∇0s, ∇ŝ)", value=False,
+                                        css_classes=["suspects-more"])
+        self.more.param.watch(lambda e: setattr(self.table, "hidden_columns", [] if e.new else MORE), "value")
         self.table.param.watch(self._clicked, "selection")
         self.state.param.watch(self._refresh, ["results", "reliability"])
         self._refresh()
@@ -113,7 +122,7 @@ class SuspectsView(pn.viewable.Viewer):
                 + (f"<span style='color:#a15c00'>{twins} cannot be told apart from others</span> "
                    "(their tests are perfectly correlated: the data cannot say which one is wrong). "
                    if twins else "")
-                + "∇ŝ / ∇0s: the estimated error over the smallest one the test finds with power β0. "
+                + "∇ŝ / ∇0s (more columns): the estimated error over the smallest one the test finds with power β0. "
                   "Click a row: it is selected on the maps, in the image view and in the tests table.")
         return text
 
@@ -185,4 +194,4 @@ class SuspectsView(pn.viewable.Viewer):
 
     def __panel__(self):
         return pn.Column(pn.pane.HTML(f"<h3 style='margin:4px 0'>{html_text('Suspects')}</h3>"), self.note,
-                         self.table, sizing_mode="stretch_width")
+                         self.more, self.table, sizing_mode="stretch_width")

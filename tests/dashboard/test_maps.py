@@ -185,3 +185,34 @@ def test_colour_bar_titles_fit_the_shortest_bar(demo_path):
         for t in titles:
             assert "…" not in t and len(t) * 6.3 <= COLORBAR_PX, (V.__name__, t)
         assert min(fig.frame_height, fig.frame_width) >= 260 > COLORBAR_PX
+
+
+def point_marker_sizes(st) -> dict:
+    """Per map, the sizes of the markers drawn at the block's points (a scatter glyph whose
+    source holds one row per point; rings and selections are other glyphs)."""
+    from bokeh.models import GlyphRenderer, Scatter
+
+    n = len(st.problem.points.ids)
+    out = {}
+    for V in MAP_VIEWS:
+        plot = render.figure(V(state=st).dmap)
+        sizes = {r.glyph.size for r in plot.select(GlyphRenderer) if isinstance(r.glyph, Scatter)
+                 and isinstance(r.glyph.size, (int, float)) and len(r.data_source.data.get("id", [])) == n}
+        if sizes:
+            out[V.__name__] = sizes
+    return out
+
+
+def test_point_markers_are_dots_on_big_blocks(ladybug):
+    """Issue 31, item 10: Ladybug's 7,776 point markers at 4-6 px were one solid mass on the
+    precision map; above DENSE_POINTS points they are 2-px dots, a small block keeps its markers."""
+    from baarda.dashboard.views.maps import DENSE_POINTS, point_size
+
+    assert point_size(pd.DataFrame(index=range(500))) == 12
+    assert point_size(pd.DataFrame(index=range(DENSE_POINTS))) == 6
+    assert point_size(pd.DataFrame(index=range(DENSE_POINTS + 1))) == 2
+    big = point_marker_sizes(ladybug)
+    assert len(ladybug.problem.points.ids) > DENSE_POINTS and "PrecisionMap" in big, big
+    assert all(max(s) <= 2 for s in big.values()), big
+    small = point_marker_sizes(State(DEMO))
+    assert "PrecisionMap" in small and all(min(s) >= 9 for s in small.values()), small

@@ -282,3 +282,68 @@ def test_slow_list_shown_untiered_first(demo, monkeypatch):
     monkeypatch.setattr(S, "EARLY_AFTER", 1e9)                          # a fast list: no early call
     S._ranked(st, early=seen.append)
     assert len(seen) == 1
+
+
+# --------------------------------------------------------------------------------------------
+# issue 31, must-show: a real COLMAP block with errors planted by hand
+# --------------------------------------------------------------------------------------------
+def test_planted_colmap_errors_on_the_first_screen_with_their_field():
+    """The real COLMAP model of extdata with two errors planted by hand — 30 px on the x of one
+    image point of a 3-ray point, and ±30 px on one image point of a 2-ray point — each among
+    the first ten suspects, and one click on its row (:meth:`SuspectsView.select`) gives a
+    deformation field (the points' shifts the error causes, :meth:`State.external_field`)."""
+    import dataclasses
+    from collections import Counter
+
+    from baarda.build import read_problem
+    from tests.extdata import EXTDATA, require_extdata
+
+    real = require_extdata(EXTDATA / "colmap" / "test_colmap-sparse0")
+    p = read_problem(real)
+    ids = p.info.ids
+    rays = Counter(d["point"] for d in ids if "image" in d)          # two rows (x, y) per ray
+    three = sorted(pid for pid, c in rays.items() if c == 6)[0]
+    two = sorted(pid for pid, c in rays.items() if c == 4)[0]
+    i3 = next(i for i, d in enumerate(ids) if d.get("point") == three and d.get("component") == "x")
+    two_rows = [i for i, d in enumerate(ids) if d.get("point") == two][:2]   # its first image's x, y
+    l = p.l.copy()
+    l[i3] += 30.0
+    l[two_rows[0]] += 30.0
+    l[two_rows[1]] -= 30.0
+    st = State(problem=dataclasses.replace(p, l=l))
+    assert st.error == "" and st.results is not None, st.error
+    view = SuspectsView(state=st)
+    df = view.frame()
+    top = df[df["rank"] <= 10]
+    planted = {"image point (3 rays)": {i3}, "2-ray image point": set(two_rows)}
+    sets = rows_of(st, top)
+    for kind, rows in planted.items():
+        hits = [k for k, s in enumerate(sets) if s and s <= rows]
+        assert hits, f"planted {kind} {sorted(rows)} not in the first ten: {top[['what', 'hypothesis']]}"
+        row = top.iloc[hits[0]]
+        assert row["decision"] == "rejected"
+        st.param.update(selected_obs=None, selected_point=None)
+        view.select(row)
+        assert st.selected_obs in rows
+        label, shifts = st.external_field()
+        assert label == f"obs {st.selected_obs}" and np.abs(shifts).max() > 0, kind
+    # the 2-ray point's image point names its twin in the other image
+    twin = df[(df["what"] == "image point") & (df["hypothesis"] == f"{two} in image {ids[two_rows[0]]['image']}")]
+    assert len(twin) == 1 and f"image point {two} in image" in twin["cannot be told apart from"].iat[0]
+
+
+def test_test_numbers_behind_more_columns(demo):
+    """Issue 31, item 6: by default the table shows the suspect, its p-value, the decision, what
+    explains it and its twins (it fits its panel at 1600-1920 px); the "more columns" box shows
+    the test's numbers, in the table's data all along."""
+    from baarda.dashboard.views.suspects import MORE, SHOWN
+
+    st, _, _ = demo
+    view = SuspectsView(state=st)
+    assert set(MORE) <= set(view.table.value.columns) and set(view.table.hidden_columns) == set(MORE)
+    shown = [c for c in SHOWN if c not in MORE]
+    assert shown == ["rank", "what", "hypothesis", "p", "decision", "explained by", "cannot be told apart from"]
+    view.more.value = True
+    assert view.table.hidden_columns == []
+    view.more.value = False
+    assert set(view.table.hidden_columns) == set(MORE)
