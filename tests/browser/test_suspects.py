@@ -14,7 +14,7 @@ import json
 import re
 
 import pytest
-from playwright.sync_api import expect
+from playwright.sync_api import Error as PlaywrightError, expect
 
 from baarda.dashboard import geometry
 from tests.browser.conftest import ROOT
@@ -40,8 +40,11 @@ def suspect_row(page, text):
     holder = page.locator(".suspects-table .tabulator-tableholder").first
     for _ in range(60):
         if cells.count():
-            cells.first.scroll_into_view_if_needed()
-            return cells.first
+            try:
+                cells.first.scroll_into_view_if_needed(timeout=10_000)
+                return cells.first
+            except PlaywrightError:       # the list was replaced meanwhile (the tiered after the quick one)
+                continue
         # scroll a screen down; at the end of the list nothing moves and the row is not there
         before = holder.evaluate("(el) => el.innerText")
         moved = holder.evaluate("(el) => { const t = el.scrollTop; el.scrollTop += el.clientHeight * 0.8;"
