@@ -148,6 +148,14 @@ def _analyze(args) -> int:
     adj.timings["reliability"] = time.perf_counter() - t1
     analysis._add_extras(doc, extras)
     doc["summary"]["timings"] = {k: round(v, 6) for k, v in adj.timings.items()}
+    _write_outputs(args, adj, doc)
+    if not args.quiet:
+        print(analysis.text(top=args.top, extras=extras))
+    return _convergence_status(args.input, adj)
+
+
+def _write_outputs(args, adj, doc) -> None:
+    """The files ``baarda analyze`` was asked for (--json, --csv, --parquet, --geojson) of ``adj``."""
     if args.json:
         results.write_json(adj, args.json, doc)
     if args.csv:
@@ -156,9 +164,6 @@ def _analyze(args) -> int:
         results.write_parquet(adj, args.parquet, doc)
     if args.geojson:
         write_geojson(adj, args.geojson)
-    if not args.quiet:
-        print(analysis.text(top=args.top, extras=extras))
-    return _convergence_status(args.input, adj)
 
 
 def _diverged(args, analysis, err, extras=None) -> int:
@@ -207,14 +212,7 @@ def _diverged(args, analysis, err, extras=None) -> int:
     if extras is not None and extras.truth is not None:
         planted = analysis.planted(extras.truth, robust=rob, final=final)
         doc["planted"] = results.finite(planted)
-    if args.json:
-        results.write_json(final, args.json, doc)
-    if args.csv:
-        results.write_csv(final, args.csv, doc)
-    if args.parquet:
-        results.write_parquet(final, args.parquet, doc)
-    if args.geojson:
-        write_geojson(final, args.geojson)
+    _write_outputs(args, final, doc)
     if not args.quiet:
         print(summary_text.text_summary(final, top=args.top))
         print("\n".join(robust_lines(rob, planted)))
